@@ -1,0 +1,66 @@
+"""Command line: ``python -m metro_atc {run,bench,train} ...``.
+
+- ``run``: bring the node graph up as separate OS processes (or one, ``--single-process``),
+  run a scenario to its end, tear everything down and print KPIs.
+- ``bench NAME``: the reproductions and benchmarks (``bench --list`` names them).
+- ``train {aoc,dhp}``: train the ATR critic/actor networks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import sys
+from typing import Sequence
+
+BENCHES = {
+    "perf": "metro_atc.bench.perf",
+    "regulator-synthesis": "metro_atc.bench.regulator_synthesis",
+    "regulation": "metro_atc.bench.regulation",
+    "mmas": "metro_atc.bench.mmas",
+    "profiles": "metro_atc.bench.profiles",
+    "thsr": "metro_atc.bench.thsr",
+    "ukf": "metro_atc.bench.ukf",
+}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Dispatch the sub-commands; return the process exit code."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    if not args or args[0] in ("-h", "--help"):
+        print(__doc__.strip())
+        print("\nusage: python -m metro_atc {run,bench,train} [options]   (-h after each)")
+        return 0 if args else 2
+    cmd, rest = args[0], args[1:]
+    if cmd == "run":
+        from metro_atc.launcher import main as run_main
+        return run_main(rest)
+    if cmd == "bench":
+        return _bench(rest)
+    if cmd == "train":
+        try:
+            mod = importlib.import_module("metro_atc.atr_train")
+        except ModuleNotFoundError:
+            print("metro_atc train: the ATR training module is not available", file=sys.stderr)
+            return 2
+        return int(mod.main(rest))
+    print(f"metro_atc: unknown command '{cmd}' (expected run, bench or train)", file=sys.stderr)
+    return 2
+
+
+def _bench(rest: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m metro_atc bench", add_help=False)
+    parser.add_argument("name", nargs="?")
+    parser.add_argument("--list", action="store_true")
+    known, tail = parser.parse_known_args(rest)
+    available = {k: v for k, v in BENCHES.items() if importlib.util.find_spec(v) is not None}
+    if known.list or not known.name:
+        print("benchmarks: " + ", ".join(sorted(available)))
+        return 0 if known.list else 2
+    if known.name not in available:
+        print(f"metro_atc bench: unknown benchmark '{known.name}' "
+              f"(known: {', '.join(sorted(available))})", file=sys.stderr)
+        return 2
+    mod = importlib.import_module(available[known.name])
+    return int(mod.main(tail))

@@ -1,0 +1,1 @@
+"""ROS-free algorithm and physics cores (numpy / scipy / torch only)."""

@@ -1,0 +1,1 @@
+"""The metro line plant: vehicle dynamics, track, ATP, passengers, sensors (ROS-free)."""

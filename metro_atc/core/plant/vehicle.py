@@ -1,0 +1,271 @@
+"""Train longitudinal model: resistance, traction/brake effort and RK4 integration.
+
+All quantities SI: position [m], speed [m/s], force [N], mass [kg], acceleration [m/s^2].
+Functions are vectorised over trains (numpy arrays broadcast).
+
+References
+----------
+- Running resistance: Davis form ``F_r(v) = A + B v + C v^2`` (seed 002 eq. 1); the
+  Taipei MRT deceleration ``phi_r(v) = 0.020084 + 5.04e-4 v + 4.774e-5 v^2`` (seed 002
+  eq. 2, SI, v in m/s).  Eq. 1 is garbled in the extraction; it equals eq. 2 times the train
+  mass (the extracted digits are consistent with M ~ 214 t), so we build F_r from eq. 2.
+- Traction characteristic (seed 002 eq. 3-5): constant-torque ``phi_1 = a_1``,
+  constant-voltage ``phi_2 = a_2 / (v + b_2)``, constant-power ``phi_3 = a_3 / (v + b_3)^2``
+  (reconstructed from the garbled extraction; a_2, a_3 follow from continuity at the
+  region boundaries v_1, v_2).
+- RK4 integration of Newton's law (seed 004).
+- Accel/decel +-1.0 m/s^2, jerk +-1.0 m/s^3 (seed 001).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+G_MPS2 = 9.80665
+"""Standard gravity [m/s^2]."""
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class TrainParams:
+    """Parameters of one train (consist).
+
+    Defaults: a Taipei MRT 6-car train (seed 002 eq. 2 resistance; traction figures are
+    estimates giving ~1.0 m/s^2 starting acceleration, seed 001).
+    """
+
+    mass_kg: float = 214_000.0
+    """Total mass incl. nominal load [kg] (seed 002 eq. 1/2 consistency, estimate)."""
+    rotary_allowance: float = 0.08
+    """Rotating-mass allowance lambda: effective mass = m (1 + lambda) [-] (estimate)."""
+    davis_a_n: float = 0.020084 * 214_000.0
+    """Davis constant term A [N] (seed 002 eq. 2 times mass)."""
+    davis_b_n_per_mps: float = 5.04e-4 * 214_000.0
+    """Davis linear term B [N/(m/s)] (seed 002 eq. 2 times mass)."""
+    davis_c_n_per_mps2: float = 4.774e-5 * 214_000.0
+    """Davis quadratic term C [N/(m/s)^2] (seed 002 eq. 2 times mass)."""
+    a1_mps2: float = 1.0
+    """Constant-torque acceleration a_1 [m/s^2] (seed 002 eq. 3; seed 001 limit 1.0)."""
+    v1_mps: float = 36.0 / 3.6
+    """End of the constant-torque region [m/s] (estimate)."""
+    v2_mps: float = 60.0 / 3.6
+    """End of the constant-voltage region [m/s] (estimate)."""
+    b2_mps: float = 0.0
+    """Constant b_2 of seed 002 eq. 4 [m/s]."""
+    b3_mps: float = 0.0
+    """Constant b_3 of seed 002 eq. 5 [m/s]."""
+    max_service_brake_mps2: float = 1.0
+    """Maximum service braking deceleration [m/s^2] (seed 001)."""
+    emergency_brake_mps2: float = 1.2
+    """Guaranteed emergency braking deceleration [m/s^2] (estimate, used by ATP)."""
+    max_jerk_mps3: float = 1.0
+    """Jerk limit [m/s^3] (seed 001)."""
+    max_speed_mps: float = 80.0 / 3.6
+    """Design maximum speed [m/s]."""
+    length_m: float = 141.0
+    """Train length [m] (6 cars x ~23.5 m, estimate)."""
+    # ---- extensions for the line plant (issue 3); all have defaults ----
+    cars: int = 6
+    """Number of cars in the consist [-]."""
+    axles_per_car: int = 4
+    """Axles per car [-] (two 2-axle bogies)."""
+    motored_axle_fraction: float = 0.5
+    """Fraction of axles that are motored (electric brake / traction) [-] (estimate)."""
+    emergency_brake_actual_mps2: float = 1.4
+    """Nominal (not guaranteed) full friction emergency-brake deceleration [m/s^2] on a
+    healthy train on dry rail (estimate; ATP only relies on ``emergency_brake_mps2``)."""
+    emergency_jerk_mps3: float = 6.0
+    """Rate at which the emergency brake builds up [m/s^3] (estimate, ~0.4 s build-up)."""
+    max_regen_power_w: float = 2.4e6
+    """Maximum electric (regenerative) braking power at the wheel [W] (estimate)."""
+    regen_fade_speed_mps: float = 5.0 / 3.6
+    """Below this speed the electric brake fades out linearly to zero [m/s] (estimate)."""
+    wheel_radius_m: float = 0.43
+    """Wheel rolling radius r_w [m] (860 mm wheel, estimate)."""
+    wheel_inertia_kgm2: float = 120.0
+    """Moment of inertia of one wheelset incl. brake discs J_w [kg m^2] (estimate)."""
+    brake_radius_m: float = 0.25
+    """Effective disc-pad friction radius R_b [m] (estimate)."""
+    pad_mu_nominal: float = 0.35
+    """Nominal disk-pad friction coefficient mu_b [-] (estimate; seed 000 2nd paper uses 0.38)."""
+    nominal_load_pax: float = 1000.0
+    """Passenger load already included in ``mass_kg`` [persons] (estimate)."""
+    capacity_pax: float = 1900.0
+    """Crush-load capacity [persons] (Taipei C301-class 6-car, estimate)."""
+    pax_mass_kg: float = 65.0
+    """Mass of one passenger [kg] (estimate)."""
+    traction_efficiency: float = 0.85
+    """Substation-to-wheel efficiency in traction [-] (estimate)."""
+    regen_efficiency: float = 0.80
+    """Wheel-to-line efficiency of regenerative braking [-] (estimate)."""
+    aux_power_w: float = 150e3
+    """Auxiliary (HVAC, lighting) power drawn while in service [W] (estimate)."""
+
+    @property
+    def effective_mass_kg(self) -> float:
+        """Mass including the rotating-mass allowance [kg]."""
+        return self.mass_kg * (1.0 + self.rotary_allowance)
+
+    @property
+    def a2(self) -> float:
+        """Constant a_2 of seed 002 eq. 4 [m^2/s^3], from continuity at v_1."""
+        return self.a1_mps2 * (self.v1_mps + self.b2_mps)
+
+    @property
+    def a3(self) -> float:
+        """Constant a_3 of seed 002 eq. 5 [m^3/s^4], from continuity at v_2."""
+        phi2_v2 = self.a2 / (self.v2_mps + self.b2_mps)
+        return phi2_v2 * (self.v2_mps + self.b3_mps) ** 2
+
+
+def resistance_force(p: TrainParams, v: ArrayLike) -> FloatArray:
+    """Davis running resistance F_r(v) [N] for speed v [m/s] >= 0 (seed 002 eq. 1-2)."""
+    va = np.abs(np.asarray(v, dtype=float))
+    return p.davis_a_n + p.davis_b_n_per_mps * va + p.davis_c_n_per_mps2 * va * va
+
+
+def max_traction_accel(p: TrainParams, v: ArrayLike) -> FloatArray:
+    """Maximum tractive acceleration phi_psi(v) [m/s^2] (seed 002 eq. 3-5).
+
+    Acceleration here is tractive force divided by the *static* mass, as in seed 002.
+    """
+    va = np.abs(np.asarray(v, dtype=float))
+    phi1 = np.full_like(va, p.a1_mps2)
+    phi2 = p.a2 / (va + p.b2_mps + 1e-12)
+    phi3 = p.a3 / (va + p.b3_mps + 1e-12) ** 2
+    return np.where(va <= p.v1_mps, phi1, np.where(va <= p.v2_mps, phi2, phi3))
+
+
+def max_traction_force(p: TrainParams, v: ArrayLike) -> FloatArray:
+    """Maximum tractive force [N] at speed v [m/s] (seed 002 eq. 3-5 times mass)."""
+    return p.mass_kg * max_traction_accel(p, v)
+
+
+def grade_force(p: TrainParams, grade: ArrayLike) -> FloatArray:
+    """Gravity force along the track [N]; grade = rise/run (positive uphill) [-]."""
+    g = np.asarray(grade, dtype=float)
+    return p.mass_kg * G_MPS2 * np.sin(np.arctan(g))
+
+
+def effort_force(p: TrainParams, v: ArrayLike, u: ArrayLike) -> FloatArray:
+    """Traction/brake effort [N] for a normalised command u in [-1, 1].
+
+    u > 0: fraction of the maximum tractive force at v; u < 0: fraction of the maximum
+    service braking force ``m * max_service_brake``.
+    """
+    ua = np.clip(np.asarray(u, dtype=float), -1.0, 1.0)
+    trac = ua * max_traction_force(p, v)
+    brake = ua * p.mass_kg * p.max_service_brake_mps2
+    return np.where(ua >= 0.0, trac, brake)
+
+
+def net_accel(p: TrainParams, v: ArrayLike, effort_n: ArrayLike,
+              grade: ArrayLike) -> FloatArray:
+    """Acceleration dv/dt [m/s^2] from effort [N], resistance and grade (Newton's law).
+
+    Resistance always opposes motion; at standstill it cannot exceed the other forces
+    (static case handled by the integrator clamping v >= 0).
+    """
+    va = np.asarray(v, dtype=float)
+    f = np.asarray(effort_n, dtype=float) - np.sign(va) * resistance_force(p, va) \
+        - grade_force(p, grade)
+    return f / p.effective_mass_kg
+
+
+def rk4_step(p: TrainParams, x: ArrayLike, v: ArrayLike, effort_n: ArrayLike,
+             grade: ArrayLike, dt: float) -> tuple[FloatArray, FloatArray]:
+    """Advance (x [m], v [m/s]) by dt [s] with RK4 at constant effort and grade (seed 004).
+
+    Speed is clamped at zero (a braked/coasting train does not roll backwards here).
+    """
+    x0 = np.asarray(x, dtype=float)
+    v0 = np.asarray(v, dtype=float)
+
+    def f(vv: FloatArray) -> FloatArray:
+        return net_accel(p, np.maximum(vv, 0.0), effort_n, grade)
+
+    k1v = f(v0)
+    k1x = v0
+    k2v = f(v0 + 0.5 * dt * k1v)
+    k2x = v0 + 0.5 * dt * k1v
+    k3v = f(v0 + 0.5 * dt * k2v)
+    k3x = v0 + 0.5 * dt * k2v
+    k4v = f(v0 + dt * k3v)
+    k4x = v0 + dt * k3v
+    v1 = v0 + dt / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v)
+    x1 = x0 + dt / 6.0 * (k1x + 2 * k2x + 2 * k3x + k4x)
+    stopped = v1 < 0.0
+    v1 = np.where(stopped, 0.0, v1)
+    x1 = np.where(stopped, np.maximum(x0, x1), x1)
+    return x1, v1
+
+
+@dataclass(frozen=True)
+class Track:
+    """Piecewise-constant track properties along the line chainage x [m].
+
+    ``grade_starts_m[i]`` begins a segment of grade ``grades[i]`` (rise/run, +uphill) that
+    runs to the next start; same for speed limits [m/s].  The first start must be <= 0.
+    """
+
+    grade_starts_m: FloatArray
+    grades: FloatArray
+    limit_starts_m: FloatArray
+    limits_mps: FloatArray
+
+    def grade_at(self, x: ArrayLike) -> FloatArray:
+        """Grade [-] at chainage x [m] (vectorised)."""
+        i = np.searchsorted(self.grade_starts_m, np.asarray(x, dtype=float), side="right") - 1
+        return self.grades[np.clip(i, 0, len(self.grades) - 1)]
+
+    def limit_at(self, x: ArrayLike) -> FloatArray:
+        """Permanent speed limit [m/s] at chainage x [m] (vectorised)."""
+        i = np.searchsorted(self.limit_starts_m, np.asarray(x, dtype=float), side="right") - 1
+        return self.limits_mps[np.clip(i, 0, len(self.limits_mps) - 1)]
+
+    @staticmethod
+    def flat(limit_mps: float) -> "Track":
+        """A level track with one speed limit [m/s]."""
+        return Track(np.array([-1e12]), np.array([0.0]),
+                     np.array([-1e12]), np.array([float(limit_mps)]))
+
+
+TAIPEI_MRT_6CAR = TrainParams()
+"""Taipei MRT 6-car train (seed 002 eq. 2 resistance; traction/brake per seed 001; estimates
+as documented on :class:`TrainParams`)."""
+
+_THSR_MASS_KG = 576_000.0
+_THSR_POWER_W = 10_260_000.0
+_THSR_ACCEL_MPS2 = 2.0 / 3.6
+
+THSR_700T = TrainParams(
+    mass_kg=_THSR_MASS_KG,  # seed 004 Table 4: 576 t loaded
+    rotary_allowance=0.04,  # estimate (not in seed 004)
+    davis_a_n=0.0012 * _THSR_MASS_KG * G_MPS2,  # estimate: 1.2 N/kN rolling resistance
+    davis_b_n_per_mps=0.0,  # not given in seed 004
+    davis_c_n_per_mps2=0.5 * 1.17 * 0.31 * 64.0,  # seed 004: F_D 0.31, 64 m^2, 1.17 kg/m^3
+    a1_mps2=_THSR_ACCEL_MPS2,  # seed 004 Table 4: max accel 2 km/h/s
+    v1_mps=_THSR_POWER_W / (_THSR_MASS_KG * _THSR_ACCEL_MPS2),  # constant power beyond
+    v2_mps=1e9,  # seed 004 gives one constant-power region (10 260 kW) up to 300 km/h
+    max_service_brake_mps2=_THSR_ACCEL_MPS2,  # seed 004: same limit for deceleration
+    emergency_brake_mps2=0.9,  # estimate
+    max_jerk_mps3=1.0,
+    max_speed_mps=300.0 / 3.6,  # seed 004 Table 4
+    length_m=304.0,  # 12 cars (estimate from car length ~25 m)
+    cars=12,  # seed 004 text: 12-car trainset
+    motored_axle_fraction=0.75,  # 700T: 9 motor cars of 12 (estimate from public data)
+    emergency_brake_actual_mps2=1.1,  # estimate
+    max_regen_power_w=10_260_000.0,  # assume regen up to the rated traction power
+    wheel_radius_m=0.43,  # estimate
+    wheel_inertia_kgm2=150.0,  # estimate
+    brake_radius_m=0.24,  # estimate
+    nominal_load_pax=989.0,  # seed 004 text: 989 seats; 576 t is the loaded mass
+    capacity_pax=1200.0,  # estimate (seats + standees)
+    pax_mass_kg=73.812,  # seed 004 Table 4
+    aux_power_w=400e3,  # estimate
+)
+"""THSR 700T 12-car trainset (seed 004 Table 4; estimates marked)."""

@@ -1,0 +1,188 @@
+"""Shared node plumbing: QoS profiles, parameter declaration, process entry points.
+
+QoS per topic (see README topic map):
+
+- commands and events: reliable, volatile (events transient-local so a restarted ATS
+  rebuilds its state from the history);
+- timetable / departure commands / profiles / line status: reliable, transient-local, so late
+  joiners and restarted nodes catch up;
+- high-rate sensor data: best-effort, keep-last.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+from typing import Any, Callable, Iterable, Sequence
+
+import rclpy
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType)
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+
+QOS_RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
+                          reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.VOLATILE)
+"""Commands and per-step states: every sample matters, no history for late joiners."""
+
+QOS_LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+"""Latest-value topics (departure command, speed profile, line status): late joiners catch up."""
+
+QOS_EVENTS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10000,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+"""Train events: reliable with a deep transient-local history (restarted ATS replays it)."""
+
+QOS_SENSOR = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=20,
+                        reliability=ReliabilityPolicy.BEST_EFFORT,
+                        durability=DurabilityPolicy.VOLATILE)
+"""High-rate sensor data: best effort, a lost sample is replaced by the next one."""
+
+QOS_CLOCK = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                       reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE)
+"""/clock: matches rclpy's best-effort and reliable clock subscribers."""
+
+
+def dds_defaults() -> None:
+    """Apply the project's DDS defaults unless the user set them (loopback discovery)."""
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+
+def declare(node: Node, name: str, default: Any, description: str,
+            lo: float | int | None = None, hi: float | int | None = None,
+            step: float | int | None = None, read_only: bool = False) -> Any:
+    """Declare a parameter with a descriptor (description and range); return its value.
+
+    Integer and float ranges are enforced by rclpy: an out-of-range value given with
+    ``-p`` or ``--params-file`` makes the declaration fail with a message naming it.
+    """
+    desc = ParameterDescriptor(description=description, read_only=read_only)
+    if isinstance(default, bool):
+        desc.type = ParameterType.PARAMETER_BOOL
+    elif isinstance(default, int):
+        desc.type = ParameterType.PARAMETER_INTEGER
+        if lo is not None and hi is not None:
+            desc.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi),
+                                               step=int(step or 1) if step else 0)]
+    elif isinstance(default, float):
+        desc.type = ParameterType.PARAMETER_DOUBLE
+        if lo is not None and hi is not None:
+            desc.floating_point_range = [FloatingPointRange(
+                from_value=float(lo), to_value=float(hi), step=float(step or 0.0))]
+    elif isinstance(default, str):
+        desc.type = ParameterType.PARAMETER_STRING
+    elif isinstance(default, list):
+        desc.type = ParameterType.PARAMETER_STRING_ARRAY
+    return node.declare_parameter(name, default, desc).value
+
+
+class NodeConfigError(RuntimeError):
+    """A node cannot start because of its configuration (one clear line for the user)."""
+
+
+def run_nodes(factory: Callable[[], Sequence[Node]],
+              loop: Callable[[SingleThreadedExecutor, Sequence[Node]], None] | None = None,
+              args: Iterable[str] | None = None) -> int:
+    """Init rclpy, build nodes, spin a SingleThreadedExecutor, exit cleanly on SIGINT/SIGTERM.
+
+    Configuration errors (bad scenario, out-of-range parameter) print one line and return 2.
+    """
+    dds_defaults()
+    argv = list(args) if args is not None else sys.argv
+    name = os.path.basename(argv[0]) if argv else "node"
+    problem = check_params_files(argv)
+    if problem:
+        print(f"{name}: error: {problem}", file=sys.stderr)
+        return 2
+    try:
+        rclpy.init(args=argv)
+    except RuntimeError as exc:
+        print(f"{name}: error: {_one_line(exc).split(', at /')[0]}", file=sys.stderr)
+        return 2
+    signal.signal(signal.SIGTERM, lambda *_: _raise_keyboard_interrupt())
+    nodes: Sequence[Node] = ()
+    code = 0
+    try:
+        try:
+            nodes = factory()
+        except (NodeConfigError, ParameterException, ValueError, TypeError) as exc:
+            print(f"{name}: error: {_one_line(exc)}", file=sys.stderr)
+            return 2
+        executor = SingleThreadedExecutor()
+        for n in nodes:
+            executor.add_node(n)
+        if loop is not None:
+            loop(executor, nodes)
+        else:
+            executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        code = 0
+    finally:
+        for n in nodes:
+            close = getattr(n, "close", None)
+            if callable(close):
+                try:
+                    close()
+                except Exception as exc:  # noqa: BLE001 - best effort at shutdown
+                    print(f"shutdown: {exc}", file=sys.stderr)
+            n.destroy_node()
+        if rclpy.ok():
+            rclpy.try_shutdown()
+    return code
+
+
+def check_params_files(argv: Sequence[str]) -> str | None:
+    """Validate every ``--params-file`` of a ROS argument list; return one error line or None.
+
+    Checks that the file exists, is YAML, and has the ROS layout
+    ``<node name or /**>: {ros__parameters: {...}}``.
+    """
+    import yaml
+
+    for i, a in enumerate(argv):
+        if a != "--params-file":
+            continue
+        if i + 1 >= len(argv):
+            return "--params-file needs a file path"
+        path = argv[i + 1]
+        try:
+            with open(path, encoding="utf-8") as fh:
+                doc = yaml.safe_load(fh)
+        except OSError as exc:
+            return f"params file {path}: cannot read: {exc.strerror}"
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            where = f" (line {mark.line + 1})" if mark is not None else ""
+            return f"params file {path}: not valid YAML{where}: {getattr(exc, 'problem', exc)}"
+        if not isinstance(doc, dict):
+            return (f"params file {path}: expected a mapping of node names, "
+                    f"got {type(doc).__name__}")
+        for key, val in doc.items():
+            if not isinstance(val, dict) or "ros__parameters" not in _flatten_ns(val):
+                return (f"params file {path}: '{key}': expected "
+                        f"'{key}: {{ros__parameters: {{...}}}}'")
+    return None
+
+
+def _flatten_ns(val: dict) -> dict:
+    """Descend through nested namespace keys until ``ros__parameters`` (ROS layout)."""
+    cur = val
+    while isinstance(cur, dict) and "ros__parameters" not in cur and len(cur) == 1:
+        cur = next(iter(cur.values()))
+    return cur if isinstance(cur, dict) else {}
+
+
+def _raise_keyboard_interrupt() -> None:
+    raise KeyboardInterrupt
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__

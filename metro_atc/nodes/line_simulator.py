@@ -1,0 +1,278 @@
+"""line_simulator node: the metro line plant, ATP and the simulation clock.
+
+Publishes ``/clock``, per-train ``/<train>/state`` (every lockstep step),
+``/<train>/brake_sensors`` (best effort), ``/line/events`` and ``/line/status``; subscribes
+to ``/<train>/command`` (ATO traction/brake) and ``/<train>/departure_command`` (ATS).
+
+Lockstep (default): step k -> k+1 happens only once every active train's command for step
+k has arrived; on ``step_timeout_s`` the last command is applied (ATP still supervises), the
+miss is counted and a warning logged. Free-run: steps are paced at ``real_time_factor``.
+The physics, ATP and KPIs are the ROS-free :class:`metro_atc.core.plant.line.LineSim`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from functools import partial
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+from metro_atc_msgs.msg import (BrakeSensorData, DepartureCommand, LineStatus, TractionCommand,
+                                TrainEvent, TrainState)
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
+
+from metro_atc.core.plant.line import LineSim
+from metro_atc.core.plant.scenario import ScenarioError, load_scenario
+from metro_atc.nodes import conversions as conv
+from metro_atc.nodes.common import (QOS_CLOCK, QOS_EVENTS, QOS_LATCHED, QOS_RELIABLE, QOS_SENSOR,
+                                    NodeConfigError, declare, run_nodes)
+
+
+class LineSimulator(Node):
+    """The plant node (see module docstring)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        """Declare parameters, load the scenario, create the publishers and subscriptions."""
+        super().__init__("line_simulator", **kwargs)
+        self.scenario_name = declare(self, "scenario", "taipei_blue",
+                                     "embedded scenario name or path to a scenario YAML")
+        self.seed = declare(self, "seed", 0, "random seed of disturbances and noise",
+                            0, 2**31 - 1)
+        self.lockstep = declare(self, "lockstep", True,
+                                "deterministic lockstep (true) or free-run at real_time_factor")
+        self.rtf = declare(self, "real_time_factor", 10.0,
+                           "free-run pacing: simulated seconds per wall second", 0.01, 10000.0)
+        self.step_timeout_s = declare(self, "step_timeout_s", 2.0,
+                                      "lockstep: wall time to wait for all commands [s]",
+                                      0.01, 600.0)
+        self.startup_timeout_s = declare(self, "startup_timeout_s", 60.0,
+                                         "wall time to wait for ATO/ATS discovery [s]",
+                                         0.0, 3600.0)
+        self.max_sim_time_s = declare(self, "max_sim_time_s", 0.0,
+                                      "stop after this simulated time [s]; 0: scenario end",
+                                      0.0, 1e7)
+        self.out_dir = declare(self, "out_dir", "",
+                               "directory for kpis.json, events.csv and plots ('' : none)")
+        self.plots = declare(self, "plots", True, "write PNG plots into out_dir")
+        self.exit_on_finish = declare(self, "exit_on_finish", True,
+                                      "shut the node down when the scenario ends")
+        self.status_period_s = declare(self, "status_period_s", 1.0,
+                                       "simulated time between /line/status messages [s]",
+                                       0.01, 3600.0)
+        try:
+            scn = load_scenario(self.scenario_name)
+        except ScenarioError as exc:
+            raise NodeConfigError(str(exc)) from None
+        self.sim = LineSim(scn, seed=int(self.seed))
+        self.ids: list[str] = list(self.sim.train_ids)
+        self.index = {tid: i for i, tid in enumerate(self.ids)}
+        n = len(self.ids)
+        self.k = 0
+        self.cmd_step = np.full(n, -1, dtype=np.int64)
+        self.cmd_effort = np.full(n, np.nan)
+        self.lockstep_misses = 0
+        self.rejected = 0
+        self.event_seq = np.zeros(n, dtype=np.int64)
+        self._last_warn = 0.0
+        self._next_status_t = 0.0
+        self.finished = False
+
+        self.clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK)
+        self.event_pub = self.create_publisher(TrainEvent, "/line/events", QOS_EVENTS)
+        self.status_pub = self.create_publisher(LineStatus, "/line/status", QOS_LATCHED)
+        self.state_pubs = [self.create_publisher(TrainState, f"/{t}/state", QOS_RELIABLE)
+                           for t in self.ids]
+        self.sensor_pubs = [self.create_publisher(BrakeSensorData, f"/{t}/brake_sensors",
+                                                  QOS_SENSOR) for t in self.ids]
+        self.cmd_subs = [self.create_subscription(
+            TractionCommand, f"/{t}/command", partial(self._on_command, i), QOS_RELIABLE)
+            for i, t in enumerate(self.ids)]
+        self.dep_subs = [self.create_subscription(
+            DepartureCommand, f"/{t}/departure_command", partial(self._on_departure, i),
+            QOS_LATCHED) for i, t in enumerate(self.ids)]
+        self.get_logger().info(
+            f"scenario '{self.scenario_name}': {n} trains, {len(self.sim.station_names)} "
+            f"stations, control period {self.sim.control_period_s} s, "
+            f"{'lockstep' if self.lockstep else f'free-run x{self.rtf}'}")
+
+    # ------------------------------------------------------------------ inputs
+    def _warn_rate_limited(self, text: str) -> None:
+        now = time.monotonic()
+        if now - self._last_warn > 1.0:
+            self._last_warn = now
+            self.get_logger().warning(text)
+
+    def _on_command(self, i: int, msg: TractionCommand) -> None:
+        topic = f"/{self.ids[i]}/command"
+        try:
+            if msg.train_id and msg.train_id != self.ids[i]:
+                raise conv.MessageRejected(f"{topic}: train_id '{msg.train_id}' does not "
+                                           f"match the topic")
+            step, effort = conv.traction_from_msg(msg, topic)
+        except conv.MessageRejected as exc:
+            self.rejected += 1
+            self._warn_rate_limited(f"rejected command: {exc}")
+            return
+        if step < self.k:
+            return  # stale duplicate from an earlier step
+        self.cmd_step[i] = step
+        self.cmd_effort[i] = effort
+
+    def _on_departure(self, i: int, msg: DepartureCommand) -> None:
+        topic = f"/{self.ids[i]}/departure_command"
+        try:
+            if msg.train_id and msg.train_id != self.ids[i]:
+                raise conv.MessageRejected(f"{topic}: train_id '{msg.train_id}' does not "
+                                           f"match the topic")
+            st, dep, run, dwell = conv.departure_from_msg(msg, topic,
+                                                          len(self.sim.station_names))
+            self.sim.set_departure(i, st, dep, run, dwell)
+        except (conv.MessageRejected, ValueError) as exc:
+            self.rejected += 1
+            self._warn_rate_limited(f"rejected departure command: {exc}")
+
+    # ------------------------------------------------------------------ stepping
+    def graph_ready(self) -> bool:
+        """Every train has an ATO subscribed to its state and publishing commands."""
+        return all(p.get_subscription_count() > 0 for p in self.state_pubs) and \
+            all(s.get_publisher_count() > 0 for s in self.cmd_subs) and \
+            all(s.get_publisher_count() > 0 for s in self.dep_subs)
+
+    def publish_step(self) -> np.ndarray:
+        """Publish /clock and the states of step k; return the active mask."""
+        t = float(self.sim.t)
+        self.clock_pub.publish(conv.clock_msg(t))
+        active = np.asarray(self.sim.active_mask(), dtype=bool)
+        for i, m in conv.state_msgs(self.ids, np.flatnonzero(active), self.sim.states(),
+                                    self.k, t):
+            self.state_pubs[i].publish(m)
+        return active
+
+    def commands_complete(self, active: np.ndarray) -> bool:
+        """All active trains sent their command for step k."""
+        return bool(np.all(self.cmd_step[active] >= self.k))
+
+    def advance(self, active: np.ndarray, timed_out: bool) -> None:
+        """Apply the commands, step the core and publish its outputs."""
+        if timed_out:
+            missing = [self.ids[i] for i in np.flatnonzero(active & (self.cmd_step < self.k))]
+            self.lockstep_misses += 1
+            self._warn_rate_limited(
+                f"lockstep step {self.k}: no command from {', '.join(missing[:5])}"
+                f"{' ...' if len(missing) > 5 else ''}; applying the last command")
+        res = self.sim.step(self.cmd_effort.copy())
+        self.k += 1
+        for ev in res.events:
+            self.event_seq[ev.train_idx] += 1
+            self.event_pub.publish(conv.event_msg(ev, self.ids, self.sim.station_names,
+                                                  int(self.event_seq[ev.train_idx])))
+        for s in res.sensors:
+            self.sensor_pubs[s.train_idx].publish(conv.sensor_msg(s, self.ids))
+        t = float(self.sim.t)
+        done = bool(self.sim.done) or (self.max_sim_time_s > 0 and t >= self.max_sim_time_s)
+        if t >= self._next_status_t or done:
+            self._next_status_t = t + self.status_period_s
+            self.status_pub.publish(conv.line_status_msg(self.kpis(), self.k, t, done))
+        if done:
+            self.finished = True
+
+    def kpis(self) -> dict[str, Any]:
+        """The core's KPIs plus the node's lockstep/rejection counters."""
+        k = dict(self.sim.kpis())
+        k["lockstep_misses"] = int(self.lockstep_misses)
+        k["rejected_messages"] = int(self.rejected)
+        k["steps"] = int(self.k)
+        k["scenario"] = self.scenario_name
+        k["lockstep"] = bool(self.lockstep)
+        return k
+
+    def close(self) -> None:
+        """Write the run's outputs (KPIs JSON, events CSV, plots) if an out_dir is set."""
+        if not self.out_dir:
+            return
+        out = Path(self.out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        k = self.kpis()
+        k["finished"] = bool(self.finished)
+        (out / "kpis.json").write_text(json.dumps(_jsonable(k), indent=2, sort_keys=True))
+        try:
+            from metro_atc import plots
+            plots.write_outputs(self.sim, out, with_plots=bool(self.plots))
+        except Exception as exc:  # noqa: BLE001 - outputs must not hide the KPIs
+            self.get_logger().error(f"writing outputs to {out} failed: {exc}")
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator) -> None:
+    """Drive the simulator: lockstep on commands, or free-run paced at the real-time factor.
+
+    Works for the node alone and for the single-process graph (every node on ``executor``).
+    """
+    log = sim.get_logger()
+    t0 = time.monotonic()
+    while not sim.graph_ready() and time.monotonic() - t0 < sim.startup_timeout_s:
+        executor.spin_once(timeout_sec=0.05)
+    if not sim.graph_ready():
+        log.warning("startup: not every ATO/ATS endpoint was discovered; starting anyway")
+    log.info(f"graph ready after {time.monotonic() - t0:.2f} s")
+    wall0, sim0 = time.monotonic(), float(sim.sim.t)
+    while not sim.finished:
+        active = sim.publish_step()
+        if sim.lockstep:
+            deadline = time.monotonic() + sim.step_timeout_s
+            resend = time.monotonic() + 0.5
+            while not sim.commands_complete(active) and time.monotonic() < deadline:
+                executor.spin_once(timeout_sec=0.02)
+                if time.monotonic() > resend and not sim.commands_complete(active):
+                    # a state may have been published before a late subscriber matched
+                    resend = time.monotonic() + 0.5
+                    sim.publish_step()
+            sim.advance(active, timed_out=not sim.commands_complete(active))
+        else:
+            target = wall0 + (float(sim.sim.t) + sim.sim.control_period_s - sim0) / sim.rtf
+            while True:
+                executor.spin_once(timeout_sec=0.0)
+                rest = target - time.monotonic()
+                if rest <= 0:
+                    break
+                executor.spin_once(timeout_sec=min(rest, 0.01))
+            sim.advance(active, timed_out=False)
+        executor.spin_once(timeout_sec=0.0)
+    log.info(f"scenario finished at t={sim.sim.t:.1f} s after {sim.k} steps, "
+             f"{time.monotonic() - t0:.1f} s wall")
+    # let the last events/status reach late subscribers before the process exits
+    end = time.monotonic() + 0.3
+    while time.monotonic() < end:
+        executor.spin_once(timeout_sec=0.05)
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    """Entry point of the ``line_simulator`` executable."""
+    def loop(executor: SingleThreadedExecutor, nodes: Sequence[Node]) -> None:
+        node = nodes[0]
+        assert isinstance(node, LineSimulator)
+        lockstep_loop(executor, node)
+        if not node.exit_on_finish:
+            executor.spin()
+
+    return run_nodes(lambda: [LineSimulator()], loop, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

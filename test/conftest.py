@@ -1,0 +1,69 @@
+"""pytest harness: private DDS domains, node processes, and an in-test topic probe.
+
+Every test that touches DDS gets its own ``ROS_DOMAIN_ID`` (fixture ``ros_domain``) and
+discovery stays on loopback (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` unless set).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+from typing import Iterator
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "test"))
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+os.environ.setdefault("PYTHONDONTWRITEBYTECODE", "1")
+
+from harness import DomainAllocator, NodeProcess, TopicProbe  # noqa: E402
+
+_DOMAINS = DomainAllocator()
+
+
+@pytest.fixture
+def ros_domain() -> Iterator[int]:
+    """A DDS domain id used by this test only."""
+    with _DOMAINS.allocate() as dom:
+        yield dom
+
+
+@pytest.fixture
+def ros_env(ros_domain: int) -> dict[str, str]:
+    """Environment for node subprocesses of this test (own domain, loopback discovery)."""
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = str(ros_domain)
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    return env
+
+
+@pytest.fixture
+def probe(ros_domain: int) -> Iterator[TopicProbe]:
+    """An rclpy node in the test process on the test's domain, spinning in a thread."""
+    p = TopicProbe(ros_domain)
+    try:
+        yield p
+    finally:
+        p.close()
+
+
+@pytest.fixture
+def node_procs(ros_env: dict[str, str], tmp_path: Path) -> Iterator[list[NodeProcess]]:
+    """A list to register started node processes in; all are stopped (by PID) at teardown."""
+    procs: list[NodeProcess] = []
+    try:
+        yield procs
+    finally:
+        for p in procs:
+            p.stop()
+
+
+@pytest.fixture(scope="session")
+def installed() -> Path:
+    """The installed executables directory (``install/metro_atc/lib/metro_atc``)."""
+    d = ROOT / "install" / "metro_atc" / "lib" / "metro_atc"
+    if not (d / "line_simulator").exists():
+        pytest.fail("metro_atc is not built: run `make test` (it builds first)")
+    return d
