@@ -195,11 +195,12 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
         raise KeyboardInterrupt
 
     old = signal.signal(signal.SIGTERM, on_term)
+    env = dict(os.environ, RCUTILS_LOGGING_BUFFERED_STREAM="0", PYTHONUNBUFFERED="1")
     try:
         for label, cmd in build_commands(a, train_ids, out_dir):
             log = open(log_dir / f"{label}.log", "wb")
             procs.append((label, subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT,
-                                                  start_new_session=True)))
+                                                  start_new_session=True, env=env)))
         sim = procs[0][1]
         deadline = time.monotonic() + a.timeout
         reported: set[str] = set()

@@ -59,6 +59,7 @@ class NodeProcess:
         self.argv = list(argv)
         self.log_path = log_path
         self._log = open(log_path, "wb")
+        env = dict(env, RCUTILS_LOGGING_BUFFERED_STREAM="0", PYTHONUNBUFFERED="1")
         self.proc = subprocess.Popen(self.argv, env=env, stdout=self._log,
                                      stderr=subprocess.STDOUT, start_new_session=True)
 
@@ -80,7 +81,8 @@ class NodeProcess:
 
     def log(self) -> str:
         """Everything the process printed so far."""
-        self._log.flush()
+        if not self._log.closed:
+            self._log.flush()
         return self.log_path.read_text(errors="replace")
 
     def wait_for_log(self, text: str, timeout: float = 20.0) -> bool:

@@ -22,7 +22,8 @@ from metro_atc.core.bridge import timetable_for, track_for
 from metro_atc.core.plant.scenario import ScenarioError, load_scenario
 from metro_atc.core.simple_ato import FlatOutTracker
 from metro_atc.nodes import conversions as conv
-from metro_atc.nodes.common import QOS_LATCHED, QOS_RELIABLE, NodeConfigError, declare, run_nodes
+from metro_atc.nodes.common import (QOS_LATCHED, QOS_RELIABLE, NodeConfigError, bulk_publisher,
+                                    bulk_subscription, declare, run_nodes)
 
 
 class AtoController(Node):
@@ -54,11 +55,11 @@ class AtoController(Node):
         self.last_step = -1
         self.rejected = 0
         self._last_warn = 0.0
-        self.cmd_pub = self.create_publisher(TractionCommand, "command", QOS_RELIABLE)
-        self.profile_pub = self.create_publisher(SpeedProfile, "speed_profile", QOS_LATCHED)
-        self.create_subscription(TrainState, "state", self._on_state, QOS_RELIABLE)
-        self.create_subscription(DepartureCommand, "departure_command", self._on_departure,
-                                 QOS_LATCHED)
+        self.cmd_pub = bulk_publisher(self, TractionCommand, "command", QOS_RELIABLE)
+        self.profile_pub = bulk_publisher(self, SpeedProfile, "speed_profile", QOS_LATCHED)
+        bulk_subscription(self, TrainState, "state", self._on_state, QOS_RELIABLE)
+        bulk_subscription(self, DepartureCommand, "departure_command", self._on_departure,
+                          QOS_LATCHED)
 
     def _warn(self, text: str) -> None:
         self.rejected += 1

@@ -20,8 +20,11 @@ import rclpy
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType)
 from rclpy.exceptions import ParameterException
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.subscription import Subscription
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
 QOS_RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
@@ -48,6 +51,28 @@ QOS_CLOCK = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                        reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
 """/clock: matches rclpy's best-effort and reliable clock subscribers."""
+
+
+def bulk_publisher(node: Node, msg_type: Any, topic: str, qos: QoSProfile) -> Publisher:
+    """A publisher without rclpy's default QoS-event handlers.
+
+    rclpy adds two event waitables (incompatible QoS/type warnings) to every publisher and
+    subscription, and the executor rebuilds its wait set from all of them on every wait.
+    For the per-train topics (2 x trains entities per node) that dominated the lockstep
+    step time, so they are created without; the QoS of these topics is fixed by this
+    package (see the README topic map).
+    """
+    return node.create_publisher(msg_type, topic, qos,
+                                 event_callbacks=PublisherEventCallbacks(
+                                     use_default_callbacks=False))
+
+
+def bulk_subscription(node: Node, msg_type: Any, topic: str, callback: Callable[[Any], None],
+                      qos: QoSProfile) -> Subscription:
+    """A subscription without rclpy's default QoS-event handlers (see bulk_publisher)."""
+    return node.create_subscription(msg_type, topic, callback, qos,
+                                    event_callbacks=SubscriptionEventCallbacks(
+                                        use_default_callbacks=False))
 
 
 def dds_defaults() -> None:

@@ -30,7 +30,8 @@ from metro_atc.core.plant.line import LineSim
 from metro_atc.core.plant.scenario import ScenarioError, load_scenario
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_CLOCK, QOS_EVENTS, QOS_LATCHED, QOS_RELIABLE, QOS_SENSOR,
-                                    NodeConfigError, declare, run_nodes)
+                                    NodeConfigError, bulk_publisher, bulk_subscription, declare,
+                                    run_nodes)
 
 
 class LineSimulator(Node):
@@ -78,33 +79,38 @@ class LineSimulator(Node):
         self.lockstep_misses = 0
         self.rejected = 0
         self.event_seq = np.zeros(n, dtype=np.int64)
-        self._last_warn = 0.0
+        n_st = len(self.sim.station_names)
+        self.dep_received = np.zeros((n, n_st), dtype=bool)
+        self.dep_given_up = np.zeros((n, n_st), dtype=bool)
+        self.ats_misses = 0
+        self._last_warn: dict[str, float] = {}
         self._next_status_t = 0.0
         self.finished = False
 
         self.clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK)
         self.event_pub = self.create_publisher(TrainEvent, "/line/events", QOS_EVENTS)
         self.status_pub = self.create_publisher(LineStatus, "/line/status", QOS_LATCHED)
-        self.state_pubs = [self.create_publisher(TrainState, f"/{t}/state", QOS_RELIABLE)
+        self.state_pubs = [bulk_publisher(self, TrainState, f"/{t}/state", QOS_RELIABLE)
                            for t in self.ids]
-        self.sensor_pubs = [self.create_publisher(BrakeSensorData, f"/{t}/brake_sensors",
-                                                  QOS_SENSOR) for t in self.ids]
-        self.cmd_subs = [self.create_subscription(
-            TractionCommand, f"/{t}/command", partial(self._on_command, i), QOS_RELIABLE)
-            for i, t in enumerate(self.ids)]
-        self.dep_subs = [self.create_subscription(
-            DepartureCommand, f"/{t}/departure_command", partial(self._on_departure, i),
-            QOS_LATCHED) for i, t in enumerate(self.ids)]
+        self.sensor_pubs = [bulk_publisher(self, BrakeSensorData, f"/{t}/brake_sensors",
+                                           QOS_SENSOR) for t in self.ids]
+        self.cmd_subs = [bulk_subscription(self, TractionCommand, f"/{t}/command",
+                                           partial(self._on_command, i), QOS_RELIABLE)
+                         for i, t in enumerate(self.ids)]
+        self.dep_subs = [bulk_subscription(self, DepartureCommand, f"/{t}/departure_command",
+                                           partial(self._on_departure, i), QOS_LATCHED)
+                         for i, t in enumerate(self.ids)]
         self.get_logger().info(
             f"scenario '{self.scenario_name}': {n} trains, {len(self.sim.station_names)} "
             f"stations, control period {self.sim.control_period_s} s, "
             f"{'lockstep' if self.lockstep else f'free-run x{self.rtf}'}")
 
     # ------------------------------------------------------------------ inputs
-    def _warn_rate_limited(self, text: str) -> None:
+    def _warn_rate_limited(self, key: str, text: str) -> None:
+        """Log a warning at most once per second per ``key``."""
         now = time.monotonic()
-        if now - self._last_warn > 1.0:
-            self._last_warn = now
+        if now - self._last_warn.get(key, -math.inf) > 1.0:
+            self._last_warn[key] = now
             self.get_logger().warning(text)
 
     def _on_command(self, i: int, msg: TractionCommand) -> None:
@@ -116,7 +122,7 @@ class LineSimulator(Node):
             step, effort = conv.traction_from_msg(msg, topic)
         except conv.MessageRejected as exc:
             self.rejected += 1
-            self._warn_rate_limited(f"rejected command: {exc}")
+            self._warn_rate_limited(f"command:{str(exc)[:48]}", f"rejected command: {exc}")
             return
         if step < self.k:
             return  # stale duplicate from an earlier step
@@ -132,9 +138,11 @@ class LineSimulator(Node):
             st, dep, run, dwell = conv.departure_from_msg(msg, topic,
                                                           len(self.sim.station_names))
             self.sim.set_departure(i, st, dep, run, dwell)
+            self.dep_received[i, st] = True
         except (conv.MessageRejected, ValueError) as exc:
             self.rejected += 1
-            self._warn_rate_limited(f"rejected departure command: {exc}")
+            self._warn_rate_limited(f"departure:{str(exc)[:48]}",
+                                    f"rejected departure command: {exc}")
 
     # ------------------------------------------------------------------ stepping
     def graph_ready(self) -> bool:
@@ -154,16 +162,34 @@ class LineSimulator(Node):
         return active
 
     def commands_complete(self, active: np.ndarray) -> bool:
-        """All active trains sent their command for step k."""
-        return bool(np.all(self.cmd_step[active] >= self.k))
+        """All active trains sent their command for step k, and the ATS has decided the
+        departure of every train dwelling at a station (lockstep on the ATS as well)."""
+        return bool(np.all(self.cmd_step[active] >= self.k)) and not self.pending_departures()
+
+    def pending_departures(self) -> list[tuple[int, int]]:
+        """(train, station) pairs dwelling without an ATS departure command yet."""
+        st = self.sim.states()
+        dwell = np.flatnonzero((st["mode"] == TrainState.MODE_DWELL)
+                               & np.asarray(st["in_service"], dtype=bool))
+        last = len(self.sim.station_names) - 1
+        out = []
+        for i in dwell:
+            j = int(st["current_station"][i])
+            if 0 <= j < last and not self.dep_received[i, j] and not self.dep_given_up[i, j]:
+                out.append((int(i), j))
+        return out
 
     def advance(self, active: np.ndarray, timed_out: bool) -> None:
         """Apply the commands, step the core and publish its outputs."""
         if timed_out:
             missing = [self.ids[i] for i in np.flatnonzero(active & (self.cmd_step < self.k))]
+            for i, j in self.pending_departures():
+                self.dep_given_up[i, j] = True
+                self.ats_misses += 1
+                missing.append(f"ATS for {self.ids[i]} at station {j} (timetable used)")
             self.lockstep_misses += 1
             self._warn_rate_limited(
-                f"lockstep step {self.k}: no command from {', '.join(missing[:5])}"
+                "lockstep", f"lockstep step {self.k}: no command from {', '.join(missing[:5])}"
                 f"{' ...' if len(missing) > 5 else ''}; applying the last command")
         res = self.sim.step(self.cmd_effort.copy())
         self.k += 1
@@ -186,6 +212,7 @@ class LineSimulator(Node):
         k = dict(self.sim.kpis())
         k["lockstep_misses"] = int(self.lockstep_misses)
         k["rejected_messages"] = int(self.rejected)
+        k["ats_timeouts"] = int(self.ats_misses)
         k["steps"] = int(self.k)
         k["scenario"] = self.scenario_name
         k["lockstep"] = bool(self.lockstep)

@@ -1,0 +1,63 @@
+"""The whole graph in one process on one SingleThreadedExecutor (``run --single-process``).
+
+Same node classes and topics as the multi-process bring-up; useful for debugging and
+profiling (one process to attach to) and on machines where process start-up dominates.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+from typing import Any, Sequence
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from metro_atc.core.bridge import timetable_for
+from metro_atc.core.plant.scenario import load_scenario
+from metro_atc.nodes.ato_controller import AtoController
+from metro_atc.nodes.ats_regulator import AtsRegulator
+from metro_atc.nodes.brake_diagnostic import BrakeDiagnostic
+from metro_atc.nodes.line_simulator import LineSimulator, lockstep_loop
+
+
+def _overrides(values: dict[str, Any]) -> list[Parameter]:
+    return [Parameter(k, value=v) for k, v in values.items()]
+
+
+def run_single_process(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Path) -> int:
+    """Run the scenario with every node in this process; return an exit code."""
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    rclpy.init(args=["metro_atc_graph"])
+    nodes: list[Node] = []
+    try:
+        common = {"use_sim_time": True, "scenario": a.scenario}
+        sim = LineSimulator(parameter_overrides=_overrides(dict(
+            common, seed=a.seed, lockstep=not a.free_run, real_time_factor=a.rtf,
+            out_dir=str(out_dir), plots=a.plots, max_sim_time_s=float(a.duration))))
+        nodes.append(sim)
+        nodes.append(AtsRegulator(parameter_overrides=_overrides(
+            dict(common, regulator=a.regulator))))
+        nodes.append(BrakeDiagnostic(parameter_overrides=_overrides(common)))
+        scn = load_scenario(a.scenario)
+        tt = timetable_for(scn)
+        for tid in train_ids:
+            nodes.append(AtoController(tid, scenario=scn, timetable=tt,
+                                       parameter_overrides=_overrides(common)))
+        executor = SingleThreadedExecutor()
+        for n in nodes:
+            executor.add_node(n)
+        try:
+            lockstep_loop(executor, sim)
+        except KeyboardInterrupt:
+            return 130
+        finally:
+            sim.close()
+        return 0
+    finally:
+        for n in nodes:
+            n.destroy_node()
+        rclpy.try_shutdown()

@@ -1,0 +1,233 @@
+"""Topic-level integration tests of the node graph (separate OS processes over DDS)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from harness import ROOT, DomainAllocator, NodeProcess, TopicProbe
+
+pytestmark = pytest.mark.integration
+
+SCENARIO = "mini"
+
+
+def _run_graph(env: dict[str, str], out: Path, *extra: str) -> dict[str, Any]:
+    """``python -m metro_atc run --json`` in a subprocess; return its KPIs.
+
+    Runs in ``out`` so the installed package (what the executables use) is imported.
+    """
+    r = subprocess.run([sys.executable, "-m", "metro_atc", "run", "--scenario", SCENARIO,
+                        "--json", "--no-plots", "--out", str(out), *extra],
+                       env=env, capture_output=True, text=True, timeout=300, cwd=out)
+    assert r.returncode == 0, r.stderr[-3000:]
+    lines = [ln for ln in r.stdout.splitlines() if ln.strip()]
+    assert len(lines) == 1, f"--json must print exactly one line, got {r.stdout!r}"
+    return json.loads(lines[0])
+
+
+@pytest.fixture(scope="module")
+def two_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """Run the mini scenario twice through the multi-process graph, probing its topics."""
+    from metro_atc_msgs.msg import TrainEvent
+    from rosgraph_msgs.msg import Clock
+
+    from metro_atc.nodes.common import QOS_CLOCK, QOS_EVENTS
+
+    results: dict[str, Any] = {"kpis": [], "events": [], "clock": []}
+    with DomainAllocator().allocate() as dom:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
+        for k in range(2):
+            probe = TopicProbe(dom, name=f"probe_{k}")
+            try:
+                events = probe.subscribe(TrainEvent, "/line/events", QOS_EVENTS)
+                clock = probe.subscribe(Clock, "/clock", QOS_CLOCK)
+                kpis = _run_graph(env, tmp_path_factory.mktemp(f"run{k}"))
+                n_ev = sum(int(t["departures"]) for t in kpis["per_train"])
+                probe.wait_for(lambda: len(events) >= n_ev, timeout=10.0)
+                results["kpis"].append(kpis)
+                results["events"].append([(e.train_id, e.kind, e.station_index,
+                                           round(e.actual_time_s, 6), e.sequence)
+                                          for e in list(events)])
+                results["clock"].append([c.clock.sec + 1e-9 * c.clock.nanosec
+                                         for c in list(clock)])
+            finally:
+                probe.close()
+    return results
+
+
+def test_every_train_completes(two_runs: dict[str, Any]) -> None:
+    """All trains of the scenario complete it, with no ATP violation."""
+    k = two_runs["kpis"][0]
+    for key in ("trains", "completed_trains", "atp_violations", "atp_interventions",
+                "min_separation_m", "energy_kwh", "max_delay_s", "sim_time_s", "wall_time_s",
+                "real_time_factor", "lockstep_misses"):
+        assert key in k, key
+    assert k["trains"] >= 2
+    assert k["completed_trains"] == k["trains"]
+    assert k["atp_violations"] == 0
+    assert k["energy_kwh"] > 0.0
+    assert k["real_time_factor"] > 1.0
+
+
+def test_events_arrive_in_order(two_runs: dict[str, Any]) -> None:
+    """Per train: sequence numbers strictly increase, times never go back, stations advance."""
+    events = two_runs["events"][0]
+    n_st = two_runs["kpis"][0]["stations"]
+    assert events, "no events received on /line/events"
+    by_train: dict[str, list[tuple[Any, ...]]] = {}
+    for e in events:
+        by_train.setdefault(e[0], []).append(e)
+    assert len(by_train) == two_runs["kpis"][0]["trains"]
+    for tid, evs in by_train.items():
+        seqs = [e[4] for e in evs]
+        assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs), tid
+        times = [e[3] for e in evs]
+        assert times == sorted(times), tid
+        arrivals = [e[2] for e in evs if e[1] == 1]
+        departures = [e[2] for e in evs if e[1] == 2]
+        # a stop at every station, in line order (entry at station 0 and the departure into
+        # the terminus turnback may or may not be reported as events)
+        assert departures == sorted(departures) and \
+            set(range(n_st - 1)) <= set(departures), (tid, departures)
+        assert arrivals == sorted(arrivals) and set(range(1, n_st)) <= set(arrivals), \
+            (tid, arrivals)
+
+
+def test_clock_is_monotonic(two_runs: dict[str, Any]) -> None:
+    """/clock never goes backwards and covers the run."""
+    clock = two_runs["clock"][0]
+    assert len(clock) > 100
+    assert all(b >= a for a, b in zip(clock, clock[1:]))
+    assert clock[-1] >= two_runs["kpis"][0]["sim_time_s"] - 1.0
+
+
+def test_lockstep_is_deterministic(two_runs: dict[str, Any]) -> None:
+    """Two lockstep runs of the same scenario give identical events and KPIs."""
+    a, b = two_runs["kpis"]
+    skip = {"wall_time_s", "real_time_factor", "out_dir"}
+    assert {k: v for k, v in a.items() if k not in skip} == \
+        {k: v for k, v in b.items() if k not in skip}
+    assert two_runs["events"][0] == two_runs["events"][1]
+
+
+def test_single_process_matches(two_runs: dict[str, Any], ros_env: dict[str, str],
+                                tmp_path: Path) -> None:
+    """``--single-process`` runs the same nodes and gives the same KPIs as the graph."""
+    k = _run_graph(ros_env, tmp_path, "--single-process")
+    skip = {"wall_time_s", "real_time_factor", "out_dir", "mode"}
+    assert {x: v for x, v in k.items() if x not in skip} == \
+        {x: v for x, v in two_runs["kpis"][0].items() if x not in skip}
+
+
+def test_node_starts_without_sim_time(installed: Path, ros_env: dict[str, str],
+                                      tmp_path: Path) -> None:
+    """The installed line_simulator starts with use_sim_time:=false and stops on SIGINT."""
+    p = NodeProcess.installed("line_simulator", ["-p", "use_sim_time:=false",
+                                                 "-p", f"scenario:={SCENARIO}"],
+                              ros_env, tmp_path)
+    try:
+        assert p.wait_for_log(f"scenario '{SCENARIO}'", timeout=30), p.log()
+        assert p.alive()
+    finally:
+        code = p.stop()
+    assert code == 0, p.log()
+    assert "Traceback" not in p.log()
+
+
+@pytest.mark.parametrize("content,expect", [
+    ("line_simulator: [unclosed\n", "not valid YAML"),
+    ("line_simulator:\n  seed: 3\n", "ros__parameters"),
+])
+def test_bad_params_file_exits_with_one_line(installed: Path, ros_env: dict[str, str],
+                                             tmp_path: Path, content: str, expect: str) -> None:
+    """A malformed params file: non-zero exit, one stderr line naming the file."""
+    f = tmp_path / "bad.yaml"
+    f.write_text(content)
+    r = subprocess.run([str(installed / "line_simulator"), "--ros-args", "--params-file",
+                        str(f)], env=ros_env, capture_output=True, text=True, timeout=60)
+    assert r.returncode != 0
+    err = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(err) == 1 and str(f) in err[0] and expect in err[0], r.stderr
+
+
+def test_out_of_range_parameter_exits_with_one_line(installed: Path, ros_env: dict[str, str]
+                                                    ) -> None:
+    """An out-of-range parameter names the parameter and exits non-zero."""
+    r = subprocess.run([str(installed / "line_simulator"), "--ros-args", "-p",
+                        "real_time_factor:=-5.0"], env=ros_env, capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode != 0
+    err = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(err) == 1 and "real_time_factor" in err[0], r.stderr
+
+
+def test_unknown_scenario_exits_with_one_line(installed: Path, ros_env: dict[str, str]) -> None:
+    """An unknown scenario name: the node and ``run`` exit non-zero with one clear line."""
+    r = subprocess.run([str(installed / "line_simulator"), "--ros-args", "-p",
+                        "scenario:=no_such_line"], env=ros_env, capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode != 0
+    err = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(err) == 1 and "no_such_line" in err[0], r.stderr
+    r = subprocess.run([sys.executable, "-m", "metro_atc", "run", "--scenario", "no_such_line"],
+                       env=ros_env, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
+    err = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(err) == 1 and "no_such_line" in err[0], r.stderr
+
+
+def test_bad_commands_are_rejected_node_stays_alive(installed: Path, ros_env: dict[str, str],
+                                                    probe: TopicProbe, tmp_path: Path) -> None:
+    """NaN effort and a wrong train id on a command topic: logged, dropped, node alive."""
+    from metro_atc_msgs.msg import TractionCommand, TrainState
+
+    from metro_atc.nodes.common import QOS_RELIABLE
+
+    states = probe.subscribe(TrainState, "/train_01/state", QOS_RELIABLE)
+    pub = probe.publisher(TractionCommand, "/train_01/command", QOS_RELIABLE)
+    p = NodeProcess.installed("line_simulator", ["-p", f"scenario:={SCENARIO}",
+                                                 "-p", "startup_timeout_s:=0.0",
+                                                 "-p", "step_timeout_s:=0.05"],
+                              ros_env, tmp_path)
+    try:
+        assert probe.wait_for(lambda: pub.get_subscription_count() > 0, timeout=30)
+        pub.publish(TractionCommand(train_id="train_01", step=0, effort=math.nan))
+        assert p.wait_for_log("effort is not finite", timeout=20), p.log()
+        pub.publish(TractionCommand(train_id="train_99", step=1, effort=0.5))
+        assert p.wait_for_log("train_99", timeout=20), p.log()
+        assert p.alive()
+        assert probe.wait_for(lambda: len(states) > 0, timeout=30)
+    finally:
+        code = p.stop()
+    assert code == 0
+    assert "Traceback" not in p.log()
+
+
+def test_generated_messages_import() -> None:
+    """The generated metro_atc_msgs interfaces import and carry their constants."""
+    from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureCommand,
+                                    LineStatus, SpeedProfile, TractionCommand, TrainEvent,
+                                    TrainState)
+    assert TrainState.MODE_DWELL == 1 and TrainEvent.KIND_DEPARTURE == 2
+    assert DepartureCommand.REGULATOR_AOC == 3 and BrakeDiagnosis.ERROR == 2
+    for t in (BrakeSensorData, LineStatus, SpeedProfile, TractionCommand):
+        assert t().header is not None
+
+
+def test_install_layout() -> None:
+    """Executables are where ``ros2 run`` looks; config and launch are in share/."""
+    lib = ROOT / "install" / "metro_atc" / "lib" / "metro_atc"
+    for exe in ("ats_regulator", "ato_controller", "line_simulator", "brake_diagnostic"):
+        assert os.access(lib / exe, os.X_OK), exe
+    share = ROOT / "install" / "metro_atc" / "share" / "metro_atc"
+    assert (share / "launch" / "metro_line.launch.py").is_file()
+    assert (share / "config" / "line_simulator.yaml").is_file()
+    assert (share / "package.xml").is_file()
