@@ -16,14 +16,16 @@ import time
 from typing import Any, Sequence
 
 from metro_atc_msgs.msg import DepartureCommand, SpeedProfile, TractionCommand, TrainState
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from metro_atc.core.bridge import timetable_for, track_for
 from metro_atc.core.plant.scenario import ScenarioError, load_scenario
 from metro_atc.core.simple_ato import FlatOutTracker
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_LATCHED, QOS_RELIABLE, NodeConfigError, bulk_publisher,
-                                    bulk_subscription, declare, run_nodes)
+                                    bulk_subscription, declare, run_nodes, spin_fast)
 
 
 class AtoController(Node):
@@ -32,7 +34,12 @@ class AtoController(Node):
     def __init__(self, train_id: str, scenario: Any = None, timetable: Any = None,
                  **kwargs: Any) -> None:
         """Declare parameters, load the line, create the per-train topics."""
-        super().__init__("ato_controller", namespace=f"/{train_id}", **kwargs)
+        # the type-description service (one more service per node in every wait set) is
+        # off for the composed per-train nodes; parameter services stay on
+        overrides = list(kwargs.pop("parameter_overrides", None) or [])
+        overrides.append(Parameter("start_type_description_service", value=False))
+        super().__init__("ato_controller", namespace=f"/{train_id}",
+                         parameter_overrides=overrides, **kwargs)
         self.train_id = train_id
         self.scenario_name = declare(self, "scenario", "taipei_blue",
                                      "embedded scenario name or path to a scenario YAML")
@@ -57,9 +64,10 @@ class AtoController(Node):
         self._last_warn = 0.0
         self.cmd_pub = bulk_publisher(self, TractionCommand, "command", QOS_RELIABLE)
         self.profile_pub = bulk_publisher(self, SpeedProfile, "speed_profile", QOS_LATCHED)
-        bulk_subscription(self, TrainState, "state", self._on_state, QOS_RELIABLE)
-        bulk_subscription(self, DepartureCommand, "departure_command", self._on_departure,
-                          QOS_LATCHED)
+        self.fast_subs = [
+            bulk_subscription(self, TrainState, "state", self._on_state, QOS_RELIABLE),
+            bulk_subscription(self, DepartureCommand, "departure_command", self._on_departure,
+                              QOS_LATCHED)]
 
     def _warn(self, text: str) -> None:
         self.rejected += 1
@@ -155,7 +163,11 @@ def build_nodes() -> list[Node]:
 
 def main(args: Sequence[str] | None = None) -> int:
     """Entry point of the ``ato_controller`` executable."""
-    return run_nodes(build_nodes, None, args)
+    def loop(executor: SingleThreadedExecutor, nodes: Sequence[Node]) -> None:
+        subs = [s for n in nodes if isinstance(n, AtoController) for s in n.fast_subs]
+        spin_fast(executor, nodes, subs)
+
+    return run_nodes(build_nodes, loop, args)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,8 @@ from rclpy.node import Node
 from metro_atc.core.bridge import timetable_for
 from metro_atc.core.plant.scenario import ScenarioError, load_scenario
 from metro_atc.nodes import conversions as conv
-from metro_atc.nodes.common import QOS_EVENTS, QOS_LATCHED, NodeConfigError, declare, run_nodes
+from metro_atc.nodes.common import (QOS_EVENTS, QOS_LATCHED, NodeConfigError, bulk_publisher,
+                                    declare, run_nodes)
 
 REGULATORS = ("none", "lqr", "dhp", "aoc")
 
@@ -54,8 +55,8 @@ class AtsRegulator(Node):
         self.rejected = 0
         self.decision_time_s: list[float] = []
         self._last_warn = 0.0
-        self.pubs = [self.create_publisher(DepartureCommand, f"/{t}/departure_command",
-                                           QOS_LATCHED) for t in self.ids]
+        self.pubs = [bulk_publisher(self, DepartureCommand, f"/{t}/departure_command",
+                                    QOS_LATCHED) for t in self.ids]
         self.create_subscription(TrainEvent, "/line/events", self._on_event, QOS_EVENTS)
         for i in range(n):  # first departures (idempotent if replayed after a restart)
             self._command(i, 0, self.tt.departure_s[i, 0])

@@ -22,7 +22,7 @@ from rclpy.node import Node
 from metro_atc.core.plant.scenario import ScenarioError, load_scenario
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_LATCHED, QOS_RELIABLE, QOS_SENSOR, NodeConfigError,
-                                    declare, run_nodes)
+                                    bulk_publisher, bulk_subscription, declare, run_nodes)
 
 N_AXLES = 4
 
@@ -56,11 +56,11 @@ class BrakeDiagnostic(Node):
         self.watch = {t: _TrainWatch() for t in self.ids}
         self._last_warn = 0.0
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", QOS_RELIABLE)
-        self.pubs = {t: self.create_publisher(BrakeDiagnosis, f"/{t}/brake_diagnosis",
-                                              QOS_LATCHED) for t in self.ids}
+        self.pubs = {t: bulk_publisher(self, BrakeDiagnosis, f"/{t}/brake_diagnosis",
+                                       QOS_LATCHED) for t in self.ids}
         for t in self.ids:
-            self.create_subscription(BrakeSensorData, f"/{t}/brake_sensors",
-                                     partial(self._on_sample, t), QOS_SENSOR)
+            bulk_subscription(self, BrakeSensorData, f"/{t}/brake_sensors",
+                              partial(self._on_sample, t), QOS_SENSOR)
         self.create_timer(self.period_s, self._publish_diagnostics)
 
     def _warn(self, text: str) -> None:

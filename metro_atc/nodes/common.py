@@ -14,12 +14,16 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import time
+from contextlib import ExitStack
 from typing import Any, Callable, Iterable, Sequence
 
 import rclpy
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType)
+from rclpy.context import Context
 from rclpy.exceptions import ParameterException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -73,6 +77,68 @@ def bulk_subscription(node: Node, msg_type: Any, topic: str, callback: Callable[
     return node.create_subscription(msg_type, topic, callback, qos,
                                     event_callbacks=SubscriptionEventCallbacks(
                                         use_default_callbacks=False))
+
+
+class SubscriptionPoller:
+    """Wait on a fixed set of subscriptions and run their callbacks, bypassing the executor.
+
+    rclpy's executor rebuilds its wait set from every entity of every node (parameter
+    services, timers, /clock, ...) in Python on every wait; on the lockstep path that is
+    most of a step's time. The poller waits on the given subscriptions only and drains each
+    ready one. Everything else (parameter services, timers, /clock) is still served by the
+    executor, spun by :func:`spin_fast` every ``slow_period_s``.
+    """
+
+    def __init__(self, context: Context, subs: Sequence[Subscription]) -> None:
+        """Remember the subscriptions to wait on."""
+        self.ctx = context
+        self.subs = list(subs)
+
+    def poll(self, timeout_s: float) -> int:
+        """Wait up to ``timeout_s`` for messages; run the callbacks; return how many ran."""
+        if not self.subs:
+            time.sleep(max(timeout_s, 0.0))
+            return 0
+        with ExitStack() as stack:
+            for s in self.subs:
+                stack.enter_context(s.handle)
+            stack.enter_context(self.ctx.handle)
+            ws = _rclpy.WaitSet(len(self.subs), 0, 0, 0, 0, 0, self.ctx.handle)
+            ws.clear_entities()
+            for s in self.subs:
+                ws.add_subscription(s.handle)
+            ws.wait(max(int(timeout_s * 1e9), 0))
+            ready = set(ws.get_ready_entities("subscription"))
+        n = 0
+        for s in self.subs:
+            if s.handle.pointer not in ready:
+                continue
+            while True:
+                with s.handle:
+                    info = s.handle.take_message(s.msg_type, s.raw)
+                if info is None:
+                    break
+                s.callback(info[0])
+                n += 1
+        return n
+
+
+def spin_fast(executor: SingleThreadedExecutor, nodes: Sequence[Node],
+              fast_subs: Sequence[Subscription], slow_period_s: float = 0.05,
+              until: Callable[[], bool] | None = None) -> None:
+    """Serve ``fast_subs`` with a :class:`SubscriptionPoller` and the rest every slow period.
+
+    Runs until the context shuts down or ``until()`` is true.
+    """
+    ctx = nodes[0].context if nodes else executor.context
+    poller = SubscriptionPoller(ctx, fast_subs)
+    last_slow = 0.0
+    while ctx.ok() and not (until is not None and until()):
+        poller.poll(slow_period_s)
+        now = time.monotonic()
+        if now - last_slow >= slow_period_s:
+            last_slow = now
+            executor.spin_once(timeout_sec=0.0)
 
 
 def dds_defaults() -> None:

@@ -51,7 +51,7 @@ def run_single_process(a: argparse.Namespace, train_ids: Sequence[str], out_dir:
         for n in nodes:
             executor.add_node(n)
         try:
-            lockstep_loop(executor, sim)
+            lockstep_loop(executor, sim, fast_path=False)
         except KeyboardInterrupt:
             return 130
         finally:

@@ -30,8 +30,8 @@ from metro_atc.core.plant.line import LineSim
 from metro_atc.core.plant.scenario import ScenarioError, load_scenario
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_CLOCK, QOS_EVENTS, QOS_LATCHED, QOS_RELIABLE, QOS_SENSOR,
-                                    NodeConfigError, bulk_publisher, bulk_subscription, declare,
-                                    run_nodes)
+                                    NodeConfigError, SubscriptionPoller, bulk_publisher,
+                                    bulk_subscription, declare, run_nodes)
 
 
 class LineSimulator(Node):
@@ -246,12 +246,26 @@ def _jsonable(x: Any) -> Any:
     return x
 
 
-def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator) -> None:
+def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
+                  fast_path: bool = True) -> None:
     """Drive the simulator: lockstep on commands, or free-run paced at the real-time factor.
 
-    Works for the node alone and for the single-process graph (every node on ``executor``).
+    With ``fast_path`` (the node's own process) commands and departure commands are taken by
+    a :class:`SubscriptionPoller`; everything else on ``executor`` (parameter services,
+    /clock) is spun every 50 ms of wall time and once per step. Without it (the
+    single-process graph, where other nodes' callbacks share the executor) every wait is an
+    executor spin.
     """
     log = sim.get_logger()
+    poller = SubscriptionPoller(sim.context, [*sim.cmd_subs, *sim.dep_subs])
+
+    def wait(timeout_s: float) -> None:
+        if fast_path:
+            poller.poll(timeout_s)
+            slow_path()
+        else:
+            executor.spin_once(timeout_sec=timeout_s)
+
     t0 = time.monotonic()
     while not sim.graph_ready() and time.monotonic() - t0 < sim.startup_timeout_s:
         executor.spin_once(timeout_sec=0.05)
@@ -259,13 +273,22 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator) -> None:
         log.warning("startup: not every ATO/ATS endpoint was discovered; starting anyway")
     log.info(f"graph ready after {time.monotonic() - t0:.2f} s")
     wall0, sim0 = time.monotonic(), float(sim.sim.t)
+    last_slow = time.monotonic()
+
+    def slow_path(force: bool = False) -> None:
+        nonlocal last_slow
+        now = time.monotonic()
+        if force or now - last_slow >= 0.05:
+            last_slow = now
+            executor.spin_once(timeout_sec=0.0)
+
     while not sim.finished:
         active = sim.publish_step()
         if sim.lockstep:
             deadline = time.monotonic() + sim.step_timeout_s
             resend = time.monotonic() + 0.5
             while not sim.commands_complete(active) and time.monotonic() < deadline:
-                executor.spin_once(timeout_sec=0.02)
+                wait(0.02)
                 if time.monotonic() > resend and not sim.commands_complete(active):
                     # a state may have been published before a late subscriber matched
                     resend = time.monotonic() + 0.5
@@ -274,13 +297,16 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator) -> None:
         else:
             target = wall0 + (float(sim.sim.t) + sim.sim.control_period_s - sim0) / sim.rtf
             while True:
-                executor.spin_once(timeout_sec=0.0)
                 rest = target - time.monotonic()
                 if rest <= 0:
                     break
-                executor.spin_once(timeout_sec=min(rest, 0.01))
+                wait(min(rest, 0.01))
+            wait(0.0)
             sim.advance(active, timed_out=False)
-        executor.spin_once(timeout_sec=0.0)
+        if fast_path:
+            slow_path(force=True)
+        else:
+            executor.spin_once(timeout_sec=0.0)
     log.info(f"scenario finished at t={sim.sim.t:.1f} s after {sim.k} steps, "
              f"{time.monotonic() - t0:.1f} s wall")
     # let the last events/status reach late subscribers before the process exits

@@ -1,0 +1,70 @@
+"""ATO core: dynamic-programming reference optimum against brute force and the planners."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from metro_atc.core.ato import coasting
+from metro_atc.core.ato.dp import (CONTROL_MODES, DPTables, _backward, _forward_table,
+                                   build_dp_tables, simulate_controls, solve_dp)
+from metro_atc.core.ato.envelope import RunModel
+from metro_atc.core.plant.vehicle import TAIPEI_MRT_6CAR, Track
+
+
+def _tiny() -> tuple[RunModel, DPTables]:
+    """60 m run in 4 stages, uphill then downhill, fine speed grid."""
+    track = Track(np.array([-1e12, 30.0]), np.array([0.01, -0.02]),
+                  np.array([-1e12]), np.array([40.0 / 3.6]))
+    run = RunModel(TAIPEI_MRT_6CAR, track, 0.0, 60.0)
+    return run, build_dp_tables(run, ds_m=15.0, de_m2s2=0.01, substep_m=5.0)
+
+
+def _brute(run: RunModel, tab: DPTables) -> tuple[np.ndarray, np.ndarray, list[tuple]]:
+    """Exact energy and time of every control sequence (4 controls ^ 4 stages = 256)."""
+    seqs = list(itertools.product(range(len(CONTROL_MODES)), repeat=tab.n_stages))
+    en = np.empty(len(seqs))
+    tm = np.empty(len(seqs))
+    for i, seq in enumerate(seqs):
+        _, en[i], tm[i] = simulate_controls(run, tab, np.array(seq))
+    return en, tm, seqs
+
+
+@pytest.mark.parametrize("mu", [2e4, 1e5, 4e5, 2e6])
+def test_dp_matches_brute_force_lagrangian(mu: float) -> None:
+    """For a multiplier mu the DP minimises E + mu T like exhaustive enumeration does."""
+    run, tab = _tiny()
+    en, tm, _ = _brute(run, tab)
+    obj = np.where(np.isfinite(tm), en + mu * tm, np.inf)
+    j_val, _, _ = _backward(tab, mu)
+    ctrl, _, _ = _forward_table(tab, mu, j_val)
+    _, e_dp, t_dp = simulate_controls(run, tab, ctrl)
+    assert e_dp + mu * t_dp == pytest.approx(float(np.min(obj)), rel=1e-4)
+
+
+def test_dp_matches_brute_force_constrained() -> None:
+    """At the running time of a Pareto (hull) point the DP energy equals the brute force one."""
+    run, tab = _tiny()
+    en, tm, _ = _brute(run, tab)
+    ok = np.isfinite(tm)
+    for mu in (5e4, 3e5):
+        k = int(np.argmin(np.where(ok, en + mu * tm, np.inf)))
+        target = float(tm[k]) + 1e-6
+        best = float(np.min(en[ok & (tm <= target)]))
+        r = solve_dp(run, target, tables=tab)
+        assert r.feasible and r.time_s <= target + 0.05
+        assert r.energy_j == pytest.approx(best, rel=1e-3)
+
+
+def test_dp_is_a_lower_reference_for_coasting_profiles() -> None:
+    """On the Blue line run the DP needs no more energy than ECTP at the same running time."""
+    run = RunModel(TAIPEI_MRT_6CAR, Track.flat(80 / 3.6), 0.0, 1300.0)
+    ec = coasting.ectp(run, 92.0)
+    dp = solve_dp(run, ec.time_s)
+    assert dp.feasible and dp.time_s <= ec.time_s + 0.05
+    assert dp.energy_j <= ec.energy_j
+    assert dp.compute_s < 10.0
+    fast = solve_dp(run, 50.0)
+    assert not fast.feasible

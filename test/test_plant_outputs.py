@@ -1,0 +1,46 @@
+"""Outputs: KPI JSON, events CSV, PNGs (plots.write_outputs) and the perf benchmark CLI."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from metro_atc.core.plant.driver import simple_driver
+from metro_atc.core.plant.line import LineSim
+from metro_atc.core.plant.scenario import load_scenario
+from metro_atc.plots import write_outputs
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_write_outputs(tmp_path: Path) -> None:
+    """KPIs JSON, one CSV row per event, train graph / speed / energy PNGs."""
+    sim = LineSim(load_scenario("mini"), seed=0)
+    while not sim.done:
+        sim.step(simple_driver(sim))
+    files = write_outputs(sim, tmp_path)
+    names = {f.name for f in files}
+    assert {"kpis.json", "events.csv", "train_graph.png", "speed_train_01.png",
+            "speed_train_02.png", "energy.png"} <= names
+    k = json.loads((tmp_path / "kpis.json").read_text())
+    assert k["completed_trains"] == 2 and k["atp_violations"] == 0
+    rows = list(csv.DictReader((tmp_path / "events.csv").open()))
+    assert len(rows) == len(sim.event_log()) == 2 * 2 * sim.n_st
+    assert rows[0]["train_id"] == "train_01" and rows[0]["kind"] == "arrival"
+    for f in files:
+        if f.suffix == ".png":
+            assert f.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and f.stat().st_size > 10_000
+
+
+def test_perf_bench_json_quick() -> None:
+    """`python -m metro_atc.bench.perf --quick --json` prints exactly one JSON object."""
+    r = subprocess.run([sys.executable, "-m", "metro_atc.bench.perf", "--quick", "--json"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["graph_rtf"] is None and out["core_rtf"] > 0
+    assert out["trains"] >= 25 and out["sim_time_s"] == 900.0
+    assert out["atp_violations"] == 0 and out["energy_balance_error"] < 1e-3
