@@ -20,8 +20,8 @@ def _blue_run(length: float = 1300.0) -> RunModel:
 
 def test_eq7_solves_the_coasting_ode() -> None:
     """v(t) of seed 002 eq. 7-8 satisfies dv/dt = -(c0 + c1 v + c2 v^2) and v(t_c) = v_c."""
-    c0, c1, c2 = coast_coefficients(P, grade_force(P, 0.005))
-    c0 = float(c0)
+    c0a, c1, c2 = coast_coefficients(P, grade_force(P, 0.005))
+    c0 = float(c0a)
     t = np.linspace(3.0, 40.0, 200)
     v = coast_speed(t, 3.0, 22.0, c0, c1, c2)
     assert v[0] == pytest.approx(22.0, abs=1e-12)

@@ -1,0 +1,1 @@
+"""Reproductions and benchmarks: ``python -m metro_atc bench NAME`` (see metro_atc.cli)."""

@@ -1,0 +1,181 @@
+"""Stateful ATO core for one train: plan an inter-station run, then command the effort.
+
+The ROS node ``ato_controller`` owns one :class:`AtoCore` per train.  On a departure
+command it calls :meth:`AtoCore.plan` (x_start, x_stop, target running time); every control
+step it calls :meth:`AtoCore.command` with the train state and publishes the returned
+normalised effort u in [-1, 1] (u > 0: fraction of the maximum tractive force, u < 0:
+fraction of the maximum service brake; :func:`metro_atc.core.plant.vehicle.effort_force`).
+
+Safety behaviour of :meth:`AtoCore.command_ex`: non-finite input, a state older than
+``stale_after_s`` (when the caller passes ``now_s``) or a time stamp going backwards give a
+full service brake (u = -1) with the reason; with no plan the train is held braked; past the
+stopping point or above the envelope it brakes.  At the platform a holding brake is applied.
+The command rate is limited by the jerk limit (seed 001: 1 m/s^3).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Optional
+
+import numpy as np
+
+from metro_atc.core.ato.envelope import OperatingLimits, RunModel
+from metro_atc.core.ato.fuzzy import FuzzyController, FuzzyParams
+from metro_atc.core.ato.pi import PIController, PIParams
+from metro_atc.core.ato.planner import PLANNERS, Profile, plan_profile
+from metro_atc.core.ato.reference_curve import ProfileReference
+from metro_atc.core.plant.vehicle import Track, TrainParams
+
+TRACKERS = ("fuzzy", "pi")
+"""Tracker names accepted by :class:`AtoCore`."""
+HOLD_BRAKE = -0.5
+"""Holding-brake command at the platform [-]."""
+SAFE_BRAKE = -1.0
+"""Command on bad input: full service brake [-]."""
+
+
+@dataclass(frozen=True)
+class Command:
+    """One command: effort u [-1, 1], ok flag, reason, desired speed r [m/s]."""
+
+    u: float
+    ok: bool
+    reason: str
+    r_mps: float
+
+
+class AtoCore:
+    """ATO of one train: planner (``PLANNERS``) + tracker (``TRACKERS``).
+
+    Parameters: train, track; planner name; tracker name; control period [s];
+    stale_after_s: maximum age of a state when ``now_s`` is given [s]; limits: operating
+    limits; planner_params: passed to :func:`metro_atc.core.ato.planner.plan_profile`
+    (e.g. MMAS ``n_ants``, ``n_iterations``; FCTP ``coast_fraction``).
+    """
+
+    def __init__(self, train: TrainParams, track: Track, planner: str = "ectp",
+                 tracker: str = "fuzzy", control_period_s: float = 0.1,
+                 stale_after_s: float = 1.0, limits: Optional[OperatingLimits] = None,
+                 **planner_params: Any) -> None:
+        """Validate the names and build the tracker."""
+        if planner.lower().replace("-", "_") not in PLANNERS:
+            raise ValueError(f"unknown planner {planner!r}; expected one of {PLANNERS}")
+        if tracker not in TRACKERS:
+            raise ValueError(f"unknown tracker {tracker!r}; expected one of {TRACKERS}")
+        if not (math.isfinite(control_period_s) and control_period_s > 0.0):
+            raise ValueError("control_period_s must be a positive number")
+        self.train = train
+        self.track = track
+        self.planner = planner
+        self.tracker_name = tracker
+        self.period = float(control_period_s)
+        self.stale_after_s = float(stale_after_s)
+        self.limits = limits if limits is not None else OperatingLimits()
+        self.planner_params = dict(planner_params)
+        self.tracker = FuzzyController(FuzzyParams()) if tracker == "fuzzy" \
+            else PIController(PIParams())
+        self._cache: dict[Any, Any] = {}
+        self._runs: dict[tuple[float, float], RunModel] = {}
+        self.profile: Optional[Profile] = None
+        self.run: Optional[RunModel] = None
+        self._ref: Optional[ProfileReference] = None
+        self._last_t: Optional[float] = None
+        self._last_u = 0.0
+        self._arrived = False
+        self._still_s = 0.0
+        self.last_reason = "no plan"
+        a_ref = max(train.a1_mps2, train.max_service_brake_mps2)
+        self._du_max_per_s = self.limits.jerk_max_mps3 / max(a_ref, 1e-6)
+
+    # ------------------------------------------------------------------ planning
+    def plan(self, x_start_m: float, x_stop_m: float,
+             target_running_time_s: float) -> Profile:
+        """Plan a run; returns the profile (a flat-out fallback with ``feasible=False``)."""
+        key = (float(x_start_m), float(x_stop_m))
+        run = self._runs.get(key)
+        if run is None:
+            run = RunModel(self.train, self.track, x_start_m, x_stop_m, self.limits)
+            self._runs[key] = run
+        prof = plan_profile(run, target_running_time_s, self.planner, self._cache,
+                            **self.planner_params)
+        self.run = run
+        self.profile = prof
+        b = self.limits.brake_decel_mps2
+        self._ref = ProfileReference(prof.s_grid, prof.v_profile, run.length_m,
+                                     tail_decel=b, creep_speed=0.5, tail_brake=0.5 * b)
+        self.tracker.reset(0.0)
+        self._last_t = None
+        self._last_u = 0.0
+        self._arrived = False
+        self._still_s = 0.0
+        self.last_reason = "planned" if prof.feasible else prof.message
+        return prof
+
+    # ------------------------------------------------------------------ control
+    def command(self, t_s: float, x_m: float, v_mps: float,
+                now_s: Optional[float] = None) -> float:
+        """Normalised effort u in [-1, 1]; see :meth:`command_ex` (reason in last_reason)."""
+        return self.command_ex(t_s, x_m, v_mps, now_s).u
+
+    def _fail(self, reason: str) -> Command:
+        self.last_reason = reason
+        self._last_u = SAFE_BRAKE
+        return Command(SAFE_BRAKE, False, reason, 0.0)
+
+    def command_ex(self, t_s: float, x_m: float, v_mps: float,
+                   now_s: Optional[float] = None) -> Command:
+        """Tracking command for the state (time [s], chainage [m], speed [m/s])."""
+        vals = (t_s, x_m, v_mps) + (() if now_s is None else (now_s,))
+        try:
+            if not all(math.isfinite(float(a)) for a in vals):
+                return self._fail("non-finite state input")
+        except (TypeError, ValueError):
+            return self._fail("non-numeric state input")
+        t, x, v = float(t_s), float(x_m), max(float(v_mps), 0.0)
+        if now_s is not None and float(now_s) - t > self.stale_after_s:
+            return self._fail(f"stale state ({float(now_s) - t:.2f} s old)")
+        if self._last_t is not None and t < self._last_t - 1e-9:
+            return self._fail("state time went backwards")
+        if self.run is None or self._ref is None:
+            self.last_reason = "no plan: holding brake"
+            return Command(SAFE_BRAKE if v > 0.0 else HOLD_BRAKE, False, self.last_reason, 0.0)
+        dt = self.period if self._last_t is None else t - self._last_t
+        if dt <= 0.0:  # duplicate sample: repeat the last command
+            return Command(self._last_u, True, "duplicate state", 0.0)
+        dt = min(dt, 5.0 * self.period)
+        self._last_t = t
+        run = self.run
+        s = float(run.run_coordinate(x))
+        if self._arrived:
+            self.last_reason = "stopped at platform"
+            self._last_u = HOLD_BRAKE
+            return Command(HOLD_BRAKE, True, self.last_reason, 0.0)
+        if s > run.length_m + 2.0:
+            return self._fail(f"overshot the stopping point by {s - run.length_m:.2f} m")
+        r = float(self._ref.speed(s))
+        u = float(self.tracker.step(r, v, dt))
+        ceiling = float(np.sqrt(2.0 * run.ceiling_e(min(max(s, 0.0), run.length_m))))
+        reason = "tracking"
+        if s >= run.pss_start_s:
+            reason = "programmed station stopping"  # seed 001: PSS from 350 m
+        if v > ceiling + 1.0 and s < run.length_m:
+            u = SAFE_BRAKE
+            reason = "above the speed envelope"
+        du = self._du_max_per_s * dt
+        u_lim = min(max(u, self._last_u - du), self._last_u + du)
+        if u_lim != u and reason != "above the speed envelope":
+            self.tracker.set_output(u_lim)
+        u = u_lim
+        if v <= 1e-6 and s > run.length_m - 2.0:
+            self._still_s += dt
+            if self._still_s >= 1.0:
+                self._arrived = True
+                u = HOLD_BRAKE
+                reason = "stopped at platform"
+        else:
+            self._still_s = 0.0
+        self._last_u = u
+        self.last_reason = reason
+        return Command(u, True, reason, r)

@@ -1,0 +1,194 @@
+"""Seed 001 pre-work stage: energy / time tables per section x mode x speed code.
+
+The inter-station distance is divided into ``N_s`` equal sections (seed 001 Sec. 4.2 item 1).
+For every section, operation mode (accelerate / cruise / coast, item 2-3) and speed code
+(40..80 km/h in 5 km/h steps by default) the section is simulated on the real track (grades,
+envelope = limits + braking curves + programmed station stopping) from a grid of entry speeds;
+exit speed, running time and traction energy are stored (item 4: "the results will be stored
+and used during the online optimization stage").  The online stage
+(:mod:`metro_atc.core.ato.mmas`) interpolates these tables linearly in the entry kinetic
+energy ``e = v^2 / 2``, which makes one ant's tour evaluation a handful of table look-ups.
+
+Mode semantics (the speed code is the ATO speed command of the section, a ceiling):
+
+- accelerate: traction at level ``delta`` up to the code, then coast for the rest of the
+  section (still braking if a down-grade pushes the speed above the code);
+- cruise: hold ``min(entry speed, code)`` (partial traction / braking on grades);
+- coast: no effort; the train brakes only when above the code or the envelope.
+
+Also tabulated: the section mean gradient (heuristic information, item 3) and the highest
+useful code of each section ("the upper limit of speed codes ... of each section are decided").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, MODE_CRUISE, RunModel
+from metro_atc.core.ato.strategy import strategy_step
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+DEFAULT_CODES_KMH = tuple(range(40, 85, 5))
+"""Default speed codes [km/h] (seed 001: 40..80 km/h in 5 km/h steps)."""
+
+TIME_INFEASIBLE_S = 1e9
+"""Stand-in running time [s] for a stalled section (kept finite for interpolation)."""
+
+
+@dataclass
+class SectionTables:
+    """Pre-work tables of one run (seed 001 Fig. 2, pre-work stage).
+
+    Arrays ``e_out`` [m^2/s^2], ``time_s`` [s], ``energy_j`` [J] have shape
+    ``(n_sections, 3 modes, n_codes, n_entry)``; ``packed`` stacks them on a last axis and
+    flattens for fast gathers.  ``e_grid`` is the uniform entry grid of e = v^2/2.
+    """
+
+    run: RunModel
+    bounds_s: FloatArray
+    codes_mps: FloatArray
+    e_grid: FloatArray
+    e_out: FloatArray
+    time_s: FloatArray
+    energy_j: FloatArray
+    mean_grade: FloatArray
+    code_allowed: NDArray[np.bool_]
+    substep_m: float
+    delta: float
+
+    def __post_init__(self) -> None:
+        """Pack the tables for the online look-ups."""
+        self.packed = np.stack([self.e_out, self.time_s, self.energy_j], axis=-1).reshape(-1, 3)
+        self.h_e = float(self.e_grid[1] - self.e_grid[0])
+
+    @property
+    def n_sections(self) -> int:
+        """Number of sections N_s."""
+        return int(self.bounds_s.size - 1)
+
+    @property
+    def n_codes(self) -> int:
+        """Number of speed codes."""
+        return int(self.codes_mps.size)
+
+    def lookup(self, section: int, mode: IntArray, code: IntArray, e_in: FloatArray
+               ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Interpolated (e_out, time [s], energy [J]) for arrays of ants in one section."""
+        n_e = self.e_grid.size
+        f = np.clip(e_in / self.h_e, 0.0, n_e - 1.000001)
+        j0 = f.astype(np.int64)
+        w = (f - j0)[:, None]
+        base = ((section * 3 + mode) * self.n_codes + code) * n_e + j0
+        val = self.packed[base] * (1.0 - w) + self.packed[base + 1] * w
+        return val[:, 0], val[:, 1], val[:, 2]
+
+
+def build_section_tables(run: RunModel, n_sections: int = 50,
+                         codes_mps: Optional[ArrayLike] = None, n_entry: int = 64,
+                         substep_m: float = 2.0, delta: float = 1.0) -> SectionTables:
+    """Pre-work stage: simulate every section x mode x code x entry speed (seed 001 Sec. 4.1).
+
+    n_sections: N_s; codes_mps: speed codes [m/s] (default 40..80 km/h step 5);
+    n_entry: entry-speed grid size (uniform in v^2/2 up to the run's highest envelope);
+    substep_m: integration step [m]; delta: traction level of the accelerate mode.
+    """
+    codes = np.asarray(codes_mps if codes_mps is not None
+                       else np.array(DEFAULT_CODES_KMH, dtype=float) / 3.6, dtype=float)
+    bounds = np.linspace(0.0, run.length_m, n_sections + 1)
+    seg = run.length_m / n_sections
+    n_sub = max(1, int(np.ceil(seg / substep_m - 1e-9)))
+    h = seg / n_sub
+    e_top = float(np.max(run.e_ceiling)) * 1.0001 + 1e-6
+    e_grid = np.linspace(0.0, e_top, n_entry)
+    shape = (n_sections, codes.size, n_entry)
+    e_code = np.broadcast_to((0.5 * codes * codes)[None, :, None], shape)
+    e_start_cap = run.ceiling_e(bounds[:-1])[:, None, None]
+    e_in = np.minimum(np.broadcast_to(e_grid[None, None, :], shape), e_start_cap)
+    out_e = np.empty((n_sections, 3) + shape[1:])
+    out_t = np.empty_like(out_e)
+    out_j = np.empty_like(out_e)
+    for mode in (MODE_ACCEL, MODE_CRUISE, MODE_COAST):
+        e = e_in.copy()
+        hold = np.minimum(e_in, e_code)
+        latch = (e >= e_code) if mode == MODE_ACCEL else None
+        t = np.zeros(shape)
+        en = np.zeros(shape)
+        stalled = np.zeros(shape, dtype=bool)
+        for k in range(n_sub):
+            s0 = bounds[:-1] + k * h
+            fg = run.mean_grade_force(s0, s0 + h)[:, None, None]
+            cap = run.ceiling_e(s0 + h)[:, None, None]
+            e, dt, de, st = strategy_step(run.train, run.limits, e, h, fg, cap, mode, e_code,
+                                          hold, delta, latch)
+            t += np.where(np.isfinite(dt), dt, 0.0)
+            en += de
+            stalled |= st
+        out_e[:, mode] = e
+        out_t[:, mode] = np.where(stalled, TIME_INFEASIBLE_S, t)
+        out_j[:, mode] = en
+    v_up = np.sqrt(2.0 * np.array([np.max(run.ceiling_e(np.linspace(a, b, 9)))
+                                   for a, b in zip(bounds[:-1], bounds[1:])]))
+    allowed = codes[None, :] <= v_up[:, None] + 1e-9
+    # keep the lowest code at or above the section's highest useful speed as well
+    first_above = np.argmax(codes[None, :] >= v_up[:, None] - 1e-9, axis=1)
+    has_above = np.any(codes[None, :] >= v_up[:, None] - 1e-9, axis=1)
+    allowed[np.arange(n_sections)[has_above], first_above[has_above]] = True
+    allowed[~np.any(allowed, axis=1), 0] = True
+    gbar = (run.grade_force_integral(bounds[1:]) - run.grade_force_integral(bounds[:-1])) \
+        / (seg * run.train.mass_kg * 9.80665)
+    return SectionTables(run=run, bounds_s=bounds, codes_mps=codes, e_grid=e_grid,
+                         e_out=out_e, time_s=out_t, energy_j=out_j, mean_grade=gbar,
+                         code_allowed=allowed, substep_m=h, delta=float(delta))
+
+
+def simulate_tours(tables: SectionTables, modes: IntArray, codes: IntArray,
+                   record: bool = False
+                   ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_],
+                              Optional[FloatArray], Optional[FloatArray]]:
+    """Exact (non-interpolated) simulation of tours ``modes, codes`` of shape (K, N_s).
+
+    Returns (time [s] (K,), energy [J] (K,), e_end (K,), stalled (K,), s grid, e history
+    (K, n_points) if ``record``).  This is the same physics as the pre-work tables without
+    the entry-speed interpolation; it gives the reported figures of a planned profile.
+    """
+    run = tables.run
+    modes = np.atleast_2d(np.asarray(modes, dtype=np.int64))
+    codes = np.atleast_2d(np.asarray(codes, dtype=np.int64))
+    n_k, n_s = modes.shape
+    seg = run.length_m / n_s
+    n_sub = int(round(seg / tables.substep_m))
+    h = seg / n_sub
+    e = np.zeros(n_k)
+    t = np.zeros(n_k)
+    en = np.zeros(n_k)
+    stalled = np.zeros(n_k, dtype=bool)
+    hist = [e.copy()] if record else []
+    s_sub = tables.bounds_s[:-1, None] + np.arange(n_sub)[None, :] * h
+    fg_all = run.mean_grade_force(s_sub, s_sub + h)
+    cap_all = run.ceiling_e(s_sub + h)
+    for i in range(n_s):
+        e_code = 0.5 * tables.codes_mps[codes[:, i]] ** 2
+        hold = np.minimum(e, e_code)
+        m = modes[:, i]
+        latch = (m == MODE_ACCEL) & (e >= e_code)
+        for k in range(n_sub):
+            fg = float(fg_all[i, k])
+            cap = float(cap_all[i, k])
+            e, dt, de, st = strategy_step(run.train, run.limits, e, h, fg, cap, m, e_code,
+                                          hold, tables.delta, latch)
+            t += np.where(np.isfinite(dt), dt, 0.0)
+            en += de
+            stalled |= st
+            if record:
+                hist.append(e.copy())
+    t = np.where(stalled, np.inf, t)
+    if record:
+        s_grid = np.linspace(0.0, run.length_m, n_s * n_sub + 1)
+        return t, en, e, stalled, s_grid, np.stack(hist, axis=1)
+    return t, en, e, stalled, None, None
