@@ -102,8 +102,9 @@ class SubscriptionPoller:
         with ExitStack() as stack:
             for s in self.subs:
                 stack.enter_context(s.handle)
-            stack.enter_context(self.ctx.handle)
-            ws = _rclpy.WaitSet(len(self.subs), 0, 0, 0, 0, 0, self.ctx.handle)
+            ctx_handle: Any = self.ctx.handle
+            stack.enter_context(ctx_handle)
+            ws = _rclpy.WaitSet(len(self.subs), 0, 0, 0, 0, 0, ctx_handle)
             ws.clear_entities()
             for s in self.subs:
                 ws.add_subscription(s.handle)

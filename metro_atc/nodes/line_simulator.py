@@ -219,19 +219,22 @@ class LineSimulator(Node):
         return k
 
     def close(self) -> None:
-        """Write the run's outputs (KPIs JSON, events CSV, plots) if an out_dir is set."""
+        """Write the run's outputs (events CSV, plots, KPIs JSON) if an out_dir is set."""
         if not self.out_dir:
             return
         out = Path(self.out_dir)
         out.mkdir(parents=True, exist_ok=True)
+        try:
+            from metro_atc import plots
+            if self.plots:
+                plots.write_outputs(self.sim, out)
+            else:
+                plots.write_events_csv(self.sim, out / "events.csv")
+        except Exception as exc:  # noqa: BLE001 - outputs must not hide the KPIs
+            self.get_logger().error(f"writing outputs to {out} failed: {exc}")
         k = self.kpis()
         k["finished"] = bool(self.finished)
         (out / "kpis.json").write_text(json.dumps(_jsonable(k), indent=2, sort_keys=True))
-        try:
-            from metro_atc import plots
-            plots.write_outputs(self.sim, out, with_plots=bool(self.plots))
-        except Exception as exc:  # noqa: BLE001 - outputs must not hide the KPIs
-            self.get_logger().error(f"writing outputs to {out} failed: {exc}")
 
 
 def _jsonable(x: Any) -> Any:

@@ -1,0 +1,172 @@
+"""Benchmark: speed of the ROS-free line plant core (issue 3).
+
+``python -m metro_atc.bench.perf [--json] [--out DIR] [--quick] [--seed N] [--scenario S]``
+
+Runs the scenario (default ``taipei_blue``: one peak hour of departures, 30 trains, plus the
+run-out) headless with the reference driver :func:`simple_driver` in lockstep and reports
+the core real-time factor ``core_rtf`` = simulated time / wall time (also per CPU second),
+where the time goes (driver vs plant step, cProfile top functions), the cost of consuming
+the brake sensor samples, the energy-balance closure and the safety KPIs.  ``graph_rtf`` is
+the multi-process ROS graph's factor; it is measured by running the graph (lead's
+``python -m metro_atc run``), so it is reported as null here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import io
+import json
+import pstats
+import time
+from typing import Any
+
+import numpy as np
+
+from metro_atc.core.plant.driver import simple_driver
+from metro_atc.core.plant.line import LineSim
+from metro_atc.core.plant.scenario import load_scenario
+
+TARGET_CORE_RTF = 5000.0
+"""Issue 3 target for the core-only real-time factor."""
+TARGET_GRAPH_RTF = 30.0
+"""Issue 3 target for the ROS graph real-time factor (measured elsewhere)."""
+
+
+def energy_balance_error(sim: LineSim) -> float:
+    """Largest per-train relative closure error of the mechanical energy balance [-].
+
+    traction work = kinetic energy + grade work + resistance + curve + rail braking.
+    """
+    e = sim.energy_breakdown()
+    resid = (e["traction_wheel"] - e["brake_rail"] - e["resistance"] - e["curve"]
+             - e["grade"] - e["kinetic"])
+    scale = np.maximum(e["traction_wheel"], 1.0)
+    return float(np.max(np.abs(resid) / scale))
+
+
+def run_core(scenario: str, seed: int, sim_limit_s: float | None, sensors: bool,
+             profile: bool = False) -> dict[str, Any]:
+    """Run a scenario headless; returns timing, KPIs and (optionally) a profile."""
+    sim = LineSim(load_scenario(scenario), seed=seed)
+    limit = sim.duration_s if sim_limit_s is None else sim_limit_s
+    prof = cProfile.Profile() if profile else None
+    n_samples = 0
+    t_drv = 0.0
+    w0 = time.perf_counter()
+    c0 = time.process_time()
+    if prof is not None:
+        prof.enable()
+    while not sim.done and sim.t < limit:
+        d0 = time.perf_counter()
+        u = simple_driver(sim)
+        t_drv += time.perf_counter() - d0
+        res = sim.step(u)
+        if sensors:
+            blk = res.sensor_arrays
+            if blk is not None:
+                n_samples += blk.t.size * blk.trains.size
+    if prof is not None:
+        prof.disable()
+    wall = time.perf_counter() - w0
+    cpu = time.process_time() - c0
+    out: dict[str, Any] = {
+        "sim_time_s": sim.t, "wall_s": wall, "cpu_s": cpu, "steps": sim.step_count,
+        "rtf": sim.t / wall, "rtf_cpu": sim.t / max(cpu, 1e-9),
+        "us_per_step": wall / max(sim.step_count, 1) * 1e6,
+        "driver_share": t_drv / wall, "trains": sim.n, "sensor_samples": n_samples,
+        "kpis": sim.kpis(), "energy_balance_error": energy_balance_error(sim), "sim": sim,
+        "stop_correction_share": float(sim.e_stop_corr.sum()
+                                       / max(float(sim.e_brake_rail.sum()), 1.0)),
+    }
+    if prof is not None:
+        s = io.StringIO()
+        pstats.Stats(prof, stream=s).sort_stats("tottime").print_stats(8)
+        rows = []
+        st = pstats.Stats(prof).sort_stats("tottime")
+        for (fn, line, name), (_, nc, tt, ct, _) in list(st.stats.items()):  # type: ignore
+            rows.append((tt, f"{fn.split('/')[-1]}:{line}({name})", nc, ct))
+        rows.sort(reverse=True)
+        out["profile_top"] = [{"function": r[1], "calls": r[2], "tottime_s": round(r[0], 4),
+                               "cumtime_s": round(r[3], 4)} for r in rows[:8]]
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark; ``--json`` prints one JSON object."""
+    ap = argparse.ArgumentParser(prog="metro_atc.bench.perf", description=__doc__.split("\n")[0])
+    ap.add_argument("--json", action="store_true", help="print one JSON object")
+    ap.add_argument("--out", default=None, help="directory for the run's PNGs/KPIs/events")
+    ap.add_argument("--quick", action="store_true", help="first 900 s of simulated time only")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--scenario", default="taipei_blue")
+    a = ap.parse_args(argv)
+    limit = 900.0 if a.quick else None
+    main_run = run_core(a.scenario, a.seed, limit, sensors=False)
+    sens_run = run_core(a.scenario, a.seed, limit, sensors=True)
+    prof_run = run_core(a.scenario, a.seed, 600.0, sensors=False, profile=True)
+    k = main_run["kpis"]
+    result: dict[str, Any] = {
+        "scenario": a.scenario,
+        "core_rtf": round(main_run["rtf"], 1),
+        "core_rtf_cpu": round(main_run["rtf_cpu"], 1),
+        "core_us_per_step": round(main_run["us_per_step"], 1),
+        "core_driver_share": round(main_run["driver_share"], 3),
+        "core_rtf_with_sensors": round(sens_run["rtf"], 1),
+        "sensor_samples_per_s": round(sens_run["sensor_samples"] / sens_run["sim_time_s"], 1),
+        "graph_rtf": None,
+        "graph_rtf_note": "measured by running the ROS graph (python -m metro_atc run); "
+                          "not part of this core benchmark",
+        "trains": main_run["trains"],
+        "sim_time_s": round(main_run["sim_time_s"], 2),
+        "steps": main_run["steps"],
+        "wall_s": round(main_run["wall_s"], 3),
+        "completed_trains": k["completed_trains"],
+        "atp_violations": k["atp_violations"],
+        "atp_interventions": k["atp_interventions"],
+        "min_separation_m": k["min_separation_m"],
+        "energy_kwh": round(k["energy_kwh"], 2),
+        "energy_balance_error": main_run["energy_balance_error"],
+        "energy_stop_correction_share": main_run["stop_correction_share"],
+        "max_delay_s": k["max_delay_s"],
+        "targets": {"core_rtf": TARGET_CORE_RTF, "graph_rtf": TARGET_GRAPH_RTF},
+        "profile_top": prof_run["profile_top"],
+        "quick": a.quick,
+        "seed": a.seed,
+    }
+    if a.out:
+        from metro_atc.plots import write_outputs
+        write_outputs(main_run["sim"], a.out)
+    if a.json:
+        print(json.dumps(result))
+        return 0
+    print(f"line plant core benchmark -- scenario {a.scenario} (seed {a.seed})")
+    print(f"{'quantity':34s} {'target (issue 3)':>18s} {'ours':>14s}")
+    rows = [
+        ("core real-time factor (wall)", f">= {TARGET_CORE_RTF:.0f}", f"{result['core_rtf']:.0f}"),
+        ("core real-time factor (CPU time)", "", f"{result['core_rtf_cpu']:.0f}"),
+        ("  with sensor samples consumed", "", f"{result['core_rtf_with_sensors']:.0f}"),
+        ("wall time per lockstep step [us]", "", f"{result['core_us_per_step']:.0f}"),
+        ("  of which reference driver", "", f"{100 * result['core_driver_share']:.0f} %"),
+        ("graph real-time factor", f">= {TARGET_GRAPH_RTF:.0f}", "n/a (ROS run)"),
+        ("trains", ">= 25", f"{result['trains']}"),
+        ("simulated time [s]", "", f"{result['sim_time_s']:.0f}"),
+        ("completed trains", "all", f"{result['completed_trains']}"),
+        ("ATP violations", "0", f"{result['atp_violations']}"),
+        ("ATP interventions", "", f"{result['atp_interventions']}"),
+        ("energy balance closure error", "<= 0.1 %",
+         f"{100 * result['energy_balance_error']:.2e} %"),
+        ("  braking work re-assigned at stops", "",
+         f"{100 * result['energy_stop_correction_share']:.1e} %"),
+        ("substation energy [kWh]", "", f"{result['energy_kwh']:.0f}"),
+    ]
+    for r in rows:
+        print(f"{r[0]:34s} {r[1]:>18s} {r[2]:>14s}")
+    print("where the time goes (cProfile, 600 s of simulated time, tottime):")
+    for p in result["profile_top"]:
+        print(f"  {p['tottime_s']:8.3f} s  {p['calls']:7d} calls  {p['function']}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,544 @@
+"""Scenario files: typed schema, YAML loading and validation with one-line errors.
+
+A scenario is a YAML mapping whose structure is defined by the frozen dataclasses below
+(they *are* the schema; ``metro_atc/scenarios/SCHEMA.md`` documents the same keys and
+``test_plant_scenario.py`` checks the two agree).  Units follow the key suffix: ``_m``
+metres, ``_s`` seconds, ``_kmh`` km/h (converted to m/s internally), ``_permille`` per
+mille grade, ``_pph`` persons per hour, ``_n`` newtons, ``_hz`` hertz.
+
+Errors are raised as :class:`ScenarioError` with a single line naming the file, the key path
+and the expected type/range, e.g.
+``scenario taipei_blue.yaml: trains.count: expected int in [1, 60], got 'x'``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal, Union
+
+import yaml
+
+__all__ = [
+    "ScenarioError", "Scenario", "SCENARIO_NAMES", "load_scenario", "parse_scenario",
+    "schema_keys",
+]
+
+
+class ScenarioError(ValueError):
+    """Invalid scenario: the message is one line naming the key path and what was expected."""
+
+
+def _f(default: Any = dataclasses.MISSING, lo: float | None = None, hi: float | None = None,
+       doc: str = "", lo_open: bool = False) -> Any:
+    """Dataclass field with schema metadata (range [lo, hi], documentation)."""
+    meta = {"lo": lo, "hi": hi, "doc": doc, "lo_open": lo_open}
+    if isinstance(default, list):
+        items = list(default)
+        return field(default_factory=lambda: list(items), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+INF = math.inf
+
+# --------------------------------------------------------------------------- schema
+
+
+@dataclass(frozen=True, kw_only=True)
+class SimSpec:
+    """Simulation clock."""
+
+    control_period_s: float = _f(0.25, 0.01, 5.0, "lockstep control period")
+    physics_substeps: int = _f(1, 1, 50, "RK4 sub-steps per control period")
+    duration_s: float = _f(7200.0, 1.0, 200_000.0, "hard stop of the run (sim time)")
+    grid_m: float = _f(1.0, 0.1, 20.0, "resolution of the precomputed track/ATP grid")
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrainsSpec:
+    """Fleet: number of train services and the rolling stock."""
+
+    count: int = _f(dataclasses.MISSING, 1, 60, "number of train services (train_01..)")
+    preset: Literal["taipei_mrt_6car", "thsr_700t"] = _f("taipei_mrt_6car", doc="rolling stock")
+    mass_kg: float | None = _f(None, 1e3, 2e6, "override: loaded mass incl. nominal load")
+    length_m: float | None = _f(None, 5.0, 600.0, "override: train length")
+    max_speed_kmh: float | None = _f(None, 10.0, 400.0, "override: design max speed")
+    capacity_pax: float | None = _f(None, 1.0, 5000.0, "override: crush capacity")
+    initial_load_pax: float = _f(0.0, 0.0, 5000.0, "passengers on board when entering")
+    instrumented_car: int = _f(1, 1, 16, "car (1-based) carrying the brake sensors")
+
+
+@dataclass(frozen=True, kw_only=True)
+class StationSpec:
+    """One station; ``position_m`` is the platform stop point of the train front."""
+
+    name: str = _f(dataclasses.MISSING, doc="station name")
+    position_m: float = _f(dataclasses.MISSING, -1e7, 1e7, "chainage of the stop point")
+    code: str = _f("", doc="station code, e.g. BL12")
+
+
+@dataclass(frozen=True, kw_only=True)
+class GradientSpec:
+    """Grade from ``start_m`` to the next entry (+ uphill in running direction)."""
+
+    start_m: float = _f(dataclasses.MISSING, -1e7, 1e7, "segment start chainage")
+    grade_permille: float = _f(dataclasses.MISSING, -60.0, 60.0, "grade [per mille]")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SpeedLimitSpec:
+    """Permanent speed limit from ``start_m`` to the next entry."""
+
+    start_m: float = _f(dataclasses.MISSING, -1e7, 1e7, "segment start chainage")
+    limit_kmh: float = _f(dataclasses.MISSING, 5.0, 400.0, "limit [km/h]")
+
+
+@dataclass(frozen=True, kw_only=True)
+class CurveSpec:
+    """Horizontal curve (curve resistance, Roeckl formula)."""
+
+    start_m: float = _f(dataclasses.MISSING, -1e7, 1e7, "curve start chainage")
+    end_m: float = _f(dataclasses.MISSING, -1e7, 1e7, "curve end chainage")
+    radius_m: float = _f(dataclasses.MISSING, 100.0, 1e5, "curve radius")
+
+
+@dataclass(frozen=True, kw_only=True)
+class TsrSpec:
+    """Temporary speed restriction, in force for sim time [from_s, to_s)."""
+
+    start_m: float = _f(dataclasses.MISSING, -1e7, 1e7, "zone start chainage")
+    end_m: float = _f(dataclasses.MISSING, -1e7, 1e7, "zone end chainage")
+    limit_kmh: float = _f(dataclasses.MISSING, 5.0, 400.0, "limit [km/h]")
+    from_s: float = _f(0.0, 0.0, INF, "in force from")
+    to_s: float = _f(INF, 0.0, INF, "in force until")
+
+
+@dataclass(frozen=True, kw_only=True)
+class LineSpec:
+    """Track: stations, gradients, limits, curves, blocks, terminus."""
+
+    stations: list[StationSpec] = _f(dataclasses.MISSING, doc="stations, increasing chainage")
+    line_speed_kmh: float = _f(80.0, 5.0, 400.0, "limit where no speed_limits entry applies")
+    speed_limits: list[SpeedLimitSpec] = _f([], doc="permanent limits (step function)")
+    gradients: list[GradientSpec] = _f([], doc="grades (step function)")
+    curves: list[CurveSpec] = _f([], doc="curves")
+    temporary_speed_limits: list[TsrSpec] = _f([], doc="TSRs (also via incidents)")
+    block_length_m: float = _f(400.0, 20.0, 10_000.0, "fixed-block length (fixed_block mode)")
+    tail_track_m: float = _f(300.0, 50.0, 5000.0, "turnback tail track beyond the terminus")
+    turnback_s: float = _f(120.0, 0.0, 3600.0, "time in the tail track before leaving service")
+    turnback_sidings: int = _f(2, 1, 4, "parallel turnback sidings beyond the terminus")
+    tail_speed_kmh: float = _f(40.0, 5.0, 400.0, "limit beyond the terminal stop point")
+    stop_tolerance_m: float = _f(1.0, 0.05, 20.0, "a stop within +-tol of the stop point "
+                                 "opens the doors")
+    adhesion: Literal["dry", "wet"] = _f("dry", doc="rail condition (slip-adhesion curve)")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SignallingSpec:
+    """ATP / signalling parameters (seed 001 Fig. 1 braking-curve construction)."""
+
+    mode: Literal["moving_block", "fixed_block"] = _f("moving_block", doc="separation mode")
+    safety_margin_m: float = _f(50.0, 0.0, 5000.0, "margin behind the rear of the train ahead")
+    response_time_s: float = _f(1.0, 0.0, 10.0, "ATP response time t_r (>= control period + "
+                                "emergency-brake build-up)")
+    guaranteed_decel_mps2: float | None = _f(None, 0.1, 3.0, "guaranteed emergency decel on "
+                                             "level track (default: rolling stock & adhesion)")
+    overspeed_margin_kmh: float = _f(5.0, 0.0, 30.0, "ceiling above the limit (supervision)")
+    sbi_lead_s: float = _f(2.0, 0.0, 30.0, "service-brake intervention this long before EBI")
+    tsr_notice_s: float = _f(120.0, 0.0, 3600.0, "ATP knows a TSR this long before it applies")
+
+
+@dataclass(frozen=True, kw_only=True)
+class PeriodSpec:
+    """One timetable period (seed 000 eq. 7-9 TSK duration): headway + passenger flow."""
+
+    start_s: float = _f(dataclasses.MISSING, 0.0, 200_000.0, "period start (sim time)")
+    headway_s: float = _f(dataclasses.MISSING, 30.0, 7200.0, "scheduled headway H_n")
+    boarding_pph: list[float] = _f(dataclasses.MISSING, doc="boarding demand p_jn per station")
+    name: str = _f("", doc="label")
+
+
+@dataclass(frozen=True, kw_only=True)
+class TimetableSpec:
+    """Dispatching from the first station (timetable per seed 000 eq. 10)."""
+
+    first_departure_s: float = _f(60.0, 0.0, 200_000.0, "first departure at station 0")
+    periods: list[PeriodSpec] = _f(dataclasses.MISSING, doc="periods, increasing start_s")
+    running_time_margin: float = _f(0.07, 0.0, 1.0, "scheduled = minimum running time x (1+m)")
+
+
+@dataclass(frozen=True, kw_only=True)
+class PassengersSpec:
+    """Dwell model: boarding/alighting rates, door overhead, capacity."""
+
+    boarding_s_per_pax: float = _f(0.02, 0.0, 1.0, "t_b: train-wide boarding time per person")
+    alighting_s_per_pax: float = _f(0.015, 0.0, 1.0, "train-wide alighting time per person")
+    door_overhead_s: float = _f(12.0, 0.0, 300.0, "door open/close + dispatch overhead")
+    min_dwell_s: float = _f(20.0, 0.0, 600.0, "minimum dwell")
+    alight_fraction: list[float] = _f(dataclasses.MISSING, doc="share of the load alighting")
+
+
+@dataclass(frozen=True, kw_only=True)
+class DisturbanceSpec:
+    """Stochastic disturbances (seed 000: departure delays are exponential)."""
+
+    departure_delay_prob: float = _f(0.3, 0.0, 1.0, "probability of a departure delay")
+    departure_delay_mean_s: float = _f(5.0, 0.0, 600.0, "mean of the exponential delay")
+    running_time_noise: float = _f(0.02, 0.0, 0.3, "std of the per-run traction level loss")
+
+
+@dataclass(frozen=True, kw_only=True)
+class IncidentSpec:
+    """Scripted incident: ``hold`` (train at station), ``breakdown`` (train at time), ``tsr``."""
+
+    kind: Literal["hold", "breakdown", "tsr"] = _f(dataclasses.MISSING, doc="incident kind")
+    train: str = _f("", doc="train id (hold, breakdown)")
+    station: str = _f("", doc="station code or name (hold)")
+    at_s: float = _f(0.0, 0.0, INF, "start time (breakdown, tsr)")
+    duration_s: float = _f(0.0, 0.0, INF, "hold / breakdown / tsr duration")
+    start_m: float = _f(0.0, -1e7, 1e7, "tsr zone start")
+    end_m: float = _f(0.0, -1e7, 1e7, "tsr zone end")
+    limit_kmh: float = _f(25.0, 5.0, 400.0, "tsr limit")
+
+
+@dataclass(frozen=True, kw_only=True)
+class FaultSpec:
+    """Injected fault on a train's instrumented car."""
+
+    kind: Literal["pad_mu", "wheel", "sensor_dropout", "sensor_stuck"] = _f(
+        dataclasses.MISSING, doc="fault kind")
+    train: str = _f(dataclasses.MISSING, doc="train id")
+    axle: int = _f(0, 0, 4, "axle 1..4 of the instrumented car; 0 = all axles")
+    at_s: float = _f(0.0, 0.0, INF, "fault onset")
+    duration_s: float = _f(INF, 0.0, INF, "fault duration")
+    mu_b: float = _f(0.1, 0.0, 1.0, "pad_mu: degraded disk-pad friction coefficient")
+    adhesion_factor: float = _f(0.5, 0.0, 1.0, "wheel: adhesion scale of the defective wheel")
+    radius_factor: float = _f(1.0, 0.9, 1.1, "wheel: rolling radius scale (worn/flat wheel)")
+    channel: Literal["wheel_omega", "clamp_force", "accel", "ref_speed", "all"] = _f(
+        "all", doc="sensor faults: affected channel")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SensorSpec:
+    """Brake-by-wire sensors of each train's instrumented car (4 axles)."""
+
+    rate_hz: float = _f(20.0, 0.1, 1000.0, "sample rate")
+    trains: list[str] = _f([], doc="instrumented trains (empty: all)")
+    wheel_omega_noise_radps: float = _f(0.02, 0.0, 10.0, "wheel speed noise std")
+    clamp_force_noise_n: float = _f(100.0, 0.0, 1e5, "clamp force noise std")
+    accel_noise_mps2: float = _f(0.02, 0.0, 5.0, "accelerometer noise std")
+    ref_speed_noise_mps: float = _f(0.02, 0.0, 5.0, "reference speed noise std")
+
+
+@dataclass(frozen=True, kw_only=True)
+class EnergySpec:
+    """Energy metering overrides (defaults from the rolling stock)."""
+
+    traction_efficiency: float | None = _f(None, 0.1, 1.0, "substation-to-wheel efficiency")
+    regen_efficiency: float | None = _f(None, 0.0, 1.0, "wheel-to-line regen efficiency")
+    regen_receptivity: float = _f(1.0, 0.0, 1.0, "share of regen absorbed by the line")
+    aux_power_kw: float | None = _f(None, 0.0, 5000.0, "auxiliary load per train in service")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Scenario:
+    """A complete scenario (the root of the YAML file)."""
+
+    name: str = _f(dataclasses.MISSING, doc="scenario name")
+    trains: TrainsSpec = _f(dataclasses.MISSING, doc="fleet")
+    line: LineSpec = _f(dataclasses.MISSING, doc="track")
+    timetable: TimetableSpec = _f(dataclasses.MISSING, doc="dispatching")
+    passengers: PassengersSpec = _f(dataclasses.MISSING, doc="dwell model")
+    description: str = _f("", doc="free text")
+    sources: list[str] = _f([], doc="where the numbers come from / which are estimates")
+    sim: SimSpec = _f(SimSpec(), doc="clock")
+    signalling: SignallingSpec = _f(SignallingSpec(), doc="ATP")
+    disturbances: DisturbanceSpec = _f(DisturbanceSpec(), doc="disturbances")
+    incidents: list[IncidentSpec] = _f([], doc="scripted incidents")
+    faults: list[FaultSpec] = _f([], doc="fault injection")
+    sensors: SensorSpec = _f(SensorSpec(), doc="sensors")
+    energy: EnergySpec = _f(EnergySpec(), doc="energy metering")
+    source_file: str = field(default="", metadata={"internal": True})
+
+    @property
+    def train_ids(self) -> list[str]:
+        """Train ids ``train_01`` .. ``train_NN``."""
+        return [f"train_{i + 1:02d}" for i in range(self.trains.count)]
+
+    def station_index(self, key: str) -> int:
+        """Index of a station given its code or name (exact match); -1 if unknown."""
+        for i, s in enumerate(self.line.stations):
+            if key in (s.code, s.name) and key:
+                return i
+        return -1
+
+
+# --------------------------------------------------------------------------- builder
+
+
+def _type_name(tp: Any) -> str:
+    """Human-readable name of a schema type."""
+    origin = typing.get_origin(tp)
+    if origin is Literal:
+        return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
+    if origin in (Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        return _type_name(args[0]) + " or null"
+    if origin is list:
+        return "list of " + _type_name(typing.get_args(tp)[0])
+    if dataclasses.is_dataclass(tp):
+        return "mapping"
+    return getattr(tp, "__name__", str(tp))
+
+
+def _range_text(meta: dict[str, Any]) -> str:
+    lo, hi = meta.get("lo"), meta.get("hi")
+    if lo is None and hi is None:
+        return ""
+    lo_s = "-inf" if lo is None else f"{lo:g}"
+    hi_s = "inf" if hi is None else f"{hi:g}"
+    return f" in [{lo_s}, {hi_s}]"
+
+
+class _Builder:
+    """Build the frozen dataclasses from parsed YAML, validating every value."""
+
+    def __init__(self, src: str) -> None:
+        self.src = src
+
+    def err(self, path: str, msg: str) -> ScenarioError:
+        """An error for key ``path``."""
+        return ScenarioError(f"scenario {self.src}: {path}: {msg}")
+
+    def value(self, tp: Any, raw: Any, path: str, meta: dict[str, Any]) -> Any:
+        """Convert/validate one value of schema type ``tp``."""
+        origin = typing.get_origin(tp)
+        expect = _type_name(tp) + _range_text(meta)
+        if origin in (Union, types.UnionType):
+            args = [a for a in typing.get_args(tp) if a is not type(None)]
+            if raw is None:
+                return None
+            return self.value(args[0], raw, path, meta)
+        if origin is Literal:
+            if raw not in typing.get_args(tp):
+                raise self.err(path, f"expected {expect}, got {raw!r}")
+            return raw
+        if origin is list:
+            if not isinstance(raw, list):
+                raise self.err(path, f"expected {expect}, got {raw!r}")
+            sub = typing.get_args(tp)[0]
+            return [self.value(sub, r, f"{path}[{i}]", {}) for i, r in enumerate(raw)]
+        if dataclasses.is_dataclass(tp):
+            if not isinstance(raw, dict):
+                raise self.err(path, f"expected mapping, got {raw!r}")
+            return self.build(tp, raw, path)
+        if tp is bool:
+            if not isinstance(raw, bool):
+                raise self.err(path, f"expected bool, got {raw!r}")
+            return raw
+        if tp is str:
+            if not isinstance(raw, str):
+                raise self.err(path, f"expected str, got {raw!r}")
+            return raw
+        if tp is int:
+            ok = isinstance(raw, int) and not isinstance(raw, bool)
+            if not ok or not self._in_range(float(raw), meta):
+                raise self.err(path, f"expected {expect}, got {raw!r}")
+            return int(raw)
+        if tp is float:
+            ok = isinstance(raw, (int, float)) and not isinstance(raw, bool)
+            if not ok or math.isnan(float(raw)) or not self._in_range(float(raw), meta):
+                raise self.err(path, f"expected {expect}, got {raw!r}")
+            return float(raw)
+        raise self.err(path, f"unsupported schema type {tp!r}")  # pragma: no cover
+
+    @staticmethod
+    def _in_range(x: float, meta: dict[str, Any]) -> bool:
+        lo, hi = meta.get("lo"), meta.get("hi")
+        if lo is not None and x < lo:
+            return False
+        if hi is not None and x > hi:
+            return False
+        return True
+
+    def build(self, cls: Any, raw: dict[str, Any], path: str) -> Any:
+        """Build dataclass ``cls`` from mapping ``raw``; unknown keys are errors."""
+        hints = typing.get_type_hints(cls)
+        fields = {f.name: f for f in dataclasses.fields(cls) if not f.metadata.get("internal")}
+        for key in raw:
+            if key not in fields:
+                p = f"{path}.{key}" if path else str(key)
+                raise self.err(p, "unknown key (known: " + ", ".join(fields) + ")")
+        kwargs: dict[str, Any] = {}
+        for name, f in fields.items():
+            p = f"{path}.{name}" if path else name
+            if name in raw:
+                kwargs[name] = self.value(hints[name], raw[name], p, dict(f.metadata))
+            elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise self.err(p, f"missing required key ({_type_name(hints[name])})")
+        return cls(**kwargs)
+
+
+def _default_text(f: Any) -> str:
+    if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+        return "required"
+    if f.default_factory is not dataclasses.MISSING:
+        return "[]"
+    if dataclasses.is_dataclass(f.default):
+        return "(defaults)"
+    return "null" if f.default is None else repr(f.default)
+
+
+def schema_keys(cls: Any = Scenario,
+                prefix: str = "") -> list[tuple[str, str, str, str, str]]:
+    """Flattened schema: (key path, type, range, default, doc) per key (SCHEMA.md, tests)."""
+    out: list[tuple[str, str, str, str, str]] = []
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        if f.metadata.get("internal"):
+            continue
+        tp = hints[f.name]
+        path = f"{prefix}{f.name}"
+        out.append((path, _type_name(tp), _range_text(dict(f.metadata)).strip(),
+                    _default_text(f), str(f.metadata.get("doc", ""))))
+        inner = tp
+        if typing.get_origin(tp) is list:
+            inner = typing.get_args(tp)[0]
+            path = path + "[]"
+        if dataclasses.is_dataclass(inner):
+            out.extend(schema_keys(inner, path + "."))
+    return out
+
+
+# --------------------------------------------------------------------------- semantics
+
+
+def _check(b: _Builder, s: Scenario) -> None:
+    """Cross-field validation (ordering, lengths, references)."""
+    st = s.line.stations
+    n = len(st)
+    if n < 2 or n > 200:
+        raise b.err("line.stations", f"expected 2..200 stations, got {n}")
+    for i in range(1, n):
+        if st[i].position_m <= st[i - 1].position_m + 10.0:
+            raise b.err(f"line.stations[{i}].position_m",
+                        f"expected > stations[{i - 1}].position_m + 10, got {st[i].position_m}")
+    names = [x.name for x in st]
+    if len(set(names)) != n:
+        raise b.err("line.stations", "station names must be unique")
+    for key, items in (("line.speed_limits", s.line.speed_limits),
+                       ("line.gradients", s.line.gradients)):
+        starts = [it.start_m for it in items]
+        for i in range(1, len(starts)):
+            if starts[i] <= starts[i - 1]:
+                raise b.err(f"{key}[{i}].start_m", "expected strictly increasing start_m")
+    for i, c in enumerate(s.line.curves):
+        if c.end_m <= c.start_m:
+            raise b.err(f"line.curves[{i}].end_m", "expected end_m > start_m")
+    for i, t in enumerate(s.line.temporary_speed_limits):
+        if t.end_m <= t.start_m:
+            raise b.err(f"line.temporary_speed_limits[{i}].end_m", "expected end_m > start_m")
+        if t.to_s <= t.from_s:
+            raise b.err(f"line.temporary_speed_limits[{i}].to_s", "expected to_s > from_s")
+    per = s.timetable.periods
+    if not per:
+        raise b.err("timetable.periods", "expected at least one period")
+    for i, p in enumerate(per):
+        if len(p.boarding_pph) != n:
+            raise b.err(f"timetable.periods[{i}].boarding_pph",
+                        f"expected list of {n} floats (one per station), "
+                        f"got {len(p.boarding_pph)}")
+        for j, v in enumerate(p.boarding_pph):
+            if not (isinstance(v, float) and 0.0 <= v <= 1e5):
+                raise b.err(f"timetable.periods[{i}].boarding_pph[{j}]",
+                            f"expected float in [0, 100000], got {v!r}")
+        if i and p.start_s <= per[i - 1].start_s:
+            raise b.err(f"timetable.periods[{i}].start_s", "expected strictly increasing start_s")
+    af = s.passengers.alight_fraction
+    if len(af) != n:
+        raise b.err("passengers.alight_fraction",
+                    f"expected list of {n} floats (one per station), got {len(af)}")
+    for j, v in enumerate(af):
+        if not 0.0 <= v <= 1.0:
+            raise b.err(f"passengers.alight_fraction[{j}]", f"expected float in [0, 1], got {v!r}")
+    ids = set(s.train_ids)
+    for i, inc in enumerate(s.incidents):
+        if inc.kind in ("hold", "breakdown") and inc.train not in ids:
+            raise b.err(f"incidents[{i}].train",
+                        f"expected a train id train_01..train_{s.trains.count:02d}, "
+                        f"got {inc.train!r}")
+        if inc.kind == "hold" and s.station_index(inc.station) < 0:
+            raise b.err(f"incidents[{i}].station",
+                        f"expected a station code or name, got {inc.station!r}")
+        if inc.kind == "tsr" and inc.end_m <= inc.start_m:
+            raise b.err(f"incidents[{i}].end_m", "expected end_m > start_m")
+        if inc.kind in ("hold", "breakdown", "tsr") and inc.duration_s <= 0.0:
+            raise b.err(f"incidents[{i}].duration_s", "expected float > 0")
+    for i, fl in enumerate(s.faults):
+        if fl.train not in ids:
+            raise b.err(f"faults[{i}].train",
+                        f"expected a train id train_01..train_{s.trains.count:02d}, "
+                        f"got {fl.train!r}")
+    for i, tid in enumerate(s.sensors.trains):
+        if tid not in ids:
+            raise b.err(f"sensors.trains[{i}]", f"expected a train id, got {tid!r}")
+    if s.signalling.response_time_s < s.sim.control_period_s:
+        raise b.err("signalling.response_time_s",
+                    f"expected >= sim.control_period_s ({s.sim.control_period_s}), "
+                    f"got {s.signalling.response_time_s}")
+
+
+# --------------------------------------------------------------------------- loading
+
+
+def _package_dir() -> Path:
+    return Path(str(resources.files("metro_atc").joinpath("scenarios")))
+
+
+def _names() -> tuple[str, ...]:
+    d = _package_dir()
+    if not d.is_dir():  # pragma: no cover - broken install
+        return ()
+    return tuple(sorted(p.stem for p in d.glob("*.yaml")))
+
+
+SCENARIO_NAMES: tuple[str, ...] = _names()
+"""Names of the scenarios shipped in ``metro_atc/scenarios/*.yaml``."""
+
+
+def parse_scenario(text: str, src: str = "<string>") -> Scenario:
+    """Parse and validate scenario YAML text; ``src`` names it in error messages."""
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        line = str(exc).replace("\n", " ")
+        raise ScenarioError(f"scenario {src}: malformed YAML: {line}") from None
+    if not isinstance(raw, dict):
+        raise ScenarioError(f"scenario {src}: expected a mapping at the top level, got {raw!r}")
+    b = _Builder(src)
+    scn: Scenario = b.build(Scenario, raw, "")
+    _check(b, scn)
+    return dataclasses.replace(scn, source_file=src)
+
+
+def load_scenario(name_or_path: str | Path) -> Scenario:
+    """Load a scenario by embedded name (see :data:`SCENARIO_NAMES`) or YAML file path."""
+    key = str(name_or_path)
+    path = Path(key)
+    if key in SCENARIO_NAMES and not (path.suffix and path.is_file()):
+        path = _package_dir() / f"{key}.yaml"
+    elif not path.is_file():
+        if path.suffix in (".yaml", ".yml") or "/" in key:
+            raise ScenarioError(f"scenario {key}: file not found")
+        raise ScenarioError(f"unknown scenario {key!r}; known: {', '.join(SCENARIO_NAMES)} "
+                            "(or a path to a YAML file)")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ScenarioError(f"scenario {path.name}: cannot read: {exc}") from None
+    return parse_scenario(text, path.name)

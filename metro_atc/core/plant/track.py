@@ -1,0 +1,113 @@
+"""Line geometry on a grid and the ATP braking-curve mathematics (ROS-free, vectorised).
+
+The line chainage x [m] is sampled on a uniform grid ``x_k = x0 + k dx``; grid cell k covers
+``[x_k, x_k + dx)`` and every *ceiling* stored for a cell is the minimum over the cell, so a
+lookup ``k = floor((x - x0) / dx)`` is conservative.
+
+ATP supervision (seed 001 Fig. 1: response distance + guaranteed emergency-braking distance
++ safety margin).  Worst case assumed by ATP: during the response time ``t_r`` the train may
+still accelerate at ``a_w`` (full traction plus the steepest downhill grade); afterwards it
+decelerates at least at ``b_g`` (guaranteed emergency decel minus the steepest downhill).
+
+* Emergency-brake intervention (EBI) speed for a distance ``D`` to a target where speed must
+  be at most ``v_t`` (``v_t = 0`` for the end of authority):
+  ``w = v + a_w t_r``, ``v t_r + a_w t_r^2 / 2 + (w^2 - v_t^2) / (2 b_g) <= D``, i.e.
+  ``w = -b_g t_r + sqrt((b_g t_r)^2 + 2 b_g (D + a_w t_r^2 / 2) + v_t^2)``, ``v = w - a_w t_r``.
+* Static speed-limit supervision: the braking envelope ``E(x)`` below the ceiling profile
+  ``c(y)`` ahead, ``E(x)^2 = min_{y >= x} (c(y)^2 + 2 b_g (y - x))``, computed as a reversed
+  cumulative minimum; the EBI speed is ``min_{y in [x, x + d_r]} E(y) - a_w t_r`` with the
+  worst-case response distance ``d_r = v_max t_r + a_w t_r^2 / 2``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+
+G = 9.80665
+"""Standard gravity [m/s^2]."""
+
+
+def ebi_speed(dist_m: ArrayLike, target_mps: ArrayLike, a_w: float, t_r: float,
+              b_g: float) -> FloatArray:
+    """EBI speed [m/s] for distance [m] to a point where speed must be <= target [m/s].
+
+    Closed form of the seed 001 Fig. 1 construction (see module docstring); negative results
+    mean the train must already be stopped.
+    """
+    d = np.asarray(dist_m, dtype=float)
+    vt = np.asarray(target_mps, dtype=float)
+    disc = (b_g * t_r) ** 2 + 2.0 * b_g * (d + 0.5 * a_w * t_r * t_r) + vt * vt
+    w = -b_g * t_r + np.sqrt(np.maximum(disc, 0.0))
+    return np.asarray(w - a_w * t_r)
+
+
+def stopping_distance(v_mps: ArrayLike, a_w: float, t_r: float, b_g: float) -> FloatArray:
+    """Worst-case ATP stopping distance [m] from speed v (response + braking), inverse of EBI."""
+    v = np.asarray(v_mps, dtype=float)
+    w = v + a_w * t_r
+    return np.asarray(v * t_r + 0.5 * a_w * t_r * t_r + w * w / (2.0 * b_g))
+
+
+def step_profile(starts: ArrayLike, values: ArrayLike, default: float,
+                 x: FloatArray) -> FloatArray:
+    """Evaluate a step function (value i from starts[i] to starts[i+1]) at points x."""
+    st = np.asarray(starts, dtype=float)
+    va = np.asarray(values, dtype=float)
+    if st.size == 0:
+        return np.full_like(x, default)
+    i = np.searchsorted(st, x, side="right") - 1
+    out = va[np.clip(i, 0, va.size - 1)]
+    return np.where(i < 0, default, out)
+
+
+def cell_min(profile_at: FloatArray) -> FloatArray:
+    """Per-cell minimum of a step profile sampled at grid nodes x_k (cell k = [x_k, x_k+1)).
+
+    ``profile_at`` has one more sample than cells (node values incl. the right end); the
+    minimum of the two ends bounds a step function that changes at most once per cell.
+    """
+    return np.minimum(profile_at[:-1], profile_at[1:])
+
+
+def window_min_ahead(c: FloatArray, n: int) -> FloatArray:
+    """out[k] = min(c[k .. k + n]) (window clipped at the array end), exact, O(N log n)."""
+    out = np.array(c, dtype=float, copy=True)
+    span = 1  # invariant: out[k] = min c[k .. k + span - 1]
+    while span < n + 1:
+        step = min(span, n + 1 - span)
+        shifted = np.empty_like(out)
+        shifted[:-step] = out[step:]
+        shifted[-step:] = out[-1]
+        np.minimum(out, shifted, out=out)
+        span += step
+    return out
+
+
+def window_min_behind(c: FloatArray, n: int) -> FloatArray:
+    """out[k] = min(c[k - n .. k]) (the train occupies n cells behind its front)."""
+    return window_min_ahead(np.asarray(c, dtype=float)[::-1], n)[::-1].copy()
+
+
+def braking_envelope(ceiling: FloatArray, dx: float, b: float) -> FloatArray:
+    """Envelope E_k = min_{j >= k} sqrt(c_j^2 + 2 b (j - k) dx) [m/s] (reverse cumulative min).
+
+    ``ceiling[j]`` is the speed ceiling of cell j [m/s]; the train front entering cell j must
+    be at or below it.  E is what a train braking at ``b`` [m/s^2] can have at cell k.
+    """
+    j = np.arange(ceiling.size, dtype=float) * dx
+    q = ceiling * ceiling + 2.0 * b * j
+    qmin = np.minimum.accumulate(q[::-1])[::-1]
+    return np.sqrt(np.maximum(qmin - 2.0 * b * j, 0.0))
+
+
+def curve_resistance_per_kg(radius_m: ArrayLike) -> FloatArray:
+    """Curve resistance [N/kg] by the Roeckl formula (standard gauge).
+
+    w_r [N/kN] = 650 / (R - 55) for R >= 300 m, 500 / (R - 30) below (R in m).
+    """
+    r = np.asarray(radius_m, dtype=float)
+    wr = np.where(r >= 300.0, 650.0 / np.maximum(r - 55.0, 1.0), 500.0 / np.maximum(r - 30.0, 1.0))
+    return np.asarray(wr / 1000.0 * G)

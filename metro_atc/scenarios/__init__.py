@@ -1,0 +1,1 @@
+"""Embedded scenario files (``*.yaml``) and their schema description (``SCHEMA.md``)."""
