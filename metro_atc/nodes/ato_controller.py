@@ -1,12 +1,19 @@
 """ato_controller node(s): one ATO per train, namespaced ``/<train_id>/``.
 
 Per train: subscribes to ``state`` (every lockstep step) and ``departure_command``
-(transient-local); publishes ``command`` (traction/brake for the state's step) and
-``speed_profile`` (transient-local, on every new departure command).
+(transient-local); on each departure command it plans the inter-station speed profile
+(:class:`metro_atc.core.ato.controller.AtoCore`: MMAS, coasting control FOTP/FCTP/ECTP/ACTP
+or the DP reference; seed 001/002) for the ATS's target running time and publishes it on
+``speed_profile`` (transient-local); on each state it publishes ``command``, the
+traction/brake effort of the tracker (fuzzy, seed 004, or PI) for that lockstep step.
+
+The tracker follows the plan; two guards only ever *lower* its command: braking to the end
+of the ATP movement authority (train ahead) and staying below the ATP supervision speed
+(temporary restrictions the plan does not know). ATP in the simulator stays the safety layer.
 
 One process may host several trains (parameter ``train_ids``), each its own node on one
-SingleThreadedExecutor: rclpy shares one DDS participant per process, so composing trains
-cuts discovery time and memory.
+SingleThreadedExecutor: rclpy shares one DDS participant per process, and the trains of a
+process share their planners' pre-work tables and finished plans (same line, same train).
 """
 
 from __future__ import annotations
@@ -20,19 +27,24 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from metro_atc.core.bridge import timetable_for, track_for
+from metro_atc.core.ato.controller import TRACKERS, AtoCore
+from metro_atc.core.ato.planner import PLANNERS, Profile
+from metro_atc.core.bridge import timetable_for, track_for, train_for
 from metro_atc.core.plant.scenario import ScenarioError, load_scenario
 from metro_atc.core.simple_ato import FlatOutTracker
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_LATCHED, QOS_RELIABLE, NodeConfigError, bulk_publisher,
                                     bulk_subscription, declare, run_nodes, spin_fast)
 
+_SPEED_MARGIN_MPS = 0.5
+"""Margin kept below the ATP supervision speed by the guard [m/s]."""
+
 
 class AtoController(Node):
     """The ATO of one train (see module docstring)."""
 
     def __init__(self, train_id: str, scenario: Any = None, timetable: Any = None,
-                 **kwargs: Any) -> None:
+                 shared: dict[str, Any] | None = None, **kwargs: Any) -> None:
         """Declare parameters, load the line, create the per-train topics."""
         # the type-description service (one more service per node in every wait set) is
         # off for the composed per-train nodes; parameter services stay on
@@ -44,7 +56,20 @@ class AtoController(Node):
         self.scenario_name = declare(self, "scenario", "taipei_blue",
                                      "embedded scenario name or path to a scenario YAML")
         declare(self, "train_ids", [""], "trains hosted by this process (launcher use)")
-        self.planner = declare(self, "planner", "flat_out", "speed profile planner")
+        planner = declare(self, "planner", "ectp",
+                          f"speed-profile planner: {' | '.join(PLANNERS)}")
+        tracker = declare(self, "tracker", "fuzzy",
+                          f"speed tracker: {' | '.join(TRACKERS)}")
+        mmas_ants = declare(self, "mmas_ants", 50, "MMAS: ants per iteration (seed 001)", 1, 1000)
+        mmas_iter = declare(self, "mmas_iterations", 100, "MMAS: iterations (seed 001)", 1, 10000)
+        mmas_sections = declare(self, "mmas_sections", 50, "MMAS: sections per run (seed 001)",
+                                2, 500)
+        if planner not in PLANNERS:
+            raise NodeConfigError(f"parameter planner='{planner}' is not one of "
+                                  f"{', '.join(PLANNERS)}")
+        if tracker not in TRACKERS:
+            raise NodeConfigError(f"parameter tracker='{tracker}' is not one of "
+                                  f"{', '.join(TRACKERS)}")
         if scenario is None:
             try:
                 scenario = load_scenario(self.scenario_name)
@@ -55,13 +80,20 @@ class AtoController(Node):
             raise NodeConfigError(f"train_id '{train_id}' is not in scenario "
                                   f"'{self.scenario_name}' ({self.tt.train_ids[0]} .. "
                                   f"{self.tt.train_ids[-1]})")
+        self.idx = self.tt.train_ids.index(train_id)
         self.track = track_for(scenario)
-        self.tracker = FlatOutTracker()
+        extra: dict[str, Any] = {}
+        if planner == "mmas":
+            extra = {"n_ants": mmas_ants, "n_iterations": mmas_iter, "n_sections": mmas_sections}
+        self.core = AtoCore(train_for(scenario), self.track, planner=planner, tracker=tracker,
+                            control_period_s=float(scenario.sim.control_period_s),
+                            shared=shared, **extra)
+        self.guard = FlatOutTracker()
         self.stations = self.tt.station_positions_m
-        self.departure: tuple[int, float, float, float] | None = None
-        self.last_step = -1
+        self.targets: dict[int, float] = {}
+        self.planned_from = -1
         self.rejected = 0
-        self._last_warn = 0.0
+        self._last_warn: dict[str, float] = {}
         self.cmd_pub = bulk_publisher(self, TractionCommand, "command", QOS_RELIABLE)
         self.profile_pub = bulk_publisher(self, SpeedProfile, "speed_profile", QOS_LATCHED)
         self.fast_subs = [
@@ -69,47 +101,59 @@ class AtoController(Node):
             bulk_subscription(self, DepartureCommand, "departure_command", self._on_departure,
                               QOS_LATCHED)]
 
-    def _warn(self, text: str) -> None:
-        self.rejected += 1
+    def _warn(self, key: str, text: str) -> None:
         now = time.monotonic()
-        if now - self._last_warn > 1.0:
-            self._last_warn = now
+        if now - self._last_warn.get(key, -math.inf) > 1.0:
+            self._last_warn[key] = now
             self.get_logger().warning(text)
 
+    # ------------------------------------------------------------------ planning
     def _on_departure(self, msg: DepartureCommand) -> None:
         topic = f"/{self.train_id}/departure_command"
         try:
             if msg.train_id != self.train_id:
                 raise conv.MessageRejected(f"{topic}: train_id '{msg.train_id}' is not "
                                            f"'{self.train_id}'")
-            st, dep, run, dwell = conv.departure_from_msg(msg, topic, len(self.stations))
+            st, _dep, run, _dwell = conv.departure_from_msg(msg, topic, len(self.stations))
         except conv.MessageRejected as exc:
-            self._warn(f"rejected departure command: {exc}")
+            self.rejected += 1
+            self._warn("departure", f"rejected departure command: {exc}")
             return
-        self.departure = (st, dep, run, dwell)
-        if st + 1 < len(self.stations):
-            self.profile_pub.publish(self._flat_out_profile(st, run, msg.header.stamp))
+        if st + 1 >= len(self.stations):
+            return
+        self.targets[st] = run
+        self._plan(st, run, conv.from_time(msg.header.stamp))
 
-    def _flat_out_profile(self, st: int, target_s: float, stamp: Any) -> SpeedProfile:
-        """The baseline plan: one accelerate/cruise section at the line limit to the stop."""
+    def _plan(self, st: int, target_s: float, stamp_s: float) -> None:
+        """Plan the run from station ``st`` to ``st + 1`` and publish the profile."""
         x0, x1 = float(self.stations[st]), float(self.stations[st + 1])
+        prof = self.core.plan(x0, x1, target_s)
+        self.planned_from = st
+        if not prof.feasible:
+            self._warn("plan", f"run {st}->{st + 1}: {prof.message}")
+        self.profile_pub.publish(self._profile_msg(st, target_s, prof, stamp_s))
+
+    def _profile_msg(self, st: int, target_s: float, prof: Profile,
+                     stamp_s: float) -> SpeedProfile:
         p = SpeedProfile()
-        p.header.stamp = stamp
+        p.header.stamp = conv.to_time(stamp_s)
         p.header.frame_id = "line"
         p.train_id = self.train_id
         p.from_station, p.to_station = st, st + 1
-        p.section_boundaries_m = [x0, x1]
-        p.section_modes = [SpeedProfile.MODE_ACCELERATE]
-        p.section_speed_codes_mps = [float(self.track.limit_at(0.5 * (x0 + x1)))]
-        p.coasting_point_m = math.nan
+        p.section_boundaries_m = [float(x) for x in prof.section_bounds_m]
+        # core modes 0 accelerate, 1 cruise, 2 coast, 3 brake -> SpeedProfile.MODE_* (2..5)
+        p.section_modes = [int(m) + SpeedProfile.MODE_ACCELERATE for m in prof.modes]
+        p.section_speed_codes_mps = [float(v) for v in prof.codes_mps]
+        p.coasting_point_m = float(prof.coast_point_m)
         p.target_running_time_s = float(target_s)
-        p.predicted_running_time_s = float(self.tt.min_running_s[st])
-        p.predicted_energy_j = math.nan
-        p.feasible = bool(target_s >= self.tt.min_running_s[st] - 1e-6)
-        p.planner = "flat_out"
-        p.message = "baseline flat-out profile (energy not predicted)"
+        p.predicted_running_time_s = float(prof.running_time_s)
+        p.predicted_energy_j = float(prof.energy_j)
+        p.feasible = bool(prof.feasible)
+        p.planner = str(prof.planner)
+        p.message = str(prof.message)
         return p
 
+    # ------------------------------------------------------------------ tracking
     def _on_state(self, msg: TrainState) -> None:
         topic = f"/{self.train_id}/state"
         try:
@@ -118,28 +162,47 @@ class AtoController(Node):
                                            f"'{self.train_id}'")
             s = conv.state_from_msg(msg, topic)
         except conv.MessageRejected as exc:
-            self._warn(f"rejected state: {exc}; commanding full service brake")
+            self.rejected += 1
+            self._warn("state", f"rejected state: {exc}; commanding full service brake")
             self.cmd_pub.publish(conv.traction_msg(self.train_id, int(msg.step), 0.0, -1.0,
                                                    TrainState.MODE_BRAKE))
             return
         effort, mode = self.control(s)
-        self.last_step = s["step"]
         self.cmd_pub.publish(conv.traction_msg(self.train_id, s["step"], s["t_s"], effort, mode))
 
     def control(self, s: dict[str, Any]) -> tuple[float, int]:
         """Effort in [-1, 1] and intended mode for one state."""
         if s["mode"] == TrainState.MODE_DWELL:
-            return -1.0, TrainState.MODE_DWELL
-        nxt = s["next_station"]
-        x_stop = float(self.stations[nxt]) if 0 <= nxt < len(self.stations) else math.inf
-        limit = float(self.track.limit_at(s["x_m"]))
-        sup = s["supervision_speed_mps"]
-        if math.isfinite(sup):
-            limit = min(limit, sup)
-        u = self.tracker.command(s["x_m"], s["v_mps"], x_stop, limit, s["movement_authority_m"])
+            return -0.5, TrainState.MODE_DWELL
+        cur, nxt = s["current_station"], s["next_station"]
+        if not 0 <= nxt < len(self.stations):
+            # beyond the last stop (turnback): brake to the authority, no plan
+            return self._guard(s, 1.0), TrainState.MODE_ACCELERATE
+        if self.planned_from != cur and 0 <= cur == nxt - 1:
+            # departed without a departure command for this station: timetable target
+            self._warn("noplan", f"no departure command for station {cur}; planning for the "
+                       f"scheduled running time")
+            self._plan(cur, self.targets.get(cur, float(self.tt.running_s[cur])), s["t_s"])
+        u = float(self.core.command(s["t_s"], s["x_m"], s["v_mps"]))
+        u = min(u, self._guard(s, u))
         mode = TrainState.MODE_ACCELERATE if u > 0.05 else (
             TrainState.MODE_BRAKE if u < -0.05 else TrainState.MODE_COAST)
         return u, mode
+
+    def _guard(self, s: dict[str, Any], u: float) -> float:
+        """Upper bound on the effort from the movement authority and supervision speed."""
+        bound = 1.0
+        ma = s["movement_authority_m"]
+        nxt = s["next_station"]
+        x_stop = float(self.stations[nxt]) if 0 <= nxt < len(self.stations) else math.inf
+        if math.isfinite(ma) and ma - self.guard.authority_margin_m < x_stop:
+            bound = min(bound, self.guard.command(s["x_m"], s["v_mps"], math.inf, math.inf, ma))
+        sup = s["supervision_speed_mps"]
+        if math.isfinite(sup):
+            over = s["v_mps"] - (sup - _SPEED_MARGIN_MPS)
+            if over > 0.0:
+                bound = min(bound, -min(1.0, self.guard.gain * over))
+        return bound
 
 
 def build_nodes() -> list[Node]:
@@ -158,7 +221,8 @@ def build_nodes() -> list[Node]:
     except ScenarioError as exc:
         raise NodeConfigError(str(exc)) from None
     tt = timetable_for(scn)
-    return [AtoController(t, scenario=scn, timetable=tt) for t in ids]
+    shared: dict[str, Any] = {}
+    return [AtoController(t, scenario=scn, timetable=tt, shared=shared) for t in ids]
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -44,8 +44,9 @@ def run_single_process(a: argparse.Namespace, train_ids: Sequence[str], out_dir:
         nodes.append(BrakeDiagnostic(parameter_overrides=_overrides(common)))
         scn = load_scenario(a.scenario)
         tt = timetable_for(scn)
+        shared: dict[str, Any] = {}
         for tid in train_ids:
-            nodes.append(AtoController(tid, scenario=scn, timetable=tt,
+            nodes.append(AtoController(tid, scenario=scn, timetable=tt, shared=shared,
                                        parameter_overrides=_overrides(common)))
         executor = SingleThreadedExecutor()
         for n in nodes:

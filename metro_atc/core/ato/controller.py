@@ -58,8 +58,13 @@ class AtoCore:
     def __init__(self, train: TrainParams, track: Track, planner: str = "ectp",
                  tracker: str = "fuzzy", control_period_s: float = 0.1,
                  stale_after_s: float = 1.0, limits: Optional[OperatingLimits] = None,
-                 **planner_params: Any) -> None:
-        """Validate the names and build the tracker."""
+                 shared: Optional[dict[str, Any]] = None, **planner_params: Any) -> None:
+        """Validate the names and build the tracker.
+
+        ``shared``: a dict shared by the cores of one process (same train and track): the
+        pre-work tables, run models and finished plans are then computed once per run and
+        target instead of once per train.
+        """
         if planner.lower().replace("-", "_") not in PLANNERS:
             raise ValueError(f"unknown planner {planner!r}; expected one of {PLANNERS}")
         if tracker not in TRACKERS:
@@ -76,8 +81,10 @@ class AtoCore:
         self.planner_params = dict(planner_params)
         self.tracker = FuzzyController(FuzzyParams()) if tracker == "fuzzy" \
             else PIController(PIParams())
-        self._cache: dict[Any, Any] = {}
-        self._runs: dict[tuple[float, float], RunModel] = {}
+        self._shared: dict[str, Any] = shared if shared is not None else {}
+        self._cache: dict[Any, Any] = self._shared.setdefault("prework", {})
+        self._runs: dict[tuple[float, float], RunModel] = self._shared.setdefault("runs", {})
+        self._plans: dict[Any, Profile] = self._shared.setdefault("plans", {})
         self.profile: Optional[Profile] = None
         self.run: Optional[RunModel] = None
         self._ref: Optional[ProfileReference] = None
@@ -98,8 +105,14 @@ class AtoCore:
         if run is None:
             run = RunModel(self.train, self.track, x_start_m, x_stop_m, self.limits)
             self._runs[key] = run
-        prof = plan_profile(run, target_running_time_s, self.planner, self._cache,
-                            **self.planner_params)
+        memo = (self.planner, key, round(float(target_running_time_s), 2)
+                if math.isfinite(float(target_running_time_s)) else None,
+                tuple(sorted((k, repr(v)) for k, v in self.planner_params.items())))
+        prof = self._plans.get(memo) if memo[2] is not None else None
+        if prof is None:
+            prof = plan_profile(run, target_running_time_s, self.planner, self._cache,
+                                **self.planner_params)
+            self._plans[memo] = prof
         self.run = run
         self.profile = prof
         b = self.limits.brake_decel_mps2
