@@ -1,0 +1,72 @@
+r"""``python -m metro_atc train {aoc,dhp} [--scenario NAME] --out FILE``: train ATR weights.
+
+Trains the AOC or DHP regulator of seed 000 (Exp. 2 setting: initial delays of 60-300 s at
+the first station, truth traffic model with saturation, crowding, knock-on delays and
+exponential departure delays) and writes a small weights file the ``ats_regulator`` node
+loads.  Deterministic for a given --seed on one CPU thread.
+
+The shipped defaults were produced with::
+
+    python -m metro_atc.atr_train aoc --scenario taipei_blue --seed 0 \\
+        --out metro_atc/data/aoc_taipei_blue.pt
+    python -m metro_atc.atr_train dhp --scenario taipei_blue --seed 0 \\
+        --out metro_atc/data/dhp_taipei_blue.pt
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import List, Optional
+
+import torch
+
+from metro_atc.core.atr.blue_line import get_line
+from metro_atc.core.atr.cost import CostWeights
+from metro_atc.core.atr.problems import AtrProblem
+from metro_atc.core.atr.regulators import save_weights
+from metro_atc.core.atr.training import Agent, atr_train_config, train
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    """Parse arguments, train, write the weights file; returns a process exit code."""
+    ap = argparse.ArgumentParser(prog="metro_atc train",
+                                 description="train ATR regulator weights (seed 000 AOC/DHP)")
+    ap.add_argument("method", choices=("aoc", "dhp"))
+    ap.add_argument("--scenario", default="taipei_blue", help="line: taipei_blue or small<N>")
+    ap.add_argument("--out", type=Path, required=True, help="weights file to write (.pt)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--epochs", type=int, default=1500)
+    ap.add_argument("--q", type=float, default=CostWeights.q, help="state weight")
+    ap.add_argument("--r", type=float, default=CostWeights.r, help="control weight")
+    ap.add_argument("--horizon", type=int, default=CostWeights.horizon,
+                    help="number of adjustable services K")
+    ap.add_argument("--quiet", action="store_true")
+    a = ap.parse_args(argv)
+    if a.epochs < 1:
+        ap.error("--epochs must be >= 1")
+    try:
+        line = get_line(a.scenario)
+        weights = CostWeights(q=a.q, r=a.r, horizon=a.horizon)
+    except ValueError as exc:
+        ap.error(str(exc))
+    torch.set_num_threads(1)
+    problem = AtrProblem(line, weights)
+    cfg = atr_train_config(a.seed, a.epochs)
+    res = train(a.method, problem, cfg)
+    info = {"seed": a.seed, "epochs": a.epochs, "train_seconds": round(res.seconds, 2),
+            "final_cost": res.history["cost"][-1], "torch": str(torch.__version__),
+            "command": "python -m metro_atc.atr_train " + " ".join(
+                argv if argv is not None else sys.argv[1:])}
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    save_weights(a.out, Agent(a.method, problem, res.critic, res.actor), line, weights, info)
+    if not a.quiet:
+        print(json.dumps({"method": a.method, "scenario": line.name, "out": str(a.out),
+                          **info}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

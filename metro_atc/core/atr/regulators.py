@@ -1,0 +1,189 @@
+"""ATR regulators behind one interface: none (timetable), LQR, DHP, AOC (seed 000 sec. 3-4).
+
+All regulators map the staggered departure deviation x [s] (seed 000 eq. 5 state minus the
+timetable) to running/dwell-time adjustments u [s]: ``Regulator.decide(x, step)``.
+``step`` is the stage index k within the finite number of adjustable services (the neural
+regulators take the time-to-go (K - k)/K as input; the node uses step = 0, i.e. a receding
+horizon).  Saturation is *not* applied here: the plant (or the node) limits the command.
+
+- ``none``: u = 0 (run to the timetable).
+- ``lqr``: u = -K x with K from the discrete algebraic Riccati equation of the linear model
+  (A, B) with Q = q I, R = r I (``scipy.linalg.solve_discrete_are``); it assumes a linear,
+  unconstrained plant (seed 000 sec. 5: "The LQR method assumes linear model ...").
+- ``dhp`` / ``aoc``: trained critic-actor MLPs (:mod:`metro_atc.core.atr.training`), loaded
+  from a weights file written by ``python -m metro_atc train``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Dict, Optional, Union
+
+import numpy as np
+import torch
+from scipy.linalg import solve_discrete_are
+
+from metro_atc.core.atr.blue_line import LineData
+from metro_atc.core.atr.cost import CostWeights
+from metro_atc.core.atr.mlp import MLP
+from metro_atc.core.atr.problems import AtrProblem
+from metro_atc.core.atr.training import Agent
+
+WEIGHTS_FORMAT = "metro_atc.atr.weights/1"
+REGULATORS = ("none", "lqr", "dhp", "aoc")
+DATA_DIR = Path(__file__).resolve().parents[2] / "data"
+
+
+def lqr_gain(a: np.ndarray, b: np.ndarray, q: float, r: float) -> np.ndarray:
+    """Infinite-horizon discrete LQR gain K (u = -K x) for U = 1/2 q|x|^2 + 1/2 r|u|^2."""
+    n, m = a.shape[0], b.shape[1]
+    p = solve_discrete_are(a, b, q * np.eye(n), r * np.eye(m))
+    return np.linalg.solve(r * np.eye(m) + b.T @ p @ b, b.T @ p @ a)
+
+
+class Regulator:
+    """Common interface: ``decide(x, step)`` -> adjustments u [s] (same shape as x)."""
+
+    name = "base"
+
+    def __init__(self, n_stations: int) -> None:
+        """Store the state dimension."""
+        self.n = n_stations
+
+    def _check(self, x_s: np.ndarray) -> np.ndarray:
+        x = np.asarray(x_s, dtype=float)
+        if x.shape[-1] != self.n:
+            raise ValueError(f"state has {x.shape[-1]} entries, the line has {self.n} stations")
+        if not np.all(np.isfinite(x)):
+            raise ValueError("state contains NaN or inf")
+        return x
+
+    def decide(self, x_s: np.ndarray, step: int = 0) -> np.ndarray:
+        """Adjustments u [s] for deviations x [s] (shape (N,) or (B, N)) at stage ``step``."""
+        raise NotImplementedError
+
+
+class NoneRegulator(Regulator):
+    """Timetable operation: no adjustment."""
+
+    name = "none"
+
+    def decide(self, x_s: np.ndarray, step: int = 0) -> np.ndarray:
+        """Return zeros."""
+        return np.zeros_like(self._check(x_s))
+
+
+class LqrRegulator(Regulator):
+    """Linear-quadratic regulator on the approximate (linear) traffic model."""
+
+    name = "lqr"
+
+    def __init__(self, a: np.ndarray, b: np.ndarray, weights: CostWeights) -> None:
+        """Solve the DARE in scaled units (the scaling cancels in the linear gain)."""
+        super().__init__(a.shape[0])
+        self.k = lqr_gain(a, b, weights.q, weights.r)
+
+    def decide(self, x_s: np.ndarray, step: int = 0) -> np.ndarray:
+        """u = -K x."""
+        return -(self._check(x_s) @ self.k.T)
+
+
+class NeuralRegulator(Regulator):
+    """DHP or AOC policy (AOC: u = actor(x, critic(x)), seed 000 eq. 49; DHP: u = actor(x))."""
+
+    def __init__(self, agent: Agent, problem: AtrProblem,
+                 meta: Optional[Dict[str, Any]] = None) -> None:
+        """Wrap a trained agent acting on ``problem``'s scaled state."""
+        super().__init__(problem.nx)
+        self.agent, self.problem = agent, problem
+        self.name = agent.method
+        self.meta = dict(meta or {})
+        self._xs = problem.w.x_scale_s
+
+    def decide(self, x_s: np.ndarray, step: int = 0) -> np.ndarray:
+        """Policy output in seconds (no gradient tape)."""
+        x = self._check(x_s)
+        batch = x.reshape(-1, self.n) / self._xs
+        tau = max(self.problem.horizon - int(step), 0) / self.problem.horizon
+        xt = torch.from_numpy(np.ascontiguousarray(batch))
+        extra = torch.full((xt.shape[0], 1), tau, dtype=torch.float64)
+        with torch.no_grad():
+            u = self.agent.act(xt, extra).numpy() * self._xs
+        return u.reshape(x.shape)
+
+
+def save_weights(path: Union[str, Path], agent: Agent, line: LineData, weights: CostWeights,
+                 info: Optional[Dict[str, Any]] = None) -> None:
+    """Write a trained agent (small .pt file: dict of tensors and plain values)."""
+    blob = {
+        "format": WEIGHTS_FORMAT,
+        "method": agent.method,
+        "scenario": line.name,
+        "n_stations": line.n_stations,
+        "cost": {"q": weights.q, "r": weights.r, "x_scale_s": weights.x_scale_s,
+                 "horizon": weights.horizon},
+        "critic": agent.critic.state(),
+        "actor": agent.actor.state(),
+        # plain JSON types only, so that torch.load(weights_only=True) accepts the file
+        "info": json.loads(json.dumps(dict(info or {}), default=str)),
+    }
+    torch.save(blob, str(path))
+
+
+def load_weights(path: Union[str, Path], line: LineData) -> NeuralRegulator:
+    """Load a weights file written by :func:`save_weights` for ``line`` (validated)."""
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"ATR weights file not found: {p}")
+    try:
+        blob = torch.load(str(p), weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - torch raises many types for bad files
+        raise ValueError(f"cannot read ATR weights file {p}: {exc}") from exc
+    if not isinstance(blob, dict) or blob.get("format") != WEIGHTS_FORMAT:
+        raise ValueError(f"{p} is not an ATR weights file ({WEIGHTS_FORMAT})")
+    if int(blob["n_stations"]) != line.n_stations:
+        raise ValueError(f"{p} was trained for {blob['n_stations']} stations, line "
+                         f"{line.name!r} has {line.n_stations}")
+    c = blob["cost"]
+    weights = CostWeights(q=float(c["q"]), r=float(c["r"]), x_scale_s=float(c["x_scale_s"]),
+                          horizon=int(c["horizon"]))
+    problem = AtrProblem(line, weights)
+    agent = Agent(str(blob["method"]), problem, MLP.from_state(blob["critic"]),
+                  MLP.from_state(blob["actor"]))
+    n_ci = problem.nx + problem.n_extra
+    n_ai = n_ci + (problem.nx if agent.method == "aoc" else 0)
+    if agent.critic.n_in != n_ci or agent.actor.n_in != n_ai:
+        raise ValueError(f"{p}: network sizes do not match the line")
+    return NeuralRegulator(agent, problem, {"path": str(p), "scenario": blob["scenario"],
+                                            "cost": c, "info": blob.get("info", {})})
+
+
+def default_weights_path(method: str, scenario: str) -> Path:
+    """Path of the shipped default weights for ``method`` on ``scenario``."""
+    return DATA_DIR / f"{method}_{scenario}.pt"
+
+
+def make_regulator(name: str, line: LineData, weights: Optional[CostWeights] = None,
+                   weights_path: Optional[Union[str, Path]] = None) -> Regulator:
+    """Build a regulator by name ('none', 'lqr', 'dhp', 'aoc').
+
+    For dhp/aoc, ``weights_path`` defaults to the shipped weights for the line (if any);
+    the cost weights and horizon then come from the file.
+    """
+    if name not in REGULATORS:
+        raise ValueError(f"unknown regulator {name!r}; choose one of {', '.join(REGULATORS)}")
+    w = weights if weights is not None else CostWeights()
+    if name == "none":
+        return NoneRegulator(line.n_stations)
+    if name == "lqr":
+        problem = AtrProblem(line, w)
+        return LqrRegulator(problem.a_np, problem.b_np, w)
+    if weights_path is not None:
+        path = Path(weights_path)
+    else:
+        path = default_weights_path(name, line.name)
+    reg = load_weights(path, line)
+    if reg.name != name:
+        raise ValueError(f"{path} holds a {reg.name!r} regulator, not {name!r}")
+    return reg
