@@ -35,13 +35,17 @@ def _run_graph(env: dict[str, str], out: Path, *extra: str) -> dict[str, Any]:
 
 @pytest.fixture(scope="module")
 def two_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """Run the mini scenario twice through the multi-process graph, probing its topics."""
-    from metro_atc_msgs.msg import TrainEvent
+    """Run the mini scenario twice through the multi-process graph, probing its topics.
+
+    One ATO process per train (``--ato-per-process 1``): each train is followed by its own
+    ATO node in its own OS process.
+    """
+    from metro_atc_msgs.msg import SpeedProfile, TrainEvent
     from rosgraph_msgs.msg import Clock
 
-    from metro_atc.nodes.common import QOS_CLOCK, QOS_EVENTS
+    from metro_atc.nodes.common import QOS_CLOCK, QOS_EVENTS, QOS_LATCHED
 
-    results: dict[str, Any] = {"kpis": [], "events": [], "clock": []}
+    results: dict[str, Any] = {"kpis": [], "events": [], "clock": [], "profiles": []}
     with DomainAllocator().allocate() as dom:
         env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
         for k in range(2):
@@ -49,7 +53,10 @@ def two_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
             try:
                 events = probe.subscribe(TrainEvent, "/line/events", QOS_EVENTS)
                 clock = probe.subscribe(Clock, "/clock", QOS_CLOCK)
-                kpis = _run_graph(env, tmp_path_factory.mktemp(f"run{k}"))
+                profiles = probe.subscribe(SpeedProfile, "/train_02/speed_profile",
+                                           QOS_LATCHED)
+                kpis = _run_graph(env, tmp_path_factory.mktemp(f"run{k}"),
+                                  "--ato-per-process", "1")
                 n_ev = sum(int(t["departures"]) for t in kpis["per_train"])
                 probe.wait_for(lambda: len(events) >= n_ev, timeout=10.0)
                 results["kpis"].append(kpis)
@@ -58,6 +65,7 @@ def two_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
                                           for e in list(events)])
                 results["clock"].append([c.clock.sec + 1e-9 * c.clock.nanosec
                                          for c in list(clock)])
+                results["profiles"].append(list(profiles))
             finally:
                 probe.close()
     return results
@@ -99,6 +107,19 @@ def test_events_arrive_in_order(two_runs: dict[str, Any]) -> None:
             set(range(n_st - 1)) <= set(departures), (tid, departures)
         assert arrivals == sorted(arrivals) and set(range(1, n_st)) <= set(arrivals), \
             (tid, arrivals)
+
+
+def test_ato_publishes_planned_profiles(two_runs: dict[str, Any]) -> None:
+    """Each departure command gets a planned speed-code profile that meets its target."""
+    profiles = two_runs["profiles"][0]
+    assert profiles, "no SpeedProfile on /train_02/speed_profile"
+    p = profiles[-1]
+    assert p.train_id == "train_02" and p.to_station == p.from_station + 1
+    assert len(p.section_boundaries_m) == len(p.section_modes) + 1 >= 2
+    assert all(2 <= m <= 5 for m in p.section_modes)
+    assert p.predicted_energy_j > 0.0
+    if p.feasible:
+        assert abs(p.predicted_running_time_s - p.target_running_time_s) < 1.0
 
 
 def test_clock_is_monotonic(two_runs: dict[str, Any]) -> None:

@@ -8,6 +8,7 @@ scenario file.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -15,6 +16,9 @@ from numpy.typing import NDArray
 from metro_atc.core.plant.line import LineSim, train_params_for
 from metro_atc.core.plant.scenario import Scenario
 from metro_atc.core.plant.vehicle import G_MPS2, TrainParams, Track
+
+if TYPE_CHECKING:
+    from metro_atc.core.atr.blue_line import LineData
 
 
 @dataclass(frozen=True)
@@ -72,4 +76,51 @@ def track_for(scn: Scenario) -> Track:
     return Track(g_starts, grades, l_starts, limits)
 
 
-__all__ = ["G_MPS2", "Timetable", "timetable_for", "track_for", "train_for"]
+def atr_line_for(scn: Scenario, tt: Timetable | None = None) -> "LineData":
+    """The ATR traffic-model line (seed 000 eq. 1-10) of a scenario.
+
+    Geometry, scheduled and minimum running times come from the scenario timetable (the
+    simulator's); passenger rates, boarding time and headway from its peak period; the
+    remaining traffic-model constants (maximum running time +15 %, holding limit 60 s,
+    platform re-occupation 60 s, crowding) are the ATR estimates of
+    :func:`metro_atc.core.atr.blue_line.taipei_blue`.
+    """
+    from metro_atc.core.atr.blue_line import LineData, Period, taipei_blue
+
+    tt = tt if tt is not None else timetable_for(scn)
+    est = taipei_blue()
+    st = scn.line.stations
+    n = len(st)
+    periods = scn.timetable.periods
+    peak = min(range(len(periods)), key=lambda k: periods[k].headway_s)
+    pax = scn.passengers
+    board = np.asarray(periods[peak].boarding_pph, dtype=float)
+    fixed = np.full(n, float(pax.door_overhead_s))
+    ends = [p.start_s for p in periods[1:]] + [float(scn.sim.duration_s)]
+    peak_rate = max(float(board.sum()), 1e-9)
+    return LineData(
+        name=scn.name,
+        station_codes=tuple(s.code or f"S{j:02d}" for j, s in enumerate(st)),
+        station_names=tuple(s.name for s in st),
+        distance_m=np.diff(tt.station_positions_m),
+        run_s=np.asarray(tt.running_s, dtype=float),
+        run_min_s=np.asarray(tt.min_running_s, dtype=float),
+        run_max_s=np.asarray(tt.min_running_s, dtype=float) * 1.15,
+        dwell_fixed_s=fixed,
+        dwell_fixed_min_s=np.minimum(fixed, float(pax.min_dwell_s)),
+        hold_max_s=est.hold_max_s,
+        boarding_pax_h=board,
+        t_board_s=float(pax.boarding_s_per_pax),
+        headway_s=float(periods[peak].headway_s),
+        separation_min_s=est.separation_min_s,
+        disturbance_mean_s=float(scn.disturbances.departure_delay_mean_s
+                                 * scn.disturbances.departure_delay_prob),
+        crowding_gain=est.crowding_gain,
+        board_max_s=est.board_max_s,
+        periods=tuple(Period(p.start_s, e, p.headway_s,
+                             float(np.sum(p.boarding_pph)) / peak_rate)
+                      for p, e in zip(periods, ends)),
+    )
+
+
+__all__ = ["G_MPS2", "Timetable", "atr_line_for", "timetable_for", "track_for", "train_for"]

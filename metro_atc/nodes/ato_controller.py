@@ -90,8 +90,9 @@ class AtoController(Node):
                             shared=shared, **extra)
         self.guard = FlatOutTracker()
         self.stations = self.tt.station_positions_m
-        self.targets: dict[int, float] = {}
+        self.commands: dict[int, tuple[float, float]] = {}
         self.planned_from = -1
+        self.last_mode = -1
         self.rejected = 0
         self._last_warn: dict[str, float] = {}
         self.cmd_pub = bulk_publisher(self, TractionCommand, "command", QOS_RELIABLE)
@@ -114,22 +115,25 @@ class AtoController(Node):
             if msg.train_id != self.train_id:
                 raise conv.MessageRejected(f"{topic}: train_id '{msg.train_id}' is not "
                                            f"'{self.train_id}'")
-            st, _dep, run, _dwell = conv.departure_from_msg(msg, topic, len(self.stations))
+            st, dep, run, _dwell = conv.departure_from_msg(msg, topic, len(self.stations))
         except conv.MessageRejected as exc:
             self.rejected += 1
             self._warn("departure", f"rejected departure command: {exc}")
             return
         if st + 1 >= len(self.stations):
             return
-        self.targets[st] = run
-        self._plan(st, run, conv.from_time(msg.header.stamp))
+        self.commands[st] = (dep, run)
+        if self.last_mode in (-1, TrainState.MODE_OUT_OF_SERVICE, TrainState.MODE_DWELL):
+            # pre-plan while standing (publishes the profile early, warms the plan cache);
+            # the run is planned definitively from the state at departure
+            self._plan(st, run, conv.from_time(msg.header.stamp))
 
-    def _plan(self, st: int, target_s: float, stamp_s: float) -> None:
+    def _plan(self, st: int, target_s: float, stamp_s: float, late: bool = False) -> None:
         """Plan the run from station ``st`` to ``st + 1`` and publish the profile."""
         x0, x1 = float(self.stations[st]), float(self.stations[st + 1])
         prof = self.core.plan(x0, x1, target_s)
         self.planned_from = st
-        if not prof.feasible:
+        if not prof.feasible and not late:
             self._warn("plan", f"run {st}->{st + 1}: {prof.message}")
         self.profile_pub.publish(self._profile_msg(st, target_s, prof, stamp_s))
 
@@ -172,17 +176,24 @@ class AtoController(Node):
 
     def control(self, s: dict[str, Any]) -> tuple[float, int]:
         """Effort in [-1, 1] and intended mode for one state."""
+        departing = self.last_mode == TrainState.MODE_DWELL
+        self.last_mode = s["mode"]
         if s["mode"] == TrainState.MODE_DWELL:
             return -0.5, TrainState.MODE_DWELL
         cur, nxt = s["current_station"], s["next_station"]
-        if not 0 <= nxt < len(self.stations):
-            # beyond the last stop (turnback): brake to the authority, no plan
-            return self._guard(s, 1.0), TrainState.MODE_ACCELERATE
-        if self.planned_from != cur and 0 <= cur == nxt - 1:
-            # departed without a departure command for this station: timetable target
-            self._warn("noplan", f"no departure command for station {cur}; planning for the "
-                       f"scheduled running time")
-            self._plan(cur, self.targets.get(cur, float(self.tt.running_s[cur])), s["t_s"])
+        if departing and 0 <= cur == nxt - 1:
+            # plan the run definitively at departure from the state (deterministic in the
+            # lockstep): the ATS target fixes the arrival (departure + running time), so a
+            # late departure shortens the target (down to flat-out); rounded to 1 s when
+            # late so the trains of a process share plans
+            target = s["target_running_time_s"]
+            late = s["t_s"] - s["departure_time_s"]
+            if math.isfinite(late) and late > 1.0:
+                target = float(max(round(target - late), 1.0))
+            self._plan(cur, target, s["t_s"], late=late > 1.0)
+        elif self.planned_from != cur and 0 <= cur == nxt - 1:
+            # started mid-run (e.g. the node was restarted): plan from here
+            self._plan(cur, s["target_running_time_s"], s["t_s"])
         u = float(self.core.command(s["t_s"], s["x_m"], s["v_mps"]))
         u = min(u, self._guard(s, u))
         mode = TrainState.MODE_ACCELERATE if u > 0.05 else (

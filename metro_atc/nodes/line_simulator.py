@@ -65,6 +65,11 @@ class LineSimulator(Node):
         self.status_period_s = declare(self, "status_period_s", 1.0,
                                        "simulated time between /line/status messages [s]",
                                        0.01, 3600.0)
+        self.progress_period_s = declare(self, "progress_period_s", 600.0,
+                                         "simulated time between progress log lines [s]",
+                                         1.0, 1e6)
+        self._next_progress_t = self.progress_period_s
+        self._wall0 = time.monotonic()
         try:
             scn = load_scenario(self.scenario_name)
         except ScenarioError as exc:
@@ -162,8 +167,11 @@ class LineSimulator(Node):
         return active
 
     def commands_complete(self, active: np.ndarray) -> bool:
-        """All active trains sent their command for step k, and the ATS has decided the
-        departure of every train dwelling at a station (lockstep on the ATS as well)."""
+        """Check the lockstep barrier of step k.
+
+        True when all active trains sent their command for step k and the ATS has decided
+        the departure of every train dwelling at a station (lockstep on the ATS as well).
+        """
         return bool(np.all(self.cmd_step[active] >= self.k)) and not self.pending_departures()
 
     def pending_departures(self) -> list[tuple[int, int]]:
@@ -201,6 +209,13 @@ class LineSimulator(Node):
             self.sensor_pubs[s.train_idx].publish(conv.sensor_msg(s, self.ids))
         t = float(self.sim.t)
         done = bool(self.sim.done) or (self.max_sim_time_s > 0 and t >= self.max_sim_time_s)
+        if t >= self._next_progress_t:
+            self._next_progress_t += self.progress_period_s
+            wall = time.monotonic() - self._wall0
+            self.get_logger().info(
+                f"t={t:.0f} s: {int(np.count_nonzero(self.sim.active_mask()))} trains in "
+                f"service, {self.lockstep_misses} lockstep misses, "
+                f"{t / wall if wall > 0 else 0.0:.1f}x real time")
         if t >= self._next_status_t or done:
             self._next_status_t = t + self.status_period_s
             self.status_pub.publish(conv.line_status_msg(self.kpis(), self.k, t, done))
@@ -276,6 +291,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
         log.warning("startup: not every ATO/ATS endpoint was discovered; starting anyway")
     log.info(f"graph ready after {time.monotonic() - t0:.2f} s")
     wall0, sim0 = time.monotonic(), float(sim.sim.t)
+    sim._wall0 = wall0
     last_slow = time.monotonic()
 
     def slow_path(force: bool = False) -> None:

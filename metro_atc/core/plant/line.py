@@ -100,6 +100,8 @@ class BrakeSensorSample:
     clamp_force_n: tuple[float, float, float, float]
     accel_x_mps2: float
     ref_speed_mps: float
+    car_mass_kg: float = math.nan
+    """Load-weigh signal of the instrumented car: train mass / cars [kg]."""
 
 
 @dataclass
@@ -112,6 +114,7 @@ class _SensorBlock:
     clamp: FloatArray
     accel: FloatArray  # [n_samples, n_trains_sensed]
     vref: FloatArray
+    car_mass: FloatArray  # [n_trains_sensed] load-weigh signal [kg]
 
 
 class _AxleState:
@@ -156,6 +159,7 @@ class _SensorSnap:
     acc: FloatArray
     v0: FloatArray
     v1: FloatArray
+    car_mass: FloatArray
 
 
 class StepResult:
@@ -199,7 +203,8 @@ class StepResult:
                             int(tr), float(b.t[s]),
                             (float(om[0]), float(om[1]), float(om[2]), float(om[3])),
                             (float(cf[0]), float(cf[1]), float(cf[2]), float(cf[3])),
-                            float(b.accel[s, ii]), float(b.vref[s, ii])))
+                            float(b.accel[s, ii]), float(b.vref[s, ii]),
+                            float(b.car_mass[ii])))
             self._sensors = out
         return self._sensors
 
@@ -728,7 +733,15 @@ class LineSim:
             "atp_interventions": self.interventions.copy(), "load_pax": self.load.copy(),
             "in_service": run.copy(),
             "target_running_time_s": self._target_rt(),
+            "departure_time_s": self._target_dep(),
         }
+
+    def _target_dep(self) -> FloatArray:
+        """Commanded (else scheduled) departure time from the current station [s]."""
+        j = np.clip(self.cur_station, 0, self.n_st - 1)
+        rows = np.arange(self.n)
+        dep = self.cmd_dep[rows, j]
+        return np.where(np.isfinite(dep), dep, self.sched_dep[rows, j])
 
     def _target_rt(self) -> FloatArray:
         j = np.clip(self.cur_station, 0, self.n_st - 2)
@@ -1312,7 +1325,7 @@ class LineSim:
             self.next_sample_t += self.sensor_dt
         mask = self.run & self.sensed_mask
         return _SensorSnap(np.array(ts), t0, t1, mask, self._ax_prev, self._ax,
-                           self.r_w.copy(), self.acc, v0, v1.copy())
+                           self.r_w.copy(), self.acc, v0, v1.copy(), self.mass / self.p.cars)
 
     def _sensor_block(self, sn: _SensorSnap) -> _SensorBlock:
         """Samples with noise and injected sensor faults from a snapshot."""
@@ -1335,7 +1348,7 @@ class LineSim:
         vref = vs + rng.normal(0.0, sen.ref_speed_noise_mps, (ns, m))
         if self.sensor_faults:
             self._apply_sensor_faults(sn.ts, idx, omega, clamp, accel, vref)
-        return _SensorBlock(sn.ts, idx, omega, clamp, accel, vref)
+        return _SensorBlock(sn.ts, idx, omega, clamp, accel, vref, sn.car_mass[idx])
 
     def _apply_sensor_faults(self, tt: FloatArray, idx: IntArray, omega: FloatArray,
                              clamp: FloatArray, accel: FloatArray, vref: FloatArray) -> None:
