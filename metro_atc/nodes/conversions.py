@@ -12,8 +12,8 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from metro_atc_msgs.msg import (BrakeSensorData, DepartureCommand, LineStatus, TractionCommand,
-                                TrainEvent, TrainState)
+from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureCommand, LineStatus,
+                                TractionCommand, TrainEvent, TrainState)
 from rosgraph_msgs.msg import Clock
 
 REGULATOR_CODES = {"none": DepartureCommand.REGULATOR_NONE, "lqr": DepartureCommand.REGULATOR_LQR,
@@ -116,6 +116,8 @@ def state_msgs(train_ids: Sequence[str], idx: Iterable[int], states: Mapping[str
         m.current_station = int(states["current_station"][i])
         m.next_station = int(states["next_station"][i])
         m.mode = int(states["mode"][i])
+        m.departure_time_s = float(states["departure_time_s"][i])
+        m.target_running_time_s = float(states["target_running_time_s"][i])
         lim = g("atp_limit_mps")
         m.supervision_speed_mps = float(lim[i]) if lim is not None else math.nan
         ma = g("movement_authority_m")
@@ -136,6 +138,8 @@ def state_from_msg(msg: TrainState, topic: str) -> dict[str, Any]:
             "a_mps2": _finite(f"{topic}.acceleration_mps2", msg.acceleration_mps2),
             "current_station": int(msg.current_station), "next_station": int(msg.next_station),
             "mode": int(msg.mode),
+            "departure_time_s": float(msg.departure_time_s),
+            "target_running_time_s": float(msg.target_running_time_s),
             "supervision_speed_mps": (float(msg.supervision_speed_mps)
                                       if math.isfinite(msg.supervision_speed_mps)
                                       else math.inf),
@@ -175,7 +179,7 @@ def event_from_msg(msg: TrainEvent, topic: str) -> dict[str, Any]:
 
 
 def sensor_msg(s: Any, train_ids: Sequence[str]) -> BrakeSensorData:
-    """BrakeSensorData from a core BrakeSensorSample."""
+    """BrakeSensorData from a core BrakeSensorSample (NaN channels pass through: dropouts)."""
     m = BrakeSensorData()
     m.header.stamp = to_time(s.t_s)
     m.header.frame_id = "line"
@@ -184,19 +188,52 @@ def sensor_msg(s: Any, train_ids: Sequence[str]) -> BrakeSensorData:
     m.clamp_force_n = [float(x) for x in s.clamp_force_n]
     m.longitudinal_acceleration_mps2 = float(s.accel_x_mps2)
     m.reference_speed_mps = float(s.ref_speed_mps)
+    m.car_mass_kg = float(getattr(s, "car_mass_kg", math.nan))
     return m
 
 
 def sensor_from_msg(msg: BrakeSensorData, topic: str, n_axles: int) -> dict[str, Any]:
-    """Validate the shape of a BrakeSensorData (NaN channels are allowed: dropouts)."""
+    """Validate the shape of a BrakeSensorData; return its channels as a plain dict.
+
+    Raises :class:`MessageRejected` for a wrong number of axles.  Non-finite channel values
+    are allowed (dropouts: the observer does not use them); ``car_mass`` is NaN when the
+    load-weigh signal is missing or not positive.
+    """
     w = np.asarray(msg.wheel_angular_speed_radps, dtype=float)
     c = np.asarray(msg.clamp_force_n, dtype=float)
     if w.shape != (n_axles,) or c.shape != (n_axles,):
         raise MessageRejected(f"{topic}: expected {n_axles} axles, got "
                               f"wheel_angular_speed_radps[{w.size}], clamp_force_n[{c.size}]")
+    mass = float(msg.car_mass_kg)
     return {"t_s": from_time(msg.header.stamp), "omega": w, "clamp": c,
             "accel": float(msg.longitudinal_acceleration_mps2),
-            "ref_speed": float(msg.reference_speed_mps)}
+            "ref_speed": float(msg.reference_speed_mps),
+            "car_mass": mass if math.isfinite(mass) and mass > 0.0 else math.nan}
+
+
+def diagnosis_msg(train_id: str, stamp_s: float, d: Any, level: int, message: str,
+                  used: int, rejected: int) -> BrakeDiagnosis:
+    """BrakeDiagnosis from a core ``DiagnosisResult`` (metro_atc.core.brake.metro_car).
+
+    ``level``/``message`` are the node's (they may add data-quality warnings to the
+    observer's verdict); ``used``/``rejected`` are the sample counters.  Forces are on the
+    car, negative while braking [N]; non-finite numbers are replaced by 0 (never NaN out).
+    """
+    m = BrakeDiagnosis()
+    m.header.stamp = to_time(stamp_s)
+    m.header.frame_id = "line"
+    m.train_id = train_id
+    m.friction_coefficient = _float(d.mu_b, 0.0)
+    m.friction_coefficient_std = _float(d.mu_b_std, 0.0)
+    m.longitudinal_force_n = [_float(x, 0.0) for x in d.forces]
+    m.force_residual_n = [_float(x, 0.0) for x in d.residual_forces]
+    m.pad_flaw = bool(d.pad_flaw)
+    m.axle_flaw = [bool(x) for x in d.wheel_flaw]
+    m.level = int(level)
+    m.message = str(message)
+    m.measurements_used = int(max(used, 0))
+    m.measurements_rejected = int(max(rejected, 0))
+    return m
 
 
 def line_status_msg(k: Mapping[str, Any], step: int, t_s: float, finished: bool) -> LineStatus:
