@@ -207,7 +207,10 @@ class AtoController(Node):
         nxt = s["next_station"]
         x_stop = float(self.stations[nxt]) if 0 <= nxt < len(self.stations) else math.inf
         if math.isfinite(ma) and ma - self.guard.authority_margin_m < x_stop:
-            bound = min(bound, self.guard.command(s["x_m"], s["v_mps"], math.inf, math.inf, ma))
+            # braking curve to the end of authority (the tracker wants finite inputs: a
+            # non-finite one means "bad state" and gives a full brake)
+            limit = float(self.track.limit_at(s["x_m"]))
+            bound = min(bound, self.guard.command(s["x_m"], s["v_mps"], ma, limit, ma))
         sup = s["supervision_speed_mps"]
         if math.isfinite(sup):
             over = s["v_mps"] - (sup - _SPEED_MARGIN_MPS)
