@@ -26,6 +26,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from metro_atc.jsonsafe import json_safe as _json_safe
 from metro_atc.core.ato import coasting
 from metro_atc.core.ato.dp import build_dp_tables, solve_dp
 from metro_atc.core.ato.envelope import MODE_NAMES, RunModel
@@ -140,21 +141,6 @@ def _plot(out_dir: str, name: str, fig_data: dict[str, Any]) -> str:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
-
-
-def _json_safe(obj: Any) -> Any:
-    """Replace non-finite floats (nan / inf) by None so the output is strict JSON."""
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if np.isfinite(obj) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
 
 
 def main(argv: Optional[list[str]] = None) -> int:

@@ -26,6 +26,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from metro_atc.jsonsafe import json_safe as _json_safe
 from metro_atc.core.ato.dp import solve_dp
 from metro_atc.core.ato.envelope import RunModel
 from metro_atc.core.ato.fuzzy import FuzzyController
@@ -50,21 +51,6 @@ PAPER: dict[str, Any] = {
              "ACTP-TC trades traction level and coasting point for energy"),
 }
 """Seed 002 figures available in the extraction."""
-
-
-def _json_safe(obj: Any) -> Any:
-    """Replace non-finite floats (nan / inf) by None so the output is strict JSON."""
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if np.isfinite(obj) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
 
 
 def main(argv: Optional[list[str]] = None) -> int:

@@ -28,6 +28,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from metro_atc.jsonsafe import json_safe as _json_safe
 from metro_atc.core.ato.envelope import RunModel
 from metro_atc.core.ato.fuzzy import FuzzyController
 from metro_atc.core.ato.pi import PIController
@@ -65,21 +66,6 @@ def _step_time_us() -> float:
 
     n = 2000
     return 1e6 * min(timeit.repeat(one, number=n, repeat=3)) / n
-
-
-def _json_safe(obj: Any) -> Any:
-    """Replace non-finite floats (nan / inf) by None so the output is strict JSON."""
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if np.isfinite(obj) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
 
 
 def main(argv: Optional[list[str]] = None) -> int:

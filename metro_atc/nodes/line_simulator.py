@@ -29,6 +29,7 @@ from rosgraph_msgs.msg import Clock
 
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.plant.scenario import ScenarioError, load_scenario
+from metro_atc.jsonsafe import json_safe
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_CLOCK, QOS_EVENTS, QOS_LATCHED, QOS_RELIABLE, QOS_SENSOR,
                                     NodeConfigError, SubscriptionPoller, bulk_publisher,
@@ -281,19 +282,7 @@ class LineSimulator(Node):
             self.get_logger().error(f"writing outputs to {out} failed: {exc}")
         k = self.kpis()
         k["finished"] = bool(self.finished)
-        (out / "kpis.json").write_text(json.dumps(_jsonable(k), indent=2, sort_keys=True))
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.generic):
-        x = x.item()
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    return x
+        (out / "kpis.json").write_text(json.dumps(json_safe(k), indent=2, sort_keys=True))
 
 
 def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
