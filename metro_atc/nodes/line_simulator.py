@@ -159,10 +159,11 @@ class LineSimulator(Node):
 
     # ------------------------------------------------------------------ stepping
     def graph_ready(self) -> bool:
-        """Every train has an ATO subscribed to its state and publishing commands."""
+        """Every train has an ATO, the ATS and the brake diagnosis connected."""
         return all(p.get_subscription_count() > 0 for p in self.state_pubs) and \
             all(s.get_publisher_count() > 0 for s in self.cmd_subs) and \
-            all(s.get_publisher_count() > 0 for s in self.dep_subs)
+            all(s.get_publisher_count() > 0 for s in self.dep_subs) and \
+            all(p.get_subscription_count() > 0 for p in self.sensor_pubs)
 
     def publish_step(self) -> np.ndarray:
         """Publish /clock and the states of step k; return the active mask."""
