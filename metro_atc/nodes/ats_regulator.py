@@ -84,7 +84,7 @@ class AtsRegulator(Node):
         self.cmd_seq = np.zeros(n, dtype=np.int64)
         self.rejected = 0
         self.decision_time_s: list[float] = []
-        self._last_warn = 0.0
+        self._last_warn: dict[str, float] = {}
         self.pubs = [bulk_publisher(self, DepartureCommand, f"/{t}/departure_command",
                                     QOS_LATCHED) for t in self.ids]
         self.create_subscription(TrainEvent, "/line/events", self._on_event, QOS_EVENTS)
@@ -94,10 +94,12 @@ class AtsRegulator(Node):
                                f"{n} trains, {m} stations")
 
     def _warn(self, text: str) -> None:
+        """Count a rejection; log it at most once per second per kind of message."""
         now = time.monotonic()
         self.rejected += 1
-        if now - self._last_warn > 1.0:
-            self._last_warn = now
+        key = text[:48]
+        if now - self._last_warn.get(key, -math.inf) > 1.0:
+            self._last_warn[key] = now
             self.get_logger().warning(text)
 
     def _on_event(self, msg: TrainEvent) -> None:
