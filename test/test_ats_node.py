@@ -18,9 +18,9 @@ def test_node_answers_arrivals_with_departure_commands(installed: Path, ros_env:
                                                        regulator: str) -> None:
     """An arrival event at station 1 gets a departure command for station 1; bad events don't.
 
-    The command (regulated: after the arrival; timetable: the scheduled time) must carry a positive running time to station 2 and
-    the regulator's code; NaN times, unknown trains and repeated events are logged and
-    dropped while the node stays alive.
+    The command (regulated: after the arrival; timetable: the scheduled time) must carry a
+    positive running time to station 2 and the regulator's code; NaN times, unknown trains
+    and repeated events are logged and dropped while the node stays alive.
     """
     from metro_atc_msgs.msg import DepartureCommand, TrainEvent
 

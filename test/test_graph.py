@@ -40,12 +40,14 @@ def two_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     One ATO process per train (``--ato-per-process 1``): each train is followed by its own
     ATO node in its own OS process.
     """
-    from metro_atc_msgs.msg import SpeedProfile, TrainEvent
+    from metro_atc_msgs.msg import BrakeSensorData, SpeedProfile, TrainEvent, TrainState
     from rosgraph_msgs.msg import Clock
 
-    from metro_atc.nodes.common import QOS_CLOCK, QOS_EVENTS, QOS_LATCHED
+    from metro_atc.nodes.common import (QOS_CLOCK, QOS_EVENTS, QOS_LATCHED, QOS_RELIABLE,
+                                        QOS_SENSOR)
 
-    results: dict[str, Any] = {"kpis": [], "events": [], "clock": [], "profiles": []}
+    results: dict[str, Any] = {"kpis": [], "events": [], "clock": [], "profiles": [],
+                               "states": [], "sensors": []}
     with DomainAllocator().allocate() as dom:
         env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
         for k in range(2):
@@ -55,6 +57,9 @@ def two_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
                 clock = probe.subscribe(Clock, "/clock", QOS_CLOCK)
                 profiles = probe.subscribe(SpeedProfile, "/train_02/speed_profile",
                                            QOS_LATCHED)
+                states = probe.subscribe(TrainState, "/train_01/state", QOS_RELIABLE)
+                sensors = probe.subscribe(BrakeSensorData, "/train_01/brake_sensors",
+                                          QOS_SENSOR)
                 kpis = _run_graph(env, tmp_path_factory.mktemp(f"run{k}"),
                                   "--ato-per-process", "1")
                 n_ev = sum(int(t["departures"]) for t in kpis["per_train"])
@@ -66,6 +71,8 @@ def two_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
                 results["clock"].append([c.clock.sec + 1e-9 * c.clock.nanosec
                                          for c in list(clock)])
                 results["profiles"].append(list(profiles))
+                results["states"].append(list(states))
+                results["sensors"].append(list(sensors))
             finally:
                 probe.close()
     return results
@@ -120,6 +127,34 @@ def test_ato_publishes_planned_profiles(two_runs: dict[str, Any]) -> None:
     assert p.predicted_energy_j > 0.0
     if p.feasible:
         assert abs(p.predicted_running_time_s - p.target_running_time_s) < 1.0
+
+
+def test_states_are_consistent(two_runs: dict[str, Any]) -> None:
+    """/train_01/state: one per lockstep step, position never goes back, speed is within
+    the ATP supervision speed, modes are valid."""
+    states = two_runs["states"][0]
+    assert len(states) > 100
+    steps = [s.step for s in states]
+    assert steps == sorted(steps)
+    xs = [s.position_m for s in states]
+    assert all(b >= a - 1e-6 for a, b in zip(xs, xs[1:]))
+    assert all(0.0 <= s.speed_mps <= s.supervision_speed_mps + 0.05 for s in states)
+    assert all(0 <= s.mode <= 6 for s in states)
+    assert any(s.mode == 1 for s in states) and any(s.mode == 2 for s in states)
+
+
+def test_sensor_data_at_the_configured_rate(two_runs: dict[str, Any]) -> None:
+    """/train_01/brake_sensors: 20 Hz (mini) while braking, a 1 s heartbeat otherwise."""
+    samples = two_runs["sensors"][0]
+    assert len(samples) > 50
+    t = [x.header.stamp.sec + 1e-9 * x.header.stamp.nanosec for x in samples]
+    assert all(b > a for a, b in zip(t, t[1:]))
+    braking = [max(x.clamp_force_n) > 1000.0 for x in samples]
+    gaps = [b - a for a, b, br in zip(t, t[1:], braking[1:]) if br]
+    assert gaps and min(gaps) >= 0.05 - 1e-6
+    assert sorted(gaps)[len(gaps) // 2] == pytest.approx(0.05, abs=1e-3)
+    assert all(len(x.wheel_angular_speed_radps) == 4 and len(x.clamp_force_n) == 4
+               for x in samples)
 
 
 def test_clock_is_monotonic(two_runs: dict[str, Any]) -> None:
