@@ -36,9 +36,10 @@ from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_LATCHED, QOS_RELIABLE, NodeConfigError, bulk_publisher,
                                     bulk_subscription, declare, run_nodes, spin_fast)
 
-_SPEED_MARGIN_MPS = 1.5
+_SPEED_MARGIN_MPS = 0.5
 """Margin kept below the ATP supervision (emergency-brake intervention) speed by the guard
-[m/s]: the service-brake intervention acts ``sbi_lead_s`` (2 s) earlier, ~1-2 m/s below."""
+[m/s]; it must stay below the overspeed margin over the line limit (0.8 m/s on the Blue
+line) or the guard would fight the plan's cruise at the limit."""
 
 
 class AtoController(Node):
@@ -214,9 +215,10 @@ class AtoController(Node):
             bound = min(bound, self.guard.command(s["x_m"], s["v_mps"], ma, limit, ma))
         sup = s["supervision_speed_mps"]
         if math.isfinite(sup):
-            # proportional ceiling: traction fades out approaching sup - margin, brakes above
-            bound = min(bound, self.guard.gain * (sup - _SPEED_MARGIN_MPS - s["v_mps"]))
-        return max(bound, -1.0)
+            over = s["v_mps"] - (sup - _SPEED_MARGIN_MPS)
+            if over > 0.0:
+                bound = min(bound, -min(1.0, self.guard.gain * over))
+        return bound
 
 
 def build_nodes() -> list[Node]:
