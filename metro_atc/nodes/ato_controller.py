@@ -36,6 +36,10 @@ from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_LATCHED, QOS_RELIABLE, NodeConfigError, bulk_publisher,
                                     bulk_subscription, declare, run_nodes, spin_fast)
 
+_STOP_GUARD_MPS2 = 0.85
+"""Deceleration needed to stop at the platform above which the stopping guard brakes
+[m/s^2] (the planners brake at 0.8 m/s^2, the service brake gives 1.0 m/s^2)."""
+
 _SPEED_MARGIN_MPS = 0.5
 """Margin kept below the ATP supervision (emergency-brake intervention) speed by the guard
 [m/s]; it must stay below the overspeed margin over the line limit (0.8 m/s on the Blue
@@ -213,6 +217,14 @@ class AtoController(Node):
             # non-finite one means "bad state" and gives a full brake)
             limit = float(self.track.limit_at(s["x_m"]))
             bound = min(bound, self.guard.command(s["x_m"], s["v_mps"], ma, limit, ma))
+        d = x_stop - s["x_m"]
+        if 0.0 < d < 400.0 and s["v_mps"] > 0.3:
+            # stopping guard: once the train is above the plan's braking curve (late, e.g.
+            # after an authority restriction released near the platform), brake with the
+            # deceleration that ends at the stop point (load-compensated service brake)
+            a_req = s["v_mps"] ** 2 / (2.0 * max(d - 0.15, 0.05))
+            if a_req > _STOP_GUARD_MPS2:
+                bound = min(bound, -min(1.0, a_req / self.core.train.max_service_brake_mps2))
         sup = s["supervision_speed_mps"]
         if math.isfinite(sup):
             over = s["v_mps"] - (sup - _SPEED_MARGIN_MPS)
