@@ -145,8 +145,10 @@ class AtsRegulator(Node):
                     float(self.tt.dwell_s[i, nxt]))
         here = self.core.departure_command(self.ids[i], j)
         ahead = self.core.departure_command(self.ids[i], j + 1)
-        return (float(here.departure_time_s), float(ahead.target_running_time_s),
-                float(ahead.target_dwell_s))
+        # trains never leave before the timetable (as with ``none``): the regulator holds
+        # (positive adjustments) and shortens running times and dwells of late trains
+        dep = max(float(here.departure_time_s), float(self.tt.departure_s[i, j]))
+        return dep, float(ahead.target_running_time_s), float(ahead.target_dwell_s)
 
     def _command(self, i: int, j: int, departure_s: float, running_s: float | None = None,
                  dwell_s: float | None = None) -> None:
