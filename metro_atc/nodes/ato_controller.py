@@ -28,6 +28,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from metro_atc.core.ato.controller import TRACKERS, AtoCore
+from metro_atc.core.ato.envelope import OperatingLimits
 from metro_atc.core.ato.planner import PLANNERS, Profile
 from metro_atc.core.bridge import timetable_for, track_for, train_for
 from metro_atc.core.plant.scenario import ScenarioError, load_scenario
@@ -36,9 +37,9 @@ from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_LATCHED, QOS_RELIABLE, NodeConfigError, bulk_publisher,
                                     bulk_subscription, declare, run_nodes, spin_fast)
 
-_STOP_GUARD_MPS2 = 0.85
-"""Deceleration needed to stop at the platform above which the stopping guard brakes
-[m/s^2] (the planners brake at 0.8 m/s^2, the service brake gives 1.0 m/s^2)."""
+_STOP_GUARD = 0.85
+"""Deceleration needed to stop at the platform, as a share of the service brake, above
+which the stopping guard brakes (the planners brake at 0.8 of it) [-]."""
 
 _SPEED_MARGIN_MPS = 0.5
 """Margin kept below the ATP supervision (emergency-brake intervention) speed by the guard
@@ -91,9 +92,15 @@ class AtoController(Node):
         extra: dict[str, Any] = {}
         if planner == "mmas":
             extra = {"n_ants": mmas_ants, "n_iterations": mmas_iter, "n_sections": mmas_sections}
-        self.core = AtoCore(train_for(scenario), self.track, planner=planner, tracker=tracker,
+        train = train_for(scenario)
+        # planning limits from the rolling stock: braking curves at 80 % of the service brake
+        # (0.8 m/s^2 for the metro, 0.44 m/s^2 for the THSR 700T), seed 001 accel/jerk
+        limits = OperatingLimits(accel_max_mps2=min(1.0, train.a1_mps2),
+                                 brake_decel_mps2=0.8 * train.max_service_brake_mps2,
+                                 jerk_max_mps3=train.max_jerk_mps3)
+        self.core = AtoCore(train, self.track, planner=planner, tracker=tracker,
                             control_period_s=float(scenario.sim.control_period_s),
-                            shared=shared, **extra)
+                            limits=limits, shared=shared, **extra)
         self.guard = FlatOutTracker()
         self.stations = self.tt.station_positions_m
         self.commands: dict[int, tuple[float, float]] = {}
@@ -223,7 +230,7 @@ class AtoController(Node):
             # after an authority restriction released near the platform), brake with the
             # deceleration that ends at the stop point (load-compensated service brake)
             a_req = s["v_mps"] ** 2 / (2.0 * max(d - 0.15, 0.05))
-            if a_req > _STOP_GUARD_MPS2:
+            if a_req > _STOP_GUARD * self.core.train.max_service_brake_mps2:
                 bound = min(bound, -min(1.0, a_req / self.core.train.max_service_brake_mps2))
         sup = s["supervision_speed_mps"]
         if math.isfinite(sup):
