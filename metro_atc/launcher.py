@@ -227,7 +227,8 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
 
 def _print_table(k: dict[str, Any]) -> None:
     keys = ("trains", "completed_trains", "atp_violations", "atp_interventions",
-            "min_separation_m", "energy_kwh", "max_delay_s", "sim_time_s", "wall_time_s",
+            "min_separation_m", "energy_kwh", "max_delay_s", "recovery_time_s",
+            "late_departures", "passengers_left_behind", "sim_time_s", "wall_time_s",
             "real_time_factor", "lockstep_misses", "regulator", "out_dir")
     width = max(len(x) for x in keys)
     for key in keys:

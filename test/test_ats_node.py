@@ -12,14 +12,31 @@ from harness import NodeProcess, TopicProbe
 pytestmark = pytest.mark.integration
 
 
+def _reference_dispatcher(regulator: str):  # type: ignore[no-untyped-def]
+    """The node's ROS-free core on the same scenario (mini)."""
+    from metro_atc.core.atr.dispatch import AtsDispatcher
+    from metro_atc.core.atr.node_core import AtsRegulatorCore
+    from metro_atc.core.bridge import atr_line_for, timetable_for
+    from metro_atc.core.plant.scenario import load_scenario
+
+    scn = load_scenario("mini")
+    tt = timetable_for(scn)
+    core = None
+    if regulator != "none":
+        core = AtsRegulatorCore(atr_line_for(scn, tt), regulator, train_ids=tt.train_ids,
+                                departure_table_s=tt.departure_s, arrival_table_s=tt.arrival_s)
+    return AtsDispatcher(tt, core, min_dwell_s=float(scn.passengers.min_dwell_s))
+
+
 @pytest.mark.parametrize("regulator", ["none", "lqr"])
 def test_node_answers_arrivals_with_departure_commands(installed: Path, ros_env: dict[str, str],
                                                        probe: TopicProbe, tmp_path: Path,
                                                        regulator: str) -> None:
     """An arrival event at station 1 gets a departure command for station 1; bad events don't.
 
-    The command (regulated: after the arrival; timetable: the scheduled time) must carry a
-    positive running time to station 2 and the regulator's code; NaN times, unknown trains
+    The command must be exactly the ROS-free dispatcher's decision for the same events
+    (timetable: scheduled departure, no dwell cut; lqr: the late train's dwell is cut) and
+    carry the regulator's code; NaN times, unknown trains
     and repeated events are logged and dropped while the node stays alive.
     """
     from metro_atc_msgs.msg import DepartureCommand, TrainEvent
@@ -47,11 +64,19 @@ def test_node_answers_arrivals_with_departure_commands(installed: Path, ros_env:
         assert probe.wait_for(lambda: any(c.station_index == 1 for c in cmds), timeout=20), \
             p.log()
         c = [c for c in cmds if c.station_index == 1][-1]
-        if regulator == "none":  # the timetable (the simulator holds for the dwell)
-            assert c.departure_time_s > dep0
-        else:  # regulated: after the (late) arrival plus a dwell
-            assert c.departure_time_s > dep0 + 140.0
-        assert c.target_running_time_s > 0.0 and c.target_dwell_s > 0.0
+        # exactly what the ROS-free dispatcher decides for the same events
+        ref = _reference_dispatcher(regulator)
+        ref.on_event("train_01", 0, "departure", dep0)
+        want = ref.on_event("train_01", 1, "arrival", dep0 + 140.0)
+        assert want is not None
+        assert c.departure_time_s == pytest.approx(want.departure_s)
+        assert c.target_running_time_s == pytest.approx(want.running_s)
+        if regulator == "none":  # the timetable: no dwell cut
+            assert math.isnan(c.dwell_limit_s)
+        else:  # 140 s after the departure is late: the regulator cuts the dwell
+            assert c.dwell_limit_s == pytest.approx(want.dwell_limit_s)
+            assert 20.0 <= c.dwell_limit_s < 40.0
+        assert c.target_running_time_s > 0.0
         assert c.regulator == {"none": 0, "lqr": 1}[regulator]
         n = len(cmds)
         pub.publish(event(TrainEvent.KIND_ARRIVAL, 2, math.nan, 3))

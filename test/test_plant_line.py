@@ -13,7 +13,7 @@ import pytest
 from metro_atc.core.plant.driver import simple_driver
 from metro_atc.core.plant.line import (MODE_DWELL, MODE_OUT, BrakeSensorSample, LineSim,
                                        TrainEvent)
-from metro_atc.core.plant.scenario import load_scenario
+from metro_atc.core.plant.scenario import _package_dir, load_scenario
 
 
 @pytest.fixture(scope="module")
@@ -186,3 +186,31 @@ def test_sensor_rate_and_content(mini_run: LineSim) -> None:
     clamp = np.array([s.clamp_force_n for s in tr0])
     braking = clamp.mean(axis=1) > 2000.0
     assert braking.any() and (~braking).any()
+
+
+def test_ats_dwell_cut_leaves_passengers_for_the_next_train(tmp_path: Any) -> None:
+    """A dwell limit closes the doors early: fewer boarders, the rest take the next train."""
+    text = (_package_dir() / "mini.yaml").read_text()
+    text = text.replace("boarding_pph: [1200, 900, 600, 0]", "boarding_pph: [1200, 9000, 600, 0]")
+    text = text.replace("departure_delay_prob: 0.3", "departure_delay_prob: 0.0")
+    path = tmp_path / "crowded.yaml"
+    path.write_text(text)
+    scn = load_scenario(str(path))
+    ref, cut = LineSim(scn, seed=0), LineSim(scn, seed=0)
+    for sim in (ref, cut):
+        _until(sim, lambda s: s.dwelling[0] and s.cur_station[0] == 1)
+    t_arr = float(cut.arr_t[0])
+    cut.set_departure(0, 1, t_arr, math.nan, 5.0)   # below the minimum dwell: 20 s applies
+    for sim in (ref, cut):
+        _until(sim, lambda s: not math.isnan(s.act_dep[1, 1]), limit=3000.0)
+    ref_dwell = ref.act_dep[0, 1] - ref.act_arr[0, 1]
+    cut_dwell = cut.act_dep[0, 1] - cut.act_arr[0, 1]
+    assert ref_dwell > 30.0                                   # passenger-driven dwell
+    assert cut_dwell == pytest.approx(scn.passengers.min_dwell_s,
+                                      abs=cut.control_period_s + 1e-9)
+    ps = scn.passengers
+    assert cut.boarded[0, 1] < ref.boarded[0, 1] - 100.0
+    # boarding time after the door overhead bounds the boarders
+    assert cut.boarded[0, 1] <= (cut_dwell - ps.door_overhead_s) / ps.boarding_s_per_pax + 1e-6
+    # the passengers left behind board the next train
+    assert cut.boarded[1, 1] > ref.boarded[1, 1] + 100.0

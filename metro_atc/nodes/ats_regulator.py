@@ -2,15 +2,14 @@
 
 Subscribes to ``/line/events`` (transient-local: a restarted ATS replays the history and
 rebuilds its state) and publishes one transient-local ``/<train>/departure_command`` per
-decision: the regulated departure time from the station a train has just reached, the
-target running time to the next station and the target dwell there.
+decision: the departure time from the station a train has just reached, the target running
+time to the next station and, when the regulator cuts the dwell, the dwell limit.
 
-Regulators (parameter ``regulator``): ``none`` keeps the timetable (seed 000 eq. 10);
-``lqr``, ``dhp`` and ``aoc`` run :class:`metro_atc.core.atr.node_core.AtsRegulatorCore`
-(seed 000 eq. 17-48) on the scenario's traffic model
-(:func:`metro_atc.core.bridge.atr_line_for`). On the arrival of train i at station j the
-core's decision for station j gives the departure time, and its decision for station j+1
-(made now, with the arrival known) the running time to j+1 and the dwell there.
+All decisions are made by the ROS-free :class:`metro_atc.core.atr.dispatch.AtsDispatcher`
+(its docstring gives the regulation law); regulators (parameter ``regulator``): ``none``
+keeps the timetable (seed 000 eq. 10); ``lqr``, ``dhp`` and ``aoc`` run
+:class:`metro_atc.core.atr.node_core.AtsRegulatorCore` (seed 000 eq. 17-48) on the
+scenario's traffic model (:func:`metro_atc.core.bridge.atr_line_for`).
 """
 
 from __future__ import annotations
@@ -24,6 +23,7 @@ from metro_atc_msgs.msg import DepartureCommand, TrainEvent
 from rclpy.node import Node
 
 from metro_atc.core.atr.cost import CostWeights
+from metro_atc.core.atr.dispatch import AtsDispatcher, Dispatch
 from metro_atc.core.atr.node_core import AtsRegulatorCore
 from metro_atc.core.atr.regulators import default_weights_path
 from metro_atc.core.bridge import atr_line_for, timetable_for
@@ -52,6 +52,8 @@ class AtsRegulator(Node):
         r = declare(self, "cost_r", 0.1, "control-effort weight r (seed 000 eq. 17)", 1e-6, 1e6)
         horizon = declare(self, "horizon", 40, "adjustable services K (seed 000 eq. 17)",
                           1, 1000)
+        hold_max = declare(self, "hold_max_s", 60.0,
+                           "longest hold a regulator may add at a platform [s]", 0.0, 600.0)
         if self.regulator not in REGULATORS:
             raise NodeConfigError(f"parameter regulator='{self.regulator}' is not one of "
                                   f"{', '.join(REGULATORS)}")
@@ -71,16 +73,14 @@ class AtsRegulator(Node):
                     line, self.regulator, weights_path=path,
                     cost=CostWeights(q=q, r=r, horizon=horizon), train_ids=self.ids,
                     first_dispatch_s=float(self.tt.departure_s[0, 0]),
-                    departure_table_s=self.tt.departure_s)
+                    departure_table_s=self.tt.departure_s,
+                    arrival_table_s=self.tt.arrival_s)
             except (ValueError, FileNotFoundError) as exc:
                 raise NodeConfigError(f"regulator '{self.regulator}': {exc}") from None
-        self.index = {t: i for i, t in enumerate(self.ids)}
+        self.dispatcher = AtsDispatcher(self.tt, self.core,
+                                        min_dwell_s=float(scn.passengers.min_dwell_s),
+                                        hold_max_s=hold_max)
         n, m = len(self.ids), len(self.tt.station_names)
-        self.n_st = m
-        self.last_seq = np.zeros(n, dtype=np.int64)
-        self.arrival_s = np.full((n, m), math.nan)
-        self.departure_s = np.full((n, m), math.nan)
-        self.commanded = np.zeros((n, m), dtype=bool)
         self.cmd_seq = np.zeros(n, dtype=np.int64)
         self.rejected = 0
         self.decision_time_s: list[float] = []
@@ -88,8 +88,8 @@ class AtsRegulator(Node):
         self.pubs = [bulk_publisher(self, DepartureCommand, f"/{t}/departure_command",
                                     QOS_LATCHED) for t in self.ids]
         self.create_subscription(TrainEvent, "/line/events", self._on_event, QOS_EVENTS)
-        for i in range(n):  # first departures (idempotent if replayed after a restart)
-            self._command(i, 0, self.tt.departure_s[i, 0])
+        for d in self.dispatcher.initial():  # idempotent if replayed after a restart
+            self._publish(d)
         self.get_logger().info(f"regulator '{self.regulator}' on '{self.scenario_name}': "
                                f"{n} trains, {m} stations")
 
@@ -105,70 +105,25 @@ class AtsRegulator(Node):
     def _on_event(self, msg: TrainEvent) -> None:
         try:
             ev = conv.event_from_msg(msg, "/line/events")
-            i = conv.train_index(ev["train_id"], self.index, "/line/events")
         except conv.MessageRejected as exc:
             self._warn(f"rejected event: {exc}")
             return
-        j = ev["station"]
-        if not 0 <= j < self.n_st:
-            self._warn(f"rejected event: /line/events.station_index={j} out of range")
+        t0 = time.perf_counter()
+        try:
+            d = self.dispatcher.on_event(ev["train_id"], ev["station"], ev["kind"], ev["t_s"])
+        except ValueError as exc:
+            self._warn(f"rejected event on /line/events: {exc}")
             return
-        if ev["sequence"] <= self.last_seq[i]:
-            self._warn(f"rejected event: /line/events sequence {ev['sequence']} of "
-                       f"{self.ids[i]} is not after {self.last_seq[i]} (out of order/duplicate)")
-            return
-        self.last_seq[i] = ev["sequence"]
-        if self.core is not None:
-            try:
-                self.core.on_event(ev["train_id"], j, ev["kind"], ev["t_s"])
-            except ValueError as exc:
-                self._warn(f"rejected event: /line/events: {exc}")
-                return
-        if ev["kind"] == "arrival":
-            self.arrival_s[i, j] = ev["t_s"]
-            if j < self.n_st - 1:
-                t0 = time.perf_counter()
-                dep, run, dwell = self.decide(i, j, ev["t_s"])
-                self.decision_time_s.append(time.perf_counter() - t0)
-                self._command(i, j, dep, run, dwell)
-        else:
-            self.departure_s[i, j] = ev["t_s"]
+        if d is not None:
+            self.decision_time_s.append(time.perf_counter() - t0)
+            self._publish(d)
 
-    def decide(self, i: int, j: int, arrival_s: float) -> tuple[float, float, float]:
-        """Departure of train i from station j [s], running time to j+1 [s], dwell at j+1 [s].
-
-        ``none``: the timetable. Regulators: the core's decisions for stations j and j+1.
-        """
-        nxt = min(j + 1, self.n_st - 1)
-        if self.core is None:
-            return (float(self.tt.departure_s[i, j]), float(self.tt.running_s[j]),
-                    float(self.tt.dwell_s[i, nxt]))
-        here = self.core.departure_command(self.ids[i], j)
-        ahead = self.core.departure_command(self.ids[i], j + 1)
-        # trains never leave before the timetable (as with ``none``): the regulator holds
-        # (positive adjustments) and shortens running times and dwells of late trains
-        dep = max(float(here.departure_time_s), float(self.tt.departure_s[i, j]))
-        return dep, float(ahead.target_running_time_s), float(ahead.target_dwell_s)
-
-    def _command(self, i: int, j: int, departure_s: float, running_s: float | None = None,
-                 dwell_s: float | None = None) -> None:
-        if j >= self.n_st - 1:
-            return
-        if running_s is None or dwell_s is None:
-            departure_s, running_s, dwell_s = self._first(i, j, departure_s)
-        self.commanded[i, j] = True
+    def _publish(self, d: Dispatch) -> None:
+        i = d.train
         self.cmd_seq[i] += 1
-        msg = conv.departure_msg(self.ids[i], j, departure_s, running_s, dwell_s,
-                                 self.regulator, int(self.cmd_seq[i]), departure_s)
-        self.pubs[i].publish(msg)
-
-    def _first(self, i: int, j: int, departure_s: float) -> tuple[float, float, float]:
-        """Command for a station without an arrival event (first departures)."""
-        nxt = min(j + 1, self.n_st - 1)
-        if self.core is None:
-            return departure_s, float(self.tt.running_s[j]), float(self.tt.dwell_s[i, nxt])
-        ahead = self.core.departure_command(self.ids[i], j + 1)
-        return (departure_s, float(ahead.target_running_time_s), float(ahead.target_dwell_s))
+        self.pubs[i].publish(conv.departure_msg(self.ids[i], d.station, d.departure_s,
+                                                d.running_s, d.dwell_limit_s, self.regulator,
+                                                int(self.cmd_seq[i]), d.departure_s))
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -74,24 +74,31 @@ def traction_msg(train_id: str, step: int, t_s: float, effort: float,
 
 def departure_from_msg(msg: DepartureCommand, topic: str,
                        n_stations: int) -> tuple[int, float, float, float]:
-    """Validate a DepartureCommand; return (station, departure_s, running_s, dwell_s)."""
+    """Validate a DepartureCommand; return (station, departure_s, running_s, dwell_limit_s).
+
+    ``dwell_limit_s`` may be NaN (no dwell cut); every other time must be finite.
+    """
     st = int(msg.station_index)
     if not 0 <= st < n_stations:
         raise MessageRejected(f"{topic}.station_index={st} outside [0, {n_stations - 1}]")
     dep = _finite(f"{topic}.departure_time_s", msg.departure_time_s)
     run = _finite(f"{topic}.target_running_time_s", msg.target_running_time_s)
-    dwell = _finite(f"{topic}.target_dwell_s", msg.target_dwell_s)
+    dwell = float(msg.dwell_limit_s)
+    if math.isinf(dwell):
+        raise MessageRejected(f"{topic}.dwell_limit_s={dwell} is not finite or NaN")
     if dep < 0.0 or run < 0.0 or dwell < 0.0:
         raise MessageRejected(f"{topic}: negative time in departure command")
     return st, dep, run, dwell
 
 
 def departure_msg(train_id: str, station: int, departure_s: float, running_s: float,
-                  dwell_s: float, regulator: str, seq: int, stamp_s: float) -> DepartureCommand:
-    """Build a DepartureCommand."""
+                  dwell_limit_s: float, regulator: str, seq: int, stamp_s: float
+                  ) -> DepartureCommand:
+    """Build a DepartureCommand (``dwell_limit_s`` NaN: no dwell cut)."""
     m = DepartureCommand(train_id=train_id, station_index=int(station),
                          departure_time_s=float(departure_s),
-                         target_running_time_s=float(running_s), target_dwell_s=float(dwell_s),
+                         target_running_time_s=float(running_s),
+                         dwell_limit_s=float(dwell_limit_s),
                          regulator=REGULATOR_CODES.get(regulator, 0), sequence=int(seq))
     m.header.stamp = to_time(stamp_s)
     m.header.frame_id = "line"

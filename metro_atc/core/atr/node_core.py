@@ -66,11 +66,13 @@ class AtsRegulatorCore:
                  weights_path: Optional[Union[str, Path]] = None,
                  cost: Optional[CostWeights] = None, train_ids: Sequence[str] = (),
                  first_dispatch_s: float = 0.0,
-                 departure_table_s: Optional[np.ndarray] = None) -> None:
+                 departure_table_s: Optional[np.ndarray] = None,
+                 arrival_table_s: Optional[np.ndarray] = None) -> None:
         """Create the core; ``train_ids`` in dispatch order (service m = index m).
 
-        departure_table_s: optional (n_trains, N) scheduled departures [s] replacing the
-        steady peak timetable.
+        departure_table_s / arrival_table_s: optional (n_trains, N) scheduled departures /
+        arrivals [s] replacing the steady peak timetable (arrivals default to departure
+        minus the model's steady dwell).
         """
         if len(set(train_ids)) != len(train_ids):
             raise ValueError("train ids must be unique")
@@ -94,6 +96,12 @@ class AtsRegulatorCore:
             off = schedule_offsets(line)
             m = np.arange(len(self.train_ids))[:, None]
             self._table = first_dispatch_s + m * h + off[None, :]
+        self._arr_table: Optional[np.ndarray] = None
+        if arrival_table_s is not None:
+            arr = np.asarray(arrival_table_s, dtype=float)
+            if arr.shape != self._table.shape or not np.all(np.isfinite(arr)):
+                raise ValueError(f"arrival table must be finite with shape {self._table.shape}")
+            self._arr_table = arr
         self._h = h
         self._dep: Dict[Tuple[int, int], float] = {}
         self._arr: Dict[Tuple[int, int], float] = {}
@@ -130,7 +138,11 @@ class AtsRegulatorCore:
     def scheduled(self, m: int, station: int, kind: str) -> float:
         """Scheduled arrival/departure instant [s] of service m at a station."""
         dep = float(self._table[m, station])
-        return dep if kind == "departure" else dep - float(self._sched_dwell[station])
+        if kind == "departure":
+            return dep
+        if self._arr_table is not None:
+            return float(self._arr_table[m, station])
+        return dep - float(self._sched_dwell[station])
 
     def on_event(self, train_id: str, station_idx: int, kind: str, t_s: float) -> None:
         """Record an event; raises ValueError (clear message) for invalid or out-of-order input.
@@ -181,6 +193,16 @@ class AtsRegulatorCore:
             if 0 <= other < n_trains:
                 x[i] = self.delay_estimate(other, i)
         return x
+
+    def adjustment(self, train_id: str, station_idx: int) -> float:
+        """The regulator's u_j [s] for (train, station j) on the current state estimate.
+
+        u_j is the adjustment of the run into j plus the dwell at j (seed 000 eq. 5),
+        unsaturated: the caller applies what is left of it.
+        """
+        m = self._train(train_id)
+        j = self._station(station_idx)
+        return float(self.regulator.decide(self.state_for(m, j), 0)[j])
 
     def departure_command(self, train_id: str, station_idx: int) -> DepartureCommand:
         """Regulated departure time, running-time and dwell targets for a train at a station."""

@@ -1,6 +1,9 @@
 """Key performance indicators of a line simulation (JSON-serialisable dict).
 
 Punctuality: share of departures no more than ``PUNCTUAL_S`` late against the timetable.
+Recovery: ``recovery_time_s`` runs from the first departure more than ``RECOVERY_TOL_S``
+late to the last one (the seed 000 Exp. 2 "the delay subsides"; the same 30 s tolerance as
+the ATR core's evaluation), ``late_departures`` counts them.
 Schedule deviation: departure minus timetable (seed 000 cost). Headway deviation: actual
 minus scheduled headway between consecutive trains at each station.  Running-time
 deviation: actual minus target (ATS command if any, else timetable) running time.
@@ -19,6 +22,9 @@ if TYPE_CHECKING:  # pragma: no cover
 
 PUNCTUAL_S = 60.0
 """A departure at most this late counts as punctual [s]."""
+
+RECOVERY_TOL_S = 30.0
+"""A departure more than this late counts as not recovered [s]."""
 
 J_PER_KWH = 3.6e6
 """Joules per kWh."""
@@ -50,6 +56,9 @@ def compute_kpis(sim: "LineSim") -> dict[str, Any]:
     e = sim.energy_breakdown()
     valid = np.isfinite(dep_dev)
     punct = float(np.mean(dep_dev[valid] <= PUNCTUAL_S)) if valid.any() else None
+    late = valid & (np.where(valid, dep_dev, 0.0) > RECOVERY_TOL_S)
+    t_late = sim.act_dep[late]
+    recovery = float(t_late.max() - t_late.min()) if t_late.size else 0.0
     per_train = []
     for i, tid in enumerate(sim.train_ids):
         v = np.isfinite(dep_dev[i])
@@ -95,6 +104,9 @@ def compute_kpis(sim: "LineSim") -> dict[str, Any]:
         if np.isfinite(arr_dev[:, -1]).any() else None,
         "punctuality": punct,
         "punctual_threshold_s": PUNCTUAL_S,
+        "recovery_time_s": recovery,
+        "late_departures": int(late.sum()),
+        "recovery_tolerance_s": RECOVERY_TOL_S,
         "schedule_deviation_s": _stats(dep_dev),
         "headway_deviation_s": _stats(h_act - h_sch),
         "running_time_deviation_s": _stats(rt_dev),

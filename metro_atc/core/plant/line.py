@@ -490,7 +490,8 @@ class LineSim:
         self.sched_arr, self.sched_dep = schedule(self.dispatch, self.sched_dwell,
                                                   self.sched_running_s, self.flow)
         self.cmd_dep = np.full((self.n, self.n_st), math.nan)
-        self.cmd_dwell = np.full((self.n, self.n_st), math.nan)
+        self.cmd_dwell_limit = np.full((self.n, self.n_st), math.nan)
+        self.dwell_cut = np.zeros(self.n, dtype=bool)
         self.cmd_rt = np.full((self.n, self.n_st), math.nan)
         self.act_arr = np.full((self.n, self.n_st), math.nan)
         self.act_dep = np.full((self.n, self.n_st), math.nan)
@@ -693,20 +694,25 @@ class LineSim:
 
     def set_departure(self, train_idx: int, station_idx: int, departure_time_s: float,
                       target_running_time_s: float = math.nan,
-                      target_dwell_s: float = math.nan) -> None:
-        """ATS command: regulated departure of a train from a station (NaN = unset).
+                      dwell_limit_s: float = math.nan) -> None:
+        """ATS command for a train at a station (NaN = unset).
 
-        The train is held at the platform until max(departure_time_s, arrival +
-        target_dwell_s, passenger exchange done) plus the disturbance drawn at arrival.
+        ``departure_time_s``: the train is held at the platform until then (and until its
+        passenger exchange is done); ``target_running_time_s``: the run to the next station
+        (the ATO's target, recorded for the KPIs); ``dwell_limit_s``: the ATS cuts the dwell
+        -- the doors close ``dwell_limit_s`` after the arrival (never before the minimum
+        dwell nor before ``departure_time_s``) even if passengers are still boarding; those
+        left behind wait for the next train.  The departure disturbance drawn at the
+        arrival is added in every case.
         """
         if not 0 <= train_idx < self.n or not 0 <= station_idx < self.n_st:
             raise IndexError(f"train {train_idx} / station {station_idx} out of range")
-        for val in (departure_time_s, target_running_time_s, target_dwell_s):
+        for val in (departure_time_s, target_running_time_s, dwell_limit_s):
             if math.isinf(val):
                 raise ValueError("departure command values must be finite or NaN")
         self.cmd_dep[train_idx, station_idx] = departure_time_s
         self.cmd_rt[train_idx, station_idx] = target_running_time_s
-        self.cmd_dwell[train_idx, station_idx] = target_dwell_s
+        self.cmd_dwell_limit[train_idx, station_idx] = dwell_limit_s
         if self.dwelling[train_idx] and self.cur_station[train_idx] == station_idx \
                 and self.status[train_idx] == _ST_RUN:
             self._set_release(train_idx, station_idx, redraw=False)
@@ -1238,14 +1244,13 @@ class LineSim:
                                           ps.door_overhead_s, ps.min_dwell_s)
         self.pending_board[i] = board
         cand = t_arr + d_req
+        cut = self.cmd_dwell_limit[i, j]
+        if math.isfinite(cut):  # ATS dwell cut: doors close at the limit (>= minimum dwell)
+            cand = min(cand, t_arr + max(float(cut), ps.min_dwell_s))
         cmd = self.cmd_dep[i, j]
-        if math.isfinite(cmd):
-            cand = max(cand, cmd)
-        else:
-            cand = max(cand, float(self.sched_dep[i, j]))
-        tdw = self.cmd_dwell[i, j]
-        if math.isfinite(tdw):
-            cand = max(cand, t_arr + tdw)
+        hold = cmd if math.isfinite(cmd) else float(self.sched_dep[i, j])
+        cand = max(cand, hold)
+        self.dwell_cut[i] = cand < t_arr + d_req - 1e-9
         if redraw:
             dis = scn.disturbances
             delay = 0.0
@@ -1269,9 +1274,14 @@ class LineSim:
             waiting = self.left_behind[j] + self.flow.arrivals(j, self.last_dep_t[j], t)
             room = max(self.p.capacity_pax - self.load[i], 0.0)
             board = min(waiting, room)
+            if self.dwell_cut[i]:  # doors closed by the ATS: boarding time ran out
+                ps = self.scn.passengers
+                t_board = dwell - ps.door_overhead_s - ps.alighting_s_per_pax * alight
+                board = min(board, max(t_board, 0.0) / max(ps.boarding_s_per_pax, 1e-9))
             self.left_behind[j] = waiting - board
             self.last_dep_t[j] = t
             self.load[i] += board
+        self.dwell_cut[i] = False
         self.boarded[i, j] = board
         self.mass[i] = self.p.mass_kg + (self.load[i] - self.p.nominal_load_pax) * \
             self.p.pax_mass_kg
