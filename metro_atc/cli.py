@@ -18,6 +18,8 @@ BENCHES = {
     "perf": "metro_atc.bench.perf",
     "regulator-synthesis": "metro_atc.bench.regulator_synthesis",
     "regulation": "metro_atc.bench.regulation",
+    "closed-loop": "metro_atc.bench.closed_loop",
+    "energy-regulation": "metro_atc.bench.energy_regulation",
     "mmas": "metro_atc.bench.mmas",
     "profiles": "metro_atc.bench.profiles",
     "thsr": "metro_atc.bench.thsr",

@@ -96,29 +96,15 @@ def run_core(scenario: str, seed: int, sim_limit_s: float | None, sensors: bool,
 
 
 def run_graph(scenario: str, seed: int, duration_s: float) -> dict[str, Any] | None:
-    """Run the multi-process ROS graph for ``duration_s`` simulated seconds; return KPIs.
+    """Run the multi-process ROS graph for ``duration_s`` simulated seconds; speed KPIs.
 
-    Uses ``python -m metro_atc run --json`` on a private temporary domain id; returns
-    None (with the reason on stderr) when the graph cannot run here.
+    ``python -m metro_atc run --json`` on a private domain id (the closed-loop bench's
+    runner); None (with the reason on stderr) when the graph cannot run here.
     """
-    import os
-    import subprocess
-    import sys
-    import tempfile
-
-    env = dict(os.environ)
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    env.setdefault("ROS_DOMAIN_ID", str(200 + os.getpid() % 30))
-    with tempfile.TemporaryDirectory(prefix="metro_atc_perf_") as tmp:
-        r = subprocess.run([sys.executable, "-m", "metro_atc", "run", "--scenario", scenario,
-                            "--seed", str(seed), "--duration", str(duration_s), "--json",
-                            "--no-plots", "--out", tmp], env=env, cwd=tmp,
-                           capture_output=True, text=True, timeout=3600)
-    if r.returncode != 0 or not r.stdout.strip():
-        print(f"perf: graph run failed ({r.returncode}): {r.stderr.strip()[-300:]}",
-              file=sys.stderr)
+    from metro_atc.bench.closed_loop import run_graph as run_one
+    k = run_one(scenario, "none", seed, duration_s, domain_id=231)
+    if k is None:
         return None
-    k = json.loads(r.stdout.strip().splitlines()[-1])
     keys = ("real_time_factor", "wall_time_s", "sim_time_s", "steps", "trains",
             "lockstep_misses", "atp_violations")
     return {key: k.get(key) for key in keys}
