@@ -105,16 +105,18 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--duration", type=float, default=3600.0,
                     help="simulated seconds per run (0: the scenario's end)")
     ap.add_argument("--parallel", type=int, default=2, help="graphs run at once")
-    ap.add_argument("--domain-base", type=int, default=232,
-                    help="first ROS_DOMAIN_ID (one per parallel run)")
+    ap.add_argument("--domain-base", type=int, default=230,
+                    help="first ROS_DOMAIN_ID (one per parallel run; Fast DDS allows <= 232, "
+                         "the tests use 30..229)")
     ap.add_argument("--out", type=Path, default=None, help="keep each run's outputs here")
     ap.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     a = ap.parse_args(argv)
     regs = [r for r in a.regulators.split(",") if r]
     bad = [r for r in regs if r not in REGULATORS]
-    if bad or a.seeds < 1 or a.parallel < 1:
+    if bad or a.seeds < 1 or a.parallel < 1 or not 0 <= a.domain_base <= 233 - a.parallel:
         ap.error(f"bad arguments: regulators {bad or 'ok'}, seeds {a.seeds}, "
-                 f"parallel {a.parallel}")
+                 f"parallel {a.parallel}, domain ids {a.domain_base}.."
+                 f"{a.domain_base + a.parallel - 1} (must lie in 0..232)")
     jobs = [(r, s) for s in range(a.seeds) for r in regs]
     t0 = time.perf_counter()
 

@@ -102,7 +102,7 @@ def run_graph(scenario: str, seed: int, duration_s: float) -> dict[str, Any] | N
     runner); None (with the reason on stderr) when the graph cannot run here.
     """
     from metro_atc.bench.closed_loop import run_graph as run_one
-    k = run_one(scenario, "none", seed, duration_s, domain_id=231)
+    k = run_one(scenario, "none", seed, duration_s, domain_id=230)
     if k is None:
         return None
     keys = ("real_time_factor", "wall_time_s", "sim_time_s", "steps", "trains",

@@ -105,6 +105,7 @@ class AtoController(Node):
         self.stations = self.tt.station_positions_m
         self.commands: dict[int, tuple[float, float]] = {}
         self.planned_from = -1
+        self.cur_station = -1
         self.last_mode = -1
         self.rejected = 0
         self._last_warn: dict[str, float] = {}
@@ -133,8 +134,8 @@ class AtoController(Node):
             self.rejected += 1
             self._warn("departure", f"rejected departure command: {exc}")
             return
-        if st + 1 >= len(self.stations):
-            return
+        if st + 1 >= len(self.stations) or st < self.cur_station:
+            return  # the terminus, or a station already left (an ATS replaying its history)
         self.commands[st] = (dep, run)
         if self.last_mode in (-1, TrainState.MODE_OUT_OF_SERVICE, TrainState.MODE_DWELL):
             # pre-plan while standing (publishes the profile early, warms the plan cache);
@@ -191,6 +192,7 @@ class AtoController(Node):
         """Effort in [-1, 1] and intended mode for one state."""
         departing = self.last_mode == TrainState.MODE_DWELL
         self.last_mode = s["mode"]
+        self.cur_station = max(self.cur_station, int(s["current_station"]))
         if s["mode"] == TrainState.MODE_DWELL:
             return -0.5, TrainState.MODE_DWELL
         cur, nxt = s["current_station"], s["next_station"]

@@ -101,7 +101,7 @@ class AtsDispatcher:
 
     def on_event(self, train_id: str, station: int, kind: str, t_s: float
                  ) -> Optional[Dispatch]:
-        """Record an event; return the command it triggers (arrivals before the terminus).
+        """Record an event; return the command it triggers (arrivals at stations 1..N-2).
 
         Raises ValueError with a clear message for an unknown train, a station out of range,
         an unknown kind, a non-finite time or an event that does not advance the train
@@ -128,7 +128,10 @@ class AtsDispatcher:
             self.departure_s[i, j] = t
             return None
         self.arrival_s[i, j] = t
-        if j >= self.n_st - 1:
+        if j == 0 or j >= self.n_st - 1:
+            # station 0 keeps its start-up command (:meth:`initial`): a second command there
+            # would race the first one in the lockstep, and a restarted ATS republishes the
+            # same start-up commands; the terminus has no departure
             return None
         return self._regulated(i, j, t) if self.core is not None else self._timetable(i, j)
 

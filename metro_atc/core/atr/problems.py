@@ -199,7 +199,12 @@ class AtrProblem(AdpProblem):
     eq. 5 without any of these).  Cost: :mod:`metro_atc.core.atr.cost`.  Network extra
     input: time-to-go (K - k) / K (finite number of adjustable services).
     Episodes: an initial delay uniform in [delay_lo, delay_hi] s at ``delay_station``
-    (station 0 = the first station), plus the exponential disturbances.
+    (station 0 = the first station), plus the exponential disturbances; a share
+    ``anywhere_share`` of the episodes instead starts with a delay uniform in
+    [0, delay_hi] s at a random station on top of +-``noise_s`` deviations everywhere, so
+    that the trained policy is a feedback law for any state the ATS node meets (it decides
+    at every station with the time-to-go of a fresh horizon, not only along the wave of an
+    incident at the first station).
     The actor output is squashed into the admissible command range [lo_i, hi_i] of each
     station (minimum/maximum running time, minimum dwell, maximum holding: operating rules
     the ATS knows); the approximate model itself has no saturation.
@@ -207,7 +212,8 @@ class AtrProblem(AdpProblem):
 
     def __init__(self, line: LineData, weights: CostWeights, delay_lo_s: float = 60.0,
                  delay_hi_s: float = 300.0, delay_station: int = 0,
-                 disturbances: bool = True) -> None:
+                 disturbances: bool = True, anywhere_share: float = 0.5,
+                 noise_s: float = 10.0) -> None:
         """Build the linear model, the terminal matrix and the steady timetable."""
         self.line, self.w = line, weights
         self.nx = self.nu = line.n_stations
@@ -226,13 +232,22 @@ class AtrProblem(AdpProblem):
         self.u_hi = torch.from_numpy(hi / weights.x_scale_s)
         self.delay_lo, self.delay_hi, self.delay_station = delay_lo_s, delay_hi_s, delay_station
         self.disturbances = disturbances
+        if not 0.0 <= anywhere_share <= 1.0:
+            raise ValueError(f"anywhere_share must lie in [0, 1], got {anywhere_share!r}")
+        self.anywhere_share, self.noise_s = float(anywhere_share), float(noise_s)
         self.t0 = timetable_state(line, 0)
         self.t1 = timetable_state(line, 1)
 
     def sample(self, batch: int, rng: np.random.Generator) -> Episodes:
         """Initial delays and disturbance sequences (B, K+extra, N) [s]."""
         x0 = np.zeros((batch, self.nx))
-        x0[:, self.delay_station] = rng.uniform(self.delay_lo, self.delay_hi, size=batch)
+        n_any = int(round(self.anywhere_share * batch))
+        n_wave = batch - n_any
+        x0[:n_wave, self.delay_station] = rng.uniform(self.delay_lo, self.delay_hi, size=n_wave)
+        if n_any:
+            st = rng.integers(0, self.nx - 1, size=n_any)
+            x0[n_wave + np.arange(n_any), st] = rng.uniform(0.0, self.delay_hi, size=n_any)
+            x0[n_wave:] += rng.uniform(-self.noise_s, self.noise_s, size=(n_any, self.nx))
         return self.with_initial(x0, rng)
 
     def with_initial(self, x0_s: np.ndarray, rng: np.random.Generator,

@@ -125,6 +125,7 @@ def save_weights(path: Union[str, Path], agent: Agent, line: LineData, weights: 
                  "horizon": weights.horizon},
         "critic": agent.critic.state(),
         "actor": agent.actor.state(),
+        "anchored": agent.anchored,
         # plain JSON types only, so that torch.load(weights_only=True) accepts the file
         "info": json.loads(json.dumps(dict(info or {}), default=str)),
     }
@@ -150,7 +151,7 @@ def load_weights(path: Union[str, Path], line: LineData) -> NeuralRegulator:
                           horizon=int(c["horizon"]))
     problem = AtrProblem(line, weights)
     agent = Agent(str(blob["method"]), problem, MLP.from_state(blob["critic"]),
-                  MLP.from_state(blob["actor"]))
+                  MLP.from_state(blob["actor"]), anchored=bool(blob.get("anchored", False)))
     n_ci = problem.nx + problem.n_extra
     n_ai = n_ci + (problem.nx if agent.method == "aoc" else 0)
     if agent.critic.n_in != n_ci or agent.actor.n_in != n_ai:

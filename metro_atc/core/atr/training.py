@@ -64,6 +64,7 @@ class TrainConfig:
     grad_clip: float = 10.0
     critic_jacobian: str = "model"
     lr_final_fraction: float = 1.0
+    anchored: bool = False
 
 
 @dataclass
@@ -94,21 +95,32 @@ def squash(y: Tensor, scale: float, lo: Optional[Tensor], hi: Optional[Tensor]
 class Agent:
     """A critic-actor pair with the feature maps of one method ('aoc' or 'dhp')."""
 
-    def __init__(self, method: str, problem: AdpProblem, critic: MLP, actor: MLP) -> None:
-        """Bind networks to a problem (feature layout: [x * x_feat, (lam / lam_scale), extras])."""
+    def __init__(self, method: str, problem: AdpProblem, critic: MLP, actor: MLP,
+                 anchored: bool = False) -> None:
+        """Bind networks to a problem (feature layout: [x * x_feat, (lam / lam_scale), extras]).
+
+        ``anchored``: the policy is u(x) = A(x, .) - A(0, .), the actor's output relative to
+        its output at the timetable (x = 0, same time-to-go; AOC: with the critic's costate
+        at x = 0), so that u(0) = 0: a regulator that leaves an undisturbed timetable alone
+        and acts on deviations only (a learnt constant offset cannot masquerade as
+        regulation).  The squash keeps each term within the command range; the sum is
+        clipped by the plant like any command.
+        """
         if method not in ("aoc", "dhp"):
             raise ValueError(f"unknown ADP method {method!r}")
         self.method, self.p, self.critic, self.actor = method, problem, critic, actor
+        self.anchored = bool(anchored)
 
     @classmethod
-    def create(cls, method: str, problem: AdpProblem, hidden: int, seed: int) -> "Agent":
+    def create(cls, method: str, problem: AdpProblem, hidden: int, seed: int,
+               anchored: bool = False) -> "Agent":
         """Fresh seeded networks for ``method``."""
         p = problem
         n_ci = p.nx + p.n_extra
         n_ai = p.nx + p.n_extra + (p.nx if method == "aoc" else 0)
         critic = MLP(n_ci, hidden, p.nx, seed=seed)
         actor = MLP(n_ai, hidden, p.nu, seed=seed + 1)
-        return cls(method, p, critic, actor)
+        return cls(method, p, critic, actor, anchored)
 
     # --- forward pieces -------------------------------------------------------------
     def critic_fwd(self, x: Tensor, extra: Tensor) -> Tuple[Tensor, Tuple[Tensor, Tensor]]:
@@ -116,9 +128,8 @@ class Agent:
         y, cache = self.critic.forward(torch.cat([x * self.p.x_feat, extra], 1))
         return y * self.p.lam_scale, cache
 
-    def actor_fwd(self, x: Tensor, lam: Optional[Tensor], extra: Tensor
-                  ) -> Tuple[Tensor, Tensor, Tuple[Tensor, Tensor]]:
-        """Actor output u, du/dy (output-transform slope) and cache."""
+    def _actor_raw(self, x: Tensor, lam: Optional[Tensor], extra: Tensor
+                   ) -> Tuple[Tensor, Tensor, Tuple[Tensor, Tensor]]:
         parts = [x * self.p.x_feat]
         if lam is not None:
             parts.append(lam / self.p.lam_scale)
@@ -126,6 +137,30 @@ class Agent:
         y, cache = self.actor.forward(torch.cat(parts, 1))
         u, dudy = squash(y, self.p.u_scale, self.p.u_lo, self.p.u_hi)
         return u, dudy, cache
+
+    def actor_fwd(self, x: Tensor, lam: Optional[Tensor], extra: Tensor
+                  ) -> Tuple[Tensor, Tensor, Tuple[Tensor, Tensor]]:
+        """Actor output u, du/dy (output-transform slope) and cache (see ``anchored``)."""
+        u, dudy, cache = self._actor_raw(x, lam, extra)
+        if self.anchored:  # kept for actor_grad, which follows in the same stage
+            self._anchor = self._origin(x, extra)
+            u = u - self._anchor[0]
+        return u, dudy, cache
+
+    def _origin(self, x: Tensor, extra: Tensor
+                ) -> Tuple[Tensor, Tensor, Tuple[Tensor, Tensor]]:
+        """Actor output at the timetable x = 0 (the anchor), its slope and cache."""
+        x0 = torch.zeros_like(x)
+        lam0 = self.critic_fwd(x0, extra)[0].detach() if self.method == "aoc" else None
+        return self._actor_raw(x0, lam0, extra)
+
+    def actor_grad(self, cache: Tuple[Tensor, Tensor], dudy: Tensor, delta: Tensor) -> Tensor:
+        """(du^/dbeta)^T delta summed over the batch, for the last :meth:`actor_fwd` call."""
+        g = self.actor.grad_params(cache, delta * dudy)
+        if self.anchored:
+            _, dudy0, cache0 = self._anchor
+            g = g - self.actor.grad_params(cache0, delta * dudy0)
+        return g
 
     def act(self, x: Tensor, extra: Tensor) -> Tensor:
         """Policy u(k) for state x(k) (AOC: through the critic's lambda^(k+1))."""
@@ -147,7 +182,8 @@ class Agent:
 
     def state(self) -> Dict[str, object]:
         """Serialisable state of both networks."""
-        return {"method": self.method, "critic": self.critic.state(), "actor": self.actor.state()}
+        return {"method": self.method, "critic": self.critic.state(), "actor": self.actor.state(),
+                "anchored": self.anchored}
 
 
 class _Momentum:
@@ -205,7 +241,7 @@ def aoc_stage(agent: Agent, ep: Episodes, k: int, x: Tensor, critic_jacobian: st
     delta = du + p.fu_t(x, u, lam1)
     gy = delta * dudy
     b = x.shape[0]
-    g_actor = agent.actor.grad_params(a_cache, gy) / b
+    g_actor = agent.actor_grad(a_cache, dudy, delta) / b
     x_next = p.truth_step(ep, k, x, u)
     if critic_jacobian == "plant":
         lam_t = (p.du_dx(ep, k, x, u) + agent.policy_vjp_x(a_cache, du * dudy, c_cache)
@@ -239,7 +275,7 @@ def dhp_stage(agent: Agent, ep: Episodes, k: int, x: Tensor) -> Dict[str, Tensor
         lam1 = agent.critic_fwd(x_hat, p.extras(ep, k + 1))[0]
     delta = p.du_du(ep, k, x, u) + p.fu_t(x, u, lam1)
     gy = delta * dudy
-    g_actor = agent.actor.grad_params(a_cache, gy) / x.shape[0]
+    g_actor = agent.actor_grad(a_cache, dudy, delta) / x.shape[0]
     lam_t = p.du_dx(ep, k, x, u) + p.fx_t(x, u, lam1) + agent.policy_vjp_x(a_cache, gy, None)
     return {"lam_next": lam1, "u": u, "delta": delta, "g_actor": g_actor, "lam_target": lam_t,
             "x_next": p.truth_step(ep, k, x, u)}
@@ -250,7 +286,8 @@ def train(method: str, problem: AdpProblem, cfg: TrainConfig,
     """Train AOC or DHP on ``problem`` (truth system in the loop); deterministic for a seed."""
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
-    ag = agent if agent is not None else Agent.create(method, problem, cfg.hidden, cfg.seed)
+    ag = agent if agent is not None else Agent.create(method, problem, cfg.hidden, cfg.seed,
+                                                      cfg.anchored)
     opt_c = _Momentum(ag.critic, cfg.lr_critic, cfg.momentum, cfg.grad_clip)
     opt_a = _Momentum(ag.actor, cfg.lr_actor, cfg.momentum, cfg.grad_clip)
     hist: Dict[str, List[float]] = {"cost": [], "critic_error": [], "actor_error": []}
@@ -326,7 +363,11 @@ def atr_train_config(seed: int = 0, epochs: int = 1500) -> TrainConfig:
 
     Both methods use the same settings: 32 parallel episodes x 40 stages per epoch, 64
     hidden tanh units, learning rate 1e-3 decaying geometrically to 1e-4, momentum 0.9
-    (eq. 44/48), literal eq. 34 critic target.
+    (eq. 44/48), literal eq. 34 critic target, anchored policy (u(0) = 0, see
+    :class:`Agent`).  Without the anchor the actors learnt constant offsets of up to +-22 s
+    at the timetable (holding punctual trains at some stations, cutting others) that the
+    ATS in the closed loop applied to every train.
     """
     return TrainConfig(epochs=epochs, batch=32, hidden=64, lr_critic=1e-3, lr_actor=1e-3,
-                       momentum=0.9, seed=seed, lr_final_fraction=0.1, critic_jacobian="model")
+                       momentum=0.9, seed=seed, lr_final_fraction=0.1, critic_jacobian="model",
+                       anchored=True)
