@@ -64,6 +64,15 @@ def test_regulated_late_train_gets_a_dwell_cut_and_a_short_run() -> None:
     assert c.running_s < TT.running_s[1] - 1.0
 
 
+def test_slightly_late_train_keeps_its_passengers() -> None:
+    """A train within the tolerance is not cut: the doors stay open at least until then."""
+    d = _dispatcher("lqr")
+    c = _run_to(d, 0, 1, delay_s=10.0)
+    assert c is not None and c.adjustment_s < 0.0            # the regulator wants it faster
+    arrival = float(TT.arrival_s[0, 1]) + 10.0
+    assert arrival + c.dwell_limit_s >= TT.departure_s[0, 1] + d.cut_tolerance_s - 1e-9
+
+
 def test_regulated_on_time_train_is_not_cut() -> None:
     """An on-time train without delayed neighbours keeps (about) the timetable."""
     d = _dispatcher("lqr")

@@ -54,6 +54,9 @@ class AtsRegulator(Node):
                           1, 1000)
         hold_max = declare(self, "hold_max_s", 60.0,
                            "longest hold a regulator may add at a platform [s]", 0.0, 600.0)
+        tolerance = declare(self, "dwell_cut_tolerance_s", 30.0,
+                            "a regulator's dwell cut never closes the doors before the "
+                            "timetable departure plus this [s]", 0.0, 3600.0)
         if self.regulator not in REGULATORS:
             raise NodeConfigError(f"parameter regulator='{self.regulator}' is not one of "
                                   f"{', '.join(REGULATORS)}")
@@ -79,7 +82,7 @@ class AtsRegulator(Node):
                 raise NodeConfigError(f"regulator '{self.regulator}': {exc}") from None
         self.dispatcher = AtsDispatcher(self.tt, self.core,
                                         min_dwell_s=float(scn.passengers.min_dwell_s),
-                                        hold_max_s=hold_max)
+                                        hold_max_s=hold_max, cut_tolerance_s=tolerance)
         n, m = len(self.ids), len(self.tt.station_names)
         self.cmd_seq = np.zeros(n, dtype=np.int64)
         self.rejected = 0

@@ -26,8 +26,10 @@ dwell at j, decided on the staggered departure-deviation state x(k) = t(k) - T(k
   ``du_dwell = clip(u_j - (realised run - scheduled run), min_dwell - S_mj, hold_max)``
   with S_mj the scheduled dwell.  ``du_dwell > 0`` holds the train until
   ``arrival + S_mj + du_dwell`` (never before the timetable); ``du_dwell < 0`` cuts the
-  dwell to ``S_mj + du_dwell``: the control that keeps a late train from collecting ever
-  more passengers (the t_b p(k) term of seed 000 eq. 4-5 that makes delays grow).  The
+  dwell to ``S_mj + du_dwell`` (not below the minimum dwell, and the doors never close
+  before ``timetable + cut_tolerance_s``): the control that keeps a late train from
+  collecting ever more passengers (the t_b p(k) term of seed 000 eq. 4-5 that makes delays
+  grow), used for trains beyond the punctuality tolerance only.  The
   running-time target to j+1 is the running part of the regulator's u_{j+1}
   (:func:`metro_atc.core.atr.traffic.split_adjustment`, between the flat-out and the
   maximum running time).
@@ -61,10 +63,14 @@ class AtsDispatcher:
     """Timetable or regulated dispatching of every train of a scenario (module docstring)."""
 
     def __init__(self, tt: Timetable, core: Optional[AtsRegulatorCore] = None,
-                 min_dwell_s: float = 20.0, hold_max_s: float = 60.0) -> None:
+                 min_dwell_s: float = 20.0, hold_max_s: float = 60.0,
+                 cut_tolerance_s: float = 30.0) -> None:
         """``core`` None: timetable (``none``); else its regulator decides (lqr/dhp/aoc).
 
-        min_dwell_s: shortest dwell a cut may command [s]; hold_max_s: longest hold [s].
+        min_dwell_s: shortest dwell a cut may command [s]; hold_max_s: longest hold [s];
+        cut_tolerance_s: a cut never closes the doors before ``timetable + cut_tolerance_s``
+        -- dwells are cut to bring late trains back within the punctuality tolerance, not
+        to leave passengers behind for a few seconds' lateness [s].
         """
         if not (math.isfinite(min_dwell_s) and min_dwell_s >= 0.0):
             raise ValueError(f"min_dwell_s must be finite and >= 0, got {min_dwell_s!r}")
@@ -76,8 +82,11 @@ class AtsDispatcher:
         self.index = {t: i for i, t in enumerate(self.ids)}
         self.n_st = len(tt.station_names)
         n = len(self.ids)
+        if not (math.isfinite(cut_tolerance_s) and cut_tolerance_s >= 0.0):
+            raise ValueError(f"cut_tolerance_s must be finite and >= 0, got {cut_tolerance_s!r}")
         self.min_dwell_s = float(min_dwell_s)
         self.hold_max_s = float(hold_max_s)
+        self.cut_tolerance_s = float(cut_tolerance_s)
         self.arrival_s = np.full((n, self.n_st), math.nan)
         self.departure_s = np.full((n, self.n_st), math.nan)
         self._last: dict[int, tuple[tuple[int, int], float]] = {}
@@ -161,5 +170,7 @@ class AtsDispatcher:
         if du >= 0.0:
             dep, limit = max(tt_dep, arrival_s + sched_dwell + du), math.nan
         else:
-            dep, limit = tt_dep, max(sched_dwell + du, self.min_dwell_s)
+            dep = tt_dep
+            limit = max(sched_dwell + du, self.min_dwell_s,
+                        tt_dep + self.cut_tolerance_s - arrival_s)
         return Dispatch(i, j, dep, self._running_target(i, j), limit, du)
