@@ -121,6 +121,15 @@ class AtsRegulator(Node):
             self.decision_time_s.append(time.perf_counter() - t0)
             self._publish(d)
 
+    def close(self) -> None:
+        """Log the decision count and time (called once at shutdown)."""
+        t = np.asarray(self.decision_time_s) * 1e3
+        if t.size:
+            self.get_logger().info(
+                f"{t.size} decisions: median {np.median(t):.3f} ms, p99 "
+                f"{np.percentile(t, 99):.3f} ms, max {t.max():.3f} ms; {self.rejected} "
+                f"events rejected")
+
     def _publish(self, d: Dispatch) -> None:
         i = d.train
         self.cmd_seq[i] += 1
