@@ -48,3 +48,29 @@ def test_perf_bench_json_quick() -> None:
     assert out["graph_rtf"] is None and out["core_rtf"] > 0
     assert out["trains"] >= 25 and out["sim_time_s"] == 900.0
     assert out["atp_violations"] == 0 and out["energy_balance_error"] < 1e-3
+
+
+def test_recovery_kpis_follow_an_incident() -> None:
+    """A 200 s hold makes departures late until the line recovers; none without it."""
+    import dataclasses
+
+    from metro_atc.core.plant.scenario import IncidentSpec
+
+    base = load_scenario("mini")
+    quiet = dataclasses.replace(base, disturbances=dataclasses.replace(
+        base.disturbances, departure_delay_prob=0.0))
+    held = dataclasses.replace(quiet, incidents=[IncidentSpec(
+        kind="hold", train="train_01", station=base.line.stations[0].code or "Alpha",
+        duration_s=200.0)])
+    out = {}
+    for name, scn in (("quiet", quiet), ("held", held)):
+        sim = LineSim(scn, seed=0)
+        while not sim.done:
+            sim.step(simple_driver(sim))
+        out[name] = sim.kpis()
+    assert out["quiet"]["late_departures"] == 0 and out["quiet"]["recovery_time_s"] == 0.0
+    k = out["held"]
+    # train_01 leaves every station but the terminus > 60 s late
+    assert k["late_departures"] >= 3
+    assert k["recovery_time_s"] > 0.0 and k["recovery_tolerance_s"] == 60.0
+    assert k["max_delay_s"] >= 200.0 - 1e-6
