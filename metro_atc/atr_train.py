@@ -1,9 +1,11 @@
 r"""``python -m metro_atc train {aoc,dhp} [--scenario NAME] --out FILE``: train ATR weights.
 
 Trains the AOC or DHP regulator of seed 000 (Exp. 2 setting: initial delays of 60-300 s at
-the first station, truth traffic model with saturation, crowding, knock-on delays and
-exponential departure delays) and writes a small weights file the ``ats_regulator`` node
-loads.  Deterministic for a given --seed on one CPU thread.
+the first station -- for half of the episodes anywhere on the line --, truth traffic model
+with saturation, crowding, knock-on delays and exponential departure delays) on the ATR
+line of ``--scenario`` (for a scenario: the model the ``ats_regulator`` node builds of it)
+and writes a small weights file the node loads.  Deterministic for a given --seed on one
+CPU thread.
 
 The shipped defaults were produced with::
 
@@ -35,7 +37,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap = argparse.ArgumentParser(prog="metro_atc train",
                                  description="train ATR regulator weights (seed 000 AOC/DHP)")
     ap.add_argument("method", choices=("aoc", "dhp"))
-    ap.add_argument("--scenario", default="taipei_blue", help="line: taipei_blue or small<N>")
+    ap.add_argument("--scenario", default="taipei_blue",
+                    help="line: a scenario name (the ATS node's model of it), "
+                         "blue_line_estimates or small<N>")
     ap.add_argument("--out", type=Path, required=True, help="weights file to write (.pt)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--epochs", type=int, default=1500)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from metro_atc.bench import regulation, regulator_synthesis
-from metro_atc.core.atr.blue_line import taipei_blue
+from metro_atc.core.atr.blue_line import get_line
 from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.evaluation import incident_scenario, kpis, simulate
 from metro_atc.core.atr.problems import AtrProblem
@@ -47,7 +47,7 @@ def test_regulation_json_and_plot(capsys, tmp_path):
 def test_shipped_weights_load_and_are_small(method):
     path = default_weights_path(method, "taipei_blue")
     assert path.stat().st_size < 200_000
-    reg = make_regulator(method, taipei_blue())
+    reg = make_regulator(method, get_line("taipei_blue"), weights_path=path)
     assert reg.meta["info"]["seed"] == 0 and "atr_train" in reg.meta["info"]["command"]
     x = np.zeros(23)
     x[0] = 180.0
@@ -55,11 +55,26 @@ def test_shipped_weights_load_and_are_small(method):
 
 
 def test_shipped_aoc_beats_lqr_on_the_reference_incident():
-    line, w = taipei_blue(), CostWeights()
+    """On the line it was trained for (the taipei_blue scenario, as the ATS node models it)."""
+    line, w = get_line("taipei_blue"), CostWeights()
     p0 = AtrProblem(line, w).p0_np
     sc = incident_scenario(line, 180.0, 4242, w.horizon)
     cost = {}
     for m in ("none", "lqr", "aoc"):
-        traj = simulate(line, make_regulator(m, line, w), sc["x0"], sc["w"], w.horizon)
+        reg = make_regulator(m, line, w, default_weights_path(m, "taipei_blue")
+                             if m == "aoc" else None)
+        traj = simulate(line, reg, sc["x0"], sc["w"], w.horizon)
         cost[m] = kpis(traj, line, w, p0)["cost"]
     assert cost["aoc"] < cost["lqr"] < cost["none"]
+
+
+def test_shipped_policies_leave_the_timetable_alone():
+    """Anchored policies: no adjustment at the timetable, a speed-up for a late train."""
+    line = get_line("taipei_blue")
+    for m in ("aoc", "dhp"):
+        reg = make_regulator(m, line, CostWeights(), default_weights_path(m, "taipei_blue"))
+        assert np.allclose(reg.decide(np.zeros(line.n_stations)), 0.0, atol=1e-9), m
+    aoc = make_regulator("aoc", line, CostWeights(), default_weights_path("aoc", "taipei_blue"))
+    x = np.zeros(line.n_stations)
+    x[5] = 120.0                                 # a train left station 5 two minutes late
+    assert aoc.decide(x)[6] < -30.0              # its run into 6 + dwell there: shorter

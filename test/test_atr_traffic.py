@@ -163,7 +163,8 @@ def test_exponential_disturbance_statistics_and_line_lookup():
     assert np.all(w >= 0.0)
     assert w.mean() == pytest.approx(2.0, rel=0.03)
     assert np.all(exponential_disturbance(np.random.default_rng(0), 0.0, (3,)) == 0.0)
-    assert get_line("taipei_blue").n_stations == 23
+    assert get_line("taipei_blue").n_stations == 23           # the scenario, as the ATS sees it
+    assert get_line("blue_line_estimates").separation_min_s == 60.0
     assert get_line("small5").n_stations == 5
     with pytest.raises(ValueError):
         get_line("nowhere")

@@ -76,14 +76,22 @@ def track_for(scn: Scenario) -> Track:
     return Track(g_starts, grades, l_starts, limits)
 
 
+SEPARATION_MIN_S = 40.0
+"""Shortest time from a departure until the follower arrives at the same platform [s]:
+39-40 s measured at the intermediate stations of ``taipei_blue_delay`` (a follower held by
+moving-block ATP behind its leader, 50 m safety margin, 140 m trains); the ATR estimate of
+60 s (a fixed-block figure) made the trained regulators hold followers the plant would not
+have delayed."""
+
+
 def atr_line_for(scn: Scenario, tt: Timetable | None = None) -> "LineData":
     """The ATR traffic-model line (seed 000 eq. 1-10) of a scenario.
 
     Geometry, scheduled and minimum running times come from the scenario timetable (the
     simulator's); passenger rates, boarding time and headway from its peak period; the
     remaining traffic-model constants (maximum running time +15 %, holding limit 60 s,
-    platform re-occupation 60 s, crowding) are the ATR estimates of
-    :func:`metro_atc.core.atr.blue_line.taipei_blue`.
+    crowding) are the ATR estimates of :func:`metro_atc.core.atr.blue_line.taipei_blue`,
+    except the platform re-occupation time: ``SEPARATION_MIN_S`` as measured in the graph.
     """
     from metro_atc.core.atr.blue_line import LineData, Period, taipei_blue
 
@@ -112,7 +120,7 @@ def atr_line_for(scn: Scenario, tt: Timetable | None = None) -> "LineData":
         boarding_pax_h=board,
         t_board_s=float(pax.boarding_s_per_pax),
         headway_s=float(periods[peak].headway_s),
-        separation_min_s=est.separation_min_s,
+        separation_min_s=SEPARATION_MIN_S,
         disturbance_mean_s=float(scn.disturbances.departure_delay_mean_s
                                  * scn.disturbances.departure_delay_prob),
         crowding_gain=est.crowding_gain,

@@ -190,9 +190,21 @@ def small_line(n: int = 3, headway_s: float = 120.0) -> LineData:
 
 
 def get_line(name: str) -> LineData:
-    """Return a line description by scenario name ('taipei_blue' or 'smallN')."""
-    if name == "taipei_blue":
+    """Return an ATR line by name.
+
+    ``blue_line_estimates``: :func:`taipei_blue` (this module's estimates; the seed 000
+    Exp. 2 bench); ``smallN``: :func:`small_line`; any other name: the embedded scenario or
+    scenario file of that name as the ATS node sees it
+    (:func:`metro_atc.core.bridge.atr_line_for`), e.g. ``taipei_blue``.
+    """
+    if name == "blue_line_estimates":
         return taipei_blue()
     if name.startswith("small") and name[5:].isdigit() and int(name[5:]) >= 2:
         return small_line(int(name[5:]))
-    raise ValueError(f"unknown ATR scenario {name!r}; known: 'taipei_blue', 'small<N>'")
+    from metro_atc.core.bridge import atr_line_for
+    from metro_atc.core.plant.scenario import ScenarioError, load_scenario
+    try:
+        return atr_line_for(load_scenario(name))
+    except ScenarioError as exc:
+        raise ValueError(f"unknown ATR line {name!r} (not 'blue_line_estimates', 'small<N>' "
+                         f"nor a scenario: {exc})") from None
