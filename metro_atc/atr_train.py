@@ -29,7 +29,7 @@ from metro_atc.core.atr.blue_line import get_line
 from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.problems import AtrProblem
 from metro_atc.core.atr.regulators import save_weights
-from metro_atc.core.atr.training import Agent, atr_train_config, train
+from metro_atc.core.atr.training import atr_train_config, train
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -65,7 +65,7 @@ def main(argv: Optional[List[str]] = None) -> int:
             "command": "python -m metro_atc.atr_train " + " ".join(
                 argv if argv is not None else sys.argv[1:])}
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    save_weights(a.out, Agent(a.method, problem, res.critic, res.actor), line, weights, info)
+    save_weights(a.out, res.agent(problem), line, weights, info)
     if not a.quiet:
         print(json.dumps({"method": a.method, "scenario": line.name, "out": str(a.out),
                           **info}))

@@ -30,7 +30,7 @@ def test_adp_reaches_the_riccati_optimum_when_model_is_exact(method):
                       seed=0, lr_final_fraction=0.1)
     res = train(method, prob, cfg)
     ep = prob.sample(400, np.random.default_rng(123))
-    xs, us = rollout(Agent(method, prob, res.critic, res.actor), ep)
+    xs, us = rollout(res.agent(prob), ep)
     cost = (0.5 * (xs[:-1] ** 2).sum(-1).sum(0) + 0.05 * (us ** 2).sum(-1).sum(0)
             + 0.5 * (xs[-1] ** 2).sum(-1))
     x0 = ep.x0.numpy()
@@ -61,11 +61,11 @@ def test_weights_round_trip(tmp_path, method):
     prob = AtrProblem(line, w)
     res = train(method, prob, TrainConfig(epochs=2, batch=4, hidden=8, seed=1))
     f = tmp_path / f"{method}.pt"
-    save_weights(f, Agent(method, prob, res.critic, res.actor), line, w, {"seed": 1})
+    save_weights(f, res.agent(prob), line, w, {"seed": 1})
     reg = make_regulator(method, line, weights_path=f)
     x = np.array([120.0, 3.0, -4.0, 0.0])
     ep = prob.sample(1, np.random.default_rng(0))
-    direct = Agent(method, prob, res.critic, res.actor).act(
+    direct = res.agent(prob).act(
         torch.from_numpy(x[None] / w.x_scale_s), prob.extras(ep, 0))
     np.testing.assert_allclose(reg.decide(x, 0), direct.numpy()[0] * w.x_scale_s)
     assert reg.name == method and reg.meta["info"]["seed"] == 1

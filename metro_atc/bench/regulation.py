@@ -33,7 +33,7 @@ from metro_atc.core.atr.node_core import AtsRegulatorCore
 from metro_atc.core.atr.problems import AtrProblem
 from metro_atc.core.atr.regulators import (
     NeuralRegulator, Regulator, default_weights_path, make_regulator)
-from metro_atc.core.atr.training import Agent, atr_train_config, train
+from metro_atc.core.atr.training import atr_train_config, train
 
 INITIAL_DELAY_S = 180.0
 KPI_KEYS = ("cost", "worst_terminal_delay_s", "running_time_dev_index", "headway_dev_index",
@@ -113,7 +113,7 @@ def run(seeds: List[int], epochs: int, n_realisations: int, verbose: bool = Fals
         for m in ("dhp", "aoc"):
             res = train(m, problem, atr_train_config(s, epochs))
             train_s[m].append(res.seconds)
-            regs[m] = NeuralRegulator(Agent(m, problem, res.critic, res.actor), problem)
+            regs[m] = NeuralRegulator(res.agent(problem), problem)
             if verbose:
                 print(f"seed {s}: trained {m} in {res.seconds:.1f} s", flush=True)
         for m, reg in regs.items():

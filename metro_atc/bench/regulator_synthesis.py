@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from metro_atc.core.atr.problems import NarendraProblem
-from metro_atc.core.atr.training import Agent, TrainConfig, TrainResult, rollout, train
+from metro_atc.core.atr.training import TrainConfig, TrainResult, rollout, train
 
 TEST_STEPS = 100
 PAPER: Dict[str, Any] = {
@@ -49,7 +49,7 @@ def test_reference(steps: int = TEST_STEPS) -> np.ndarray:
 def tracking_test(method: str, result: TrainResult) -> Dict[str, Any]:
     """Run the trained regulator on eq. 53; returns rmse and the trajectories."""
     prob = NarendraProblem(n_targets=TEST_STEPS, hold=1)
-    agent = Agent(method, prob, result.critic, result.actor)
+    agent = result.agent(prob)
     ref = test_reference()
     ep = prob.with_reference(ref[None, :])
     with torch.no_grad():

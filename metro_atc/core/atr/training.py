@@ -77,6 +77,11 @@ class TrainResult:
     history: Dict[str, List[float]] = field(default_factory=dict)
     seconds: float = 0.0
     steps: int = 0
+    anchored: bool = False
+
+    def agent(self, problem: AdpProblem) -> "Agent":
+        """The trained policy bound to ``problem`` (with the anchoring it was trained with)."""
+        return Agent(self.method, problem, self.critic, self.actor, self.anchored)
 
 
 def squash(y: Tensor, scale: float, lo: Optional[Tensor], hi: Optional[Tensor]
@@ -340,7 +345,8 @@ def train(method: str, problem: AdpProblem, cfg: TrainConfig,
                   f"t={time.perf_counter() - t_start:.1f}s", flush=True)
         if cfg.time_budget_s is not None and time.perf_counter() - t_start > cfg.time_budget_s:
             break
-    return TrainResult(method, ag.critic, ag.actor, hist, time.perf_counter() - t_start, steps)
+    return TrainResult(method, ag.critic, ag.actor, hist, time.perf_counter() - t_start, steps,
+                       ag.anchored)
 
 
 def rollout(agent: Agent, ep: Episodes, steps: Optional[int] = None
