@@ -152,8 +152,11 @@ def run(seeds: List[int], epochs: int, n_realisations: int, verbose: bool = Fals
 
 
 def shipped(seeds: List[int], n_realisations: int) -> Dict[str, Any]:
-    """The shipped weights on the line they were trained for: the ``taipei_blue`` scenario
-    as the ATS node models it (same incident and realisations; no training here)."""
+    """Evaluate the shipped weights on the line they were trained for.
+
+    That line is the ``taipei_blue`` scenario as the ATS node models it; same incident and
+    realisations as the bench, no training here.
+    """
     line, w = get_line("taipei_blue"), CostWeights()
     p0 = AtrProblem(line, w).p0_np
     regs = {m: make_regulator(m, line, w) for m in ("none", "lqr")}
