@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 NODE_EXECUTABLES = ("line_simulator", "ats_regulator", "ato_controller", "brake_diagnostic")
-REGULATORS = ("none", "lqr", "dhp", "aoc")
+REGULATORS = ("none", "lqr", "dhp", "aoc", "elqr")
 
 
 def executable(name: str) -> list[str]:

@@ -7,9 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from metro_atc.core.atr.dispatch import AtsDispatcher
-from metro_atc.core.atr.node_core import AtsRegulatorCore
-from metro_atc.core.bridge import atr_line_for, timetable_for
+from metro_atc.core.atr.dispatch import AtsDispatcher, make_dispatcher
+from metro_atc.core.bridge import timetable_for
 from metro_atc.core.plant.scenario import load_scenario
 
 SCN = load_scenario("mini")
@@ -18,12 +17,7 @@ MIN_DWELL = float(SCN.passengers.min_dwell_s)
 
 
 def _dispatcher(regulator: str) -> AtsDispatcher:
-    core = None
-    if regulator != "none":
-        core = AtsRegulatorCore(atr_line_for(SCN, TT), regulator, train_ids=TT.train_ids,
-                                departure_table_s=TT.departure_s,
-                                arrival_table_s=TT.arrival_s)
-    return AtsDispatcher(TT, core, min_dwell_s=MIN_DWELL, hold_max_s=60.0)
+    return make_dispatcher(SCN, regulator, tt=TT)
 
 
 def _run_to(d: AtsDispatcher, i: int, j: int, delay_s: float):
@@ -120,3 +114,18 @@ def test_replay_gives_the_same_commands(regulator: str) -> None:
         for x, y in zip(out_a, out_b))
     # one command per arrival at stations 1..N-2 (station 0 keeps its start-up command)
     assert sum(c is not None for c in out_a) == len(TT.train_ids) * (len(TT.station_names) - 2)
+
+
+def test_energy_aware_regulator_stretches_punctual_runs() -> None:
+    """``elqr`` (seed 003 option): an on-time train gets a running target above the LQR's."""
+    lqr, elqr = _dispatcher("lqr"), _dispatcher("elqr")
+    c_lqr, c_e = _run_to(lqr, 0, 1, delay_s=0.0), _run_to(elqr, 0, 1, delay_s=0.0)
+    assert c_lqr is not None and c_e is not None
+    assert c_e.running_s > c_lqr.running_s + 0.1
+    assert c_e.running_s <= TT.running_s[1] * 1.15 / 1.07 + 1e-6     # within run_max
+
+
+def test_unknown_regulator_is_a_clear_error() -> None:
+    """A bad regulator name names the choices."""
+    with pytest.raises(ValueError, match="none, lqr, dhp, aoc, elqr"):
+        make_dispatcher(SCN, "pid")

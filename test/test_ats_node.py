@@ -14,21 +14,13 @@ pytestmark = pytest.mark.integration
 
 def _reference_dispatcher(regulator: str):  # type: ignore[no-untyped-def]
     """The node's ROS-free core on the same scenario (mini)."""
-    from metro_atc.core.atr.dispatch import AtsDispatcher
-    from metro_atc.core.atr.node_core import AtsRegulatorCore
-    from metro_atc.core.bridge import atr_line_for, timetable_for
+    from metro_atc.core.atr.dispatch import make_dispatcher
     from metro_atc.core.plant.scenario import load_scenario
 
-    scn = load_scenario("mini")
-    tt = timetable_for(scn)
-    core = None
-    if regulator != "none":
-        core = AtsRegulatorCore(atr_line_for(scn, tt), regulator, train_ids=tt.train_ids,
-                                departure_table_s=tt.departure_s, arrival_table_s=tt.arrival_s)
-    return AtsDispatcher(tt, core, min_dwell_s=float(scn.passengers.min_dwell_s))
+    return make_dispatcher(load_scenario("mini"), regulator)
 
 
-@pytest.mark.parametrize("regulator", ["none", "lqr"])
+@pytest.mark.parametrize("regulator", ["none", "lqr", "elqr"])
 def test_node_answers_arrivals_with_departure_commands(installed: Path, ros_env: dict[str, str],
                                                        probe: TopicProbe, tmp_path: Path,
                                                        regulator: str) -> None:
@@ -77,7 +69,7 @@ def test_node_answers_arrivals_with_departure_commands(installed: Path, ros_env:
             assert c.dwell_limit_s == pytest.approx(want.dwell_limit_s)
             assert 20.0 <= c.dwell_limit_s < 40.0
         assert c.target_running_time_s > 0.0
-        assert c.regulator == {"none": 0, "lqr": 1}[regulator]
+        assert c.regulator == {"none": 0, "lqr": 1, "elqr": 4}[regulator]
         n = len(cmds)
         pub.publish(event(TrainEvent.KIND_ARRIVAL, 2, math.nan, 3))
         assert p.wait_for_log("not finite", timeout=20), p.log()

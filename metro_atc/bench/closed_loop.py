@@ -31,7 +31,8 @@ import numpy as np
 from metro_atc.bench.regulation import PAPER
 from metro_atc.jsonsafe import json_safe
 
-REGULATORS = ("none", "lqr", "dhp", "aoc")
+REGULATORS = ("none", "lqr", "dhp", "aoc", "elqr")
+DEFAULT_REGULATORS = ("none", "lqr", "dhp", "aoc")
 KPIS = {
     "mean_schedule_deviation_s": lambda k: k["schedule_deviation_s"]["mean"],
     "rms_schedule_deviation_s": lambda k: k["schedule_deviation_s"]["rms"],
@@ -99,8 +100,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     """Command-line entry point (see the module docstring)."""
     ap = argparse.ArgumentParser(prog="closed-loop", description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default="taipei_blue_delay")
-    ap.add_argument("--regulators", default=",".join(REGULATORS),
-                    help="comma-separated subset of none,lqr,dhp,aoc")
+    ap.add_argument("--regulators", default=",".join(DEFAULT_REGULATORS),
+                    help="comma-separated subset of " + ",".join(REGULATORS))
     ap.add_argument("--seeds", type=int, default=1, help="simulation seeds 0..N-1")
     ap.add_argument("--duration", type=float, default=3600.0,
                     help="simulated seconds per run (0: the scenario's end)")

@@ -9,7 +9,8 @@ All decisions are made by the ROS-free :class:`metro_atc.core.atr.dispatch.AtsDi
 (its docstring gives the regulation law); regulators (parameter ``regulator``): ``none``
 keeps the timetable (seed 000 eq. 10); ``lqr``, ``dhp`` and ``aoc`` run
 :class:`metro_atc.core.atr.node_core.AtsRegulatorCore` (seed 000 eq. 17-48) on the
-scenario's traffic model (:func:`metro_atc.core.bridge.atr_line_for`).
+scenario's traffic model (:func:`metro_atc.core.bridge.atr_line_for`); ``elqr`` is the
+energy-aware LQR of the seed 003 option (:mod:`metro_atc.core.atr.energy`).
 """
 
 from __future__ import annotations
@@ -23,16 +24,11 @@ from metro_atc_msgs.msg import DepartureCommand, TrainEvent
 from rclpy.node import Node
 
 from metro_atc.core.atr.cost import CostWeights
-from metro_atc.core.atr.dispatch import AtsDispatcher, Dispatch
-from metro_atc.core.atr.node_core import AtsRegulatorCore
-from metro_atc.core.atr.regulators import default_weights_path
-from metro_atc.core.bridge import atr_line_for, timetable_for
+from metro_atc.core.atr.dispatch import Dispatch, make_dispatcher
 from metro_atc.core.plant.scenario import ScenarioError, load_scenario
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_EVENTS, QOS_LATCHED, NodeConfigError, bulk_publisher,
                                     declare, run_nodes)
-
-REGULATORS = ("none", "lqr", "dhp", "aoc")
 
 
 class AtsRegulator(Node):
@@ -44,7 +40,8 @@ class AtsRegulator(Node):
         self.scenario_name = declare(self, "scenario", "taipei_blue",
                                      "embedded scenario name or path to a scenario YAML")
         self.regulator = declare(self, "regulator", "none",
-                                 "regulator: none (timetable) | lqr | dhp | aoc")
+                                 "regulator: none (timetable) | lqr | dhp | aoc | elqr "
+                                 "(energy-aware LQR, seed 003)")
         weights_file = declare(self, "weights_file", "",
                                "dhp/aoc weights ('' : the shipped taipei_blue weights)")
         q = declare(self, "cost_q", 1.0, "schedule-deviation weight q (seed 000 eq. 17)",
@@ -52,37 +49,25 @@ class AtsRegulator(Node):
         r = declare(self, "cost_r", 0.1, "control-effort weight r (seed 000 eq. 17)", 1e-6, 1e6)
         horizon = declare(self, "horizon", 40, "adjustable services K (seed 000 eq. 17)",
                           1, 1000)
+        w_energy = declare(self, "energy_weight", 1.0,
+                           "elqr: weight w_E of one service's traction energy (seed 003)",
+                           0.0, 1000.0)
         hold_max = declare(self, "hold_max_s", 60.0,
                            "longest hold a regulator may add at a platform [s]", 0.0, 600.0)
         tolerance = declare(self, "dwell_cut_tolerance_s", 30.0,
                             "a regulator's dwell cut never closes the doors before the "
                             "timetable departure plus this [s]", 0.0, 3600.0)
-        if self.regulator not in REGULATORS:
-            raise NodeConfigError(f"parameter regulator='{self.regulator}' is not one of "
-                                  f"{', '.join(REGULATORS)}")
         try:
             scn = load_scenario(self.scenario_name)
+            self.dispatcher = make_dispatcher(
+                scn, self.regulator, weights_file, CostWeights(q=q, r=r, horizon=horizon),
+                w_energy, hold_max, tolerance)
         except ScenarioError as exc:
             raise NodeConfigError(str(exc)) from None
-        self.tt = timetable_for(scn)
+        except (ValueError, FileNotFoundError) as exc:
+            raise NodeConfigError(f"regulator '{self.regulator}': {exc}") from None
+        self.tt = self.dispatcher.tt
         self.ids = list(self.tt.train_ids)
-        self.core: AtsRegulatorCore | None = None
-        if self.regulator != "none":
-            line = atr_line_for(scn, self.tt)
-            path = weights_file or (str(default_weights_path(self.regulator, "taipei_blue"))
-                                    if self.regulator in ("dhp", "aoc") else None)
-            try:
-                self.core = AtsRegulatorCore(
-                    line, self.regulator, weights_path=path,
-                    cost=CostWeights(q=q, r=r, horizon=horizon), train_ids=self.ids,
-                    first_dispatch_s=float(self.tt.departure_s[0, 0]),
-                    departure_table_s=self.tt.departure_s,
-                    arrival_table_s=self.tt.arrival_s)
-            except (ValueError, FileNotFoundError) as exc:
-                raise NodeConfigError(f"regulator '{self.regulator}': {exc}") from None
-        self.dispatcher = AtsDispatcher(self.tt, self.core,
-                                        min_dwell_s=float(scn.passengers.min_dwell_s),
-                                        hold_max_s=hold_max, cut_tolerance_s=tolerance)
         n, m = len(self.ids), len(self.tt.station_names)
         self.cmd_seq = np.zeros(n, dtype=np.int64)
         self.rejected = 0

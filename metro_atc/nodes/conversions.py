@@ -17,7 +17,8 @@ from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureComman
 from rosgraph_msgs.msg import Clock
 
 REGULATOR_CODES = {"none": DepartureCommand.REGULATOR_NONE, "lqr": DepartureCommand.REGULATOR_LQR,
-                   "dhp": DepartureCommand.REGULATOR_DHP, "aoc": DepartureCommand.REGULATOR_AOC}
+                   "dhp": DepartureCommand.REGULATOR_DHP, "aoc": DepartureCommand.REGULATOR_AOC,
+                   "elqr": DepartureCommand.REGULATOR_ELQR}
 
 
 class MessageRejected(ValueError):

@@ -43,8 +43,13 @@ from typing import List, Optional
 
 import numpy as np
 
+from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.node_core import KINDS, AtsRegulatorCore
-from metro_atc.core.bridge import Timetable
+from metro_atc.core.atr.regulators import Regulator, default_weights_path
+from metro_atc.core.bridge import Timetable, atr_line_for, timetable_for
+from metro_atc.core.plant.scenario import Scenario
+
+REGULATORS = ("none", "lqr", "dhp", "aoc", "elqr")
 
 
 @dataclass(frozen=True)
@@ -174,3 +179,36 @@ class AtsDispatcher:
             limit = max(sched_dwell + du, self.min_dwell_s,
                         tt_dep + self.cut_tolerance_s - arrival_s)
         return Dispatch(i, j, dep, self._running_target(i, j), limit, du)
+
+
+def make_dispatcher(scn: Scenario, regulator: str = "none", weights_file: str = "",
+                    cost: Optional[CostWeights] = None, energy_weight: float = 1.0,
+                    hold_max_s: float = 60.0, cut_tolerance_s: float = 30.0,
+                    tt: Optional[Timetable] = None) -> AtsDispatcher:
+    """The ATS of a scenario with a regulator by name (what the ``ats_regulator`` node runs).
+
+    ``dhp``/``aoc`` load ``weights_file`` ('' : the shipped ``taipei_blue`` weights);
+    ``elqr`` is the energy-aware LQR (:mod:`metro_atc.core.atr.energy`, seed 003) with
+    weight ``energy_weight``; its energy table is built from the scenario (a few seconds).
+    Raises ValueError / FileNotFoundError with a clear message for a bad choice or file.
+    """
+    if regulator not in REGULATORS:
+        raise ValueError(f"regulator {regulator!r} is not one of {', '.join(REGULATORS)}")
+    tt = tt if tt is not None else timetable_for(scn)
+    core = None
+    if regulator != "none":
+        line = atr_line_for(scn, tt)
+        w = cost if cost is not None else CostWeights()
+        path = weights_file or (str(default_weights_path(regulator, "taipei_blue"))
+                                if regulator in ("dhp", "aoc") else None)
+        reg: Optional[Regulator] = None
+        if regulator == "elqr":
+            from metro_atc.core.atr.energy import EnergyLqrRegulator, build_energy_table
+            reg = EnergyLqrRegulator(line, build_energy_table(scn, line), w, energy_weight)
+        core = AtsRegulatorCore(line, regulator, weights_path=path, cost=w,
+                                train_ids=tt.train_ids,
+                                first_dispatch_s=float(tt.departure_s[0, 0]),
+                                departure_table_s=tt.departure_s,
+                                arrival_table_s=tt.arrival_s, regulator=reg)
+    return AtsDispatcher(tt, core, min_dwell_s=float(scn.passengers.min_dwell_s),
+                         hold_max_s=hold_max_s, cut_tolerance_s=cut_tolerance_s)

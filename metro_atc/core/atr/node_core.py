@@ -67,12 +67,14 @@ class AtsRegulatorCore:
                  cost: Optional[CostWeights] = None, train_ids: Sequence[str] = (),
                  first_dispatch_s: float = 0.0,
                  departure_table_s: Optional[np.ndarray] = None,
-                 arrival_table_s: Optional[np.ndarray] = None) -> None:
+                 arrival_table_s: Optional[np.ndarray] = None,
+                 regulator: Optional[Regulator] = None) -> None:
         """Create the core; ``train_ids`` in dispatch order (service m = index m).
 
         departure_table_s / arrival_table_s: optional (n_trains, N) scheduled departures /
         arrivals [s] replacing the steady peak timetable (arrivals default to departure
-        minus the model's steady dwell).
+        minus the model's steady dwell).  regulator: a ready regulator (e.g. the
+        energy-aware LQR) used instead of ``regulator_name``.
         """
         if len(set(train_ids)) != len(train_ids):
             raise ValueError("train ids must be unique")
@@ -80,7 +82,8 @@ class AtsRegulatorCore:
             raise ValueError("first_dispatch_s must be finite")
         self.line = line
         self.cost = cost if cost is not None else CostWeights()
-        self.regulator: Regulator = make_regulator(regulator_name, line, self.cost, weights_path)
+        self.regulator: Regulator = (regulator if regulator is not None else make_regulator(
+            regulator_name, line, self.cost, weights_path))
         self.train_ids: Tuple[str, ...] = tuple(train_ids)
         self._index = {tid: m for m, tid in enumerate(self.train_ids)}
         n = line.n_stations
