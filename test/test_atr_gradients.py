@@ -64,9 +64,9 @@ def test_squash_slope_matches_fd_and_bounds():
     assert float(u[2, 0]) == pytest.approx(60.0) and float(u[2, 1]) == pytest.approx(-11.0)
 
 
-def _atr_agent(method, seed=0):
+def _atr_agent(method, seed=0, anchored=False):
     prob = AtrProblem(small_line(3), CostWeights(horizon=5))
-    ag = Agent.create(method, prob, hidden=5, seed=seed)
+    ag = Agent.create(method, prob, hidden=5, seed=seed, anchored=anchored)
     for net in (ag.critic, ag.actor):
         g = torch.Generator().manual_seed(seed + 11)
         net.theta.copy_(torch.randn(net.theta.shape, generator=g, dtype=F64) * 0.3)
@@ -75,10 +75,14 @@ def _atr_agent(method, seed=0):
     return prob, ag, ep, x
 
 
+@pytest.mark.parametrize("anchored", [False, True])
 @pytest.mark.parametrize("method", ["aoc", "dhp"])
-def test_actor_gradient_is_eq48(method):
-    """g_actor = (du/dbeta)^T delta with delta held fixed (eq. 48): FD of mean(delta . u)."""
-    prob, ag, ep, x = _atr_agent(method)
+def test_actor_gradient_is_eq48(method, anchored):
+    """g_actor = (du/dbeta)^T delta with delta held fixed (eq. 48): FD of mean(delta . u).
+
+    Anchored policies u = A(x) - A(0) differentiate through both terms.
+    """
+    prob, ag, ep, x = _atr_agent(method, anchored=anchored)
     stage = aoc_stage if method == "aoc" else dhp_stage
     st = stage(ag, ep, 1, x)
     delta = st["delta"].clone()
