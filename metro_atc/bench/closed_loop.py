@@ -30,8 +30,8 @@ import numpy as np
 
 from metro_atc.bench.regulation import PAPER
 from metro_atc.jsonsafe import json_safe
+from metro_atc.launcher import REGULATORS
 
-REGULATORS = ("none", "lqr", "dhp", "aoc", "elqr")
 DEFAULT_REGULATORS = ("none", "lqr", "dhp", "aoc")
 KPIS = {
     "mean_schedule_deviation_s": lambda k: k["schedule_deviation_s"]["mean"],

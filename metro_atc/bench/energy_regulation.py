@@ -38,11 +38,12 @@ import numpy as np
 from metro_atc.core.atr.blue_line import LineData
 from metro_atc.core.atr.cost import CostWeights, terminal_matrix
 from metro_atc.core.atr.energy import (
-    ENERGY_SOURCES, J_PER_KWH, EnergyLqrRegulator, EnergyTable, ato_limits_for,
-    energy_table_for, energy_term, run_adjustment)
+    ENERGY_SOURCES, J_PER_KWH, EnergyLqrRegulator, EnergyTable, energy_table_for, energy_term,
+    run_adjustment)
 from metro_atc.core.atr.evaluation import incident_scenario, kpis, simulate
 from metro_atc.core.atr.regulators import Regulator, lqr_gain, make_regulator
 from metro_atc.core.atr.traffic import linear_model, timetable_state
+from metro_atc.core.bridge import ato_limits_for
 from metro_atc.jsonsafe import json_safe
 
 SCENARIO = "taipei_blue"

@@ -18,6 +18,7 @@ from metro_atc.core.plant.scenario import Scenario
 from metro_atc.core.plant.vehicle import G_MPS2, TrainParams, Track
 
 if TYPE_CHECKING:
+    from metro_atc.core.ato.envelope import OperatingLimits
     from metro_atc.core.atr.blue_line import LineData
 
 
@@ -57,6 +58,19 @@ def timetable_for(scn: Scenario) -> Timetable:
 def train_for(scn: Scenario) -> TrainParams:
     """Train parameters of a scenario (preset plus overrides)."""
     return train_params_for(scn)
+
+
+def ato_limits_for(train: TrainParams) -> "OperatingLimits":
+    """Planning limits of the ATO for a train (used by the ATO node and the energy curves).
+
+    Braking curves at 80 % of the maximum service brake (0.8 m/s^2 for the metro, 0.44 m/s^2
+    for the THSR 700T) [m/s^2], net acceleration min(1, a1) [m/s^2] and the train's jerk
+    limit [m/s^3] (seed 001).
+    """
+    from metro_atc.core.ato.envelope import OperatingLimits
+    return OperatingLimits(accel_max_mps2=min(1.0, train.a1_mps2),
+                           brake_decel_mps2=0.8 * train.max_service_brake_mps2,
+                           jerk_max_mps3=train.max_jerk_mps3)
 
 
 def track_for(scn: Scenario) -> Track:
@@ -131,4 +145,5 @@ def atr_line_for(scn: Scenario, tt: Timetable | None = None) -> "LineData":
     )
 
 
-__all__ = ["G_MPS2", "Timetable", "atr_line_for", "timetable_for", "track_for", "train_for"]
+__all__ = ["G_MPS2", "Timetable", "ato_limits_for", "atr_line_for", "timetable_for",
+           "track_for", "train_for"]

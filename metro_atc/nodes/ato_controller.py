@@ -28,9 +28,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from metro_atc.core.ato.controller import TRACKERS, AtoCore
-from metro_atc.core.ato.envelope import OperatingLimits
 from metro_atc.core.ato.planner import PLANNERS, Profile
-from metro_atc.core.bridge import timetable_for, track_for, train_for
+from metro_atc.core.bridge import ato_limits_for, timetable_for, track_for, train_for
 from metro_atc.core.plant.scenario import ScenarioError, load_scenario
 from metro_atc.core.simple_ato import FlatOutTracker
 from metro_atc.nodes import conversions as conv
@@ -93,11 +92,7 @@ class AtoController(Node):
         if planner == "mmas":
             extra = {"n_ants": mmas_ants, "n_iterations": mmas_iter, "n_sections": mmas_sections}
         train = train_for(scenario)
-        # planning limits from the rolling stock: braking curves at 80 % of the service brake
-        # (0.8 m/s^2 for the metro, 0.44 m/s^2 for the THSR 700T), seed 001 accel/jerk
-        limits = OperatingLimits(accel_max_mps2=min(1.0, train.a1_mps2),
-                                 brake_decel_mps2=0.8 * train.max_service_brake_mps2,
-                                 jerk_max_mps3=train.max_jerk_mps3)
+        limits = ato_limits_for(train)  # planning limits from the rolling stock
         self.core = AtoCore(train, self.track, planner=planner, tracker=tracker,
                             control_period_s=float(scenario.sim.control_period_s),
                             limits=limits, shared=shared, **extra)

@@ -96,11 +96,6 @@ class AtsDispatcher:
         self.departure_s = np.full((n, self.n_st), math.nan)
         self._last: dict[int, tuple[tuple[int, int], float]] = {}
 
-    @property
-    def regulated(self) -> bool:
-        """True for lqr/dhp/aoc, False for the timetable."""
-        return self.core is not None
-
     def train_index(self, train_id: str) -> int:
         """Index of a train id; ValueError naming it when unknown."""
         if train_id not in self.index:
@@ -159,8 +154,7 @@ class AtsDispatcher:
     def _running_target(self, i: int, j: int) -> float:
         """Running-time target j -> j+1: the running part of the regulator's u_{j+1}."""
         assert self.core is not None
-        ahead = self.core.departure_command(self.ids[i], j + 1)
-        return float(ahead.target_running_time_s)
+        return self.core.running_target(self.ids[i], j + 1)
 
     def _regulated(self, i: int, j: int, arrival_s: float) -> Dispatch:
         """Dwell adjustment from the regulator's u_j (module docstring) and run target."""

@@ -128,14 +128,13 @@ from scipy.linalg import solve_discrete_are
 from scipy.optimize import minimize_scalar
 
 from metro_atc.core.ato.coasting import LEVEL_II, simulate_switching
-from metro_atc.core.ato.dp import DPTables, build_dp_tables
-from metro_atc.core.ato.envelope import OperatingLimits, RunModel
+from metro_atc.core.ato.dp import DPTables, _lerp, build_dp_tables
+from metro_atc.core.ato.envelope import RunModel
 from metro_atc.core.atr.blue_line import LineData
 from metro_atc.core.atr.cost import CostWeights, stage_cost
 from metro_atc.core.atr.regulators import Regulator
 from metro_atc.core.atr.traffic import linear_model, split_adjustment
 from metro_atc.core.plant.scenario import Scenario, load_scenario
-from metro_atc.core.plant.vehicle import TrainParams
 
 FloatArray = NDArray[np.float64]
 
@@ -147,17 +146,6 @@ J_PER_KWH = 3.6e6
 """Joules per kilowatt-hour."""
 MU_MAX_J_PER_S = 1e9
 """Largest DP multiplier [J/s] (the DP's flat-out end, as in ``solve_dp``)."""
-
-
-def ato_limits_for(train: TrainParams) -> OperatingLimits:
-    """Planning limits of the ATO node for a train (braking curves at 80 % of service brake).
-
-    Same rule as ``metro_atc.nodes.ato_controller``: net acceleration min(1, a1) [m/s^2],
-    braking curves at 0.8 x the maximum service brake [m/s^2], the train's jerk limit.
-    """
-    return OperatingLimits(accel_max_mps2=min(1.0, train.a1_mps2),
-                           brake_decel_mps2=0.8 * train.max_service_brake_mps2,
-                           jerk_max_mps3=train.max_jerk_mps3)
 
 
 # ----------------------------------------------------------------------------- fitting
@@ -246,13 +234,6 @@ def lower_hull(t: FloatArray, e: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 
 # ----------------------------------------------------------------------------- DP sweep
-def _lerp(a: FloatArray, b: FloatArray, w: FloatArray) -> FloatArray:
-    """(1-w) a + w b, keeping a where w <= 0 (a, b may be inf)."""
-    with np.errstate(invalid="ignore"):
-        out = (1.0 - w) * a + w * b
-    return np.where(w <= 0.0, a, out)
-
-
 def dp_energy_time_points(tab: DPTables, mu: FloatArray | Sequence[float], forward: bool = True
                           ) -> tuple[FloatArray, FloatArray]:
     """Running time [s] and traction energy [J] of the DP optimum for each multiplier mu.
@@ -444,7 +425,8 @@ def build_energy_table(scn: Scenario, line: Optional[LineData] = None, source: s
     model is fitted from the last grid point at or below ``run_min_s`` on.
     runs: subset of run indices (default all; a subset gives a table of that subset).
     """
-    from metro_atc.core.bridge import atr_line_for, timetable_for, track_for, train_for
+    from metro_atc.core.bridge import (ato_limits_for, atr_line_for, timetable_for, track_for,
+                                       train_for)
 
     if source not in ENERGY_SOURCES:
         raise ValueError(f"unknown energy source {source!r}; expected one of {ENERGY_SOURCES}")
@@ -623,6 +605,6 @@ class EnergyLqrRegulator(Regulator):
 
 
 __all__ = ["AffineLqr", "ENERGY_SOURCES", "EnergyLqrRegulator", "EnergyTable", "FIT_MODELS",
-           "J_PER_KWH", "affine_lqr", "ato_limits_for", "build_energy_table",
+           "J_PER_KWH", "affine_lqr", "build_energy_table",
            "dp_energy_time_points", "energy_aware_stage_cost", "energy_table_for",
            "energy_term", "fit_curve", "lower_hull", "run_adjustment"]

@@ -197,15 +197,31 @@ class AtsRegulatorCore:
                 x[i] = self.delay_estimate(other, i)
         return x
 
+    def _decide(self, train_id: str, station_idx: int) -> Tuple[int, int, np.ndarray]:
+        """(m, j, u): the regulator's adjustments for the decision (train, station j)."""
+        m = self._train(train_id)
+        j = self._station(station_idx)
+        return m, j, self.regulator.decide(self.state_for(m, j), 0)
+
     def adjustment(self, train_id: str, station_idx: int) -> float:
         """The regulator's u_j [s] for (train, station j) on the current state estimate.
 
         u_j is the adjustment of the run into j plus the dwell at j (seed 000 eq. 5),
         unsaturated: the caller applies what is left of it.
         """
-        m = self._train(train_id)
-        j = self._station(station_idx)
-        return float(self.regulator.decide(self.state_for(m, j), 0)[j])
+        _, j, u = self._decide(train_id, station_idx)
+        return float(u[j])
+
+    def running_target(self, train_id: str, station_idx: int) -> float:
+        """Running-time target [s] of the run into station j >= 1: scheduled + saturated part.
+
+        The running part of u_j (:func:`split_adjustment`), i.e. the
+        ``target_running_time_s`` of :meth:`departure_command` without its dwell forecast.
+        """
+        _, j, u = self._decide(train_id, station_idx)
+        if j < 1:
+            raise ValueError("station 0 has no run into it")
+        return float(self.line.run_s[j - 1]) + float(split_adjustment(self.line, u)[0][j])
 
     def departure_command(self, train_id: str, station_idx: int) -> DepartureCommand:
         """Regulated departure time, running-time and dwell targets for a train at a station."""
@@ -217,8 +233,7 @@ class AtsRegulatorCore:
         if last is not None and last[0] > (j, 0):
             raise ValueError(f"train {train_id!r} is already past station {j}")
         line = self.line
-        x = self.state_for(m, j)
-        u = self.regulator.decide(x, 0)
+        _, _, u = self._decide(train_id, j)
         du_run, du_dwell = split_adjustment(line, u)
         dr, dd = float(du_run[j]), float(du_dwell[j])
         run = float(line.run_s[j - 1]) + dr if j >= 1 else 0.0

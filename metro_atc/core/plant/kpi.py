@@ -58,7 +58,7 @@ def compute_kpis(sim: "LineSim") -> dict[str, Any]:
     e = sim.energy_breakdown()
     valid = np.isfinite(dep_dev)
     punct = float(np.mean(dep_dev[valid] <= PUNCTUAL_S)) if valid.any() else None
-    late = valid & (np.where(valid, dep_dev, 0.0) > RECOVERY_TOL_S)
+    late = dep_dev > RECOVERY_TOL_S  # NaN (no departure) compares False
     t_late = sim.act_dep[late]
     recovery = float(t_late.max() - t_late.min()) if t_late.size else 0.0
     per_train = []
