@@ -18,7 +18,7 @@ from launch_ros.actions import Node
 def _nodes(context, *args, **kwargs):
     """Create the node actions once the launch arguments are known."""
     from metro_atc.launcher import scenario_train_ids
-    from metro_atc.core.plant.scenario import load_scenario
+    from metro_atc.core.line.scenario import load_scenario
 
     scenario = LaunchConfiguration("scenario").perform(context)
     regulator = LaunchConfiguration("regulator").perform(context)

@@ -143,7 +143,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run one scenario through the graph; print KPIs (``--json``: one JSON object)."""
     a = _parser().parse_args(argv)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    from metro_atc.core.plant.scenario import ScenarioError, load_scenario
+    from metro_atc.core.line.scenario import ScenarioError, load_scenario
     try:
         scn = load_scenario(a.scenario)
     except ScenarioError as exc:

@@ -34,8 +34,8 @@ sys.path.insert(0, str(ROOT))
 
 from metro_atc.core.plant.driver import simple_driver  # noqa: E402
 from metro_atc.core.plant.line import LineSim  # noqa: E402
-from metro_atc.core.plant.scenario import (Scenario, _package_dir,  # noqa: E402
-                                           parse_scenario)
+from metro_atc.core.line.scenario import (Scenario, _package_dir,  # noqa: E402
+                                          parse_scenario)
 
 U_SCALE = 10000.0
 """Commands are stored as int16 ``round(u * U_SCALE)``; ``U_NAN`` encodes NaN."""

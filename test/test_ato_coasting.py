@@ -8,8 +8,8 @@ import pytest
 from metro_atc.core.ato import coasting
 from metro_atc.core.ato.envelope import RunModel, profile_energy_time
 from metro_atc.core.ato.strategy import coast_coefficients, coast_speed, coast_step
-from metro_atc.core.plant.vehicle import (TAIPEI_MRT_6CAR, Track, effort_force, grade_force,
-                                          resistance_force, rk4_step)
+from metro_atc.core.line.vehicle import (TAIPEI_MRT_6CAR, Track, effort_force, grade_force,
+                                         resistance_force, rk4_step)
 
 P = TAIPEI_MRT_6CAR
 

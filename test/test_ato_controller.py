@@ -10,7 +10,7 @@ import pytest
 from metro_atc.core.ato.controller import HOLD_BRAKE, SAFE_BRAKE, AtoCore
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, RunModel
 from metro_atc.core.ato.planner import plan_profile
-from metro_atc.core.plant.vehicle import TAIPEI_MRT_6CAR, Track, effort_force, rk4_step
+from metro_atc.core.line.vehicle import TAIPEI_MRT_6CAR, Track, effort_force, rk4_step
 
 P = TAIPEI_MRT_6CAR
 TRACK = Track(np.array([-1e12, 500.0]), np.array([0.0, 0.004]),

@@ -11,7 +11,7 @@ from metro_atc.core.ato import coasting
 from metro_atc.core.ato.dp import (CONTROL_MODES, DPTables, _backward, _forward_table,
                                    build_dp_tables, simulate_controls, solve_dp)
 from metro_atc.core.ato.envelope import RunModel
-from metro_atc.core.plant.vehicle import TAIPEI_MRT_6CAR, Track
+from metro_atc.core.line.vehicle import TAIPEI_MRT_6CAR, Track
 
 
 def _tiny() -> tuple[RunModel, DPTables]:

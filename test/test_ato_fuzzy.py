@@ -12,7 +12,7 @@ from metro_atc.core.ato.pi import PIController
 from metro_atc.core.ato.reference_curve import (REGION_ACCEL, REGION_BRAKE, REGION_CREEP,
                                                 REGION_DECEL, REGION_MAX_SPEED, ReferenceCurve)
 from metro_atc.core.ato.tracking import simulate_tracking
-from metro_atc.core.plant.vehicle import THSR_700T, Track
+from metro_atc.core.line.vehicle import THSR_700T, Track
 
 
 def test_rule_table_is_seed004_table1() -> None:

@@ -10,7 +10,7 @@ import pytest
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, RunModel
 from metro_atc.core.ato.mmas import MmasParams, evaluate_tours, solve_mmas
 from metro_atc.core.ato.sections import SectionTables, build_section_tables, simulate_tours
-from metro_atc.core.plant.vehicle import TAIPEI_MRT_6CAR, Track
+from metro_atc.core.line.vehicle import TAIPEI_MRT_6CAR, Track
 
 
 def _small_tables() -> tuple[RunModel, SectionTables]:

@@ -9,7 +9,7 @@ import pytest
 
 from metro_atc.core.atr.dispatch import AtsDispatcher, make_dispatcher
 from metro_atc.core.bridge import timetable_for
-from metro_atc.core.plant.scenario import load_scenario
+from metro_atc.core.line.scenario import load_scenario
 
 SCN = load_scenario("mini")
 TT = timetable_for(SCN)

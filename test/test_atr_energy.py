@@ -18,7 +18,7 @@ from metro_atc.core.atr.evaluation import simulate
 from metro_atc.core.atr.regulators import LqrRegulator, lqr_gain
 from metro_atc.core.atr.traffic import linear_model
 from metro_atc.core.bridge import atr_line_for
-from metro_atc.core.plant.scenario import load_scenario
+from metro_atc.core.line.scenario import load_scenario
 
 
 @pytest.fixture(scope="module")

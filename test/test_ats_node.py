@@ -15,7 +15,7 @@ pytestmark = pytest.mark.integration
 def _reference_dispatcher(regulator: str):  # type: ignore[no-untyped-def]
     """The node's ROS-free core on the same scenario (mini)."""
     from metro_atc.core.atr.dispatch import make_dispatcher
-    from metro_atc.core.plant.scenario import load_scenario
+    from metro_atc.core.line.scenario import load_scenario
 
     return make_dispatcher(load_scenario("mini"), regulator)
 

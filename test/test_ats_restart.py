@@ -50,7 +50,7 @@ RUN_TIMEOUT_S = 300.0
 def _graph_commands(regulator: str, out_dir: Path) -> list[tuple[str, list[str]]]:
     """The run's process list, as ``python -m metro_atc run`` builds it (+ the step timeout)."""
     from metro_atc import launcher
-    from metro_atc.core.plant.scenario import load_scenario
+    from metro_atc.core.line.scenario import load_scenario
 
     args = launcher._parser().parse_args(["--scenario", SCENARIO, "--regulator", regulator,
                                           "--no-plots", "--out", str(out_dir)])
@@ -150,7 +150,7 @@ class Run:
 def restart(request: pytest.FixtureRequest, installed: Path,
             tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     """Run ``mini`` with an ATS kill and restart, and an uninterrupted reference run."""
-    from metro_atc.core.plant.scenario import load_scenario
+    from metro_atc.core.line.scenario import load_scenario
 
     regulator = str(request.param)
     n_st = len(load_scenario(SCENARIO).line.stations)

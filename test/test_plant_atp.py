@@ -9,9 +9,9 @@ import pytest
 
 from metro_atc.core.plant.driver import adversarial_driver, random_driver, simple_driver
 from metro_atc.core.plant.line import LineSim
-from metro_atc.core.plant.scenario import parse_scenario
-from metro_atc.core.plant.track import (braking_envelope, ebi_speed, stopping_distance,
-                                        window_min_ahead, window_min_behind)
+from metro_atc.core.line.scenario import parse_scenario
+from metro_atc.core.line.track import (braking_envelope, ebi_speed, stopping_distance,
+                                       window_min_ahead, window_min_behind)
 
 FUZZ = """
 name: fuzz

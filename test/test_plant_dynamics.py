@@ -9,11 +9,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from metro_atc.core.plant.adhesion import DRY, WET
+from metro_atc.core.line.adhesion import DRY, WET
 from metro_atc.core.plant.line import LineSim
-from metro_atc.core.plant.scenario import Scenario, parse_scenario
-from metro_atc.core.plant.track import G, curve_resistance_per_kg
-from metro_atc.core.plant.vehicle import TAIPEI_MRT_6CAR, TrainParams, max_traction_accel
+from metro_atc.core.line.scenario import Scenario, parse_scenario
+from metro_atc.core.line.track import G, curve_resistance_per_kg
+from metro_atc.core.line.vehicle import TAIPEI_MRT_6CAR, TrainParams, max_traction_accel
 
 FLAT = """
 name: flat

@@ -7,7 +7,7 @@ import pytest
 
 from metro_atc.core.plant.driver import simple_driver
 from metro_atc.core.plant.line import LineSim
-from metro_atc.core.plant.scenario import load_scenario, parse_scenario
+from metro_atc.core.line.scenario import load_scenario, parse_scenario
 
 HILLY = """
 name: hilly

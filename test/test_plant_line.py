@@ -13,7 +13,7 @@ import pytest
 from metro_atc.core.plant.driver import simple_driver
 from metro_atc.core.plant.line import (MODE_DWELL, MODE_OUT, BrakeSensorSample, LineSim,
                                        TrainEvent)
-from metro_atc.core.plant.scenario import _package_dir, load_scenario
+from metro_atc.core.line.scenario import _package_dir, load_scenario
 
 
 @pytest.fixture(scope="module")
@@ -151,7 +151,7 @@ def test_initial_delay_incident() -> None:
 def test_breakdown_and_turnback() -> None:
     """A breakdown stops the train for its duration; trains turn back and complete."""
     scn = load_scenario("mini")
-    from metro_atc.core.plant.scenario import IncidentSpec
+    from metro_atc.core.line.scenario import IncidentSpec
     inc = IncidentSpec(kind="breakdown", train="train_01", at_s=80.0, duration_s=60.0)
     sim = LineSim(dataclasses.replace(scn, incidents=[inc]), seed=0)
     _until(sim, lambda s: s.t >= 81.0)

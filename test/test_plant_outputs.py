@@ -10,7 +10,7 @@ from pathlib import Path
 
 from metro_atc.core.plant.driver import simple_driver
 from metro_atc.core.plant.line import LineSim
-from metro_atc.core.plant.scenario import load_scenario
+from metro_atc.core.line.scenario import load_scenario
 from metro_atc.plots import write_outputs
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -54,7 +54,7 @@ def test_recovery_kpis_follow_an_incident() -> None:
     """A 200 s hold makes departures late until the line recovers; none without it."""
     import dataclasses
 
-    from metro_atc.core.plant.scenario import IncidentSpec
+    from metro_atc.core.line.scenario import IncidentSpec
 
     base = load_scenario("mini")
     quiet = dataclasses.replace(base, disturbances=dataclasses.replace(

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import yaml
 
-from metro_atc.core.plant.scenario import (SCENARIO_NAMES, ScenarioError, load_scenario,
-                                           parse_scenario, schema_keys)
+from metro_atc.core.line.scenario import (SCENARIO_NAMES, ScenarioError, load_scenario,
+                                          parse_scenario, schema_keys)
 
 SCN_DIR = Path(__file__).resolve().parent.parent / "metro_atc" / "scenarios"
 

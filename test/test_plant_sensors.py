@@ -10,7 +10,7 @@ import numpy as np
 
 from metro_atc.core.plant.driver import simple_driver
 from metro_atc.core.plant.line import LineSim
-from metro_atc.core.plant.scenario import FaultSpec, IncidentSpec, Scenario, load_scenario
+from metro_atc.core.line.scenario import FaultSpec, IncidentSpec, Scenario, load_scenario
 
 
 def mini(**kw: Any) -> Scenario:

@@ -124,7 +124,7 @@ def dp_cross_check(scenario: str, line: LineData, table: EnergyTable) -> List[Di
     from metro_atc.core.ato.dp import solve_dp
     from metro_atc.core.ato.envelope import RunModel
     from metro_atc.core.bridge import timetable_for, track_for, train_for
-    from metro_atc.core.plant.scenario import load_scenario
+    from metro_atc.core.line.scenario import load_scenario
     scn = load_scenario(scenario)
     pos = timetable_for(scn).station_positions_m
     train = train_for(scn)
@@ -148,7 +148,7 @@ def run(seeds: List[int], w_list: List[float], source: str = "dp",
     """Evaluate LQR and the energy-aware LQR per weight on the three cases."""
     t0 = time.perf_counter()
     from metro_atc.core.bridge import atr_line_for
-    from metro_atc.core.plant.scenario import load_scenario
+    from metro_atc.core.line.scenario import load_scenario
     line = atr_line_for(load_scenario(scenario))
     table = energy_table_for(scenario, source)
     t_table = time.perf_counter() - t0

@@ -11,7 +11,7 @@ the online stage and of the pre-work stage; the paper's 42 s is MATLAB on a 2010
 
 Assumed data (the seed's Table 1 gradients, Table 3 restrictions and the train data are on
 pages missing from the extraction): see :data:`GRADIENTS`, :data:`RESTRICTIONS` and the
-train :data:`metro_atc.core.plant.vehicle.TAIPEI_MRT_6CAR` (214 t, seed 002 eq. 2 resistance,
+train :data:`metro_atc.core.line.vehicle.TAIPEI_MRT_6CAR` (214 t, seed 002 eq. 2 resistance,
 1.0 m/s^2 up to 36 km/h then constant voltage / power, 8 % rotating mass).  Energy is the
 mechanical traction energy at the wheel (no regeneration credit, no drive losses).
 """
@@ -32,7 +32,7 @@ from metro_atc.core.ato.dp import build_dp_tables, solve_dp
 from metro_atc.core.ato.envelope import MODE_NAMES, RunModel
 from metro_atc.core.ato.mmas import MmasParams, solve_mmas
 from metro_atc.core.ato.sections import build_section_tables
-from metro_atc.core.plant.vehicle import TAIPEI_MRT_6CAR, Track
+from metro_atc.core.line.vehicle import TAIPEI_MRT_6CAR, Track
 
 LENGTH_M = 2000.0
 """Inter-station distance [m] (seed 001 case 1)."""

@@ -28,7 +28,7 @@ import numpy as np
 
 from metro_atc.core.plant.driver import simple_driver
 from metro_atc.core.plant.line import LineSim
-from metro_atc.core.plant.scenario import load_scenario
+from metro_atc.core.line.scenario import load_scenario
 
 TARGET_CORE_RTF = 5000.0
 """Issue 3 target for the core-only real-time factor."""

@@ -10,7 +10,7 @@ stop error, tracked energy).
 
 Assumed run (the seed's Blue line data are not in the extraction): 1 300 m, level, line
 speed 80 km/h (Blue line mean spacing 1.28 km, :mod:`metro_atc.core.atr.blue_line`), train
-:data:`metro_atc.core.plant.vehicle.TAIPEI_MRT_6CAR`.  FCTP coasts from mid-run (the paper's
+:data:`metro_atc.core.line.vehicle.TAIPEI_MRT_6CAR`.  FCTP coasts from mid-run (the paper's
 Blue line "coasting vector" is not given); FCTP / ECTP / ACTP-C use Level-II (90 %) traction
 as in seed 002 Exp. 2, ACTP-TC chooses the traction level in [0.6, 1].  Seed 002's result
 tables are not in the extraction, so no paper figures can be printed beside ours except the
@@ -33,7 +33,7 @@ from metro_atc.core.ato.fuzzy import FuzzyController
 from metro_atc.core.ato.planner import plan_profile
 from metro_atc.core.ato.reference_curve import ProfileReference
 from metro_atc.core.ato.tracking import simulate_tracking
-from metro_atc.core.plant.vehicle import TAIPEI_MRT_6CAR, Track
+from metro_atc.core.line.vehicle import TAIPEI_MRT_6CAR, Track
 
 LENGTH_M = 1300.0
 """Assumed Blue line inter-station distance [m]."""

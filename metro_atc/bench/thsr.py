@@ -9,7 +9,7 @@ RK4 dynamics (all seven runs simulated together, vectorised).  Reported: trip ti
 accuracy |position - platform point| [m], speed RMSE against the reference [m/s], traction
 energy [10^8 J] (mechanical, at the wheel), paper values beside.
 
-Train: :data:`metro_atc.core.plant.vehicle.THSR_700T` (576 t, 10 260 kW, 2 km/h/s, drag
+Train: :data:`metro_atc.core.line.vehicle.THSR_700T` (576 t, 10 260 kW, 2 km/h/s, drag
 0.31 x 64 m^2 at 1.17 kg/m^3, 300 km/h; rolling resistance and rotating mass estimated).
 The paper's trip times imply a constant 2 km/h/s acceleration up to 300 km/h, which a
 10.26 MW, 576 t train cannot deliver above ~115 km/h (123 kN at 300 km/h, seed 004 Table 4,
@@ -34,7 +34,7 @@ from metro_atc.core.ato.fuzzy import FuzzyController
 from metro_atc.core.ato.pi import PIController
 from metro_atc.core.ato.reference_curve import ReferenceCurve
 from metro_atc.core.ato.tracking import simulate_tracking
-from metro_atc.core.plant.vehicle import THSR_700T, Track
+from metro_atc.core.line.vehicle import THSR_700T, Track
 
 STATIONS = ("Taipei", "Banqiao", "Taoyuan", "Hsinchu", "Taichung", "Chiayi", "Tainan",
             "Zuoying")

@@ -14,8 +14,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from metro_atc.core.plant.line import LineSim, train_params_for
-from metro_atc.core.plant.scenario import Scenario
-from metro_atc.core.plant.vehicle import G_MPS2, TrainParams, Track
+from metro_atc.core.line.scenario import Scenario
+from metro_atc.core.line.vehicle import G_MPS2, TrainParams, Track
 
 if TYPE_CHECKING:
     from metro_atc.core.ato.envelope import OperatingLimits

@@ -30,7 +30,7 @@ from rclpy.parameter import Parameter
 from metro_atc.core.ato.controller import TRACKERS, AtoCore
 from metro_atc.core.ato.planner import PLANNERS, Profile
 from metro_atc.core.bridge import ato_limits_for, timetable_for, track_for, train_for
-from metro_atc.core.plant.scenario import ScenarioError, load_scenario
+from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.simple_ato import FlatOutTracker
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_LATCHED, QOS_RELIABLE, NodeConfigError, bulk_publisher,

@@ -25,7 +25,7 @@ from rclpy.node import Node
 
 from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.dispatch import Dispatch, make_dispatcher
-from metro_atc.core.plant.scenario import ScenarioError, load_scenario
+from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_EVENTS, QOS_LATCHED, NodeConfigError, bulk_publisher,
                                     declare, run_nodes)

@@ -17,7 +17,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from metro_atc.core.bridge import timetable_for
-from metro_atc.core.plant.scenario import load_scenario
+from metro_atc.core.line.scenario import load_scenario
 from metro_atc.nodes.ato_controller import AtoController
 from metro_atc.nodes.ats_regulator import AtsRegulator
 from metro_atc.nodes.brake_diagnostic import BrakeDiagnostic

@@ -28,7 +28,7 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
 from metro_atc.core.plant.line import LineSim
-from metro_atc.core.plant.scenario import ScenarioError, load_scenario
+from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.jsonsafe import json_safe
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_CLOCK, QOS_EVENTS, QOS_LATCHED, QOS_RELIABLE, QOS_SENSOR,

@@ -4,7 +4,7 @@ The ROS node ``ato_controller`` owns one :class:`AtoCore` per train.  On a depar
 command it calls :meth:`AtoCore.plan` (x_start, x_stop, target running time); every control
 step it calls :meth:`AtoCore.command` with the train state and publishes the returned
 normalised effort u in [-1, 1] (u > 0: fraction of the maximum tractive force, u < 0:
-fraction of the maximum service brake; :func:`metro_atc.core.plant.vehicle.effort_force`).
+fraction of the maximum service brake; :func:`metro_atc.core.line.vehicle.effort_force`).
 
 Safety behaviour of :meth:`AtoCore.command_ex`: non-finite input, a state older than
 ``stale_after_s`` (when the caller passes ``now_s``) or a time stamp going backwards give a
@@ -26,7 +26,7 @@ from metro_atc.core.ato.fuzzy import FuzzyController, FuzzyParams
 from metro_atc.core.ato.pi import PIController, PIParams
 from metro_atc.core.ato.planner import PLANNERS, Profile, plan_profile
 from metro_atc.core.ato.reference_curve import ProfileReference
-from metro_atc.core.plant.vehicle import Track, TrainParams
+from metro_atc.core.line.vehicle import Track, TrainParams
 
 TRACKERS = ("fuzzy", "pi")
 """Tracker names accepted by :class:`AtoCore`."""

@@ -1,7 +1,7 @@
 """Run geometry and the operating speed envelope of one inter-station run (seed 001 Sec. 4-5).
 
 A *run* goes from a departure point ``x_start`` to a stopping point ``x_stop`` (chainage [m]
-on a :class:`~metro_atc.core.plant.vehicle.Track`) in either direction.  Internally every ATO
+on a :class:`~metro_atc.core.line.vehicle.Track`) in either direction.  Internally every ATO
 algorithm works in the run coordinate ``s = |x - x_start|`` in [0, L] with the grade signed
 in the direction of travel (positive = uphill for this train).
 
@@ -29,7 +29,7 @@ from typing import Optional
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from metro_atc.core.plant.vehicle import Track, TrainParams, grade_force
+from metro_atc.core.line.vehicle import Track, TrainParams, grade_force
 
 FloatArray = NDArray[np.float64]
 
@@ -195,7 +195,7 @@ def profile_energy_time(run: RunModel, s: ArrayLike, v: ArrayLike,
     ``max(F, 0) ds`` (mechanical energy at the wheel; braking is not credited).  Intervals
     flagged in ``coast_mask`` count zero energy (no effort is applied there).
     """
-    from metro_atc.core.plant.vehicle import resistance_force
+    from metro_atc.core.line.vehicle import resistance_force
 
     sa = np.asarray(s, dtype=float)
     va = np.maximum(np.asarray(v, dtype=float), 0.0)

@@ -15,7 +15,7 @@ seed 004 Table 1::
 Inference: product firing strength; defuzzification: weighted average of output singletons
 (PB=+1, P=+0.5, Z=0, N=-0.5, NB=-1), i.e. centre of gravity of singletons.  The crisp output
 drives the normalised effort u in [-1, 1] (traction for u > 0, service brake for u < 0; see
-:func:`metro_atc.core.plant.vehicle.effort_force`).  With ``incremental=True`` (default) the
+:func:`metro_atc.core.line.vehicle.effort_force`).  With ``incremental=True`` (default) the
 output is an effort *increment* per step (a fuzzy PI controller: zero error needs no
 steady-state offset while cruising against resistance); with ``incremental=False`` it is the
 effort itself, as in the crane controller of seed 004 Sec. 2.3.  The seed gives no universe

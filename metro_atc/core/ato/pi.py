@@ -1,7 +1,7 @@
 """PI speed tracker with anti-windup, pluggable in place of the fuzzy controller.
 
 ``u = kp e + ki * integral(e dt)`` with e = r - v [m/s], output clipped to [-1, 1]
-(normalised effort, :func:`metro_atc.core.plant.vehicle.effort_force`); the integrator is
+(normalised effort, :func:`metro_atc.core.line.vehicle.effort_force`); the integrator is
 frozen while the output saturates in the direction of the error (conditional integration).
 Vectorised over trains.
 """

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from metro_atc.core.ato.envelope import RunModel
-from metro_atc.core.plant.vehicle import max_traction_force, resistance_force
+from metro_atc.core.line.vehicle import max_traction_force, resistance_force
 
 FloatArray = NDArray[np.float64]
 
@@ -111,7 +111,7 @@ class ReferenceCurve:
         self.v_acc = np.sqrt(2.0 * e)
 
     def _accel(self, train: object, v: float, fg: float) -> float:
-        from metro_atc.core.plant.vehicle import TrainParams
+        from metro_atc.core.line.vehicle import TrainParams
         assert isinstance(train, TrainParams)
         net = (float(max_traction_force(train, v)) - float(resistance_force(train, v)) - fg) \
             / train.effective_mass_kg

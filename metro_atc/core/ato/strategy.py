@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, MODE_CRUISE, OperatingLimits
-from metro_atc.core.plant.vehicle import TrainParams, max_traction_force
+from metro_atc.core.line.vehicle import TrainParams, max_traction_force
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]

@@ -2,7 +2,7 @@
 
 Loop per control step: displacement s_k -> reference curve -> desired speed r_k; the tracker
 (fuzzy / PI) turns e_k = r_k - v_k (and d_k) into a normalised effort u_k; Newton's law is
-integrated by RK4 (:func:`metro_atc.core.plant.vehicle.rk4_step`) over the step with the
+integrated by RK4 (:func:`metro_atc.core.line.vehicle.rk4_step`) over the step with the
 effort and the local grade held constant.  Vectorised over several runs at once (e.g. the
 seven THSR runs of seed 004 Table 5).
 
@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from metro_atc.core.ato.envelope import RunModel
-from metro_atc.core.plant.vehicle import effort_force, rk4_step
+from metro_atc.core.line.vehicle import effort_force, rk4_step
 
 FloatArray = NDArray[np.float64]
 

@@ -202,7 +202,7 @@ def get_line(name: str) -> LineData:
     if name.startswith("small") and name[5:].isdigit() and int(name[5:]) >= 2:
         return small_line(int(name[5:]))
     from metro_atc.core.bridge import atr_line_for
-    from metro_atc.core.plant.scenario import ScenarioError, load_scenario
+    from metro_atc.core.line.scenario import ScenarioError, load_scenario
     try:
         return atr_line_for(load_scenario(name))
     except ScenarioError as exc:

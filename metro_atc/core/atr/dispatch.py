@@ -47,7 +47,7 @@ from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.node_core import KINDS, AtsRegulatorCore
 from metro_atc.core.atr.regulators import Regulator, default_weights_path
 from metro_atc.core.bridge import Timetable, atr_line_for, timetable_for
-from metro_atc.core.plant.scenario import Scenario
+from metro_atc.core.line.scenario import Scenario
 
 REGULATORS = ("none", "lqr", "dhp", "aoc", "elqr")
 

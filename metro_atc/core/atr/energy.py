@@ -134,7 +134,7 @@ from metro_atc.core.atr.blue_line import LineData
 from metro_atc.core.atr.cost import CostWeights, stage_cost
 from metro_atc.core.atr.regulators import Regulator
 from metro_atc.core.atr.traffic import linear_model, split_adjustment
-from metro_atc.core.plant.scenario import Scenario, load_scenario
+from metro_atc.core.line.scenario import Scenario, load_scenario
 
 FloatArray = NDArray[np.float64]
 

@@ -24,7 +24,7 @@ Modelling choices (SI units throughout):
   electric (regenerated x efficiency x receptivity) and friction, resistance, curve and
   grade work, kinetic energy; substation energy = wheel traction / efficiency + auxiliary
   - regenerated.  The balance closes to RK4 accuracy (test_plant_energy.py).
-* **ATP** -- see :mod:`metro_atc.core.plant.track` (seed 001 Fig. 1): moving-block end of
+* **ATP** -- see :mod:`metro_atc.core.line.track` (seed 001 Fig. 1): moving-block end of
   authority = rear of the train ahead minus the safety margin (fixed block: entry of the
   first occupied block minus the margin), static/temporary speed-limit supervision, service
   brake intervention ``sbi_lead_s`` before the emergency-brake intervention, EB latched to
@@ -43,13 +43,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .adhesion import CURVES, AdhesionCurve
-from .scenario import Scenario, ScenarioError
-from .timetable import (PassengerFlow, dispatch_times, nominal_dwells, required_dwell,
-                        schedule)
-from .track import (G, braking_envelope, cell_min, curve_resistance_per_kg,
-                    step_profile, window_min_ahead, window_min_behind)
-from .vehicle import THSR_700T, TAIPEI_MRT_6CAR, TrainParams, max_traction_accel
+from metro_atc.core.line.adhesion import CURVES, AdhesionCurve
+from metro_atc.core.line.scenario import Scenario, ScenarioError
+from metro_atc.core.line.timetable import (PassengerFlow, dispatch_times, nominal_dwells,
+                                           required_dwell, schedule)
+from metro_atc.core.line.track import (G, braking_envelope, cell_min, curve_resistance_per_kg,
+                                       step_profile, window_min_ahead, window_min_behind)
+from metro_atc.core.line.vehicle import (THSR_700T, TAIPEI_MRT_6CAR, TrainParams,
+                                         max_traction_accel)
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

@@ -1,0 +1,1 @@
+"""Static line description: scenario, rolling stock, track grids, timetable, adhesion."""
