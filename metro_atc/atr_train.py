@@ -25,7 +25,7 @@ from typing import List, Optional
 
 import torch
 
-from metro_atc.core.atr.blue_line import get_line
+from metro_atc.core.atr.lines import get_line
 from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.problems import AtrProblem
 from metro_atc.core.atr.regulators import save_weights

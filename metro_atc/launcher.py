@@ -181,8 +181,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def scenario_train_ids(scn: Any) -> list[str]:
     """Train ids of a loaded scenario (``train_01`` ...)."""
-    from metro_atc.core.plant.line import LineSim
-    return list(LineSim(scn, seed=0).train_ids)
+    return list(scn.train_ids)
 
 
 def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Path) -> int:

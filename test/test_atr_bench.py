@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from metro_atc.bench import regulation, regulator_synthesis
-from metro_atc.core.atr.blue_line import get_line
+from metro_atc.core.atr.lines import get_line
 from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.evaluation import incident_scenario, kpis, simulate
 from metro_atc.core.atr.problems import AtrProblem

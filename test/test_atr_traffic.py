@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from metro_atc.core.atr.blue_line import Period, get_line, small_line, taipei_blue
+from metro_atc.core.atr.blue_line import Period, small_line, taipei_blue
+from metro_atc.core.atr.lines import get_line
 from metro_atc.core.atr.traffic import (
     control_bounds, exponential_disturbance, linear_model, propagate_linear, schedule_offsets,
     scheduled_d, split_adjustment, timetable_state, truth_step, truth_step_dev, unstagger)

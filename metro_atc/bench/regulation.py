@@ -26,7 +26,8 @@ from typing import Any, Dict, List, Optional
 import numpy as np
 import torch
 
-from metro_atc.core.atr.blue_line import LineData, get_line, taipei_blue
+from metro_atc.core.atr.blue_line import LineData, taipei_blue
+from metro_atc.core.atr.lines import get_line
 from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.evaluation import incident_scenario, kpis, simulate
 from metro_atc.core.atr.node_core import AtsRegulatorCore

@@ -101,7 +101,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from metro_atc.core.brake import metro_car as mc
 from metro_atc.core.line.adhesion import CURVES, AdhesionCurve
-from metro_atc.core.plant.line import train_params_for
+from metro_atc.core.line.rolling_stock import train_params_for
 from metro_atc.core.line.scenario import Scenario, ScenarioError, load_scenario
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_LATCHED, QOS_RELIABLE, NodeConfigError,

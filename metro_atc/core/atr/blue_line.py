@@ -187,24 +187,3 @@ def small_line(n: int = 3, headway_s: float = 120.0) -> LineData:
         board_max_s=45.0,
         periods=(Period(0.0, 86400.0, headway_s, 1.0),),
     )
-
-
-def get_line(name: str) -> LineData:
-    """Return an ATR line by name.
-
-    ``blue_line_estimates``: :func:`taipei_blue` (this module's estimates; the seed 000
-    Exp. 2 bench); ``smallN``: :func:`small_line`; any other name: the embedded scenario or
-    scenario file of that name as the ATS node sees it
-    (:func:`metro_atc.core.bridge.atr_line_for`), e.g. ``taipei_blue``.
-    """
-    if name == "blue_line_estimates":
-        return taipei_blue()
-    if name.startswith("small") and name[5:].isdigit() and int(name[5:]) >= 2:
-        return small_line(int(name[5:]))
-    from metro_atc.core.bridge import atr_line_for
-    from metro_atc.core.line.scenario import ScenarioError, load_scenario
-    try:
-        return atr_line_for(load_scenario(name))
-    except ScenarioError as exc:
-        raise ValueError(f"unknown ATR line {name!r} (not 'blue_line_estimates', 'small<N>' "
-                         f"nor a scenario: {exc})") from None

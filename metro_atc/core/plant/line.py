@@ -34,7 +34,6 @@ Modelling choices (SI units throughout):
 
 from __future__ import annotations
 
-import dataclasses
 import heapq
 import math
 from dataclasses import dataclass, field
@@ -43,14 +42,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from metro_atc.core.line.rolling_stock import PRESETS, train_params_for  # noqa: F401
 from metro_atc.core.line.adhesion import CURVES, AdhesionCurve
 from metro_atc.core.line.scenario import Scenario, ScenarioError
 from metro_atc.core.line.timetable import (PassengerFlow, dispatch_times, nominal_dwells,
                                            required_dwell, schedule)
 from metro_atc.core.line.track import (G, braking_envelope, cell_min, curve_resistance_per_kg,
                                        step_profile, window_min_ahead, window_min_behind)
-from metro_atc.core.line.vehicle import (THSR_700T, TAIPEI_MRT_6CAR, TrainParams,
-                                         max_traction_accel)
+from metro_atc.core.line.vehicle import TrainParams, max_traction_accel
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -62,9 +61,6 @@ KMH = 1.0 / 3.6
 MODE_OUT, MODE_DWELL, MODE_ACCEL, MODE_CRUISE, MODE_COAST, MODE_BRAKE, MODE_ATP = range(7)
 
 _ST_WAIT, _ST_RUN, _ST_TURNBACK, _ST_DONE = 0, 1, 2, 3
-
-PRESETS: dict[str, TrainParams] = {"taipei_mrt_6car": TAIPEI_MRT_6CAR, "thsr_700t": THSR_700T}
-"""Rolling-stock presets by scenario name."""
 
 N_AXLES_SENSED = 4
 """Axles of the instrumented car published in the brake sensor samples."""
@@ -215,28 +211,6 @@ class _TimedEvent:
     t: float
     kind: str
     data: dict[str, Any] = field(default_factory=dict)
-
-
-def train_params_for(scn: Scenario) -> TrainParams:
-    """Rolling stock of a scenario: preset with the scenario overrides applied."""
-    p = PRESETS[scn.trains.preset]
-    over: dict[str, Any] = {}
-    if scn.trains.mass_kg is not None:
-        over["mass_kg"] = scn.trains.mass_kg
-    if scn.trains.length_m is not None:
-        over["length_m"] = scn.trains.length_m
-    if scn.trains.max_speed_kmh is not None:
-        over["max_speed_mps"] = scn.trains.max_speed_kmh * KMH
-    if scn.trains.capacity_pax is not None:
-        over["capacity_pax"] = scn.trains.capacity_pax
-    e = scn.energy
-    if e.traction_efficiency is not None:
-        over["traction_efficiency"] = e.traction_efficiency
-    if e.regen_efficiency is not None:
-        over["regen_efficiency"] = e.regen_efficiency
-    if e.aux_power_kw is not None:
-        over["aux_power_w"] = e.aux_power_kw * 1e3
-    return dataclasses.replace(p, **over) if over else p
 
 
 class LineSim:
