@@ -137,7 +137,7 @@ def test_monitor_detects_violations_without_atp() -> None:
     sim = fuzz_sim(1, "moving_block", False)
     sim.ebi_static = np.full_like(sim.ebi_static, 1e9)
     sim.sbi_static = np.full_like(sim.sbi_static, 1e9)
-    sim._c1 = 1e12  # unlimited movement authority
+    sim.atp.curve.c1 = 1e12  # unlimited movement authority
     _drive(sim, 1, np.random.default_rng(1))
     assert sim.kpis()["atp_violations"] > 0
 

@@ -21,6 +21,8 @@ decelerates at least at ``b_g`` (guaranteed emergency decel minus the steepest d
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -30,18 +32,51 @@ G = 9.80665
 """Standard gravity [m/s^2]."""
 
 
+class BrakingCurve:
+    """The ATP braking curve of seed 001 Fig. 1 in closed form (the one implementation).
+
+    ``v_ebi(D) = sqrt(c0 + c1 D + v_t^2) - c2`` with ``c0 = (b_g t_r)^2 + b_g t_r^2 a_w``,
+    ``c1 = 2 b_g`` and ``c2 = b_g t_r + a_w t_r`` (module docstring; ``a_w`` may be an
+    array, e.g. the worst-case response acceleration at each train's current speed).
+    """
+
+    def __init__(self, b_g: float, t_r: float) -> None:
+        """Guaranteed deceleration ``b_g`` [m/s^2] and response time ``t_r`` [s]."""
+        self.b_g, self.t_r = float(b_g), float(t_r)
+        b, tr = self.b_g, self.t_r
+        self.c0a = (b * tr) ** 2
+        self.c0b = b * tr * tr
+        self.c1 = 2.0 * b
+        self.c2a = b * tr
+
+    def coef(self, a_w: ArrayLike) -> tuple[Any, Any]:
+        """(c0, c2) for the response acceleration ``a_w`` [m/s^2]."""
+        return self.c0a + self.c0b * a_w, self.c2a + self.t_r * a_w  # type: ignore[operator]
+
+    def speed_from(self, c0: Any, c2: Any, dist_m: Any, below_mps: float = 0.0) -> FloatArray:
+        """EBI speed [m/s] at ``dist_m`` [m] to a stop, ``below_mps`` lower, from :meth:`coef`."""
+        if below_mps:
+            c2 = c2 + below_mps
+        return np.asarray(np.sqrt(np.maximum(c0 + self.c1 * dist_m, 0.0)) - c2)
+
+    def speed(self, dist_m: ArrayLike, a_w: ArrayLike, target_mps: ArrayLike = 0.0,
+              below_mps: float = 0.0) -> FloatArray:
+        """EBI speed [m/s] for distance [m] to a point where speed must be <= target [m/s]."""
+        c0, c2 = self.coef(a_w)
+        vt = np.asarray(target_mps, dtype=float)
+        if np.any(vt != 0.0):
+            c0 = c0 + vt * vt
+        return self.speed_from(c0, c2, np.asarray(dist_m, dtype=float), below_mps)
+
+
 def ebi_speed(dist_m: ArrayLike, target_mps: ArrayLike, a_w: float, t_r: float,
               b_g: float) -> FloatArray:
     """EBI speed [m/s] for distance [m] to a point where speed must be <= target [m/s].
 
-    Closed form of the seed 001 Fig. 1 construction (see module docstring); negative results
-    mean the train must already be stopped.
+    Closed form of the seed 001 Fig. 1 construction (:class:`BrakingCurve`); negative
+    results mean the train must already be stopped.
     """
-    d = np.asarray(dist_m, dtype=float)
-    vt = np.asarray(target_mps, dtype=float)
-    disc = (b_g * t_r) ** 2 + 2.0 * b_g * (d + 0.5 * a_w * t_r * t_r) + vt * vt
-    w = -b_g * t_r + np.sqrt(np.maximum(disc, 0.0))
-    return np.asarray(w - a_w * t_r)
+    return BrakingCurve(b_g, t_r).speed(dist_m, a_w, target_mps)
 
 
 def stopping_distance(v_mps: ArrayLike, a_w: float, t_r: float, b_g: float) -> FloatArray:

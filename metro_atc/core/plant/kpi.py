@@ -14,13 +14,13 @@ deviation: actual minus target (ATS command if any, else timetable) running time
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .line import LineSim
+FloatArray = NDArray[np.float64]
 
 PUNCTUAL_S = 60.0
 """A departure at most this late counts as punctual [s]."""
@@ -44,29 +44,58 @@ def _f(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
-def compute_kpis(sim: "LineSim") -> dict[str, Any]:
-    """KPIs of ``sim`` so far (line level and per train)."""
-    from .line import _ST_DONE
-    dep_dev = sim.act_dep - sim.sched_dep
-    arr_dev = sim.act_arr - sim.sched_arr
-    h_act = sim.act_dep[1:] - sim.act_dep[:-1]
-    h_sch = sim.sched_dep[1:] - sim.sched_dep[:-1]
-    tgt_rt = np.where(np.isfinite(sim.cmd_rt[:, :-1]), sim.cmd_rt[:, :-1],
-                      sim.sched_running_s[None, :])
-    rt_act = sim.act_arr[:, 1:] - sim.act_dep[:, :-1]
+@dataclass(frozen=True)
+class RunLog:
+    """What the KPIs need from a run (times [s], energy [J]); built by ``LineSim.run_log``.
+
+    Rows are trains, columns stations; NaN where a train did not (yet) arrive/depart.
+    """
+
+    scenario: str
+    seed: int
+    train_ids: list[str]
+    n_st: int
+    t: float
+    step_count: int
+    completed: NDArray[np.bool_]
+    act_arr: FloatArray
+    act_dep: FloatArray
+    sched_arr: FloatArray
+    sched_dep: FloatArray
+    cmd_rt: FloatArray
+    sched_running_s: FloatArray
+    energy: dict[str, FloatArray]
+    interventions: NDArray[np.int64]
+    violations: NDArray[np.int64]
+    min_sep: float
+    margin: float
+    boarded: FloatArray
+    left_behind: FloatArray
+    skipped_stops: int
+
+
+def compute_kpis(log: RunLog) -> dict[str, Any]:
+    """KPIs of a run log (line level and per train)."""
+    dep_dev = log.act_dep - log.sched_dep
+    arr_dev = log.act_arr - log.sched_arr
+    h_act = log.act_dep[1:] - log.act_dep[:-1]
+    h_sch = log.sched_dep[1:] - log.sched_dep[:-1]
+    tgt_rt = np.where(np.isfinite(log.cmd_rt[:, :-1]), log.cmd_rt[:, :-1],
+                      log.sched_running_s[None, :])
+    rt_act = log.act_arr[:, 1:] - log.act_dep[:, :-1]
     rt_dev = rt_act - tgt_rt
-    e = sim.energy_breakdown()
+    e = log.energy
     valid = np.isfinite(dep_dev)
     punct = float(np.mean(dep_dev[valid] <= PUNCTUAL_S)) if valid.any() else None
     late = dep_dev > RECOVERY_TOL_S  # NaN (no departure) compares False
-    t_late = sim.act_dep[late]
+    t_late = log.act_dep[late]
     recovery = float(t_late.max() - t_late.min()) if t_late.size else 0.0
     per_train = []
-    for i, tid in enumerate(sim.train_ids):
+    for i, tid in enumerate(log.train_ids):
         v = np.isfinite(dep_dev[i])
         per_train.append({
             "train_id": tid,
-            "completed": bool(sim.status[i] == _ST_DONE),
+            "completed": bool(log.completed[i]),
             "departures": int(v.sum()),
             "punctuality": float(np.mean(dep_dev[i][v] <= PUNCTUAL_S)) if v.any() else None,
             "max_delay_s": float(dep_dev[i][v].max()) if v.any() else None,
@@ -76,22 +105,22 @@ def compute_kpis(sim: "LineSim") -> dict[str, Any]:
             "energy_kwh": float(e["substation"][i] / J_PER_KWH),
             "traction_wheel_kwh": float(e["traction_wheel"][i] / J_PER_KWH),
             "regen_kwh": float(e["regen_to_line"][i] / J_PER_KWH),
-            "atp_interventions": int(sim.interventions[i]),
-            "atp_violations": int(sim.violations[i]),
+            "atp_interventions": int(log.interventions[i]),
+            "atp_violations": int(log.violations[i]),
         })
     tot = {k: float(np.sum(val) / J_PER_KWH) for k, val in e.items()}
     return {
-        "scenario": sim.scn.name,
-        "seed": sim.seed,
-        "trains": int(sim.n),
-        "completed_trains": int(np.sum(sim.status == _ST_DONE)),
-        "stations": int(sim.n_st),
-        "sim_time_s": float(sim.t),
-        "steps": int(sim.step_count),
-        "atp_violations": int(sim.violations.sum()),
-        "atp_interventions": int(sim.interventions.sum()),
-        "min_separation_m": _f(sim.min_sep),
-        "safety_margin_m": float(sim.margin),
+        "scenario": log.scenario,
+        "seed": log.seed,
+        "trains": len(log.train_ids),
+        "completed_trains": int(np.sum(log.completed)),
+        "stations": int(log.n_st),
+        "sim_time_s": float(log.t),
+        "steps": int(log.step_count),
+        "atp_violations": int(log.violations.sum()),
+        "atp_interventions": int(log.interventions.sum()),
+        "min_separation_m": _f(log.min_sep),
+        "safety_margin_m": float(log.margin),
         "energy_kwh": tot["substation"],
         "energy": {
             "traction_wheel_kwh": tot["traction_wheel"],
@@ -112,8 +141,8 @@ def compute_kpis(sim: "LineSim") -> dict[str, Any]:
         "schedule_deviation_s": _stats(dep_dev),
         "headway_deviation_s": _stats(h_act - h_sch),
         "running_time_deviation_s": _stats(rt_dev),
-        "passengers_boarded": int(round(float(sim.boarded.sum()))),
-        "passengers_left_behind": int(round(float(sim.left_behind.sum()))),
-        "skipped_stops": int(sim.skipped_stops),
+        "passengers_boarded": int(round(float(log.boarded.sum()))),
+        "passengers_left_behind": int(round(float(log.left_behind.sum()))),
+        "skipped_stops": int(log.skipped_stops),
         "per_train": per_train,
     }

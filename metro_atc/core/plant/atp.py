@@ -1,0 +1,229 @@
+"""ATP supervisor (seed 001 Fig. 1) and the independent safety monitors.
+
+Moving-block end of authority = rear of the train ahead minus the safety margin (fixed
+block: entry of the block holding its rear minus the margin); static/temporary speed-limit
+supervision on precomputed grids; service-brake intervention ``sbi_lead_s`` before the
+emergency-brake intervention; EB latched to standstill.  ATP is independent of the
+driver/ATO command.  Separation and overspeed are monitored separately against the physical
+limits and counted as *violations* (must stay 0).
+
+The braking curve is :class:`metro_atc.core.line.track.BrakingCurve` (one implementation);
+:attr:`AtpSupervisor.curve`, the grids and the per-train state are the public view that the
+reference driver and the plots read.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from metro_atc.core.line.adhesion import AdhesionCurve
+from metro_atc.core.line.geometry import LineGeometry
+from metro_atc.core.line.rolling_stock import KMH
+from metro_atc.core.line.scenario import Scenario
+from metro_atc.core.line.service import drive_envelope
+from metro_atc.core.line.track import (G, BrakingCurve, braking_envelope, window_min_ahead,
+                                       window_min_behind)
+from metro_atc.core.line.vehicle import TrainParams
+
+from .fleet import Fleet, Status
+from .tables import VehicleTables
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+
+_cnz = np.count_nonzero
+
+
+class AtpSupervisor:
+    """ATP constants, supervision grids and per-train ATP state (EB, SB, counters)."""
+
+    def __init__(self, scn: Scenario, p: TrainParams, geom: LineGeometry,
+                 tables: VehicleTables, curve: AdhesionCurve, m_rot: float,
+                 b_drive: float) -> None:
+        """Constants and the worst-case assumptions; state for ``scn.trains.count`` trains."""
+        self.geom = geom
+        self.p = p
+        self.tables = tables
+        sg = scn.signalling
+        b_lvl = sg.guaranteed_decel_mps2
+        if b_lvl is None:
+            # adhesion-limited guarantee: locked-wheel adhesion with 10 % margin
+            # (empty train: smallest adhesion mass relative to the rotating allowance)
+            tare = max(p.mass_kg - p.nominal_load_pax * p.pax_mass_kg, 0.3 * p.mass_kg)
+            b_lvl = min(p.emergency_brake_mps2,
+                        0.9 * curve.mu_slide * G * tare / (tare + m_rot))
+        self.b_guar_level = float(b_lvl)
+        self.b_g = float(b_lvl - G * geom.max_down)
+        if self.b_g <= 0.05:
+            raise ValueError("guaranteed emergency braking is not positive on the steepest "
+                             "downhill grade")
+        self.a_w = float(p.a1_mps2 + G * geom.max_down)
+        self.t_r = float(sg.response_time_s)
+        self.margin = float(sg.safety_margin_m)
+        self.t_sbi = float(sg.sbi_lead_s)
+        self.tsr_notice_s = float(sg.tsr_notice_s)
+        self.fixed_block = sg.mode == "fixed_block"
+        self.block_len = geom.block_len
+        d_r = p.max_speed_mps * self.t_r + 0.5 * self.a_w * self.t_r ** 2
+        self.n_resp = int(math.ceil(d_r / geom.dx)) + 1
+        self.n_sbi = int(math.ceil(p.max_speed_mps * self.t_sbi / geom.dx)) + 1
+        # v_ebi(D) with the worst-case response acceleration at the current speed,
+        # a_w(v) = phi(v) + g max_down (traction only falls as the speed rises during the
+        # response time, so this is conservative)
+        self.curve = BrakingCurve(self.b_g, self.t_r)
+        self.g_down = G * geom.max_down
+        # static curve: v + a_w(v) t_r <= E  ->  v = g^-1(E), g monotone on the speed table
+        aw_tab = tables.phi + self.g_down
+        self._ebi_g_tab = np.maximum.accumulate(tables.v + aw_tab * self.t_r)
+        self._aw0_tr = float(aw_tab[0] * self.t_r)
+        self.b_drive = b_drive
+        n = scn.trains.count
+        self.eb = np.zeros(n, dtype=bool)
+        self.sb = np.zeros(n, dtype=bool)
+        self.interventions = np.zeros(n, dtype=np.int64)
+        self.violations = np.zeros(n, dtype=np.int64)
+        self.in_violation = np.zeros(n, dtype=bool)
+        self.any_violation = False
+        self.any_atp = False
+        self.eoa = np.full(n, geom.eoa_end)
+        self.atp_limit = np.full(n, p.max_speed_mps)
+        self.speed_code = np.full(n, p.max_speed_mps)
+        self.min_sep = math.inf
+        self.drive_env = drive_envelope(geom, geom.static_limit, b_drive)
+
+    # ------------------------------------------------------------------ grids
+
+    def refresh(self, lim_atp: FloatArray, lim_phys: FloatArray) -> None:
+        """Supervision grids from the per-cell limits known to ATP / in force [m/s]."""
+        g = self.geom
+        ceil_atp = window_min_behind(lim_atp, g.n_len) + g.ceiling_tol
+        env = braking_envelope(ceil_atp, g.dx, self.b_g)
+        e_min = window_min_ahead(env, self.n_resp)
+        self.ebi_static = np.where(e_min < self._ebi_g_tab[0], e_min - self._aw0_tr,
+                                   np.interp(e_min, self._ebi_g_tab, self.tables.v))
+        self.sbi_static = window_min_ahead(self.ebi_static, self.n_sbi)
+        self.limit_eff = window_min_behind(lim_atp, g.n_len)
+        self.ceiling_phys = window_min_behind(lim_phys, g.n_len) + g.ceiling_tol
+        self.drive_env = drive_envelope(g, lim_atp, self.b_drive)
+
+    # ------------------------------------------------------------------ supervision
+
+    def obstacle_rear(self, fl: Fleet, blocks: bool) -> FloatArray:
+        """Chainage of the nearest obstacle ahead of each train's front [m] (inf if none).
+
+        The train ahead on the running line (its rear; with ``blocks`` the entry of the block
+        holding its rear), or -- beyond the terminus -- the train still standing in the
+        turnback siding this train will use (siding ``i % turnback_sidings``); trains on a
+        siding are off the running line for the others.
+        """
+        g = self.geom
+        x, n, ns, run = fl.x, fl.n, g.n_sid, fl.run
+        rear = x - g.length_m
+        if not (blocks or fl.any_turnback):  # fast path: nobody near the sidings
+            obst = np.empty(n)
+            obst[0] = math.inf
+            np.add(rear[:-1], fl.lead_add, out=obst[1:])
+            return obst
+        obst = np.full(n, math.inf)
+        on_siding = (fl.status == Status.TURNBACK) & (rear > g.x_switch)
+        if n > 1:
+            lead_main = run[:-1] & ~on_siding[:-1]
+            r1 = rear[:-1]
+            if blocks:
+                r1 = g.x0 + np.floor((r1 - g.x0) / self.block_len) * self.block_len
+            obst[1:] = np.where(lead_main, r1, math.inf)
+        if n > ns:
+            same = on_siding[:-ns] & run[:-ns]
+            obst[ns:] = np.minimum(obst[ns:], np.where(same, rear[:-ns], math.inf))
+        return obst
+
+    def supervise(self, fl: Fleet) -> tuple[FloatArray, FloatArray, IntArray, int]:
+        """Authority, EBI/SBI speeds and interventions at the start of a step.
+
+        Returns (phi(v) [m/s^2], obstacle rears [m], grid cells of the fronts, number of
+        new interventions); updates ``eoa``, ``atp_limit``, ``speed_code``, ``eb``, ``sb``,
+        ``interventions`` and the safety monitors.
+        """
+        g = self.geom
+        x, v, run = fl.x, fl.v, fl.run
+        obst = self.obstacle_rear(fl, False)
+        obst_sig = self.obstacle_rear(fl, True) if self.fixed_block else obst
+        self.eoa = eoa = np.minimum(obst_sig - self.margin, g.eoa_end)
+        k = ((x - g.x0) * g.inv_dx).astype(np.int64)
+        dist = eoa - x
+        phi = np.interp(v, self.tables.v, self.tables.phi)
+        c0, c2 = self.curve.coef(phi + self.g_down)
+        v_ma = self.curve.speed_from(c0, c2, dist)
+        v_ebi = np.minimum(self.ebi_static[k], v_ma)
+        v_sb_ma = self.curve.speed_from(c0, c2, dist - self.t_sbi * v)
+        v_sbi = np.minimum(self.sbi_static[k], v_sb_ma) - 0.3
+        self.atp_limit = v_ebi
+        if self.fixed_block:
+            self.speed_codes(x, eoa)
+            v_sbi = np.minimum(v_sbi, self.speed_code + 0.5 * g.ceiling_tol)
+        over = run & (v > v_sbi)
+        n_int = 0
+        if self.any_atp or _cnz(over):
+            moving = v > 0.0
+            eb_prev, sb_prev = self.eb, self.sb
+            eb = run & ((eb_prev & moving) | (v > v_ebi))
+            sb = ~eb & (over | (sb_prev & moving & run & (v > v_sbi - 0.5)))
+            onset = moving & ((eb & ~eb_prev) | (sb & ~sb_prev & ~eb_prev))
+            n_int = int(np.count_nonzero(onset))
+            if n_int:
+                self.interventions += onset
+            self.eb, self.sb = eb, sb
+            self.any_atp = bool(_cnz(eb) or _cnz(sb))
+        self.monitor(fl, obst, k)
+        return phi, obst, k, n_int
+
+    def monitor(self, fl: Fleet, obst: FloatArray, k: IntArray) -> None:
+        """Independent safety monitors: separation and overspeed violations, min separation.
+
+        Checks the state at the start of the step (= the end of the previous one) against the
+        physical limits (not the ATP's anticipated ones).
+        """
+        x, v, run = fl.x, fl.v, fl.run
+        gap = obst - x
+        gmin = float(np.min(np.where(run, gap, math.inf)))
+        if gmin < self.min_sep:
+            self.min_sep = gmin
+        bad = run & ((gap < self.margin - 1e-6) | (v > self.ceiling_phys[k] + 1e-6))
+        if self.any_violation or _cnz(bad):
+            new = bad & ~self.in_violation
+            if new.any():
+                self.violations += new
+            self.in_violation = bad
+            self.any_violation = bool(bad.any())
+
+    def monitor_now(self, fl: Fleet) -> None:
+        """The safety monitors on the current state (end of a run, before the KPIs)."""
+        self.monitor(fl, self.obstacle_rear(fl, False), self.geom.cells(fl.x))
+
+    def speed_codes(self, x: FloatArray, eoa: FloatArray) -> None:
+        """Fixed-block speed code of each train's current block [m/s] (5 km/h steps).
+
+        The code allows a service-brake stop at the end of authority from the block entry.
+        """
+        g = self.geom
+        start = g.x0 + np.floor((x - g.x0) / self.block_len) * self.block_len
+        code = np.sqrt(2.0 * self.p.max_service_brake_mps2 * np.maximum(eoa - start, 0.0))
+        code = np.floor(code / (5.0 * KMH)) * (5.0 * KMH)
+        k = ((x - g.x0) * g.inv_dx).astype(np.int64)
+        self.speed_code = np.minimum(code, self.limit_eff[k])
+
+    def brake_demand(self, a_tgt: FloatArray, broken: BoolArray, any_broken: bool,
+                     bs: float, eb_decel: float, jerk_dt: float,
+                     jerk_eb_dt: float) -> tuple[FloatArray, Any, BoolArray | None]:
+        """ATP (and breakdown) override of the target deceleration and jerk limit."""
+        if not (self.any_atp or any_broken):
+            return a_tgt, jerk_dt, None
+        eb = self.eb | broken
+        a_tgt = np.where(self.sb, np.minimum(a_tgt, -bs), a_tgt)
+        a_tgt = np.where(eb, -eb_decel, a_tgt)
+        return a_tgt, np.where(eb, jerk_eb_dt, jerk_dt), eb

@@ -1,0 +1,200 @@
+"""Brake-by-wire sensors of the instrumented cars: samples with noise and sensor faults.
+
+Each step stores the noise-free truth it needs (:class:`SensorSnap`); the samples (wheel
+speeds, clamp forces, acceleration, reference speed, load weigh) are generated on first
+access of :attr:`StepResult.sensors` / :attr:`StepResult.sensor_arrays`, from a separate
+random stream, so reading them or not never changes the plant trajectory.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from metro_atc.core.line.scenario import Scenario
+
+from .braking import N_AXLES_SENSED, AxleState
+from .stations import TrainEvent
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class BrakeSensorSample:
+    """One brake-by-wire sensor sample of a train's instrumented car (NaN = dropout)."""
+
+    train_idx: int
+    t_s: float
+    wheel_omega_radps: tuple[float, float, float, float]
+    clamp_force_n: tuple[float, float, float, float]
+    accel_x_mps2: float
+    ref_speed_mps: float
+    car_mass_kg: float = math.nan
+    """Load-weigh signal of the instrumented car: train mass / cars [kg]."""
+
+
+@dataclass
+class SensorBlock:
+    """Vectorised sensor samples of one step (converted to objects on demand)."""
+
+    t: FloatArray
+    trains: IntArray
+    omega: FloatArray  # [n_samples, n_trains_sensed, 4]
+    clamp: FloatArray
+    accel: FloatArray  # [n_samples, n_trains_sensed]
+    vref: FloatArray
+    car_mass: FloatArray  # [n_trains_sensed] load-weigh signal [kg]
+
+
+@dataclass
+class SensorSnap:
+    """Noise-free truth of one step for the sensor samples (built lazily)."""
+
+    ts: FloatArray
+    t0: float
+    t1: float
+    mask: BoolArray
+    ax0: AxleState
+    ax1: AxleState
+    r_w: FloatArray
+    acc: FloatArray
+    v0: FloatArray
+    v1: FloatArray
+    car_mass: FloatArray
+
+
+class Sensors:
+    """Sample clock, instrumented trains and sensor faults of a line."""
+
+    def __init__(self, scn: Scenario, seed: int, faults: list[dict[str, Any]]) -> None:
+        """Instrumented trains of ``scn`` (all if none listed); own random stream."""
+        tid = {t: i for i, t in enumerate(scn.train_ids)}
+        ids = scn.sensors.trains or scn.train_ids
+        self.spec = scn.sensors
+        self.sensed = np.array(sorted(tid[t] for t in ids), dtype=np.int64)
+        self.sensed_mask = np.zeros(scn.trains.count, dtype=bool)
+        self.sensed_mask[self.sensed] = True
+        self.sensor_dt = 1.0 / scn.sensors.rate_hz
+        self.next_sample_t = self.sensor_dt
+        self.rng = np.random.default_rng([seed, 1])
+        self.faults = faults
+        self.any_sensed = False
+
+    def due(self, t1: float) -> bool:
+        """A sample falls in the step ending at ``t1`` and an instrumented train runs."""
+        return self.next_sample_t <= t1 + 1e-9 and self.any_sensed
+
+    def snapshot(self, t0: float, t1: float, run: BoolArray, ax0: AxleState, ax1: AxleState,
+                 r_w: FloatArray, acc: FloatArray, v0: FloatArray, v1: FloatArray,
+                 car_mass: FloatArray) -> SensorSnap:
+        """Noise-free truth needed for the samples in (t0, t1] (samples built on demand)."""
+        ts = []
+        while self.next_sample_t <= t1 + 1e-9:
+            ts.append(self.next_sample_t)
+            self.next_sample_t += self.sensor_dt
+        return SensorSnap(np.array(ts), t0, t1, run & self.sensed_mask, ax0, ax1, r_w.copy(),
+                          acc, v0, v1.copy(), car_mass)
+
+    def block(self, sn: SensorSnap) -> SensorBlock:
+        """Samples with noise and injected sensor faults from a snapshot."""
+        sen = self.spec
+        rng = self.rng
+        idx = np.flatnonzero(sn.mask)
+        rw = sn.r_w[idx]
+        _, clamp1, slip1 = sn.ax1.get()
+        slip0 = sn.ax0.get()[2]
+        om0 = (sn.v0[idx][:, None] * (1.0 - slip0[idx])) / rw
+        om1 = (sn.v1[idx][:, None] * (1.0 - slip1[idx])) / rw
+        frac = ((sn.ts - sn.t0) / (sn.t1 - sn.t0))[:, None]
+        ns, m = sn.ts.size, idx.size
+        omega = om0[None] + frac[:, :, None] * (om1 - om0)[None]
+        omega = omega + rng.normal(0.0, sen.wheel_omega_noise_radps, omega.shape)
+        noise_c = rng.normal(0.0, sen.clamp_force_noise_n, (ns, m, N_AXLES_SENSED))
+        clamp = np.maximum(clamp1[idx][None] + noise_c, 0.0)
+        accel = sn.acc[idx][None] + rng.normal(0.0, sen.accel_noise_mps2, (ns, m))
+        vs = sn.v0[idx][None] + frac * (sn.v1 - sn.v0)[idx][None]
+        vref = vs + rng.normal(0.0, sen.ref_speed_noise_mps, (ns, m))
+        if self.faults:
+            self.apply_faults(sn.ts, idx, omega, clamp, accel, vref)
+        return SensorBlock(sn.ts, idx, omega, clamp, accel, vref, sn.car_mass[idx])
+
+    def apply_faults(self, tt: FloatArray, idx: IntArray, omega: FloatArray,
+                     clamp: FloatArray, accel: FloatArray, vref: FloatArray) -> None:
+        """Dropout (NaN) or stuck (value frozen at the fault onset) channels, in place."""
+        pos = {int(tr): c for c, tr in enumerate(idx)}
+        chans = {"wheel_omega": omega, "clamp_force": clamp, "accel": accel, "ref_speed": vref}
+        for f in self.faults:
+            c = pos.get(f["train"])
+            if c is None:
+                continue
+            act = (tt >= f["t0"]) & (tt < f["t1"])
+            if not act.any():
+                continue
+            names = list(chans) if f["channel"] == "all" else [f["channel"]]
+            for name in names:
+                arr = chans[name]
+                if f["kind"] == "sensor_dropout":
+                    val: Any = math.nan
+                else:
+                    if f.get("stuck_" + name) is None:  # first faulty sample seen
+                        first = int(np.flatnonzero(act)[0])
+                        f["stuck_" + name] = arr[first, c].copy()
+                    val = f["stuck_" + name]
+                if arr.ndim == 3:
+                    for a in f["axles"]:
+                        arr[act, c, a] = val if np.ndim(val) == 0 else val[a]
+                else:
+                    arr[act, c] = val
+
+
+class StepResult:
+    """Outcome of one :meth:`LineSim.step` (events, sensor samples, ATP interventions).
+
+    Sensor samples are generated (noise, faults) on first access of :attr:`sensors` or
+    :attr:`sensor_arrays`, from a separate random stream, so reading them or not never
+    changes the plant trajectory.
+    """
+
+    def __init__(self, events: list[TrainEvent], snap: SensorSnap | None,
+                 atp_interventions: int, sensors: Sensors) -> None:
+        """Wrap the step outputs; sensor samples are built lazily on first access."""
+        self.events = events
+        self.atp_interventions = atp_interventions
+        self._snap = snap
+        self._source = sensors
+        self._block: SensorBlock | None = None
+        self._sensors: list[BrakeSensorSample] | None = None
+
+    @property
+    def sensor_arrays(self) -> SensorBlock | None:
+        """Vectorised samples: t [s], trains, omega/clamp [s, train, 4], accel/vref [s, train]."""
+        if self._block is None and self._snap is not None:
+            self._block = self._source.block(self._snap)
+            self._snap = None
+        return self._block
+
+    @property
+    def sensors(self) -> list[BrakeSensorSample]:
+        """Brake sensor samples taken during this step, in time order."""
+        if self._sensors is None:
+            out: list[BrakeSensorSample] = []
+            b = self.sensor_arrays
+            if b is not None:
+                for s in range(b.t.size):
+                    for ii, tr in enumerate(b.trains):
+                        om = b.omega[s, ii]
+                        cf = b.clamp[s, ii]
+                        out.append(BrakeSensorSample(
+                            int(tr), float(b.t[s]),
+                            (float(om[0]), float(om[1]), float(om[2]), float(om[3])),
+                            (float(cf[0]), float(cf[1]), float(cf[2]), float(cf[3])),
+                            float(b.accel[s, ii]), float(b.vref[s, ii]),
+                            float(b.car_mass[ii])))
+            self._sensors = out
+        return self._sensors
