@@ -9,7 +9,6 @@ times add the scenario's running-time margin.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,31 +39,36 @@ def min_running_times(p: TrainParams, geom: LineGeometry, drive_env: FloatArray,
     """Flat-out running time per inter-station section [s] on the driving envelope.
 
     Forward pass ``v_{k+1}^2 = v_k^2 + 2 a(v_k) dx`` with full traction minus resistance
-    and grade, capped by the driving envelope (limits and braking to the stop point).
+    and grade, capped by the driving envelope (limits and braking to the stop point); the
+    sections are independent and run side by side (one vector operation per grid cell).
     """
     dx = geom.dx
     pos = geom.station_positions_m
     m = p.mass_kg
     meff = m + p.rotary_allowance * p.mass_kg
-    out = np.zeros(pos.size - 1)
-    for j in range(pos.size - 1):
-        k0 = geom.cell(float(pos[j]))
-        k1 = geom.cell(float(pos[j + 1]))
-        xs = geom.grid_x[k0:k1 + 1]
-        cap = np.minimum(drive_env[k0:k1 + 1],
-                         np.sqrt(2.0 * b_drive * np.maximum(pos[j + 1] - xs, 0.0)))
-        v = 0.0
-        tsum = 0.0
-        for k in range(k1 - k0):
-            fa = (m * float(max_traction_accel(p, v)) - p.davis_a_n - p.davis_b_n_per_mps * v
-                  - p.davis_c_n_per_mps2 * v * v
-                  - m * G * (geom.sin_avg[k0 + k] + geom.curve_avg[k0 + k])) / meff
-            v2 = math.sqrt(max(v * v + 2.0 * max(fa, 0.0) * dx, 0.0))
-            v2 = min(v2, float(cap[k + 1]))
-            tsum += 2.0 * dx / max(v + v2, 0.05)
-            v = v2
-        out[j] = tsum
-    return out
+    n_sec = pos.size - 1
+    k0 = np.array([geom.cell(float(pos[j])) for j in range(n_sec)], dtype=np.int64)
+    k1 = np.array([geom.cell(float(pos[j + 1])) for j in range(n_sec)], dtype=np.int64)
+    lens = k1 - k0
+    n_max = int(lens.max()) if n_sec else 0
+    cap = np.full((n_sec, n_max + 1), np.inf)
+    res = np.zeros((n_sec, n_max + 1))  # (sin + curve) averages of the cells
+    for j in range(n_sec):
+        sl = slice(int(k0[j]), int(k1[j]) + 1)
+        cap[j, :lens[j] + 1] = np.minimum(drive_env[sl], np.sqrt(
+            2.0 * b_drive * np.maximum(pos[j + 1] - geom.grid_x[sl], 0.0)))
+        res[j, :lens[j] + 1] = geom.sin_avg[sl] + geom.curve_avg[sl]
+    v = np.zeros(n_sec)
+    tsum = np.zeros(n_sec)
+    for k in range(n_max):
+        fa = (m * max_traction_accel(p, v) - p.davis_a_n - p.davis_b_n_per_mps * v
+              - p.davis_c_n_per_mps2 * v * v - m * G * res[:, k]) / meff
+        v2 = np.sqrt(np.maximum(v * v + 2.0 * np.maximum(fa, 0.0) * dx, 0.0))
+        v2 = np.minimum(v2, cap[:, k + 1])
+        act = k < lens
+        tsum = np.where(act, tsum + 2.0 * dx / np.maximum(v + v2, 0.05), tsum)
+        v = np.where(act, v2, v)
+    return tsum
 
 
 @dataclass(frozen=True)
