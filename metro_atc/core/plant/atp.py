@@ -29,7 +29,7 @@ from metro_atc.core.line.track import (G, BrakingCurve, braking_envelope, window
                                        window_min_behind)
 from metro_atc.core.line.vehicle import TrainParams
 
-from .fleet import Fleet, Status
+from .fleet import TURNBACK, Fleet
 from .tables import VehicleTables
 
 FloatArray = NDArray[np.float64]
@@ -130,7 +130,7 @@ class AtpSupervisor:
             np.add(rear[:-1], fl.lead_add, out=obst[1:])
             return obst
         obst = np.full(n, math.inf)
-        on_siding = (fl.status == Status.TURNBACK) & (rear > g.x_switch)
+        on_siding = (fl.status == TURNBACK) & (rear > g.x_switch)
         if n > 1:
             lead_main = run[:-1] & ~on_siding[:-1]
             r1 = rear[:-1]

@@ -34,6 +34,10 @@ class Status(IntEnum):
     DONE = 3
 
 
+WAIT, RUN, TURNBACK, DONE = (int(s) for s in Status)
+"""The Status values as plain ints (array comparisons; enum member lookup is slow)."""
+
+
 class Fleet:
     """Per-train state arrays of a line (positions, speeds, loads, stops, status)."""
 
@@ -78,16 +82,16 @@ class Fleet:
     def update_masks(self, t: float) -> None:
         """Recompute the discrete-state masks at time ``t`` after any discrete change."""
         st = self.status
-        self.run: BoolArray = (st == Status.RUN) | (st == Status.TURNBACK)
+        self.run: BoolArray = (st == RUN) | (st == TURNBACK)
         self.broken: BoolArray = self.broken_until > t
         self.hold: BoolArray = self.dwelling | self.broken | ~self.run
         self.cand: BoolArray = self.run & ~self.dwelling
-        self.auto: BoolArray = (st == Status.TURNBACK) & ~self.dwelling
+        self.auto: BoolArray = (st == TURNBACK) & ~self.dwelling
         self.any_auto = bool(self.auto.any())
-        self.any_turnback = bool((st == Status.TURNBACK).any())
+        self.any_turnback = bool((st == TURNBACK).any())
         self.lead_add: FloatArray = np.where(self.run[:-1], 0.0, math.inf)
         self.any_broken = bool(self.broken.any())
-        self.n_done = int(np.count_nonzero(st == Status.DONE))
+        self.n_done = int(np.count_nonzero(st == DONE))
 
     def next_discrete_t(self) -> float:
         """Earliest departure, turnback end or breakdown end [s] (inf if none)."""

@@ -31,8 +31,8 @@ from .braking import N_AXLES_SENSED, Brakes
 from .driver import driver_command
 from .dynamics import rk4_motion
 from .energy import EnergyMeter
-from .fleet import (MODE_ACCEL, MODE_ATP, MODE_BRAKE, MODE_COAST, MODE_CRUISE, MODE_DWELL,
-                    MODE_OUT, Fleet, Status)
+from .fleet import (DONE, MODE_ACCEL, MODE_ATP, MODE_BRAKE, MODE_COAST, MODE_CRUISE,
+                    MODE_DWELL, MODE_OUT, RUN, WAIT, Fleet, Status)
 from .incidents import Incidents
 from .kpi import RunLog, compute_kpis
 from .sensors import BrakeSensorSample, SensorBlock, Sensors, StepResult
@@ -171,7 +171,7 @@ class LineSim:
 
     def active_mask(self) -> BoolArray:
         """Trains in service that must send a command this step (not turning back)."""
-        return np.asarray(self.fleet.status == Status.RUN)
+        return np.asarray(self.fleet.status == RUN)
 
     def set_departure(self, train_idx: int, station_idx: int, departure_time_s: float,
                       target_running_time_s: float = math.nan,
@@ -204,10 +204,10 @@ class LineSim:
         fl, atp = self.fleet, self.atp
         run = fl.run
         return {
-            "x_m": np.where(fl.status == Status.DONE, fl.x_done, fl.x),
+            "x_m": np.where(fl.status == DONE, fl.x_done, fl.x),
             "v_mps": fl.v.copy(), "a_mps2": fl.acc.copy(),
             "mode": fl.modes(atp.eb, atp.sb), "current_station": fl.cur_station.copy(),
-            "next_station": np.where(run | (fl.status == Status.WAIT),
+            "next_station": np.where(run | (fl.status == WAIT),
                                      np.where(fl.next_stop < self.n_st, fl.next_stop, -1),
                                      -1),
             "traction_energy_j": self.energy.e_trac.copy(),
@@ -241,7 +241,7 @@ class LineSim:
         """Per-train energy terms [J] (wheel traction, braking, resistance, grade, ...)."""
         fl = self.fleet
         meff = fl.mass + fl.m_rot
-        return self.energy.breakdown(0.5 * meff * fl.v ** 2 * (fl.status != Status.DONE))
+        return self.energy.breakdown(0.5 * meff * fl.v ** 2 * (fl.status != DONE))
 
     def run_log(self) -> RunLog:
         """What the KPIs need from this run (copies)."""
@@ -249,7 +249,7 @@ class LineSim:
         return RunLog(
             scenario=self.scn.name, seed=self.seed, train_ids=list(self.train_ids),
             n_st=self.n_st, t=self.t, step_count=self.step_count,
-            completed=np.asarray(self.fleet.status == Status.DONE),
+            completed=np.asarray(self.fleet.status == DONE),
             act_arr=st.act_arr.copy(), act_dep=st.act_dep.copy(), sched_arr=sv.sched_arr,
             sched_dep=sv.sched_dep, cmd_rt=st.cmd_rt.copy(),
             sched_running_s=sv.sched_running_s, energy=self.energy_breakdown(),

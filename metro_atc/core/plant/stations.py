@@ -19,7 +19,7 @@ from metro_atc.core.line.scenario import Scenario
 from metro_atc.core.line.service import ServicePlan
 from metro_atc.core.line.timetable import required_dwell
 
-from .fleet import Fleet, Status
+from .fleet import DONE, RUN, TURNBACK, Fleet
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -84,7 +84,7 @@ class Stations:
         self.cmd_rt[i, j] = target_running_time_s
         self.cmd_dwell_limit[i, j] = dwell_limit_s
         fl = self.fl
-        if fl.dwelling[i] and fl.cur_station[i] == j and fl.status[i] == Status.RUN:
+        if fl.dwelling[i] and fl.cur_station[i] == j and fl.status[i] == RUN:
             self.set_release(i, j, redraw=False)
             return True
         return False
@@ -113,14 +113,14 @@ class Stations:
         i = self.next_entry
         if t < self.sv.sched_arr[i, 0] - 1e-9:
             return True
-        if i > 0 and fl.status[i - 1] in (Status.RUN, Status.TURNBACK):
+        if i > 0 and fl.status[i - 1] in (RUN, TURNBACK):
             rear_lead = float(fl.x[i - 1]) - g.length_m
             if fixed_block:  # the block holding the rear must be clear of the platform
                 rear_lead = g.x0 + math.floor((rear_lead - g.x0) / g.block_len) * g.block_len
             if rear_lead < g.x_first_stop + margin + 1.0:
                 return False
         self.next_entry += 1
-        fl.status[i] = Status.RUN
+        fl.status[i] = RUN
         fl.set_xv(i, g.x_first_stop, 0.0)
         fl.a_dem[i] = -fl.p.max_service_brake_mps2
         fl.stop_x[i] = g.x_first_stop
@@ -203,7 +203,7 @@ class Stations:
         self.act_dep[i, j] = t
         self.emit(i, j, "departure", t, board, alight, dwell)
         if j == self.n_st - 1:
-            fl.status[i] = Status.TURNBACK
+            fl.status[i] = TURNBACK
             fl.next_stop[i] = self.n_st
             fl.stop_x[i] = g.x_tail_stop
         else:
@@ -218,20 +218,20 @@ class Stations:
         for ii in np.flatnonzero(hit):
             i = int(ii)
             if fl.v[i] <= 0.0 and abs(d[i]) <= tol:
-                if fl.status[i] == Status.TURNBACK:
+                if fl.status[i] == TURNBACK:
                     fl.dwelling[i] = True  # in the siding: turnback time runs
                     fl.done_t[i] = t + self.scn.line.turnback_s
                 else:
                     self.arrive(i, int(fl.next_stop[i]), t)
             elif d[i] > tol:
-                if fl.status[i] == Status.TURNBACK:
+                if fl.status[i] == TURNBACK:
                     continue  # the buffer-stop authority stops it; accept any standstill
                 j = int(fl.next_stop[i])
                 self.skipped_stops += 1
                 fl.cur_station[i] = j
                 if j >= self.n_st - 1:
                     # overran the terminus: passengers alight in the tail track
-                    fl.status[i] = Status.TURNBACK
+                    fl.status[i] = TURNBACK
                     fl.next_stop[i] = self.n_st
                     fl.stop_x[i] = g.x_tail_stop
                 else:
@@ -243,9 +243,9 @@ class Stations:
     def finish_turnbacks(self, t: float) -> None:
         """Trains whose turnback time is over leave service (parked beyond the grid end)."""
         fl, g = self.fl, self.geom
-        tb_done = (fl.status == Status.TURNBACK) & (fl.done_t <= t + 1e-9)
+        tb_done = (fl.status == TURNBACK) & (fl.done_t <= t + 1e-9)
         for i in np.flatnonzero(tb_done):
-            fl.status[i] = Status.DONE
+            fl.status[i] = DONE
             fl.x_done[i] = fl.x[i]
             fl.set_xv(int(i), g.x_park, 0.0)
             fl.dwelling[i] = False
