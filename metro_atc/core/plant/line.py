@@ -67,7 +67,13 @@ class _Alias:
 
 
 class LineSim:
-    """Lockstep simulator of one metro line scenario (see module docstring)."""
+    """Lockstep simulator of one metro line scenario (see module docstring).
+
+    The components are public: ``fleet``, ``atp``, ``brakes``, ``energy``, ``stations``,
+    ``incidents``, ``sensors`` and the static ``geometry``/``service``/``p``.  The flat names
+    below (``sim.x``, ``sim.eb``, ``sim.sched_dep``, ...) are read/write aliases of their
+    attributes, kept for the nodes, benches, plots and tests written against them.
+    """
 
     # fleet state
     x, v, acc, a_dem, u_last, status, dwelling, mass, m_rot, load, stop_x, next_stop, \
