@@ -13,7 +13,7 @@ stations, energy terms, ATP state: limit, authority, speed code, EB/SB, interven
 violations, loads, targets); for the fault case the raw sensor samples of a window.
 
 Re-record (only when the physics is meant to change, and say so in the commit):
-``python test/golden.py``.
+``python test/golden.py [case ...]``.
 """
 
 from __future__ import annotations
@@ -54,6 +54,7 @@ class Case:
     overrides: dict[str, Any] = dataclasses.field(default_factory=dict)
     nan_prob: float = 0.0
     pulse_trains: tuple[int, ...] = ()
+    pulse_s: tuple[float, float] = (150.0, 20.0)
     ats_every: int = 0
     sensor_window_s: tuple[float, float] | None = None
 
@@ -88,6 +89,21 @@ CASES = [
                  {"kind": "sensor_dropout", "train": "train_02", "axle": 0, "at_s": 440,
                   "duration_s": 15, "channel": "all"}],
              "disturbances": {"running_time_noise": 0.05, "departure_delay_prob": 0.5},
+         }),
+    # full traction most of the time into TSRs on a wet rail: ATP service and emergency
+    # brake interventions (EB latched to standstill), stuck clamp force, accel dropout
+    Case("mini_atp_eb", "mini", 4, 1200.0, 2, pulse_trains=(0, 1), pulse_s=(100.0, 90.0),
+         sensor_window_s=(600.0, 640.0),
+         overrides={
+             "line": {"adhesion": "wet", "temporary_speed_limits": [
+                 {"start_m": 1250, "end_m": 1450, "limit_kmh": 25, "from_s": 0},
+                 {"start_m": 2300, "end_m": 2500, "limit_kmh": 30, "from_s": 400,
+                  "to_s": 900}]},
+             "faults": [
+                 {"kind": "sensor_stuck", "train": "train_02", "axle": 3, "at_s": 610,
+                  "duration_s": 20, "channel": "clamp_force"},
+                 {"kind": "sensor_dropout", "train": "train_01", "at_s": 615,
+                  "duration_s": 10, "channel": "accel"}],
          }),
 ]
 
@@ -187,8 +203,9 @@ def _policy(case: Case) -> Policy:
 
     def pol(sim: LineSim, k: int) -> np.ndarray:
         u = np.asarray(simple_driver(sim), dtype=float).copy()
-        for i in case.pulse_trains:  # 20 s of full traction every 150 s: provokes the ATP
-            if (k * sim.control_period_s) % 150.0 < 20.0 and sim.active_mask()[i]:
+        period, length = case.pulse_s
+        for i in case.pulse_trains:  # full traction for `length` of every `period` s
+            if (k * sim.control_period_s) % period < length and sim.active_mask()[i]:
                 u[i] = 1.0
         if case.nan_prob > 0.0:
             u = np.where(rng.random(u.size) < case.nan_prob, math.nan, u)
@@ -265,10 +282,12 @@ def path_of(case: Case) -> Path:
     return DATA / f"{case.name}.npz"
 
 
-def main() -> None:
-    """Record every case (overwrites the golden data)."""
+def main(names: list[str]) -> None:
+    """Record the named cases, or every case (overwrites the golden data)."""
     DATA.mkdir(parents=True, exist_ok=True)
     for case in CASES:
+        if names and case.name not in names:
+            continue
         data = record(case)
         np.savez_compressed(path_of(case), **data)
         print(f"{case.name}: {data['u'].shape[0]} steps, {data['events'].shape[0]} events, "
@@ -277,4 +296,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])
