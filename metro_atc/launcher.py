@@ -90,12 +90,38 @@ def _ros_args(params: dict[str, Any], params_file: Path | None) -> list[str]:
     if params_file is not None and params_file.is_file():
         args += ["--params-file", str(params_file)]
     for k, v in params.items():
-        if isinstance(v, bool):
-            v = "true" if v else "false"
-        elif isinstance(v, (list, tuple)):
-            v = "[" + ",".join(str(x) for x in v) + "]"
-        args += ["-p", f"{k}:={v}"]
+        args += ["-p", f"{k}:={ros_param_value(v)}"]
     return args
+
+
+def ros_param_value(v: Any) -> str:
+    """A ``-p name:=value`` value that rcl's YAML parser reads back as exactly ``v``.
+
+    Strings (and string lists) are JSON-quoted (JSON strings are YAML double-quoted
+    scalars), so a path containing ``": "``, ``#`` or ``[`` stays one string.
+    """
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (list, tuple)):
+        return "[" + ",".join(ros_param_value(x) for x in v) + "]"
+    if isinstance(v, str):
+        return json.dumps(v)
+    return str(v)
+
+
+def check_out_dir(out_dir: Path) -> str | None:
+    """Create ``out_dir`` and check a file can be written in it; return an error line or None.
+
+    Called before any node starts (an unwritable directory would otherwise lose the KPIs
+    at the end of the run).
+    """
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=out_dir, prefix=".write_check_"):
+            pass
+    except OSError as exc:
+        return f"output directory {out_dir}: not writable ({exc.strerror or exc})"
+    return None
 
 
 def build_commands(a: argparse.Namespace, train_ids: Sequence[str],
@@ -146,12 +172,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     from metro_atc.core.plant.scenario import ScenarioError, load_scenario
     try:
         scn = load_scenario(a.scenario)
-    except ScenarioError as exc:
+        train_ids = list(scenario_train_ids(scn))
+    except (ScenarioError, ValueError) as exc:
         print(f"metro_atc run: error: {exc}", file=sys.stderr)
         return 2
-    train_ids = list(scenario_train_ids(scn))
     out_dir = Path(a.out) if a.out else Path(tempfile.mkdtemp(prefix="metro_atc_run_"))
-    out_dir.mkdir(parents=True, exist_ok=True)
+    problem = check_out_dir(out_dir)
+    if problem:
+        print(f"metro_atc run: error: {problem}", file=sys.stderr)
+        return 2
     t0 = time.monotonic()
     if a.single_process:
         from metro_atc.nodes.graph import run_single_process

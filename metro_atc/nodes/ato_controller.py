@@ -245,6 +245,10 @@ def build_nodes() -> list[Node]:
     ns = probe.get_namespace().strip("/")
     probe.destroy_node()
     ids = [t for t in ids if t] or ([ns] if ns else [])
+    dup = sorted({t for t in ids if ids.count(t) > 1})
+    if dup:
+        raise NodeConfigError(f"train_ids: {', '.join(dup)} given more than once "
+                              "(one ATO per train)")
     if not ids:
         raise NodeConfigError("no train: set -p train_ids:=[train_01,...] or run in a "
                               "train namespace (-r __ns:=/train_01)")

@@ -204,6 +204,7 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
     try:
         try:
             nodes = factory()
+            check_overrides(nodes, argv)
         except (NodeConfigError, ParameterException, ValueError, TypeError) as exc:
             print(f"{name}: error: {_one_line(exc)}", file=sys.stderr)
             return 2
@@ -230,13 +231,27 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
     return code
 
 
+def check_overrides(nodes: Sequence[Node], argv: Sequence[str]) -> None:
+    """Raise :class:`NodeConfigError` for a params-file value no node can take.
+
+    See :func:`metro_atc.nodes.param_check.override_problem` (``seed: {a: 1}``, unknown
+    parameter names in a section naming the node).
+    """
+    from metro_atc.nodes.param_check import override_problem
+
+    for n in nodes:
+        problem = override_problem(n.get_name(), n.get_namespace(), n.has_parameter, argv)
+        if problem:
+            raise NodeConfigError(problem)
+
+
 def check_params_files(argv: Sequence[str]) -> str | None:
     """Validate every ``--params-file`` of a ROS argument list; return one error line or None.
 
     Checks that the file exists, is YAML, and has the ROS layout
     ``<node name or /**>: {ros__parameters: {...}}``.
     """
-    import yaml
+    from metro_atc.nodes.param_check import load_params_file
 
     for i, a in enumerate(argv):
         if a != "--params-file":
@@ -244,15 +259,9 @@ def check_params_files(argv: Sequence[str]) -> str | None:
         if i + 1 >= len(argv):
             return "--params-file needs a file path"
         path = argv[i + 1]
-        try:
-            with open(path, encoding="utf-8") as fh:
-                doc = yaml.safe_load(fh)
-        except OSError as exc:
-            return f"params file {path}: cannot read: {exc.strerror}"
-        except yaml.YAMLError as exc:
-            mark = getattr(exc, "problem_mark", None)
-            where = f" (line {mark.line + 1})" if mark is not None else ""
-            return f"params file {path}: not valid YAML{where}: {getattr(exc, 'problem', exc)}"
+        doc, problem = load_params_file(path)
+        if problem:
+            return problem
         if not isinstance(doc, dict):
             return (f"params file {path}: expected a mapping of node names, "
                     f"got {type(doc).__name__}")
