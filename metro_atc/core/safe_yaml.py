@@ -35,13 +35,13 @@ __all__ = ["YamlLimits", "YamlLimitError", "load_yaml_text", "load_yaml_file", "
 class YamlLimits:
     """Resource limits of one YAML document."""
 
-    max_bytes: int = 1_000_000
+    max_bytes: int = 256_000
     """Largest file / text accepted [bytes] (the shipped scenarios are < 13 kB)."""
     max_aliases: int = 100
     """Largest number of alias nodes (``*name``) per document."""
     max_depth: int = 32
     """Deepest nesting of mappings/sequences (the scenario schema needs 4)."""
-    max_nodes: int = 100_000
+    max_nodes: int = 20_000
     """Largest number of nodes (scalars, sequences, mappings) per document."""
     max_expanded_nodes: int = 1_000_000
     """Largest number of nodes with every alias expanded (a bomb of few aliases)."""
