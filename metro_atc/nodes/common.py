@@ -41,6 +41,13 @@ QOS_LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 """Latest-value topics (departure command, speed profile, line status): late joiners catch up."""
 
+QOS_LATCHED_IN = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                            reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
+"""Reader side of a latched command topic (compatible with QOS_LATCHED writers): a deep
+queue, so that a burst of invalid messages from another writer cannot push the valid
+command out before the node takes it (keyless topics share one history)."""
+
 QOS_EVENTS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10000,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -29,11 +29,13 @@ from rosgraph_msgs.msg import Clock
 
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.plant.scenario import ScenarioError, load_scenario
+from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.jsonsafe import json_safe
 from metro_atc.nodes import conversions as conv
-from metro_atc.nodes.common import (QOS_CLOCK, QOS_EVENTS, QOS_LATCHED, QOS_RELIABLE, QOS_SENSOR,
-                                    NodeConfigError, SubscriptionPoller, bulk_publisher,
-                                    bulk_subscription, declare, run_nodes)
+from metro_atc.nodes.common import (QOS_CLOCK, QOS_EVENTS, QOS_LATCHED, QOS_LATCHED_IN,
+                                    QOS_RELIABLE, QOS_SENSOR, NodeConfigError,
+                                    SubscriptionPoller, bulk_publisher, bulk_subscription,
+                                    declare, run_nodes)
 
 
 class LineSimulator(Node):
@@ -82,6 +84,9 @@ class LineSimulator(Node):
         except ScenarioError as exc:
             raise NodeConfigError(str(exc)) from None
         self.sim = LineSim(scn, seed=int(self.seed))
+        self.bounds = bounds_for(scn)
+        self.rejections = Rejections()
+        """Rejected input messages per kind (:mod:`metro_atc.core.validate`)."""
         self.ids: list[str] = list(self.sim.train_ids)
         self.index = {tid: i for i, tid in enumerate(self.ids)}
         n = len(self.ids)
@@ -111,7 +116,7 @@ class LineSimulator(Node):
                                            partial(self._on_command, i), QOS_RELIABLE)
                          for i, t in enumerate(self.ids)]
         self.dep_subs = [bulk_subscription(self, DepartureCommand, f"/{t}/departure_command",
-                                           partial(self._on_departure, i), QOS_LATCHED)
+                                           partial(self._on_departure, i), QOS_LATCHED_IN)
                          for i, t in enumerate(self.ids)]
         self.get_logger().info(
             f"scenario '{self.scenario_name}': {n} trains, {len(self.sim.station_names)} "
@@ -126,36 +131,35 @@ class LineSimulator(Node):
             self._last_warn[key] = now
             self.get_logger().warning(text)
 
+    def _reject(self, what: str, exc: conv.MessageRejected) -> None:
+        """Count a rejected message per kind; log it (throttled, with every kind's count)."""
+        self.rejected += 1
+        self.rejections.add(exc.kind)
+        self.get_logger().warning(f"rejected {what} ({exc.kind}): {exc} [rejected so far: "
+                                  f"{self.rejections.summary()}]", throttle_duration_sec=1.0)
+
     def _on_command(self, i: int, msg: TractionCommand) -> None:
-        topic = f"/{self.ids[i]}/command"
+        """Take train i's command for the current step k only (see conv.traction_from_msg)."""
         try:
-            if msg.train_id and msg.train_id != self.ids[i]:
-                raise conv.MessageRejected(f"{topic}: train_id '{msg.train_id}' does not "
-                                           f"match the topic")
-            step, effort = conv.traction_from_msg(msg, topic)
+            effort = conv.traction_from_msg(msg, f"/{self.ids[i]}/command", self.ids[i],
+                                            self.k, float(self.sim.t))
         except conv.MessageRejected as exc:
-            self.rejected += 1
-            self._warn_rate_limited(f"command:{str(exc)[:48]}", f"rejected command: {exc}")
+            self._reject("command", exc)
             return
-        if step < self.k:
-            return  # stale duplicate from an earlier step
-        self.cmd_step[i] = step
+        if effort is None:
+            return  # stale duplicate from the previous step
+        self.cmd_step[i] = self.k
         self.cmd_effort[i] = effort
 
     def _on_departure(self, i: int, msg: DepartureCommand) -> None:
+        """Validate an ATS departure command before it reaches the plant's table."""
         topic = f"/{self.ids[i]}/departure_command"
         try:
-            if msg.train_id and msg.train_id != self.ids[i]:
-                raise conv.MessageRejected(f"{topic}: train_id '{msg.train_id}' does not "
-                                           f"match the topic")
-            st, dep, run, dwell = conv.departure_from_msg(msg, topic,
-                                                          len(self.sim.station_names))
-            self.sim.set_departure(i, st, dep, run, dwell)
+            st, dep, run, dwell = conv.departure_from_msg(msg, topic, self.ids[i], self.bounds)
+            conv.guarded(topic, self.sim.set_departure, i, st, dep, run, dwell)
             self.dep_received[i, st] = True
-        except (conv.MessageRejected, ValueError) as exc:
-            self.rejected += 1
-            self._warn_rate_limited(f"departure:{str(exc)[:48]}",
-                                    f"rejected departure command: {exc}")
+        except conv.MessageRejected as exc:
+            self._reject("departure command", exc)
 
     # ------------------------------------------------------------------ stepping
     def graph_ready(self) -> bool:
@@ -261,6 +265,7 @@ class LineSimulator(Node):
         k = dict(self.sim.kpis())
         k["lockstep_misses"] = int(self.lockstep_misses)
         k["rejected_messages"] = int(self.rejected)
+        k["rejected_by_kind"] = self.rejections.as_dict()
         k["ats_timeouts"] = int(self.ats_misses)
         k["steps"] = int(self.k)
         k["scenario"] = self.scenario_name
