@@ -15,6 +15,7 @@ import argparse
 import json
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -97,15 +98,22 @@ def _ros_args(params: dict[str, Any], params_file: Path | None) -> list[str]:
 def ros_param_value(v: Any) -> str:
     """A ``-p name:=value`` value that rcl's YAML parser reads back as exactly ``v``.
 
-    Strings (and string lists) are JSON-quoted (JSON strings are YAML double-quoted
-    scalars), so a path containing ``": "``, ``#`` or ``[`` stays one string.
+    A string that YAML would read as something else (a path containing ``": "``, ``#``,
+    ``[`` or ``,``, or a word like ``true``) is JSON-quoted (a JSON string is a YAML
+    double-quoted scalar); plain names and paths stay as they are.
     """
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, (list, tuple)):
         return "[" + ",".join(ros_param_value(x) for x in v) + "]"
     if isinstance(v, str):
-        return json.dumps(v)
+        import yaml
+        plain = re.fullmatch(r"[A-Za-z0-9_./~+-]+", v) is not None
+        try:
+            plain = plain and yaml.safe_load(v) == v
+        except yaml.YAMLError:
+            plain = False
+        return v if plain else json.dumps(v)
     return str(v)
 
 
@@ -168,7 +176,8 @@ def _stop(procs: list[tuple[str, subprocess.Popen[bytes]]], grace_s: float = 5.0
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one scenario through the graph; print KPIs (``--json``: one JSON object)."""
     a = _parser().parse_args(argv)
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    from metro_atc.nodes.common import dds_defaults
+    dds_defaults()
     from metro_atc.core.plant.scenario import ScenarioError, load_scenario
     try:
         scn = load_scenario(a.scenario)

@@ -204,6 +204,8 @@ def test_path_with_colon_space(tmp_path: Path) -> None:
     p.write_text(MINI)
     assert load_scenario(p).name == "mini"
     assert ros_param_value(str(p)) == '"' + str(p) + '"'
+    assert ros_param_value("train_01") == "train_01"
+    assert yaml.safe_load(ros_param_value("true")) == "true"
     assert yaml.safe_load(ros_param_value(str(p))) == str(p)
     assert yaml.safe_load(ros_param_value(["train_01", "a: b"])) == ["train_01", "a: b"]
 

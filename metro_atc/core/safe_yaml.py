@@ -139,7 +139,8 @@ def load_yaml_text(text: str, limits: YamlLimits = DEFAULT_LIMITS) -> Any:
         mark = getattr(exc, "problem_mark", None)
         where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
         what = getattr(exc, "problem", None) or str(exc)
-        raise YamlLimitError(one_line(f"malformed YAML{where}: {what}", 160)) from None
+        raise YamlLimitError(one_line(f"malformed YAML (not valid YAML){where}: {what}",
+                                      160)) from None
     except (RecursionError, MemoryError, OverflowError, ValueError) as exc:
         raise YamlLimitError(one_line(f"unreadable YAML: {type(exc).__name__}: {exc}",
                                       160)) from None

@@ -85,6 +85,8 @@ class Bounds:
     """Latest simulation time of the run, with margin [s]."""
     control_period_s: float
     """Lockstep control period [s]."""
+    t_first_s: float = 0.0
+    """First timetable departure: no departure is commanded before it [s]."""
     v_max_mps: float = 150.0
     """Largest plausible speed (above every rolling stock of the schema) [m/s]."""
     a_max_mps2: float = 20.0
@@ -98,14 +100,16 @@ def bounds_for(scn: Any) -> Bounds:
 
     Chainage: the plant grids from the first stop minus a train length (<= 600 m) and
     500 m to the tail track plus 200 m; 1 km of margin on both sides.  Times: the
-    scenario's hard stop plus an hour (a regulator may hold trains beyond the timetable).
+    scenario's hard stop plus an hour (a regulator may hold trains beyond the timetable);
+    departures not before the timetable's first one.
     """
     st = scn.line.stations
     return Bounds(n_stations=len(st),
                   x_min_m=float(st[0].position_m) - 2100.0,
                   x_max_m=float(st[-1].position_m) + float(scn.line.tail_track_m) + 1300.0,
                   horizon_s=float(scn.sim.duration_s) + 3600.0,
-                  control_period_s=float(scn.sim.control_period_s))
+                  control_period_s=float(scn.sim.control_period_s),
+                  t_first_s=float(scn.timetable.first_departure_s))
 
 
 def check_finite(name: str, value: float) -> float:
@@ -123,7 +127,7 @@ def check_range(name: str, value: float, lo: float, hi: float, kind: str = "rang
     if math.isnan(v):
         if nan_ok:
             return v
-        raise Rejected("nan", f"{name} is NaN")
+        raise Rejected("nan", f"{name} is not finite (nan)")
     if not lo <= v <= hi:
         raise Rejected(kind, f"{name}={v:.6g} outside [{lo:.6g}, {hi:.6g}]")
     return v

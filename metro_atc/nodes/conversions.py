@@ -58,7 +58,8 @@ def _train(msg: Any, topic: str, train_id: str) -> None:
     """The message's train_id is the topic's train (kind ``train_id``)."""
     if msg.train_id != train_id:
         shown = repr(str(msg.train_id)[:40])
-        raise Rejected("train_id", f"{topic}: train_id {shown} is not '{train_id}'")
+        raise Rejected("train_id", f"{topic}: train_id {shown} does not match the topic "
+                       f"('{train_id}')")
 
 
 def train_index(train_id: str, index: Mapping[str, int], topic: str) -> int:
@@ -79,14 +80,15 @@ def traction_from_msg(msg: TractionCommand, topic: str, train_id: str, step: int
     the state's (``t_s``), a non-finite or out-of-range effort, an undefined mode.
     """
     _train(msg, topic, train_id)
+    effort = check_finite(f"{topic}.effort", msg.effort)
+    effort = check_range(f"{topic}.effort", effort, -1.0 - 1e-9, 1.0 + 1e-9, "effort")
+    check_index(f"{topic}.mode", msg.mode, 0, len(MODES) - 1, "mode")
     k = int(msg.step)
     if k == step - 1:
         return None
     if k != step:
         raise Rejected("step", f"{topic}.step={k} is not the lockstep step {step}")
     check_stamp(topic, from_time(msg.header.stamp), t_s)
-    effort = check_range(f"{topic}.effort", msg.effort, -1.0 - 1e-9, 1.0 + 1e-9, "effort")
-    check_index(f"{topic}.mode", msg.mode, 0, len(MODES) - 1, "mode")
     return float(np.clip(effort, -1.0, 1.0))
 
 
@@ -104,14 +106,15 @@ def departure_from_msg(msg: DepartureCommand, topic: str, train_id: str,
     """Validate a DepartureCommand; return (station, departure_s, running_s, dwell_limit_s).
 
     The station is one a train departs from (not the terminus); the departure time is
-    within the run's horizon and equals the header stamp (the ATS stamps its commands with
+    within the run's service (from the timetable's first departure to the horizon) and equals the header stamp (the ATS stamps its commands with
     the departure time); the running time is in (0, horizon]; ``dwell_limit_s`` is NaN (no
     dwell cut) or in [0, horizon]; the regulator code is defined.
     """
     _train(msg, topic, train_id)
     st = check_index(f"{topic}.station_index", msg.station_index, 0, b.n_stations - 2,
                      "station")
-    dep = check_time(f"{topic}.departure_time_s", msg.departure_time_s, b)
+    dep = check_range(f"{topic}.departure_time_s", msg.departure_time_s, b.t_first_s,
+                      b.horizon_s, "time")
     check_stamp(topic, from_time(msg.header.stamp), dep)
     run = check_range(f"{topic}.target_running_time_s", msg.target_running_time_s, 0.0,
                       b.horizon_s, "time")
@@ -240,7 +243,7 @@ def event_from_msg(msg: TrainEvent, topic: str, index: Mapping[str, int], b: Bou
     """Validate a TrainEvent; return a plain dict.
 
     The train is one of the line, the kind defined, the station on the line, the actual
-    time within the horizon and equal to the header stamp (the simulator stamps an event
+    time after the first step and within the horizon, and equal to the header stamp (the simulator stamps an event
     with its time), the sequence the next one of the train (``last_seq``: the last accepted
     per train; events of a train are numbered 1, 2, ... without gaps), times finite.
     """
@@ -249,13 +252,14 @@ def event_from_msg(msg: TrainEvent, topic: str, index: Mapping[str, int], b: Bou
         raise Rejected("kind", f"{topic}.kind={msg.kind} is not ARRIVAL(1) or DEPARTURE(2)")
     st = check_index(f"{topic}.station_index", msg.station_index, 0, b.n_stations - 1,
                      "station")
-    t = check_time(f"{topic}.actual_time_s", msg.actual_time_s, b)
+    t = check_range(f"{topic}.actual_time_s", msg.actual_time_s, b.control_period_s,
+                    b.horizon_s, "time")
     check_stamp(topic, from_time(msg.header.stamp), t)
     seq = int(msg.sequence)
     want = int(last_seq.get(msg.train_id, 0)) + 1
     if seq != want:
-        raise Rejected("sequence", f"{topic}: {msg.train_id} event sequence {seq}, expected "
-                       f"{want}")
+        raise Rejected("sequence", f"{topic}: {msg.train_id} event sequence {seq} out of order "
+                       f"(expected {want})")
     return {"train_id": msg.train_id,
             "kind": "arrival" if msg.kind == TrainEvent.KIND_ARRIVAL else "departure",
             "station": st, "t_s": t,
