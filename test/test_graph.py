@@ -310,7 +310,8 @@ def _fuzz_value(rng: Any, kind: str, train: str) -> Any:
     if kind == "u8":
         return int(rng.choice([0, 1, 2, 255, int(rng.integers(0, 256))]))
     if kind == "train":
-        return str(rng.choice([train, train, "", "train_99", "x" * 1000, "\u00e9\u4e2d\U0001f600"]))
+        return str(rng.choice([train, train, "", "train_99", "x" * 1000,
+                               "\u00e9\u4e2d\U0001f600"]))
     if kind == "f64[]":
         n = int(rng.choice([0, 1, 3, 4, 4, 4, 5, 100]))
         return [_fuzz_value(rng, "f64", train) for _ in range(n)]

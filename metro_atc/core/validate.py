@@ -46,16 +46,30 @@ class Rejected(ValueError):
 
 
 class Rejections:
-    """Counters of rejected messages per kind (public: published by the nodes)."""
+    """Counters of rejected messages per kind (public: published by the nodes).
 
-    def __init__(self) -> None:
+    :meth:`add` also rate-limits the log per kind: the first rejection of a kind is always
+    logged, then at most one per ``log_period_s`` of that kind (a flood of one kind cannot
+    hide another; rclpy's ``throttle_duration_sec`` throttles per call site, not per kind).
+    """
+
+    def __init__(self, log_period_s: float = 1.0) -> None:
         """No rejection yet."""
         self.counts: dict[str, int] = {}
+        self.log_period_s = float(log_period_s)
+        self._logged: dict[str, float] = {}
 
-    def add(self, kind: str) -> int:
-        """Count one rejection of ``kind``; return that kind's new count."""
+    def add(self, kind: str, now_s: float = math.inf) -> bool:
+        """Count one rejection of ``kind``; True if it should be logged (per-kind limit).
+
+        ``now_s``: a monotonic time [s]; the default logs only the first of each kind.
+        """
         self.counts[kind] = self.counts.get(kind, 0) + 1
-        return self.counts[kind]
+        last = self._logged.get(kind)
+        if last is None or now_s - last >= self.log_period_s:
+            self._logged[kind] = now_s
+            return True
+        return False
 
     @property
     def total(self) -> int:

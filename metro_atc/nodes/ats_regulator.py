@@ -15,7 +15,6 @@ energy-aware LQR of the seed 003 option (:mod:`metro_atc.core.atr.energy`).
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Any, Sequence
 
@@ -79,7 +78,6 @@ class AtsRegulator(Node):
         self.last_seq: dict[str, int] = {}
         """Sequence number of the last accepted event per train (events are 1, 2, ...)."""
         self.decision_time_s: list[float] = []
-        self._last_warn: dict[str, float] = {}
         self.pubs = [bulk_publisher(self, DepartureCommand, f"/{t}/departure_command",
                                     QOS_LATCHED) for t in self.ids]
         self.create_subscription(TrainEvent, "/line/events", self._on_event, QOS_EVENTS)
@@ -87,15 +85,6 @@ class AtsRegulator(Node):
             self._publish(d)
         self.get_logger().info(f"regulator '{self.regulator}' on '{self.scenario_name}': "
                                f"{n} trains, {m} stations")
-
-    def _warn(self, text: str) -> None:
-        """Count a rejection; log it at most once per second per kind of message."""
-        now = time.monotonic()
-        self.rejected += 1
-        key = text[:32]
-        if now - self._last_warn.get(key, -math.inf) > 1.0:
-            self._last_warn[key] = now
-            self.get_logger().warning(text)
 
     def _on_event(self, msg: TrainEvent) -> None:
         """Validate an event (conv.event_from_msg) and hand it to the dispatcher."""
@@ -107,9 +96,10 @@ class AtsRegulator(Node):
             d = conv.guarded("/line/events", self.dispatcher.on_event, ev["train_id"],
                              ev["station"], ev["kind"], ev["t_s"])
         except conv.MessageRejected as exc:
-            self.rejections.add(exc.kind)
-            self._warn(f"rejected event ({exc.kind}): {exc} [rejected so far: "
-                       f"{self.rejections.summary()}]")
+            self.rejected += 1
+            if self.rejections.add(exc.kind, time.monotonic()):  # per-kind rate limit
+                self.get_logger().warning(f"rejected event ({exc.kind}): {exc} [rejected so "
+                                          f"far: {self.rejections.summary()}]")
             return
         if d is not None:
             self.decision_time_s.append(time.perf_counter() - t0)

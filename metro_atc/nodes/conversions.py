@@ -106,8 +106,9 @@ def departure_from_msg(msg: DepartureCommand, topic: str, train_id: str,
     """Validate a DepartureCommand; return (station, departure_s, running_s, dwell_limit_s).
 
     The station is one a train departs from (not the terminus); the departure time is
-    within the run's service (from the timetable's first departure to the horizon) and equals the header stamp (the ATS stamps its commands with
-    the departure time); the running time is in (0, horizon]; ``dwell_limit_s`` is NaN (no
+    within the run's service (from the timetable's first departure to the horizon) and
+    equals the header stamp (the ATS stamps its commands with the departure time); the
+    running time is in [0, horizon]; ``dwell_limit_s`` is NaN (no
     dwell cut) or in [0, horizon]; the regulator code is defined.
     """
     _train(msg, topic, train_id)
@@ -243,9 +244,10 @@ def event_from_msg(msg: TrainEvent, topic: str, index: Mapping[str, int], b: Bou
     """Validate a TrainEvent; return a plain dict.
 
     The train is one of the line, the kind defined, the station on the line, the actual
-    time after the first step and within the horizon, and equal to the header stamp (the simulator stamps an event
-    with its time), the sequence the next one of the train (``last_seq``: the last accepted
-    per train; events of a train are numbered 1, 2, ... without gaps), times finite.
+    time after the first step and within the horizon, and equal to the header stamp (the
+    simulator stamps an event with its time), the sequence the next one of the train
+    (``last_seq``: the last accepted per train; events of a train are numbered 1, 2, ...
+    without gaps), times finite.
     """
     train_index(msg.train_id, index, topic)
     if msg.kind not in (TrainEvent.KIND_ARRIVAL, TrainEvent.KIND_DEPARTURE):
@@ -290,6 +292,7 @@ SENSOR_RANGES = {"wheel_angular_speed_radps": (-50.0, 1000.0),
                  "car_mass_kg": (1e3, 1e6)}
 """Plausible range of each finite sensor channel (beyond: the sample is rejected)."""
 
+
 def sensor_from_msg(msg: BrakeSensorData, topic: str, train_id: str, n_axles: int,
                     b: Bounds) -> dict[str, Any]:
     """Validate a BrakeSensorData; return its channels as a plain dict.
@@ -297,9 +300,8 @@ def sensor_from_msg(msg: BrakeSensorData, topic: str, train_id: str, n_axles: in
     Rejected: another train; a wrong number of axles; a stamp outside the run's horizon
     (a sample from the future within the horizon is handled by the receiver's
     out-of-order resynchronisation, see ``TrainBrakeWatch``); a finite channel value
-    outside ``SENSOR_RANGES``.  Non-finite channel values are
-    allowed (dropouts: the observer does not use them); ``car_mass`` is NaN when the
-    load-weigh signal is missing.
+    outside ``SENSOR_RANGES``.  Non-finite channel values are allowed (dropouts: the
+    observer does not use them); ``car_mass`` is NaN when the load-weigh signal is missing.
     """
     _train(msg, topic, train_id)
     w = np.asarray(msg.wheel_angular_speed_radps, dtype=float)
@@ -308,17 +310,18 @@ def sensor_from_msg(msg: BrakeSensorData, topic: str, train_id: str, n_axles: in
         raise Rejected("axles", f"{topic}: expected {n_axles} axles, got "
                        f"wheel_angular_speed_radps[{w.size}], clamp_force_n[{c.size}]")
     t = check_time(f"{topic}.header.stamp", from_time(msg.header.stamp), b)
-    vals = {"wheel_angular_speed_radps": w, "clamp_force_n": c,
-            "longitudinal_acceleration_mps2": float(msg.longitudinal_acceleration_mps2),
-            "reference_speed_mps": float(msg.reference_speed_mps),
-            "car_mass_kg": float(msg.car_mass_kg)}
+    vals: dict[str, Any] = {"wheel_angular_speed_radps": w, "clamp_force_n": c,
+                            "longitudinal_acceleration_mps2":
+                                float(msg.longitudinal_acceleration_mps2),
+                            "reference_speed_mps": float(msg.reference_speed_mps),
+                            "car_mass_kg": float(msg.car_mass_kg)}
     for name, v in vals.items():
         lo, hi = SENSOR_RANGES[name]
         a = np.atleast_1d(np.asarray(v, dtype=float))
         fin = a[np.isfinite(a)]
         if np.isinf(a).any() or ((fin < lo) | (fin > hi)).any():
             raise Rejected("range", f"{topic}.{name} outside [{lo:g}, {hi:g}]")
-    mass = vals["car_mass_kg"]
+    mass = float(vals["car_mass_kg"])
     return {"t_s": t, "omega": w, "clamp": c,
             "accel": vals["longitudinal_acceleration_mps2"],
             "ref_speed": vals["reference_speed_mps"],

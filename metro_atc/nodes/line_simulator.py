@@ -132,11 +132,11 @@ class LineSimulator(Node):
             self.get_logger().warning(text)
 
     def _reject(self, what: str, exc: conv.MessageRejected) -> None:
-        """Count a rejected message per kind; log it (throttled, with every kind's count)."""
+        """Count a rejected message per kind; log it (at most 1/s per kind, all counts)."""
         self.rejected += 1
-        self.rejections.add(exc.kind)
-        self.get_logger().warning(f"rejected {what} ({exc.kind}): {exc} [rejected so far: "
-                                  f"{self.rejections.summary()}]", throttle_duration_sec=1.0)
+        if self.rejections.add(exc.kind, time.monotonic()):  # per-kind rate limit
+            self.get_logger().warning(f"rejected {what} ({exc.kind}): {exc} [rejected so far: "
+                                      f"{self.rejections.summary()}]")
 
     def _on_command(self, i: int, msg: TractionCommand) -> None:
         """Take train i's command for the current step k only (see conv.traction_from_msg)."""
