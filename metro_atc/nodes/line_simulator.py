@@ -27,6 +27,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
+from metro_atc.core.ato_watchdog import AtoWatchdog
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.plant.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, bounds_for
@@ -77,6 +78,10 @@ class LineSimulator(Node):
         self.progress_period_s = declare(self, "progress_period_s", 600.0,
                                          "simulated time between progress log lines [s]",
                                          1.0, 1e6)
+        self.ato_lost_steps = declare(
+            self, "ato_lost_steps", 8,
+            "a train whose ATO misses this many consecutive steps is braked to a stop "
+            "(CBTC fault) until its ATO answers again", 1, 1_000_000)
         self._next_progress_t = self.progress_period_s
         self._wall0 = time.monotonic()
         try:
@@ -87,6 +92,8 @@ class LineSimulator(Node):
         self.bounds = bounds_for(scn)
         self.rejections = Rejections()
         """Rejected input messages per kind (:mod:`metro_atc.core.validate`)."""
+        self.watchdog = AtoWatchdog(len(self.sim.train_ids), int(self.ato_lost_steps))
+        """Lost-ATO decision (:mod:`metro_atc.core.ato_watchdog`)."""
         self.ids: list[str] = list(self.sim.train_ids)
         self.index = {tid: i for i, tid in enumerate(self.ids)}
         n = len(self.ids)
@@ -212,7 +219,11 @@ class LineSimulator(Node):
             self._warn_rate_limited(
                 "lockstep", f"lockstep step {self.k}: no command from {', '.join(missing[:5])}"
                 f"{' ...' if len(missing) > 5 else ''}; applying the last command")
-        res = self.sim.step(self.cmd_effort.copy())
+        effort, wd_events = self.watchdog.apply(self.k, active, self.cmd_step >= self.k,
+                                                self.cmd_effort)
+        for e in wd_events:
+            self._log_watchdog(e)
+        res = self.sim.step(effort)
         self.k += 1
         for ev in res.events:
             self.event_seq[ev.train_idx] += 1
@@ -233,6 +244,16 @@ class LineSimulator(Node):
             self.status_pub.publish(conv.line_status_msg(self.kpis(), self.k, t, done))
         if done:
             self.finished = True
+
+    def _log_watchdog(self, e: Any) -> None:
+        """Log a lost ATO (error) or its return (info)."""
+        t = f"{self.ids[e.train]} at t={float(self.sim.t):.2f} s (step {e.step})"
+        if e.kind == "lost":
+            self.get_logger().error(f"ATO of {t} lost: no command for {e.missed} steps; "
+                                    "braking the train to a stop")
+        else:
+            self.get_logger().warning(f"ATO of {t} back after {e.missed} missed steps; "
+                                      "handing the train back")
 
     def publish_sensors(self, block: Any) -> None:
         """Publish the step's brake sensor samples (all while braking, else at the idle period).
@@ -267,6 +288,8 @@ class LineSimulator(Node):
         k["rejected_messages"] = int(self.rejected)
         k["rejected_by_kind"] = self.rejections.as_dict()
         k["ats_timeouts"] = int(self.ats_misses)
+        k["ato_losses"] = int(self.watchdog.losses)
+        k["ato_stop_steps"] = int(self.watchdog.stop_steps)
         k["steps"] = int(self.k)
         k["scenario"] = self.scenario_name
         k["lockstep"] = bool(self.lockstep)
