@@ -318,3 +318,41 @@ def test_run_refuses_hostile_scenario(case: str, tmp_path: Path) -> None:
     assert r.returncode == 2, r.stderr[-2000:]
     err = r.stderr.strip()
     assert "\n" not in err and len(err) < 300 and "Traceback" not in err, err[:500]
+
+
+def test_hostile_scenarios_bounded_memory(tmp_path: Path) -> None:
+    """Every hostile scenario of the issue, loaded in one fresh process: all refused with a
+    ScenarioError, peak RSS below 500 MB (the alias bomb and the 1e7 m line included)."""
+    lines = ['a0: &a0 ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]']
+    lines += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 9)}]" for i in range(1, 13)]
+    far = _mini()
+    far["line"]["stations"][0]["position_m"] = -1e7 + 1.0
+    far["line"]["stations"][-1]["position_m"] = 1e7 - 1.0
+    big = _mini()
+    big["trains"]["count"] = 10 ** 400
+    grade = _mini()
+    grade["line"]["gradients"] = [{"start_m": 0.0, "grade_permille": -40.0}]
+    grade.setdefault("signalling", {})["guaranteed_decel_mps2"] = 0.3
+    cases = {"bomb.yaml": "\n".join(lines), "deep.yaml": "[" * 50_000 + "]" * 50_000,
+             "list.yaml": "[" + ",".join(["1"] * 300_000) + "]",
+             "far.yaml": yaml.safe_dump(far), "grade.yaml": yaml.safe_dump(grade),
+             "big.yaml": yaml.safe_dump(big, width=10 ** 6)}
+    paths = []
+    for name, text in cases.items():
+        (tmp_path / name).write_text(text)
+        paths.append(str(tmp_path / name))
+    code = ("import resource, sys\n"
+            "from metro_atc.core.plant.scenario import ScenarioError, load_scenario\n"
+            "for p in sys.argv[1:]:\n"
+            "    try:\n"
+            "        load_scenario(p)\n"
+            "        print('LOADED', p)\n"
+            "    except ScenarioError as e:\n"
+            "        assert '\\n' not in str(e) and len(str(e)) < 300, str(e)[:400]\n"
+            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n")
+    r = subprocess.run([sys.executable, "-c", code, *paths], capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "LOADED" not in r.stdout, r.stdout
+    peak_kb = int(r.stdout.split()[-1])
+    assert peak_kb < 500 * 1024, peak_kb

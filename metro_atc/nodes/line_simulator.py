@@ -246,7 +246,7 @@ class LineSimulator(Node):
             self.finished = True
 
     def _log_watchdog(self, e: Any) -> None:
-        """Log a lost ATO (error) or its return (info)."""
+        """Log a lost ATO (error) or its return (warning)."""
         t = f"{self.ids[e.train]} at t={float(self.sim.t):.2f} s (step {e.step})"
         if e.kind == "lost":
             self.get_logger().error(f"ATO of {t} lost: no command for {e.missed} steps; "
