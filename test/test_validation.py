@@ -149,6 +149,11 @@ def test_step_window_resync() -> None:
             w.accept(k)
     assert w.accept(103) == "next" and w.last == 103
     assert w.accept(104) == "next"
+    # a simulator restarted behind, re-sending the step it waits on, is followed too
+    for _ in range(3):
+        with pytest.raises(Rejected):
+            w.accept(50)
+    assert w.accept(50) == "next" and w.accept(51) == "next"
 
 
 # --------------------------------------------------------------------------- events, sensors

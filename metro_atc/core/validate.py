@@ -173,8 +173,9 @@ class StepWindow:
     :meth:`accept` returns ``"next"`` for the step after the last accepted one (or the
     first ever), ``"again"`` for the last accepted step (a re-send), and raises
     :class:`Rejected` (kind ``step``) otherwise.  A sender that really jumped (a restarted
-    simulator) is followed after ``resync`` consecutive consistent steps outside the
-    window; a random step never builds such a run.
+    simulator, possibly behind) is followed after ``resync`` consecutive consistent states
+    outside the window (each the same step again or the next one: a lockstep simulator
+    re-sends the step it waits on); a random step never builds such a run.
     """
 
     def __init__(self, resync: int = 4) -> None:
@@ -194,7 +195,7 @@ class StepWindow:
         if s == self.last:
             return "again"
         if self._cand is not None and s in (self._cand, self._cand + 1):
-            self._cand_n += s - self._cand
+            self._cand_n += 1  # the next step, or the same one re-sent (a waiting lockstep)
         else:
             self._cand_n = 1
         self._cand = s
