@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -71,3 +73,61 @@ def test_dead_ato_at_full_traction_is_braked_to_a_stop() -> None:
     v_end_wd, v_dead = speeds[True]
     assert v_end_wd < 0.05, speeds
     assert speeds[False][0] > 1.0, speeds  # the contrast: without it the train runs on
+
+
+@pytest.mark.integration
+def test_simulator_stops_a_train_whose_ato_goes_silent(installed: Any, ros_env: Any,
+                                                       probe: Any, tmp_path: Any) -> None:
+    """The line_simulator node with a probe as the ATOs: train_01's ATO commands full
+    traction, then goes silent; the node logs the loss, brakes the train to a standstill,
+    and hands it back when the ATO answers again."""
+    import threading
+
+    from metro_atc_msgs.msg import TractionCommand, TrainState
+
+    from harness import NodeProcess
+    from metro_atc.nodes.common import QOS_RELIABLE
+
+    alive = threading.Event()
+    alive.set()
+    speeds: list[tuple[int, float]] = []
+    pubs = {t: probe.publisher(TractionCommand, f"/{t}/command", QOS_RELIABLE)
+            for t in ("train_01", "train_02")}
+
+    def answer(m: Any) -> None:
+        if m.train_id == "train_01":
+            speeds.append((int(m.step), float(m.speed_mps)))
+            if not alive.is_set():
+                return
+        c = TractionCommand(train_id=m.train_id, step=m.step, mode=2,
+                            effort=1.0 if m.train_id == "train_01" else 0.0)
+        c.header.stamp = m.header.stamp
+        pubs[m.train_id].publish(c)
+
+    for t in pubs:
+        probe.node.create_subscription(TrainState, f"/{t}/state", answer, QOS_RELIABLE)
+    p = NodeProcess.installed("line_simulator", ["-p", "scenario:=mini",
+                                                 "-p", "startup_timeout_s:=5.0",
+                                                 "-p", "step_timeout_s:=0.05",
+                                                 "-p", "ato_lost_steps:=4"],
+                              ros_env, tmp_path)
+    try:
+        assert probe.wait_for(lambda: any(v > 8.0 for _, v in speeds), timeout=60), p.log()
+        alive.clear()
+        n0 = len(speeds)
+        assert p.wait_for_log("ATO of train_01", timeout=30), p.log()
+        assert "lost: no command for 4 steps" in p.log()
+        assert probe.wait_for(lambda: speeds[-1][1] < 0.01, timeout=60), speeds[-5:]
+        k_stop = speeds[-1][0]
+        alive.set()
+        assert p.wait_for_log("back after", timeout=30), p.log()
+        assert probe.wait_for(lambda: speeds[-1][0] > k_stop + 20, timeout=30)
+    finally:
+        code = p.stop()
+    assert code == 0 and "Traceback" not in p.log()
+    # silent ATO: the last command (full traction) for at most the 4 missed steps (+1 in
+    # flight), then only deceleration until the train stands
+    tail = [v for k, v in speeds[n0:] if k <= k_stop]
+    j = int(np.argmax(tail))
+    assert j <= 6, tail[:10]
+    assert all(b <= a + 1e-6 for a, b in zip(tail[j:], tail[j + 1:])), tail
