@@ -219,6 +219,9 @@ def test_future_sample_does_not_poison_the_stream() -> None:
            for i in range(3 * RESYNC_SAMPLES)]
     assert out[:RESYNC_SAMPLES - 1] == ["out_of_order"] * (RESYNC_SAMPLES - 1)
     assert "out_of_order" not in out[RESYNC_SAMPLES - 1:]
+    # the observer itself follows the genuine stream again (its time base was reset)
+    assert w.obs.t_last == pytest.approx(10.0 + 0.05 * (3 * RESYNC_SAMPLES - 1))
+    assert w.result.measurement_used
 
 
 # --------------------------------------------------------------------------- property

@@ -262,6 +262,10 @@ class TrainBrakeWatch:
         if self._ooo_n >= RESYNC_SAMPLES:
             self._ooo_n, self._ooo_last = 0, -math.inf
             self.t_last = -math.inf
+            # the filter's time base is the outlier's too: restart it from the next sample
+            # (latched flaws stay)
+            self.obs.ukf = None
+            self.obs.t_last = None
             return True
         return False
 
