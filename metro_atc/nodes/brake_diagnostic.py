@@ -28,10 +28,13 @@ wall-clock speed.  A timer on the node clock publishes when no sample arrived du
 period (no data yet, train out of service, sensors silent).
 
 **Robustness.**  A sample with a wrong number of axles, a train id that does not match
-the topic, or a stamp not after the previous one (out of order / duplicate) is rejected
-(not used at all); a sample with NaN channels (dropouts) is used with those channels left
-out of the measurement update (predict only when no speed channel is left; the clamp force
-is held).  Each kind is logged at most once per ``log_period_s`` (wall) per train with the
+the topic, a stamp outside the run's horizon, an implausible channel value
+(:func:`metro_atc.nodes.conversions.sensor_from_msg`), or a stamp not after the previous
+one (out of order / duplicate) is rejected (not used at all; ``RESYNC_SAMPLES`` in-order
+samples behind a future-stamped one re-synchronise the stream and restart the filter);
+a sample with NaN channels (dropouts) is used with those channels left out of the
+measurement update (predict only when no speed channel is left; the clamp force is
+held).  Each kind is logged at most once per ``log_period_s`` (wall) per train with the
 number suppressed.  The observer never outputs NaN (see its robustness contract).
 
 **Consist adaptation (the instrumented car is a trailer inside a 6-car train).**  The
