@@ -11,11 +11,24 @@ else
   source "$_METRO_ATC_ROOT/.venv/local_setup.bash"
 fi
 source "$_METRO_ATC_ROOT/install/local_setup.bash"
-export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
-# Fast DDS profile with a short participant announcement period (faster discovery on
-# loopback). Set FASTRTPS_DEFAULT_PROFILES_FILE yourself to override, or to "" to disable.
-if [ -z "${FASTRTPS_DEFAULT_PROFILES_FILE+x}" ]; then
-  export FASTRTPS_DEFAULT_PROFILES_FILE="$_METRO_ATC_ROOT/config/fastdds_profile.xml"
+# DDS stays on loopback (Fast DDS profile: shared memory + UDP bound to 127.0.0.1 only, no
+# multicast; ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST when you bring your own profile).
+# METRO_ATC_DDS=multihost opens it: default transports on every interface,
+# multicast discovery, ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET. Set
+# FASTRTPS_DEFAULT_PROFILES_FILE yourself to override the profile, or to "" to disable it.
+if [ "${METRO_ATC_DDS:-loopback}" = "multihost" ]; then
+  export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-SUBNET}"
+  _METRO_ATC_PROFILE="$_METRO_ATC_ROOT/config/fastdds_profile_multihost.xml"
+elif [ -z "${FASTRTPS_DEFAULT_PROFILES_FILE+x}" ]; then
+  # the profile binds to loopback itself; the rmw's LOCALHOST mode would add a UDP transport
+  # with sockets on 0.0.0.0 and on every interface address
+  export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-SYSTEM_DEFAULT}"
+  _METRO_ATC_PROFILE="$_METRO_ATC_ROOT/config/fastdds_profile.xml"
 fi
+export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
+if [ -z "${FASTRTPS_DEFAULT_PROFILES_FILE+x}" ] && [ -n "${_METRO_ATC_PROFILE:-}" ]; then
+  export FASTRTPS_DEFAULT_PROFILES_FILE="$_METRO_ATC_PROFILE"
+fi
+unset _METRO_ATC_PROFILE
 export PYTHONDONTWRITEBYTECODE=1
 unset _METRO_ATC_ROOT

@@ -15,6 +15,7 @@ import argparse
 import json
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -90,12 +91,45 @@ def _ros_args(params: dict[str, Any], params_file: Path | None) -> list[str]:
     if params_file is not None and params_file.is_file():
         args += ["--params-file", str(params_file)]
     for k, v in params.items():
-        if isinstance(v, bool):
-            v = "true" if v else "false"
-        elif isinstance(v, (list, tuple)):
-            v = "[" + ",".join(str(x) for x in v) + "]"
-        args += ["-p", f"{k}:={v}"]
+        args += ["-p", f"{k}:={ros_param_value(v)}"]
     return args
+
+
+def ros_param_value(v: Any) -> str:
+    """A ``-p name:=value`` value that rcl's YAML parser reads back as exactly ``v``.
+
+    A string that YAML would read as something else (a path containing ``": "``, ``#``,
+    ``[`` or ``,``, or a word like ``true``) is JSON-quoted (a JSON string is a YAML
+    double-quoted scalar); plain names and paths stay as they are.
+    """
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (list, tuple)):
+        return "[" + ",".join(ros_param_value(x) for x in v) + "]"
+    if isinstance(v, str):
+        import yaml
+        plain = re.fullmatch(r"[A-Za-z0-9_./~+-]+", v) is not None
+        try:
+            plain = plain and yaml.safe_load(v) == v
+        except yaml.YAMLError:
+            plain = False
+        return v if plain else json.dumps(v)
+    return str(v)
+
+
+def check_out_dir(out_dir: Path) -> str | None:
+    """Create ``out_dir`` and check a file can be written in it; return an error line or None.
+
+    Called before any node starts (an unwritable directory would otherwise lose the KPIs
+    at the end of the run).
+    """
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=out_dir, prefix=".write_check_"):
+            pass
+    except OSError as exc:
+        return f"output directory {out_dir}: not writable ({exc.strerror or exc})"
+    return None
 
 
 def build_commands(a: argparse.Namespace, train_ids: Sequence[str],
@@ -142,16 +176,20 @@ def _stop(procs: list[tuple[str, subprocess.Popen[bytes]]], grace_s: float = 5.0
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one scenario through the graph; print KPIs (``--json``: one JSON object)."""
     a = _parser().parse_args(argv)
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    from metro_atc.nodes.common import dds_defaults
+    dds_defaults()
     from metro_atc.core.line.scenario import ScenarioError, load_scenario
     try:
         scn = load_scenario(a.scenario)
-    except ScenarioError as exc:
+        train_ids = list(scenario_train_ids(scn))
+    except (ScenarioError, ValueError) as exc:
         print(f"metro_atc run: error: {exc}", file=sys.stderr)
         return 2
-    train_ids = list(scenario_train_ids(scn))
     out_dir = Path(a.out) if a.out else Path(tempfile.mkdtemp(prefix="metro_atc_run_"))
-    out_dir.mkdir(parents=True, exist_ok=True)
+    problem = check_out_dir(out_dir)
+    if problem:
+        print(f"metro_atc run: error: {problem}", file=sys.stderr)
+        return 2
     t0 = time.monotonic()
     if a.single_process:
         from metro_atc.nodes.graph import run_single_process

@@ -34,6 +34,7 @@ def test_node_answers_arrivals_with_departure_commands(installed: Path, ros_env:
     from metro_atc_msgs.msg import DepartureCommand, TrainEvent
 
     from metro_atc.nodes.common import QOS_EVENTS, QOS_LATCHED
+    from metro_atc.nodes.conversions import to_time
 
     cmds = probe.subscribe(DepartureCommand, "/train_01/departure_command", QOS_LATCHED)
     pub = probe.publisher(TrainEvent, "/line/events", QOS_EVENTS)
@@ -47,8 +48,11 @@ def test_node_answers_arrivals_with_departure_commands(installed: Path, ros_env:
 
         def event(kind: int, station: int, t: float, seq: int,
                   train: str = "train_01") -> TrainEvent:
-            return TrainEvent(train_id=train, kind=kind, station_index=station,
-                              actual_time_s=t, sequence=seq)
+            ev = TrainEvent(train_id=train, kind=kind, station_index=station,
+                            actual_time_s=t, sequence=seq)
+            if math.isfinite(t):  # the simulator stamps an event with its time
+                ev.header.stamp = to_time(t)
+            return ev
 
         dep0 = cmds[-1].departure_time_s
         pub.publish(event(TrainEvent.KIND_DEPARTURE, 0, dep0, 1))

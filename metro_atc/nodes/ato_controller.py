@@ -32,9 +32,11 @@ from metro_atc.core.ato.planner import PLANNERS, Profile
 from metro_atc.core.bridge import ato_limits_for, timetable_for, track_for, train_for
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.simple_ato import FlatOutTracker
+from metro_atc.core.validate import Rejections, StepWindow, bounds_for
 from metro_atc.nodes import conversions as conv
-from metro_atc.nodes.common import (QOS_LATCHED, QOS_RELIABLE, NodeConfigError, bulk_publisher,
-                                    bulk_subscription, declare, run_nodes, spin_fast)
+from metro_atc.nodes.common import (QOS_LATCHED, QOS_LATCHED_IN, QOS_RELIABLE, NodeConfigError,
+                                    bulk_publisher, bulk_subscription, declare, run_nodes,
+                                    spin_fast)
 
 _STOP_GUARD = 0.85
 """Deceleration needed to stop at the platform, as a share of the service brake, above
@@ -103,13 +105,18 @@ class AtoController(Node):
         self.cur_station = -1
         self.last_mode = -1
         self.rejected = 0
+        self.rejections = Rejections()
+        """Rejected input messages per kind (:mod:`metro_atc.core.validate`)."""
+        self.bounds = bounds_for(scenario)
+        self.steps = StepWindow()
+        self._last_cmd: TractionCommand | None = None
         self._last_warn: dict[str, float] = {}
         self.cmd_pub = bulk_publisher(self, TractionCommand, "command", QOS_RELIABLE)
         self.profile_pub = bulk_publisher(self, SpeedProfile, "speed_profile", QOS_LATCHED)
         self.fast_subs = [
             bulk_subscription(self, TrainState, "state", self._on_state, QOS_RELIABLE),
             bulk_subscription(self, DepartureCommand, "departure_command", self._on_departure,
-                              QOS_LATCHED)]
+                              QOS_LATCHED_IN)]
 
     def _warn(self, key: str, text: str) -> None:
         now = time.monotonic()
@@ -118,24 +125,32 @@ class AtoController(Node):
             self.get_logger().warning(text)
 
     # ------------------------------------------------------------------ planning
+    def _reject(self, what: str, exc: conv.MessageRejected) -> None:
+        """Count a rejected message per kind; log it (at most 1/s per kind, all counts)."""
+        self.rejected += 1
+        if self.rejections.add(exc.kind, time.monotonic()):  # per-kind rate limit
+            self.get_logger().warning(f"rejected {what} ({exc.kind}): {exc} [rejected so far: "
+                                      f"{self.rejections.summary()}]")
+
     def _on_departure(self, msg: DepartureCommand) -> None:
         topic = f"/{self.train_id}/departure_command"
         try:
-            if msg.train_id != self.train_id:
-                raise conv.MessageRejected(f"{topic}: train_id '{msg.train_id}' is not "
-                                           f"'{self.train_id}'")
-            st, dep, run, _dwell = conv.departure_from_msg(msg, topic, len(self.stations))
+            st, dep, run, _dwell = conv.departure_from_msg(msg, topic, self.train_id,
+                                                           self.bounds)
+            conv.guarded(topic, self._take_departure, st, dep, run,
+                         conv.from_time(msg.header.stamp))
         except conv.MessageRejected as exc:
-            self.rejected += 1
-            self._warn("departure", f"rejected departure command: {exc}")
-            return
+            self._reject("departure command", exc)
+
+    def _take_departure(self, st: int, dep: float, run: float, stamp_s: float) -> None:
+        """Remember a validated departure command; pre-plan while standing."""
         if st + 1 >= len(self.stations) or st < self.cur_station:
             return  # the terminus, or a station already left (an ATS replaying its history)
         self.commands[st] = (dep, run)
         if self.last_mode in (-1, TrainState.MODE_OUT_OF_SERVICE, TrainState.MODE_DWELL):
             # pre-plan while standing (publishes the profile early, warms the plan cache);
             # the run is planned definitively from the state at departure
-            self._plan(st, run, conv.from_time(msg.header.stamp))
+            self._plan(st, run, stamp_s)
 
     def _plan(self, st: int, target_s: float, stamp_s: float, late: bool = False) -> None:
         """Plan the run from station ``st`` to ``st + 1`` and publish the profile."""
@@ -168,20 +183,25 @@ class AtoController(Node):
 
     # ------------------------------------------------------------------ tracking
     def _on_state(self, msg: TrainState) -> None:
+        """Answer a validated state with the command for its step.
+
+        A rejected state gets no answer (the plan and the tracker are left as they are:
+        the simulator keeps waiting for this train's genuine state of the step); a re-sent
+        state gets the same command again without running the tracker twice.
+        """
         topic = f"/{self.train_id}/state"
         try:
-            if msg.train_id != self.train_id:
-                raise conv.MessageRejected(f"{topic}: train_id '{msg.train_id}' is not "
-                                           f"'{self.train_id}'")
-            s = conv.state_from_msg(msg, topic)
+            s = conv.state_from_msg(msg, topic, self.train_id, self.bounds, self.steps)
+            last = self._last_cmd
+            if s["again"] and last is not None and int(last.step) == s["step"]:
+                self.cmd_pub.publish(last)
+                return
+            effort, mode = conv.guarded(topic, self.control, s)
         except conv.MessageRejected as exc:
-            self.rejected += 1
-            self._warn("state", f"rejected state: {exc}; commanding full service brake")
-            self.cmd_pub.publish(conv.traction_msg(self.train_id, int(msg.step), 0.0, -1.0,
-                                                   TrainState.MODE_BRAKE))
+            self._reject("state", exc)
             return
-        effort, mode = self.control(s)
-        self.cmd_pub.publish(conv.traction_msg(self.train_id, s["step"], s["t_s"], effort, mode))
+        self._last_cmd = conv.traction_msg(self.train_id, s["step"], s["t_s"], effort, mode)
+        self.cmd_pub.publish(self._last_cmd)
 
     def control(self, s: dict[str, Any]) -> tuple[float, int]:
         """Effort in [-1, 1] and intended mode for one state."""
@@ -245,6 +265,10 @@ def build_nodes() -> list[Node]:
     ns = probe.get_namespace().strip("/")
     probe.destroy_node()
     ids = [t for t in ids if t] or ([ns] if ns else [])
+    dup = sorted({t for t in ids if ids.count(t) > 1})
+    if dup:
+        raise NodeConfigError(f"train_ids: {', '.join(dup)} given more than once "
+                              "(one ATO per train)")
     if not ids:
         raise NodeConfigError("no train: set -p train_ids:=[train_01,...] or run in a "
                               "train namespace (-r __ns:=/train_01)")

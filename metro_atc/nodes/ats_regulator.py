@@ -15,7 +15,6 @@ energy-aware LQR of the seed 003 option (:mod:`metro_atc.core.atr.energy`).
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Any, Sequence
 
@@ -26,6 +25,7 @@ from rclpy.node import Node
 from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.dispatch import Dispatch, make_dispatcher
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
+from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_EVENTS, QOS_LATCHED, NodeConfigError, bulk_publisher,
                                     declare, run_nodes)
@@ -59,6 +59,7 @@ class AtsRegulator(Node):
                             "timetable departure plus this [s]", 0.0, 3600.0)
         try:
             scn = load_scenario(self.scenario_name)
+            self.bounds = bounds_for(scn)
             self.dispatcher = make_dispatcher(
                 scn, self.regulator, weights_file, CostWeights(q=q, r=r, horizon=horizon),
                 w_energy, hold_max, tolerance)
@@ -71,8 +72,12 @@ class AtsRegulator(Node):
         n, m = len(self.ids), len(self.tt.station_names)
         self.cmd_seq = np.zeros(n, dtype=np.int64)
         self.rejected = 0
+        self.rejections = Rejections()
+        """Rejected events per kind (:mod:`metro_atc.core.validate`)."""
+        self.index = {t: i for i, t in enumerate(self.ids)}
+        self.last_seq: dict[str, int] = {}
+        """Sequence number of the last accepted event per train (events are 1, 2, ...)."""
         self.decision_time_s: list[float] = []
-        self._last_warn: dict[str, float] = {}
         self.pubs = [bulk_publisher(self, DepartureCommand, f"/{t}/departure_command",
                                     QOS_LATCHED) for t in self.ids]
         self.create_subscription(TrainEvent, "/line/events", self._on_event, QOS_EVENTS)
@@ -81,26 +86,20 @@ class AtsRegulator(Node):
         self.get_logger().info(f"regulator '{self.regulator}' on '{self.scenario_name}': "
                                f"{n} trains, {m} stations")
 
-    def _warn(self, text: str) -> None:
-        """Count a rejection; log it at most once per second per kind of message."""
-        now = time.monotonic()
-        self.rejected += 1
-        key = text[:48]
-        if now - self._last_warn.get(key, -math.inf) > 1.0:
-            self._last_warn[key] = now
-            self.get_logger().warning(text)
-
     def _on_event(self, msg: TrainEvent) -> None:
-        try:
-            ev = conv.event_from_msg(msg, "/line/events")
-        except conv.MessageRejected as exc:
-            self._warn(f"rejected event: {exc}")
-            return
+        """Validate an event (conv.event_from_msg) and hand it to the dispatcher."""
         t0 = time.perf_counter()
         try:
-            d = self.dispatcher.on_event(ev["train_id"], ev["station"], ev["kind"], ev["t_s"])
-        except ValueError as exc:
-            self._warn(f"rejected event on /line/events: {exc}")
+            ev = conv.event_from_msg(msg, "/line/events", self.index, self.bounds,
+                                     self.last_seq)
+            self.last_seq[ev["train_id"]] = ev["sequence"]
+            d = conv.guarded("/line/events", self.dispatcher.on_event, ev["train_id"],
+                             ev["station"], ev["kind"], ev["t_s"])
+        except conv.MessageRejected as exc:
+            self.rejected += 1
+            if self.rejections.add(exc.kind, time.monotonic()):  # per-kind rate limit
+                self.get_logger().warning(f"rejected event ({exc.kind}): {exc} [rejected so "
+                                          f"far: {self.rejections.summary()}]")
             return
         if d is not None:
             self.decision_time_s.append(time.perf_counter() - t0)

@@ -28,10 +28,13 @@ wall-clock speed.  A timer on the node clock publishes when no sample arrived du
 period (no data yet, train out of service, sensors silent).
 
 **Robustness.**  A sample with a wrong number of axles, a train id that does not match
-the topic, or a stamp not after the previous one (out of order / duplicate) is rejected
-(not used at all); a sample with NaN channels (dropouts) is used with those channels left
-out of the measurement update (predict only when no speed channel is left; the clamp force
-is held).  Each kind is logged at most once per ``log_period_s`` (wall) per train with the
+the topic, a stamp outside the run's horizon, an implausible channel value
+(:func:`metro_atc.nodes.conversions.sensor_from_msg`), or a stamp not after the previous
+one (out of order / duplicate) is rejected (not used at all; ``RESYNC_SAMPLES`` in-order
+samples behind a future-stamped one re-synchronise the stream and restart the filter);
+a sample with NaN channels (dropouts) is used with those channels left out of the
+measurement update (predict only when no speed channel is left; the clamp force is
+held).  Each kind is logged at most once per ``log_period_s`` (wall) per train with the
 number suppressed.  The observer never outputs NaN (see its robustness contract).
 
 **Consist adaptation (the instrumented car is a trailer inside a 6-car train).**  The
@@ -103,6 +106,7 @@ from metro_atc.core.brake import metro_car as mc
 from metro_atc.core.line.adhesion import CURVES, AdhesionCurve
 from metro_atc.core.line.rolling_stock import train_params_for
 from metro_atc.core.line.scenario import Scenario, ScenarioError, load_scenario
+from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_LATCHED, QOS_RELIABLE, NodeConfigError,
                                     bulk_publisher, bulk_subscription, declare, run_nodes,
@@ -152,6 +156,9 @@ V_MIN_CREEP = 4.0
 BRAKED_CLAMP_N = 5000.0
 """Mean clamp force above which a sample counts as a friction-brake application [N]."""
 LEVEL_NAMES = ("OK", "WARN", "ERROR")
+RESYNC_SAMPLES = 10
+"""Consecutive in-order samples behind the last accepted stamp after which the stream is
+followed again (a sample from the future does not poison it; 0.5 s at 20 Hz)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -235,11 +242,35 @@ class TrainBrakeWatch:
         self.judged: list[float] = []
         """Every mu_b_hat with std below ``MU_B_STD_JUDGE`` (for the shutdown summary)."""
         self._t_used = -math.inf
+        self._ooo_n = 0
+        self._ooo_last = -math.inf
 
     def reject(self) -> None:
         """Count a sample rejected before :meth:`feed` (malformed, wrong train id)."""
         self.counts["received"] += 1
         self.counts["rejected"] += 1
+
+    def _resync(self, t: float) -> bool:
+        """True once ``RESYNC_SAMPLES`` out-of-order samples in a row are in order.
+
+        A sample stamped in the future (within the run's horizon) would otherwise make
+        every later genuine sample "out of order"; a consistent stream behind it shows the
+        earlier stamp was the outlier, and the stream is followed again.
+        """
+        if t > self._ooo_last:
+            self._ooo_n += 1
+        else:
+            self._ooo_n = 1
+        self._ooo_last = t
+        if self._ooo_n >= RESYNC_SAMPLES:
+            self._ooo_n, self._ooo_last = 0, -math.inf
+            self.t_last = -math.inf
+            # the filter's time base is the outlier's too: restart it from the next sample
+            # (latched flaws stay)
+            self.obs.ukf = None
+            self.obs.t_last = None
+            return True
+        return False
 
     def _virtual_accel(self, t: float, vref: float) -> float:
         """Specific force of the car's own axles at the last posterior [m/s^2] (or NaN).
@@ -270,9 +301,10 @@ class TrainBrakeWatch:
         c = self.counts
         c["received"] += 1
         t = float(s["t_s"])
-        if not t > self.t_last:
+        if not t > self.t_last and not self._resync(t):
             c["rejected"] += 1
             return "out_of_order"
+        self._ooo_n = 0
         if math.isfinite(self.t_last) and t - self.t_last > self.max_gap[0]:
             self.max_gap = (t - self.t_last, self.t_last)
         self.t_last = t
@@ -379,6 +411,9 @@ class BrakeDiagnostic(Node):
         except ScenarioError as exc:
             raise NodeConfigError(str(exc)) from None
         setup = observer_setup(scn)
+        self.bounds = bounds_for(scn)
+        self.rejections = Rejections()
+        """Rejected samples per kind (:mod:`metro_atc.core.validate`; out_of_order too)."""
         self.ids = list(scn.sensors.trains or scn.train_ids)
         self.watch = {t: TrainBrakeWatch(t, setup) for t in self.ids}
         self._logged: dict[tuple[str, str], tuple[float, int]] = {}
@@ -414,16 +449,15 @@ class BrakeDiagnostic(Node):
         w = self.watch[train_id]
         topic = f"/{train_id}/brake_sensors"
         try:
-            if msg.train_id != train_id:
-                raise conv.MessageRejected(f"{topic}: train_id '{msg.train_id}' does not "
-                                           f"match the topic")
-            s = conv.sensor_from_msg(msg, topic, N_AXLES)
+            s = conv.sensor_from_msg(msg, topic, train_id, N_AXLES, self.bounds)
+            what = conv.guarded(topic, w.feed, s)
         except conv.MessageRejected as exc:
             w.reject()
-            self._log_bounded(train_id, "rejected", f"skipped sample: {exc}")
+            self.rejections.add(exc.kind)
+            self._log_bounded(train_id, exc.kind, f"skipped sample ({exc.kind}): {exc}")
             return
-        what = w.feed(s)
         if what == "out_of_order":
+            self.rejections.add(what)
             self._log_bounded(train_id, what,
                               f"skipped sample: {topic}: stamp {s['t_s']:.3f} s is not after "
                               f"{w.t_last:.3f} s (out of order)")

@@ -41,6 +41,13 @@ QOS_LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 """Latest-value topics (departure command, speed profile, line status): late joiners catch up."""
 
+QOS_LATCHED_IN = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                            reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
+"""Reader side of a latched command topic (compatible with QOS_LATCHED writers): a deep
+queue, so that a burst of invalid messages from another writer cannot push the valid
+command out before the node takes it (keyless topics share one history)."""
+
 QOS_EVENTS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10000,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -143,8 +150,24 @@ def spin_fast(executor: SingleThreadedExecutor, nodes: Sequence[Node],
 
 
 def dds_defaults() -> None:
-    """Apply the project's DDS defaults unless the user set them (loopback discovery)."""
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    """Apply the project's DDS defaults unless the user configured DDS: loopback only.
+
+    With Fast DDS and neither ``FASTRTPS_DEFAULT_PROFILES_FILE`` nor
+    ``ROS_AUTOMATIC_DISCOVERY_RANGE`` set (a shell without ``env.sh``), the installed
+    loopback profile ``config/fastdds_profile.xml`` is used with the discovery range
+    ``SYSTEM_DEFAULT`` (the rmw's ``LOCALHOST`` mode adds sockets on every interface);
+    otherwise the range defaults to ``LOCALHOST``.  Must run before ``rclpy.init``.
+    """
+    env = os.environ
+    if "FASTRTPS_DEFAULT_PROFILES_FILE" not in env and \
+            "ROS_AUTOMATIC_DISCOVERY_RANGE" not in env and \
+            env.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp") == "rmw_fastrtps_cpp":
+        from metro_atc.launcher import config_dir
+        profile = config_dir() / "fastdds_profile.xml"
+        if profile.is_file():
+            env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(profile)
+            env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SYSTEM_DEFAULT"
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 
 def declare(node: Node, name: str, default: Any, description: str,
@@ -204,6 +227,7 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
     try:
         try:
             nodes = factory()
+            check_overrides(nodes, argv)
         except (NodeConfigError, ParameterException, ValueError, TypeError) as exc:
             print(f"{name}: error: {_one_line(exc)}", file=sys.stderr)
             return 2
@@ -230,13 +254,27 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
     return code
 
 
+def check_overrides(nodes: Sequence[Node], argv: Sequence[str]) -> None:
+    """Raise :class:`NodeConfigError` for a params-file value no node can take.
+
+    See :func:`metro_atc.nodes.param_check.override_problem` (``seed: {a: 1}``, unknown
+    parameter names in a section naming the node).
+    """
+    from metro_atc.nodes.param_check import override_problem
+
+    for n in nodes:
+        problem = override_problem(n.get_name(), n.get_namespace(), n.has_parameter, argv)
+        if problem:
+            raise NodeConfigError(problem)
+
+
 def check_params_files(argv: Sequence[str]) -> str | None:
     """Validate every ``--params-file`` of a ROS argument list; return one error line or None.
 
     Checks that the file exists, is YAML, and has the ROS layout
     ``<node name or /**>: {ros__parameters: {...}}``.
     """
-    import yaml
+    from metro_atc.nodes.param_check import load_params_file
 
     for i, a in enumerate(argv):
         if a != "--params-file":
@@ -244,15 +282,9 @@ def check_params_files(argv: Sequence[str]) -> str | None:
         if i + 1 >= len(argv):
             return "--params-file needs a file path"
         path = argv[i + 1]
-        try:
-            with open(path, encoding="utf-8") as fh:
-                doc = yaml.safe_load(fh)
-        except OSError as exc:
-            return f"params file {path}: cannot read: {exc.strerror}"
-        except yaml.YAMLError as exc:
-            mark = getattr(exc, "problem_mark", None)
-            where = f" (line {mark.line + 1})" if mark is not None else ""
-            return f"params file {path}: not valid YAML{where}: {getattr(exc, 'problem', exc)}"
+        doc, problem = load_params_file(path)
+        if problem:
+            return problem
         if not isinstance(doc, dict):
             return (f"params file {path}: expected a mapping of node names, "
                     f"got {type(doc).__name__}")

@@ -1,8 +1,12 @@
 """All conversions between ROS messages and the ROS-free cores live here.
 
-Incoming messages are validated (finite numbers, known train ids, sane ranges); a bad
-message raises :class:`MessageRejected` with one line naming the topic field, which the
-node logs (rate-limited) before dropping the message.
+Incoming messages are validated here, by type and plausibility, with the rules of
+:mod:`metro_atc.core.validate` (train id of the topic, finite numbers, ranges of the line
+(:class:`~metro_atc.core.validate.Bounds`), lockstep step, header stamp consistent with the
+message's own time); a bad message raises :class:`MessageRejected` (``kind`` names the rule,
+the text the topic field), which the node counts per kind and logs (rate-limited) before
+dropping the message.  Nothing else in a callback may raise: see
+:func:`guarded` for the last line of defence.
 """
 
 from __future__ import annotations
@@ -16,13 +20,19 @@ from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureComman
                                 TractionCommand, TrainEvent, TrainState)
 from rosgraph_msgs.msg import Clock
 
+from metro_atc.core.validate import (Bounds, Rejected, StepWindow, check_finite, check_index,
+                                     check_range, check_stamp, check_time)
+
 REGULATOR_CODES = {"none": DepartureCommand.REGULATOR_NONE, "lqr": DepartureCommand.REGULATOR_LQR,
                    "dhp": DepartureCommand.REGULATOR_DHP, "aoc": DepartureCommand.REGULATOR_AOC,
                    "elqr": DepartureCommand.REGULATOR_ELQR}
 
 
-class MessageRejected(ValueError):
-    """An incoming message failed validation; the text names the offending field."""
+MessageRejected = Rejected
+"""An incoming message failed validation (``kind``: the rule; text: the field)."""
+
+MODES = range(TrainState.MODE_ATP_BRAKE + 1)
+"""Defined TrainState.MODE_* codes (TractionCommand.mode uses the same)."""
 
 
 def to_time(t_s: float) -> Time:
@@ -41,11 +51,15 @@ def clock_msg(t_s: float) -> Clock:
     return Clock(clock=to_time(t_s))
 
 
-def _finite(name: str, value: float) -> float:
-    v = float(value)
-    if not math.isfinite(v):
-        raise MessageRejected(f"{name} is not finite ({value})")
-    return v
+_finite = check_finite
+
+
+def _train(msg: Any, topic: str, train_id: str) -> None:
+    """The message's train_id is the topic's train (kind ``train_id``)."""
+    if msg.train_id != train_id:
+        shown = repr(str(msg.train_id)[:40])
+        raise Rejected("train_id", f"{topic}: train_id {shown} does not match the topic "
+                       f"('{train_id}')")
 
 
 def train_index(train_id: str, index: Mapping[str, int], topic: str) -> int:
@@ -53,15 +67,29 @@ def train_index(train_id: str, index: Mapping[str, int], topic: str) -> int:
     try:
         return index[train_id]
     except KeyError:
-        raise MessageRejected(f"{topic}: unknown train_id '{train_id}'") from None
+        raise Rejected("train_id", f"{topic}: unknown train_id {str(train_id)[:40]!r}") \
+            from None
 
 
-def traction_from_msg(msg: TractionCommand, topic: str) -> tuple[int, float]:
-    """Validate a TractionCommand; return (step, effort in [-1, 1])."""
-    effort = _finite(f"{topic}.effort", msg.effort)
-    if not -1.0 - 1e-9 <= effort <= 1.0 + 1e-9:
-        raise MessageRejected(f"{topic}.effort={effort} outside [-1, 1]")
-    return int(msg.step), float(np.clip(effort, -1.0, 1.0))
+def traction_from_msg(msg: TractionCommand, topic: str, train_id: str, step: int,
+                      t_s: float) -> float | None:
+    """Validate the command of ``train_id`` for lockstep step ``step`` at time ``t_s``.
+
+    Returns the effort in [-1, 1], or None for the previous step (a stale duplicate,
+    ignored without counting).  Rejected: another train, another step, a stamp that is not
+    the state's (``t_s``), a non-finite or out-of-range effort, an undefined mode.
+    """
+    _train(msg, topic, train_id)
+    effort = check_finite(f"{topic}.effort", msg.effort)
+    effort = check_range(f"{topic}.effort", effort, -1.0 - 1e-9, 1.0 + 1e-9, "effort")
+    check_index(f"{topic}.mode", msg.mode, 0, len(MODES) - 1, "mode")
+    k = int(msg.step)
+    if k == step - 1:
+        return None
+    if k != step:
+        raise Rejected("step", f"{topic}.step={k} is not the lockstep step {step}")
+    check_stamp(topic, from_time(msg.header.stamp), t_s)
+    return float(np.clip(effort, -1.0, 1.0))
 
 
 def traction_msg(train_id: str, step: int, t_s: float, effort: float,
@@ -73,22 +101,27 @@ def traction_msg(train_id: str, step: int, t_s: float, effort: float,
     return m
 
 
-def departure_from_msg(msg: DepartureCommand, topic: str,
-                       n_stations: int) -> tuple[int, float, float, float]:
+def departure_from_msg(msg: DepartureCommand, topic: str, train_id: str,
+                       b: Bounds) -> tuple[int, float, float, float]:
     """Validate a DepartureCommand; return (station, departure_s, running_s, dwell_limit_s).
 
-    ``dwell_limit_s`` may be NaN (no dwell cut); every other time must be finite.
+    The station is one a train departs from (not the terminus); the departure time is
+    within the run's service (from the timetable's first departure to the horizon) and
+    equals the header stamp (the ATS stamps its commands with the departure time); the
+    running time is in [0, horizon]; ``dwell_limit_s`` is NaN (no
+    dwell cut) or in [0, horizon]; the regulator code is defined.
     """
-    st = int(msg.station_index)
-    if not 0 <= st < n_stations:
-        raise MessageRejected(f"{topic}.station_index={st} outside [0, {n_stations - 1}]")
-    dep = _finite(f"{topic}.departure_time_s", msg.departure_time_s)
-    run = _finite(f"{topic}.target_running_time_s", msg.target_running_time_s)
-    dwell = float(msg.dwell_limit_s)
-    if math.isinf(dwell):
-        raise MessageRejected(f"{topic}.dwell_limit_s={dwell} is not finite or NaN")
-    if dep < 0.0 or run < 0.0 or dwell < 0.0:
-        raise MessageRejected(f"{topic}: negative time in departure command")
+    _train(msg, topic, train_id)
+    st = check_index(f"{topic}.station_index", msg.station_index, 0, b.n_stations - 2,
+                     "station")
+    dep = check_range(f"{topic}.departure_time_s", msg.departure_time_s, b.t_first_s,
+                      b.horizon_s, "time")
+    check_stamp(topic, from_time(msg.header.stamp), dep)
+    run = check_range(f"{topic}.target_running_time_s", msg.target_running_time_s, 0.0,
+                      b.horizon_s, "time")
+    dwell = check_time(f"{topic}.dwell_limit_s", msg.dwell_limit_s, b, nan_ok=True)
+    check_index(f"{topic}.regulator", msg.regulator, 0, max(REGULATOR_CODES.values()),
+                "regulator")
     return st, dep, run, dwell
 
 
@@ -138,21 +171,53 @@ def state_msgs(train_ids: Sequence[str], idx: Iterable[int], states: Mapping[str
     return out
 
 
-def state_from_msg(msg: TrainState, topic: str) -> dict[str, Any]:
-    """Validate a TrainState; return a plain dict of its fields."""
-    return {"step": int(msg.step), "t_s": from_time(msg.header.stamp),
-            "x_m": _finite(f"{topic}.position_m", msg.position_m),
-            "v_mps": _finite(f"{topic}.speed_mps", msg.speed_mps),
-            "a_mps2": _finite(f"{topic}.acceleration_mps2", msg.acceleration_mps2),
-            "current_station": int(msg.current_station), "next_station": int(msg.next_station),
-            "mode": int(msg.mode),
-            "departure_time_s": float(msg.departure_time_s),
-            "target_running_time_s": float(msg.target_running_time_s),
-            "supervision_speed_mps": (float(msg.supervision_speed_mps)
-                                      if math.isfinite(msg.supervision_speed_mps)
-                                      else math.inf),
-            "movement_authority_m": (float(msg.movement_authority_m)
-                                     if math.isfinite(msg.movement_authority_m) else math.inf)}
+def state_from_msg(msg: TrainState, topic: str, train_id: str, b: Bounds,
+                   steps: StepWindow) -> dict[str, Any]:
+    """Validate a TrainState; return a plain dict of its fields (``again``: a re-send).
+
+    Every field is checked before the step window moves: the stamp is ``step x control
+    period`` (the simulator's clock), positions and the movement authority are on the
+    gridded line (the authority may be +inf: nothing ahead), speeds below ``v_max``,
+    station indices on the line (-1 allowed where the message defines it), the mode
+    defined; departure and running times are NaN (not set) or within the horizon.
+    """
+    _train(msg, topic, train_id)
+    t = from_time(msg.header.stamp)
+    k = int(msg.step)
+    check_stamp(topic, t, k * b.control_period_s)
+    check_time(f"{topic}.header.stamp", t, b)
+    n = b.n_stations - 1
+    out = {"step": k, "t_s": t,
+           "x_m": check_range(f"{topic}.position_m", msg.position_m, b.x_min_m, b.x_max_m,
+                              "position"),
+           "v_mps": check_range(f"{topic}.speed_mps", msg.speed_mps, 0.0, b.v_max_mps,
+                                "speed"),
+           "a_mps2": check_range(f"{topic}.acceleration_mps2", msg.acceleration_mps2,
+                                 -b.a_max_mps2, b.a_max_mps2, "acceleration"),
+           "current_station": check_index(f"{topic}.current_station", msg.current_station,
+                                          -1, n, "station"),
+           "next_station": check_index(f"{topic}.next_station", msg.next_station, -1, n,
+                                       "station"),
+           "mode": check_index(f"{topic}.mode", msg.mode, 0, len(MODES) - 1, "mode"),
+           "departure_time_s": check_time(f"{topic}.departure_time_s", msg.departure_time_s,
+                                          b, nan_ok=True),
+           "target_running_time_s": check_time(f"{topic}.target_running_time_s",
+                                               msg.target_running_time_s, b, nan_ok=True),
+           "supervision_speed_mps": check_range(f"{topic}.supervision_speed_mps",
+                                                msg.supervision_speed_mps, 0.0, b.v_max_mps,
+                                                "speed"),
+           "movement_authority_m": _authority(f"{topic}.movement_authority_m",
+                                              msg.movement_authority_m, b)}
+    out["again"] = steps.accept(k, f"{topic}.step") == "again"
+    return out
+
+
+def _authority(name: str, value: float, b: Bounds) -> float:
+    """End of authority: on the line, or +inf (nothing ahead)."""
+    v = float(value)
+    if v == math.inf:
+        return v
+    return check_range(name, v, b.x_min_m, b.x_max_m, "position")
 
 
 def event_msg(ev: Any, train_ids: Sequence[str], station_names: Sequence[str],
@@ -174,16 +239,36 @@ def event_msg(ev: Any, train_ids: Sequence[str], station_names: Sequence[str],
     return m
 
 
-def event_from_msg(msg: TrainEvent, topic: str) -> dict[str, Any]:
-    """Validate a TrainEvent; return a plain dict."""
+def event_from_msg(msg: TrainEvent, topic: str, index: Mapping[str, int], b: Bounds,
+                   last_seq: Mapping[str, int]) -> dict[str, Any]:
+    """Validate a TrainEvent; return a plain dict.
+
+    The train is one of the line, the kind defined, the station on the line, the actual
+    time after the first step and within the horizon, and equal to the header stamp (the
+    simulator stamps an event with its time), the sequence the next one of the train
+    (``last_seq``: the last accepted per train; events of a train are numbered 1, 2, ...
+    without gaps), times finite.
+    """
+    train_index(msg.train_id, index, topic)
     if msg.kind not in (TrainEvent.KIND_ARRIVAL, TrainEvent.KIND_DEPARTURE):
-        raise MessageRejected(f"{topic}.kind={msg.kind} is not ARRIVAL(1) or DEPARTURE(2)")
+        raise Rejected("kind", f"{topic}.kind={msg.kind} is not ARRIVAL(1) or DEPARTURE(2)")
+    st = check_index(f"{topic}.station_index", msg.station_index, 0, b.n_stations - 1,
+                     "station")
+    t = check_range(f"{topic}.actual_time_s", msg.actual_time_s, b.control_period_s,
+                    b.horizon_s, "time")
+    check_stamp(topic, from_time(msg.header.stamp), t)
+    seq = int(msg.sequence)
+    want = int(last_seq.get(msg.train_id, 0)) + 1
+    if seq != want:
+        raise Rejected("sequence", f"{topic}: {msg.train_id} event sequence {seq} out of order "
+                       f"(expected {want})")
     return {"train_id": msg.train_id,
             "kind": "arrival" if msg.kind == TrainEvent.KIND_ARRIVAL else "departure",
-            "station": int(msg.station_index),
-            "t_s": _finite(f"{topic}.actual_time_s", msg.actual_time_s),
-            "scheduled_s": float(msg.scheduled_time_s), "sequence": int(msg.sequence),
-            "dwell_s": float(msg.dwell_s)}
+            "station": st, "t_s": t,
+            "scheduled_s": check_range(f"{topic}.scheduled_time_s", msg.scheduled_time_s,
+                                       -b.horizon_s, b.horizon_s, "time"),
+            "sequence": seq,
+            "dwell_s": check_time(f"{topic}.dwell_s", msg.dwell_s, b)}
 
 
 def sensor_msg(s: Any, train_ids: Sequence[str]) -> BrakeSensorData:
@@ -200,23 +285,63 @@ def sensor_msg(s: Any, train_ids: Sequence[str]) -> BrakeSensorData:
     return m
 
 
-def sensor_from_msg(msg: BrakeSensorData, topic: str, n_axles: int) -> dict[str, Any]:
-    """Validate the shape of a BrakeSensorData; return its channels as a plain dict.
+SENSOR_RANGES = {"wheel_angular_speed_radps": (-50.0, 1000.0),
+                 "clamp_force_n": (-1e5, 1e6),
+                 "longitudinal_acceleration_mps2": (-50.0, 50.0),
+                 "reference_speed_mps": (-5.0, 150.0),
+                 "car_mass_kg": (1e3, 1e6)}
+"""Plausible range of each finite sensor channel (beyond: the sample is rejected)."""
 
-    Raises :class:`MessageRejected` for a wrong number of axles.  Non-finite channel values
-    are allowed (dropouts: the observer does not use them); ``car_mass`` is NaN when the
-    load-weigh signal is missing or not positive.
+
+def sensor_from_msg(msg: BrakeSensorData, topic: str, train_id: str, n_axles: int,
+                    b: Bounds) -> dict[str, Any]:
+    """Validate a BrakeSensorData; return its channels as a plain dict.
+
+    Rejected: another train; a wrong number of axles; a stamp outside the run's horizon
+    (a sample from the future within the horizon is handled by the receiver's
+    out-of-order resynchronisation, see ``TrainBrakeWatch``); a finite channel value
+    outside ``SENSOR_RANGES``.  Non-finite channel values are allowed (dropouts: the
+    observer does not use them); ``car_mass`` is NaN when the load-weigh signal is missing.
     """
+    _train(msg, topic, train_id)
     w = np.asarray(msg.wheel_angular_speed_radps, dtype=float)
     c = np.asarray(msg.clamp_force_n, dtype=float)
     if w.shape != (n_axles,) or c.shape != (n_axles,):
-        raise MessageRejected(f"{topic}: expected {n_axles} axles, got "
-                              f"wheel_angular_speed_radps[{w.size}], clamp_force_n[{c.size}]")
-    mass = float(msg.car_mass_kg)
-    return {"t_s": from_time(msg.header.stamp), "omega": w, "clamp": c,
-            "accel": float(msg.longitudinal_acceleration_mps2),
-            "ref_speed": float(msg.reference_speed_mps),
-            "car_mass": mass if math.isfinite(mass) and mass > 0.0 else math.nan}
+        raise Rejected("axles", f"{topic}: expected {n_axles} axles, got "
+                       f"wheel_angular_speed_radps[{w.size}], clamp_force_n[{c.size}]")
+    t = check_time(f"{topic}.header.stamp", from_time(msg.header.stamp), b)
+    vals: dict[str, Any] = {"wheel_angular_speed_radps": w, "clamp_force_n": c,
+                            "longitudinal_acceleration_mps2":
+                                float(msg.longitudinal_acceleration_mps2),
+                            "reference_speed_mps": float(msg.reference_speed_mps),
+                            "car_mass_kg": float(msg.car_mass_kg)}
+    for name, v in vals.items():
+        lo, hi = SENSOR_RANGES[name]
+        a = np.atleast_1d(np.asarray(v, dtype=float))
+        fin = a[np.isfinite(a)]
+        if np.isinf(a).any() or ((fin < lo) | (fin > hi)).any():
+            raise Rejected("range", f"{topic}.{name} outside [{lo:g}, {hi:g}]")
+    mass = float(vals["car_mass_kg"])
+    return {"t_s": t, "omega": w, "clamp": c,
+            "accel": vals["longitudinal_acceleration_mps2"],
+            "ref_speed": vals["reference_speed_mps"],
+            "car_mass": mass if math.isfinite(mass) else math.nan}
+
+
+def guarded(what: str, fn: Any, *args: Any) -> Any:
+    """Call ``fn(*args)``; turn any exception into :class:`MessageRejected` (kind ``error``).
+
+    The last line of defence of a subscription callback: the rules above should reject a
+    bad message first; if one slips through and the core raises, the message is dropped
+    and counted instead of killing the node.
+    """
+    try:
+        return fn(*args)
+    except Rejected:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a callback must never raise out of a node
+        text = " ".join(str(exc).split())[:120]
+        raise Rejected("error", f"{what}: {type(exc).__name__}: {text}") from None
 
 
 def diagnosis_msg(train_id: str, stamp_s: float, d: Any, level: int, message: str,

@@ -27,13 +27,16 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
+from metro_atc.core.ato_watchdog import AtoWatchdog
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
+from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.jsonsafe import json_safe
 from metro_atc.nodes import conversions as conv
-from metro_atc.nodes.common import (QOS_CLOCK, QOS_EVENTS, QOS_LATCHED, QOS_RELIABLE, QOS_SENSOR,
-                                    NodeConfigError, SubscriptionPoller, bulk_publisher,
-                                    bulk_subscription, declare, run_nodes)
+from metro_atc.nodes.common import (QOS_CLOCK, QOS_EVENTS, QOS_LATCHED, QOS_LATCHED_IN,
+                                    QOS_RELIABLE, QOS_SENSOR, NodeConfigError,
+                                    SubscriptionPoller, bulk_publisher, bulk_subscription,
+                                    declare, run_nodes)
 
 
 class LineSimulator(Node):
@@ -75,6 +78,10 @@ class LineSimulator(Node):
         self.progress_period_s = declare(self, "progress_period_s", 600.0,
                                          "simulated time between progress log lines [s]",
                                          1.0, 1e6)
+        self.ato_lost_steps = declare(
+            self, "ato_lost_steps", 8,
+            "a train whose ATO misses this many consecutive steps is braked to a stop "
+            "(CBTC fault) until its ATO answers again", 1, 1_000_000)
         self._next_progress_t = self.progress_period_s
         self._wall0 = time.monotonic()
         try:
@@ -82,6 +89,11 @@ class LineSimulator(Node):
         except ScenarioError as exc:
             raise NodeConfigError(str(exc)) from None
         self.sim = LineSim(scn, seed=int(self.seed))
+        self.bounds = bounds_for(scn)
+        self.rejections = Rejections()
+        """Rejected input messages per kind (:mod:`metro_atc.core.validate`)."""
+        self.watchdog = AtoWatchdog(len(self.sim.train_ids), int(self.ato_lost_steps))
+        """Lost-ATO decision (:mod:`metro_atc.core.ato_watchdog`)."""
         self.ids: list[str] = list(self.sim.train_ids)
         self.index = {tid: i for i, tid in enumerate(self.ids)}
         n = len(self.ids)
@@ -111,7 +123,7 @@ class LineSimulator(Node):
                                            partial(self._on_command, i), QOS_RELIABLE)
                          for i, t in enumerate(self.ids)]
         self.dep_subs = [bulk_subscription(self, DepartureCommand, f"/{t}/departure_command",
-                                           partial(self._on_departure, i), QOS_LATCHED)
+                                           partial(self._on_departure, i), QOS_LATCHED_IN)
                          for i, t in enumerate(self.ids)]
         self.get_logger().info(
             f"scenario '{self.scenario_name}': {n} trains, {len(self.sim.station_names)} "
@@ -126,36 +138,35 @@ class LineSimulator(Node):
             self._last_warn[key] = now
             self.get_logger().warning(text)
 
+    def _reject(self, what: str, exc: conv.MessageRejected) -> None:
+        """Count a rejected message per kind; log it (at most 1/s per kind, all counts)."""
+        self.rejected += 1
+        if self.rejections.add(exc.kind, time.monotonic()):  # per-kind rate limit
+            self.get_logger().warning(f"rejected {what} ({exc.kind}): {exc} [rejected so far: "
+                                      f"{self.rejections.summary()}]")
+
     def _on_command(self, i: int, msg: TractionCommand) -> None:
-        topic = f"/{self.ids[i]}/command"
+        """Take train i's command for the current step k only (see conv.traction_from_msg)."""
         try:
-            if msg.train_id and msg.train_id != self.ids[i]:
-                raise conv.MessageRejected(f"{topic}: train_id '{msg.train_id}' does not "
-                                           f"match the topic")
-            step, effort = conv.traction_from_msg(msg, topic)
+            effort = conv.traction_from_msg(msg, f"/{self.ids[i]}/command", self.ids[i],
+                                            self.k, float(self.sim.t))
         except conv.MessageRejected as exc:
-            self.rejected += 1
-            self._warn_rate_limited(f"command:{str(exc)[:48]}", f"rejected command: {exc}")
+            self._reject("command", exc)
             return
-        if step < self.k:
-            return  # stale duplicate from an earlier step
-        self.cmd_step[i] = step
+        if effort is None:
+            return  # stale duplicate from the previous step
+        self.cmd_step[i] = self.k
         self.cmd_effort[i] = effort
 
     def _on_departure(self, i: int, msg: DepartureCommand) -> None:
+        """Validate an ATS departure command before it reaches the plant's table."""
         topic = f"/{self.ids[i]}/departure_command"
         try:
-            if msg.train_id and msg.train_id != self.ids[i]:
-                raise conv.MessageRejected(f"{topic}: train_id '{msg.train_id}' does not "
-                                           f"match the topic")
-            st, dep, run, dwell = conv.departure_from_msg(msg, topic,
-                                                          len(self.sim.station_names))
-            self.sim.set_departure(i, st, dep, run, dwell)
+            st, dep, run, dwell = conv.departure_from_msg(msg, topic, self.ids[i], self.bounds)
+            conv.guarded(topic, self.sim.set_departure, i, st, dep, run, dwell)
             self.dep_received[i, st] = True
-        except (conv.MessageRejected, ValueError) as exc:
-            self.rejected += 1
-            self._warn_rate_limited(f"departure:{str(exc)[:48]}",
-                                    f"rejected departure command: {exc}")
+        except conv.MessageRejected as exc:
+            self._reject("departure command", exc)
 
     # ------------------------------------------------------------------ stepping
     def graph_ready(self) -> bool:
@@ -208,7 +219,11 @@ class LineSimulator(Node):
             self._warn_rate_limited(
                 "lockstep", f"lockstep step {self.k}: no command from {', '.join(missing[:5])}"
                 f"{' ...' if len(missing) > 5 else ''}; applying the last command")
-        res = self.sim.step(self.cmd_effort.copy())
+        effort, wd_events = self.watchdog.apply(self.k, active, self.cmd_step >= self.k,
+                                                self.cmd_effort)
+        for e in wd_events:
+            self._log_watchdog(e)
+        res = self.sim.step(effort)
         self.k += 1
         for ev in res.events:
             self.event_seq[ev.train_idx] += 1
@@ -229,6 +244,16 @@ class LineSimulator(Node):
             self.status_pub.publish(conv.line_status_msg(self.kpis(), self.k, t, done))
         if done:
             self.finished = True
+
+    def _log_watchdog(self, e: Any) -> None:
+        """Log a lost ATO (error) or its return (warning)."""
+        t = f"{self.ids[e.train]} at t={float(self.sim.t):.2f} s (step {e.step})"
+        if e.kind == "lost":
+            self.get_logger().error(f"ATO of {t} lost: no command for {e.missed} steps; "
+                                    "braking the train to a stop")
+        else:
+            self.get_logger().warning(f"ATO of {t} back after {e.missed} missed steps; "
+                                      "handing the train back")
 
     def publish_sensors(self, block: Any) -> None:
         """Publish the step's brake sensor samples (all while braking, else at the idle period).
@@ -261,7 +286,10 @@ class LineSimulator(Node):
         k = dict(self.sim.kpis())
         k["lockstep_misses"] = int(self.lockstep_misses)
         k["rejected_messages"] = int(self.rejected)
+        k["rejected_by_kind"] = self.rejections.as_dict()
         k["ats_timeouts"] = int(self.ats_misses)
+        k["ato_losses"] = int(self.watchdog.losses)
+        k["ato_stop_steps"] = int(self.watchdog.stop_steps)
         k["steps"] = int(self.k)
         k["scenario"] = self.scenario_name
         k["lockstep"] = bool(self.lockstep)

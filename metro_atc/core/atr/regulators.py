@@ -31,6 +31,8 @@ from metro_atc.core.atr.problems import AtrProblem
 from metro_atc.core.atr.training import Agent
 
 WEIGHTS_FORMAT = "metro_atc.atr.weights/1"
+MAX_WEIGHTS_BYTES = 50_000_000
+"""Largest ATR weights file read [bytes] (the shipped ones are < 100 kB)."""
 REGULATORS = ("none", "lqr", "dhp", "aoc")
 DATA_DIR = Path(__file__).resolve().parents[2] / "data"
 
@@ -137,21 +139,32 @@ def load_weights(path: Union[str, Path], line: LineData) -> NeuralRegulator:
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"ATR weights file not found: {p}")
+    if p.stat().st_size > MAX_WEIGHTS_BYTES:
+        raise ValueError(f"{p}: {p.stat().st_size} bytes, larger than the limit of "
+                         f"{MAX_WEIGHTS_BYTES} bytes for an ATR weights file")
     try:
         blob = torch.load(str(p), weights_only=True)
     except Exception as exc:  # noqa: BLE001 - torch raises many types for bad files
-        raise ValueError(f"cannot read ATR weights file {p}: {exc}") from exc
+        text = " ".join(str(exc).split())[:100]
+        raise ValueError(f"cannot read ATR weights file {p}: {text}") from None
     if not isinstance(blob, dict) or blob.get("format") != WEIGHTS_FORMAT:
         raise ValueError(f"{p} is not an ATR weights file ({WEIGHTS_FORMAT})")
+    if not isinstance(blob.get("n_stations"), int) or not isinstance(blob.get("cost"), dict):
+        raise ValueError(f"{p}: malformed ATR weights file (n_stations or cost missing)")
     if int(blob["n_stations"]) != line.n_stations:
         raise ValueError(f"{p} was trained for {blob['n_stations']} stations, line "
                          f"{line.name!r} has {line.n_stations}")
-    c = blob["cost"]
-    weights = CostWeights(q=float(c["q"]), r=float(c["r"]), x_scale_s=float(c["x_scale_s"]),
-                          horizon=int(c["horizon"]))
-    problem = AtrProblem(line, weights)
-    agent = Agent(str(blob["method"]), problem, MLP.from_state(blob["critic"]),
-                  MLP.from_state(blob["actor"]), anchored=bool(blob.get("anchored", False)))
+    try:
+        c = blob["cost"]
+        weights = CostWeights(q=float(c["q"]), r=float(c["r"]),
+                              x_scale_s=float(c["x_scale_s"]), horizon=int(c["horizon"]))
+        problem = AtrProblem(line, weights)
+        agent = Agent(str(blob["method"]), problem, MLP.from_state(blob["critic"]),
+                      MLP.from_state(blob["actor"]), anchored=bool(blob.get("anchored", False)))
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError, RuntimeError,
+            OverflowError) as exc:
+        raise ValueError(f"{p}: malformed ATR weights file ({type(exc).__name__}: "
+                         f"{str(exc)[:80]})") from None
     n_ci = problem.nx + problem.n_extra
     n_ai = n_ci + (problem.nx if agent.method == "aoc" else 0)
     if agent.critic.n_in != n_ci or agent.actor.n_in != n_ai:

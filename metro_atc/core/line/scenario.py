@@ -22,7 +22,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Literal, Union
 
-import yaml
+from metro_atc.core.safe_yaml import (YamlLimitError, load_yaml_file, load_yaml_text, one_line,
+                                      short_repr)
 
 __all__ = [
     "ScenarioError", "Scenario", "SCENARIO_NAMES", "load_scenario", "parse_scenario",
@@ -45,6 +46,13 @@ def _f(default: Any = dataclasses.MISSING, lo: float | None = None, hi: float | 
 
 
 INF = math.inf
+MAX_ERROR_CHARS = 260
+"""Longest scenario error message (one line; the launcher adds its prefix)."""
+MAX_GRID_CELLS = 1_000_000
+"""Memory budget of the plant's precomputed track/ATP grid [cells] (~160 bytes per cell:
+the grid of a 1e7 m line at 1 m would need 1.5 GiB; THSR at 2 m has 1.8e5 cells)."""
+_MAX_FLOAT_INT = 10 ** 300
+"""Integers beyond this would overflow ``float()`` (checked before converting)."""
 
 # --------------------------------------------------------------------------- schema
 
@@ -312,8 +320,8 @@ class _Builder:
         self.src = src
 
     def err(self, path: str, msg: str) -> ScenarioError:
-        """An error for key ``path``."""
-        return ScenarioError(f"scenario {self.src}: {path}: {msg}")
+        """An error for key ``path`` (one line, at most ``MAX_ERROR_CHARS``)."""
+        return ScenarioError(one_line(f"scenario {self.src}: {path}: {msg}", MAX_ERROR_CHARS))
 
     def value(self, tp: Any, raw: Any, path: str, meta: dict[str, Any]) -> Any:
         """Convert/validate one value of schema type ``tp``."""
@@ -326,39 +334,42 @@ class _Builder:
             return self.value(args[0], raw, path, meta)
         if origin is Literal:
             if raw not in typing.get_args(tp):
-                raise self.err(path, f"expected {expect}, got {raw!r}")
+                raise self.err(path, f"expected {expect}, got {short_repr(raw)}")
             return raw
         if origin is list:
             if not isinstance(raw, list):
-                raise self.err(path, f"expected {expect}, got {raw!r}")
+                raise self.err(path, f"expected {expect}, got {short_repr(raw)}")
             sub = typing.get_args(tp)[0]
             return [self.value(sub, r, f"{path}[{i}]", {}) for i, r in enumerate(raw)]
         if dataclasses.is_dataclass(tp):
             if not isinstance(raw, dict):
-                raise self.err(path, f"expected mapping, got {raw!r}")
+                raise self.err(path, f"expected mapping, got {short_repr(raw)}")
             return self.build(tp, raw, path)
         if tp is bool:
             if not isinstance(raw, bool):
-                raise self.err(path, f"expected bool, got {raw!r}")
+                raise self.err(path, f"expected bool, got {short_repr(raw)}")
             return raw
         if tp is str:
             if not isinstance(raw, str):
-                raise self.err(path, f"expected str, got {raw!r}")
+                raise self.err(path, f"expected str, got {short_repr(raw)}")
             return raw
         if tp is int:
             ok = isinstance(raw, int) and not isinstance(raw, bool)
-            if not ok or not self._in_range(float(raw), meta):
-                raise self.err(path, f"expected {expect}, got {raw!r}")
+            if not ok or not self._in_range(raw, meta):
+                raise self.err(path, f"expected {expect}, got {short_repr(raw)}")
             return int(raw)
         if tp is float:
+            # range-checked on the raw number (an int of 400 digits overflows float())
             ok = isinstance(raw, (int, float)) and not isinstance(raw, bool)
-            if not ok or math.isnan(float(raw)) or not self._in_range(float(raw), meta):
-                raise self.err(path, f"expected {expect}, got {raw!r}")
+            if not ok or raw != raw or not self._in_range(raw, meta) \
+                    or (isinstance(raw, int) and abs(raw) > _MAX_FLOAT_INT):
+                raise self.err(path, f"expected {expect}, got {short_repr(raw)}")
             return float(raw)
         raise self.err(path, f"unsupported schema type {tp!r}")  # pragma: no cover
 
     @staticmethod
-    def _in_range(x: float, meta: dict[str, Any]) -> bool:
+    def _in_range(x: float | int, meta: dict[str, Any]) -> bool:
+        """``x`` in [lo, hi] (exact for any int: no float conversion)."""
         lo, hi = meta.get("lo"), meta.get("hi")
         if lo is not None and x < lo:
             return False
@@ -456,7 +467,7 @@ def _check(b: _Builder, s: Scenario) -> None:
         for j, v in enumerate(p.boarding_pph):
             if not (isinstance(v, float) and 0.0 <= v <= 1e5):
                 raise b.err(f"timetable.periods[{i}].boarding_pph[{j}]",
-                            f"expected float in [0, 100000], got {v!r}")
+                            f"expected float in [0, 100000], got {short_repr(v)}")
         if i and p.start_s <= per[i - 1].start_s:
             raise b.err(f"timetable.periods[{i}].start_s", "expected strictly increasing start_s")
     af = s.passengers.alight_fraction
@@ -465,16 +476,17 @@ def _check(b: _Builder, s: Scenario) -> None:
                     f"expected list of {n} floats (one per station), got {len(af)}")
     for j, v in enumerate(af):
         if not 0.0 <= v <= 1.0:
-            raise b.err(f"passengers.alight_fraction[{j}]", f"expected float in [0, 1], got {v!r}")
+            raise b.err(f"passengers.alight_fraction[{j}]",
+                        f"expected float in [0, 1], got {short_repr(v)}")
     ids = set(s.train_ids)
     for i, inc in enumerate(s.incidents):
         if inc.kind in ("hold", "breakdown") and inc.train not in ids:
             raise b.err(f"incidents[{i}].train",
                         f"expected a train id train_01..train_{s.trains.count:02d}, "
-                        f"got {inc.train!r}")
+                        f"got {short_repr(inc.train)}")
         if inc.kind == "hold" and s.station_index(inc.station) < 0:
             raise b.err(f"incidents[{i}].station",
-                        f"expected a station code or name, got {inc.station!r}")
+                        f"expected a station code or name, got {short_repr(inc.station)}")
         if inc.kind == "tsr" and inc.end_m <= inc.start_m:
             raise b.err(f"incidents[{i}].end_m", "expected end_m > start_m")
         if inc.kind in ("hold", "breakdown", "tsr") and inc.duration_s <= 0.0:
@@ -483,14 +495,41 @@ def _check(b: _Builder, s: Scenario) -> None:
         if fl.train not in ids:
             raise b.err(f"faults[{i}].train",
                         f"expected a train id train_01..train_{s.trains.count:02d}, "
-                        f"got {fl.train!r}")
+                        f"got {short_repr(fl.train)}")
     for i, tid in enumerate(s.sensors.trains):
         if tid not in ids:
-            raise b.err(f"sensors.trains[{i}]", f"expected a train id, got {tid!r}")
+            raise b.err(f"sensors.trains[{i}]", f"expected a train id, got {short_repr(tid)}")
     if s.signalling.response_time_s < s.sim.control_period_s:
         raise b.err("signalling.response_time_s",
                     f"expected >= sim.control_period_s ({s.sim.control_period_s}), "
                     f"got {s.signalling.response_time_s}")
+    _check_budget(b, s)
+
+
+_G = 9.80665
+"""Gravity used by the grade check [m/s^2] (the plant's value; only a plausibility bound)."""
+
+
+def _check_budget(b: _Builder, s: Scenario) -> None:
+    """Checks that need arithmetic on validated values: grid memory, braking on the grade.
+
+    The plant grids the line from the first stop (minus a train length and 500 m) to the
+    tail track (plus 200 m) at ``sim.grid_m``; an explicit guaranteed deceleration must stay
+    positive (> 0.05 m/s^2, the plant's floor) on the steepest downhill grade.
+    """
+    st = s.line.stations
+    extent = (st[-1].position_m - st[0].position_m) + 600.0 + 700.0 + s.line.tail_track_m
+    cells = extent / s.sim.grid_m
+    if cells > MAX_GRID_CELLS:
+        raise b.err("sim.grid_m", f"line of {extent / 1000.0:.0f} km at {s.sim.grid_m:g} m "
+                    f"needs {cells:.3g} grid cells, above the budget of {MAX_GRID_CELLS:.0e} "
+                    f"(coarser grid_m or a shorter line)")
+    b_lvl = s.signalling.guaranteed_decel_mps2
+    max_down = max([0.0] + [-g.grade_permille / 1000.0 for g in s.line.gradients])
+    if b_lvl is not None and b_lvl - _G * max_down <= 0.05:
+        raise b.err("signalling.guaranteed_decel_mps2",
+                    f"expected > {0.05 + _G * max_down:.3f} (positive guaranteed braking on "
+                    f"the steepest downhill grade {1000.0 * max_down:g} permille), got {b_lvl:g}")
 
 
 # --------------------------------------------------------------------------- loading
@@ -514,12 +553,18 @@ SCENARIO_NAMES: tuple[str, ...] = _names()
 def parse_scenario(text: str, src: str = "<string>") -> Scenario:
     """Parse and validate scenario YAML text; ``src`` names it in error messages."""
     try:
-        raw = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        line = str(exc).replace("\n", " ")
-        raise ScenarioError(f"scenario {src}: malformed YAML: {line}") from None
+        raw = load_yaml_text(text)
+    except YamlLimitError as exc:
+        raise ScenarioError(one_line(f"scenario {src}: {exc}", MAX_ERROR_CHARS)) from None
+    return _from_raw(raw, src)
+
+
+def _from_raw(raw: Any, src: str) -> Scenario:
+    """Build and validate a scenario from parsed YAML."""
     if not isinstance(raw, dict):
-        raise ScenarioError(f"scenario {src}: expected a mapping at the top level, got {raw!r}")
+        raise ScenarioError(one_line(f"scenario {src}: expected a mapping at the top level, "
+                                     f"got {type(raw).__name__} {short_repr(raw)}",
+                                     MAX_ERROR_CHARS))
     b = _Builder(src)
     scn: Scenario = b.build(Scenario, raw, "")
     _check(b, scn)
@@ -530,15 +575,20 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     """Load a scenario by embedded name (see :data:`SCENARIO_NAMES`) or YAML file path."""
     key = str(name_or_path)
     path = Path(key)
+    shown = short_repr(key) if len(key) > 60 or not key.isprintable() else key
     if key in SCENARIO_NAMES and not (path.suffix and path.is_file()):
         path = _package_dir() / f"{key}.yaml"
-    elif not path.is_file():
+    elif path.is_dir():
+        raise ScenarioError(one_line(f"scenario {shown}: is a directory, expected a YAML file",
+                                     MAX_ERROR_CHARS))
+    elif not path.exists():
         if path.suffix in (".yaml", ".yml") or "/" in key:
-            raise ScenarioError(f"scenario {key}: file not found")
-        raise ScenarioError(f"unknown scenario {key!r}; known: {', '.join(SCENARIO_NAMES)} "
-                            "(or a path to a YAML file)")
+            raise ScenarioError(one_line(f"scenario {shown}: file not found", MAX_ERROR_CHARS))
+        raise ScenarioError(one_line(f"unknown scenario {short_repr(key)}; known: "
+                                     f"{', '.join(SCENARIO_NAMES)} (or a path to a YAML file)",
+                                     MAX_ERROR_CHARS))
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ScenarioError(f"scenario {path.name}: cannot read: {exc}") from None
-    return parse_scenario(text, path.name)
+        raw = load_yaml_file(path)
+    except YamlLimitError as exc:
+        raise ScenarioError(one_line(f"scenario {path.name}: {exc}", MAX_ERROR_CHARS)) from None
+    return _from_raw(raw, path.name)

@@ -1,0 +1,133 @@
+"""A lost ATO is a CBTC fault (issue 15 item 3): the watchdog and its effect on the plant."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from metro_atc.core.ato_watchdog import STOP_EFFORT, AtoWatchdog
+from metro_atc.core.plant.line import LineSim
+from metro_atc.core.line.scenario import load_scenario
+
+
+def test_counts_lost_and_back() -> None:
+    """Lost after exactly max_missed consecutive misses; back at the first command."""
+    wd = AtoWatchdog(2, max_missed=3)
+    act = np.array([True, True])
+    eff = np.array([0.7, 0.2])
+    got = np.array([False, True])
+    kinds = []
+    for k in range(5):
+        out, ev = wd.apply(k, act, got, eff)
+        kinds += [(e.kind, e.train, e.step) for e in ev]
+        want = STOP_EFFORT if k >= 2 else 0.7
+        assert out[0] == want and out[1] == 0.2
+    assert kinds == [("lost", 0, 2)] and wd.losses == 1 and wd.stop_steps == 3
+    out, ev = wd.apply(5, act, np.array([True, True]), eff)
+    assert [(e.kind, e.missed) for e in ev] == [("back", 5)] and out[0] == 0.7
+    # a miss shorter than the limit never stops the train
+    for k in range(6, 8):
+        out, ev = wd.apply(k, act, got, eff)
+        assert out[0] == 0.7 and not ev
+    # inactive trains are not counted
+    out, ev = wd.apply(8, np.array([False, True]), got, eff)
+    assert wd.missed[0] == 2 and not ev
+    with pytest.raises(ValueError):
+        AtoWatchdog(1, 0)
+
+
+def test_dead_ato_at_full_traction_is_braked_to_a_stop() -> None:
+    """The issue's case: an ATO dies while commanding full traction.
+
+    Without the watchdog the plant keeps the last command (the train runs on at traction);
+    with it the train is braked to a standstill within the stopping time of the service
+    brake plus the detection delay, and stays there.
+    """
+    scn = load_scenario("mini")
+    speeds = {}
+    for use_wd in (False, True):
+        sim = LineSim(scn, seed=0)
+        wd = AtoWatchdog(sim.n, max_missed=4)
+        last = np.zeros(sim.n)
+        k_dead = None
+        v_dead = 0.0
+        for k in range(1200):
+            act = np.asarray(sim.active_mask(), dtype=bool)
+            st = sim.states()
+            moving = bool(act[0]) and st["mode"][0] != 1  # out of the first dwell
+            if k_dead is None and moving and st["v_mps"][0] > 12.0:
+                k_dead, v_dead = k, float(st["v_mps"][0])
+            alive = k_dead is None
+            if alive:
+                last = np.where(act, 1.0, 0.0)  # full traction for everyone
+            got = act.copy()
+            got[0] = alive
+            eff = wd.apply(k, act, got, last)[0] if use_wd else last
+            sim.step(eff)
+            if k_dead is not None and k > k_dead + 200:
+                break
+        assert k_dead is not None
+        speeds[use_wd] = (float(sim.states()["v_mps"][0]), v_dead)
+    v_end_wd, v_dead = speeds[True]
+    assert v_end_wd < 0.05, speeds
+    assert speeds[False][0] > 1.0, speeds  # the contrast: without it the train runs on
+
+
+@pytest.mark.integration
+def test_simulator_stops_a_train_whose_ato_goes_silent(installed: Any, ros_env: Any,
+                                                       probe: Any, tmp_path: Any) -> None:
+    """The line_simulator node with a probe as the ATOs: train_01's ATO commands full
+    traction, then goes silent; the node logs the loss, brakes the train to a standstill,
+    and hands it back when the ATO answers again."""
+    import threading
+
+    from metro_atc_msgs.msg import TractionCommand, TrainState
+
+    from harness import NodeProcess
+    from metro_atc.nodes.common import QOS_RELIABLE
+
+    alive = threading.Event()
+    alive.set()
+    speeds: list[tuple[int, float]] = []
+    pubs = {t: probe.publisher(TractionCommand, f"/{t}/command", QOS_RELIABLE)
+            for t in ("train_01", "train_02")}
+
+    def answer(m: Any) -> None:
+        if m.train_id == "train_01":
+            speeds.append((int(m.step), float(m.speed_mps)))
+            if not alive.is_set():
+                return
+        c = TractionCommand(train_id=m.train_id, step=m.step, mode=2,
+                            effort=1.0 if m.train_id == "train_01" else 0.0)
+        c.header.stamp = m.header.stamp
+        pubs[m.train_id].publish(c)
+
+    for t in pubs:
+        probe.node.create_subscription(TrainState, f"/{t}/state", answer, QOS_RELIABLE)
+    p = NodeProcess.installed("line_simulator", ["-p", "scenario:=mini",
+                                                 "-p", "startup_timeout_s:=5.0",
+                                                 "-p", "step_timeout_s:=0.05",
+                                                 "-p", "ato_lost_steps:=4"],
+                              ros_env, tmp_path)
+    try:
+        assert probe.wait_for(lambda: any(v > 8.0 for _, v in speeds), timeout=60), p.log()
+        alive.clear()
+        n0 = len(speeds)
+        assert p.wait_for_log("ATO of train_01", timeout=30), p.log()
+        assert "lost: no command for 4 steps" in p.log()
+        assert probe.wait_for(lambda: speeds[-1][1] < 0.01, timeout=60), speeds[-5:]
+        k_stop = speeds[-1][0]
+        alive.set()
+        assert p.wait_for_log("back after", timeout=30), p.log()
+        assert probe.wait_for(lambda: speeds[-1][0] > k_stop + 20, timeout=30)
+    finally:
+        code = p.stop()
+    assert code == 0 and "Traceback" not in p.log()
+    # silent ATO: the last command (full traction) for at most the 4 missed steps (+1 in
+    # flight), then only deceleration until the train stands
+    tail = [v for k, v in speeds[n0:] if k <= k_stop]
+    j = int(np.argmax(tail))
+    assert j <= 6, tail[:10]
+    assert all(b <= a + 1e-6 for a, b in zip(tail[j:], tail[j + 1:])), tail
