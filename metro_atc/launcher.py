@@ -24,6 +24,8 @@ import time
 from pathlib import Path
 from typing import Any, Sequence
 
+from metro_atc.dds import config_dir, dds_defaults
+
 NODE_EXECUTABLES = ("line_simulator", "ats_regulator", "ato_controller", "brake_diagnostic")
 REGULATORS = ("none", "lqr", "dhp", "aoc", "elqr")
 
@@ -41,18 +43,6 @@ def executable(name: str) -> list[str]:
     except ImportError:
         pass
     return [sys.executable, "-m", f"metro_atc.nodes.{name}"]
-
-
-def config_dir() -> Path:
-    """The directory with the default parameter files (installed share/ or the source tree)."""
-    try:
-        from ament_index_python.packages import get_package_share_directory
-        d = Path(get_package_share_directory("metro_atc")) / "config"
-        if d.is_dir():
-            return d
-    except Exception:  # noqa: BLE001 - not installed: use the source tree
-        pass
-    return Path(__file__).resolve().parent.parent / "config"
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -176,7 +166,6 @@ def _stop(procs: list[tuple[str, subprocess.Popen[bytes]]], grace_s: float = 5.0
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one scenario through the graph; print KPIs (``--json``: one JSON object)."""
     a = _parser().parse_args(argv)
-    from metro_atc.nodes.common import dds_defaults
     dds_defaults()
     from metro_atc.core.line.scenario import ScenarioError, load_scenario
     try:

@@ -31,6 +31,8 @@ from rclpy.publisher import Publisher
 from rclpy.subscription import Subscription
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
+from metro_atc.dds import dds_defaults
+
 QOS_RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
                           reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.VOLATILE)
@@ -147,27 +149,6 @@ def spin_fast(executor: SingleThreadedExecutor, nodes: Sequence[Node],
         if now - last_slow >= slow_period_s:
             last_slow = now
             executor.spin_once(timeout_sec=0.0)
-
-
-def dds_defaults() -> None:
-    """Apply the project's DDS defaults unless the user configured DDS: loopback only.
-
-    With Fast DDS and neither ``FASTRTPS_DEFAULT_PROFILES_FILE`` nor
-    ``ROS_AUTOMATIC_DISCOVERY_RANGE`` set (a shell without ``env.sh``), the installed
-    loopback profile ``config/fastdds_profile.xml`` is used with the discovery range
-    ``SYSTEM_DEFAULT`` (the rmw's ``LOCALHOST`` mode adds sockets on every interface);
-    otherwise the range defaults to ``LOCALHOST``.  Must run before ``rclpy.init``.
-    """
-    env = os.environ
-    if "FASTRTPS_DEFAULT_PROFILES_FILE" not in env and \
-            "ROS_AUTOMATIC_DISCOVERY_RANGE" not in env and \
-            env.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp") == "rmw_fastrtps_cpp":
-        from metro_atc.launcher import config_dir
-        profile = config_dir() / "fastdds_profile.xml"
-        if profile.is_file():
-            env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(profile)
-            env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SYSTEM_DEFAULT"
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 
 def declare(node: Node, name: str, default: Any, description: str,

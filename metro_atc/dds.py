@@ -1,0 +1,38 @@
+"""DDS and configuration defaults of the project (ROS-free: runs before ``rclpy.init``)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+
+def config_dir() -> Path:
+    """The directory with the default parameter files (installed share/ or the source tree)."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        d = Path(get_package_share_directory("metro_atc")) / "config"
+        if d.is_dir():
+            return d
+    except Exception:  # noqa: BLE001 - not installed: use the source tree
+        pass
+    return Path(__file__).resolve().parent.parent / "config"
+
+
+def dds_defaults() -> None:
+    """Apply the project's DDS defaults unless the user configured DDS: loopback only.
+
+    With Fast DDS and neither ``FASTRTPS_DEFAULT_PROFILES_FILE`` nor
+    ``ROS_AUTOMATIC_DISCOVERY_RANGE`` set (a shell without ``env.sh``), the installed
+    loopback profile ``config/fastdds_profile.xml`` is used with the discovery range
+    ``SYSTEM_DEFAULT`` (the rmw's ``LOCALHOST`` mode adds sockets on every interface);
+    otherwise the range defaults to ``LOCALHOST``.  Must run before ``rclpy.init``.
+    """
+    env = os.environ
+    if "FASTRTPS_DEFAULT_PROFILES_FILE" not in env and \
+            "ROS_AUTOMATIC_DISCOVERY_RANGE" not in env and \
+            env.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp") == "rmw_fastrtps_cpp":
+        profile = config_dir() / "fastdds_profile.xml"
+        if profile.is_file():
+            env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(profile)
+            env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SYSTEM_DEFAULT"
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
