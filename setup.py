@@ -30,6 +30,7 @@ setup(
             f"ats_regulator = {PACKAGE}.nodes.ats_regulator:main",
             f"ato_controller = {PACKAGE}.nodes.ato_controller:main",
             f"brake_diagnostic = {PACKAGE}.nodes.brake_diagnostic:main",
+            f"bag_recorder = {PACKAGE}.nodes.bag_recorder:main",
         ],
     },
 )

@@ -23,6 +23,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from metro_atc.jsonsafe import json_safe
+
 if TYPE_CHECKING:  # pragma: no cover
     from metro_atc.core.plant.line import LineSim
 
@@ -147,16 +149,19 @@ def plot_energy(sim: "LineSim", path: Path) -> None:
 
 
 def write_outputs(sim: "LineSim", out_dir: str | Path,
-                  speed_trains: list[int] | None = None) -> list[Path]:
+                  speed_trains: list[int] | None = None,
+                  kpis: dict[str, Any] | None = None) -> list[Path]:
     """Write KPIs JSON, events CSV and the PNGs into ``out_dir``; returns the files written.
 
-    ``speed_trains`` selects the speed-profile trains (default: first, middle and last).
+    ``speed_trains`` selects the speed-profile trains (default: first, middle and last);
+    ``kpis`` (default :meth:`LineSim.kpis`) is what ``kpis.json`` holds, written once.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     files = []
     kp = out / "kpis.json"
-    kp.write_text(json.dumps(sim.kpis(), indent=2, allow_nan=False), encoding="utf-8")
+    kp.write_text(json.dumps(json_safe(kpis if kpis is not None else sim.kpis()), indent=2,
+                             sort_keys=True, allow_nan=False), encoding="utf-8")
     files.append(kp)
     ev = out / "events.csv"
     write_events_csv(sim, ev)
