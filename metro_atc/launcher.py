@@ -5,8 +5,10 @@ executables installed at ``install/metro_atc/lib/metro_atc/`` are started as sep
 processes, per-train ATO nodes composed several to a process (``--ato-per-process``).
 ``line_simulator`` drives the lockstep and exits when the scenario ends, after writing
 ``kpis.json`` (and events CSV and plots) into the output directory; the launcher then stops
-every other process (SIGINT, then SIGKILL after a grace period; also on Ctrl-C/SIGTERM, so no
-orphans remain) and prints the KPIs.
+every other process (SIGTERM, then SIGKILL after a grace period; also on Ctrl-C/SIGTERM, so
+no orphans remain) and prints the KPIs. SIGTERM, not SIGINT: a node still importing its
+modules then ends silently (SIGINT would raise KeyboardInterrupt with a traceback), one that
+runs ends its loop and closes cleanly.
 
 No silent degradation: if any process exits with an error, the graph is stopped and the
 run exits non-zero with one line naming the process and its reason; the wall-clock
@@ -183,11 +185,11 @@ def build_commands(a: argparse.Namespace, train_ids: Sequence[str],
             for p in processes_for(a, train_ids, out_dir)]
 
 
-def _stop(procs: list[tuple[str, subprocess.Popen[bytes]]], grace_s: float = 5.0) -> None:
+def _stop(procs: list[tuple[str, subprocess.Popen[bytes]]], grace_s: float = 15.0) -> None:
     for _, p in procs:
         if p.poll() is None:
             try:
-                os.killpg(p.pid, signal.SIGINT)
+                os.killpg(p.pid, signal.SIGTERM)
             except ProcessLookupError:
                 pass
     deadline = time.monotonic() + grace_s
@@ -266,7 +268,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     kpis["real_time_factor"] = round(sim_t / wall, 2) if wall > 0 else math.nan
     seen = kpis.get("regulators_seen") or {}
     kpis["regulator"] = ",".join(sorted(seen)) if seen else "none (no departure commands)"
-    kpis["planner"] = ",".join(sorted(kpis.get("planners_seen") or {})) or "none"
+    kpis["planner"] = ",".join(kpis.get("planners_seen") or []) or "none"
     kpis["mode"] = "single_process" if a.single_process else "multi_process"
     kpis["out_dir"] = str(out_dir)
     if a.record is not None:
@@ -338,10 +340,10 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
         _stop(procs)
         signal.signal(signal.SIGTERM, old)
     if code == 0:
-        # the rest of the graph was stopped by SIGINT: a node that then fails (or a recorder
+        # the rest of the graph was stopped by SIGTERM: a node that then fails (or a recorder
         # that could not close its bag) still fails the run
         bad = [(label, p.returncode) for label, p in procs[1:]
-               if p.returncode not in (0, -signal.SIGINT, -signal.SIGKILL)]
+               if p.returncode not in (0, -signal.SIGTERM, -signal.SIGKILL)]
         if bad:
             label, rc = bad[0]
             print(f"metro_atc run: error: {label} exited with {rc} at shutdown: "

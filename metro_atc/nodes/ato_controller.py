@@ -22,6 +22,7 @@ import math
 import time
 from typing import Any, Sequence
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from metro_atc_msgs.msg import DepartureCommand, SpeedProfile, TractionCommand, TrainState
 from rclpy.executors import SingleThreadedExecutor
@@ -187,6 +188,7 @@ class AtoController(Node):
         p.feasible = bool(prof.feasible)
         p.planner = str(prof.planner)
         p.message = str(prof.message)
+        p.planned_position_m, p.planned_speed_mps = planned_curve(prof)
         return p
 
     # ------------------------------------------------------------------ tracking
@@ -259,6 +261,23 @@ class AtoController(Node):
             if over > 0.0:
                 bound = min(bound, -min(1.0, self.guard.gain * over))
         return bound
+
+
+PLANNED_POINTS = 200
+"""Samples of the planned speed curve carried by a SpeedProfile message."""
+
+
+def planned_curve(prof: Profile) -> tuple[list[float], list[float]]:
+    """The plan's speed over chainage, at most PLANNED_POINTS samples ([m], [m/s])."""
+    s = np.asarray(prof.s_grid, dtype=float)
+    v = np.asarray(prof.v_profile, dtype=float)
+    if s.size == 0 or s.size != v.size:
+        return [], []
+    idx = np.unique(np.linspace(0, s.size - 1, min(s.size, PLANNED_POINTS)).astype(int))
+    d = 1.0 if prof.x_stop_m >= prof.x_start_m else -1.0
+    x = prof.x_start_m + d * s[idx]
+    ok = np.isfinite(x) & np.isfinite(v[idx])
+    return [float(a) for a in x[ok]], [float(b) for b in v[idx][ok]]
 
 
 def build_nodes() -> list[Node]:

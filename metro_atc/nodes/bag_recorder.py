@@ -37,7 +37,7 @@ from metro_atc.core.plant.scenario import ScenarioError, load_scenario
 from metro_atc.nodes.common import (OK, QOS_CLOCK, QOS_DIAGNOSTICS, QOS_EVENTS, QOS_LATCHED,
                                     QOS_RELIABLE, QOS_SENSOR, WARN, NodeConfigError,
                                     RuntimeParams, SubscriptionPoller, diag_status, run_nodes,
-                                    static)
+                                    static, stop_requested)
 
 QOS_LOG = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                      reliability=ReliabilityPolicy.RELIABLE,
@@ -200,10 +200,10 @@ def main(args: Sequence[str] | None = None) -> int:
         assert isinstance(node, BagRecorder)
         ctx = node.context
         last_slow = 0.0
-        while ctx.ok():
+        while ctx.ok() and not stop_requested():
             poller = SubscriptionPoller(ctx, node.subs)
             n_subs = len(node.subs)
-            while ctx.ok() and len(node.subs) == n_subs:
+            while ctx.ok() and not stop_requested() and len(node.subs) == n_subs:
                 poller.poll(0.05)
                 now = time.monotonic()
                 if now - last_slow >= 0.05:

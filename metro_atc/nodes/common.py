@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import threading
 import time
 from contextlib import ExitStack
 from typing import Any, Callable, Iterable, Sequence
@@ -145,7 +146,7 @@ def spin_fast(executor: SingleThreadedExecutor, nodes: Sequence[Node],
     ctx = nodes[0].context if nodes else executor.context
     poller = SubscriptionPoller(ctx, fast_subs)
     last_slow = 0.0
-    while ctx.ok() and not (until is not None and until()):
+    while ctx.ok() and not stop_requested() and not (until is not None and until()):
         poller.poll(slow_period_s)
         now = time.monotonic()
         if now - last_slow >= slow_period_s:
@@ -364,8 +365,12 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
     except RuntimeError as exc:
         print(f"{name}: error: {_one_line(exc).split(', at /')[0]}", file=sys.stderr)
         return 2
-    signal.signal(signal.SIGTERM, lambda *_: _raise_keyboard_interrupt())
-    signal.signal(signal.SIGINT, lambda *_: _raise_keyboard_interrupt())
+    # a flag, not an exception: raised inside rclpy's executor an exception leaves
+    # half-made tasks ("coroutine ... was never awaited"); every loop here waits at most
+    # ~0.1 s and checks the flag
+    _STOP.clear()
+    signal.signal(signal.SIGTERM, _request_stop)
+    signal.signal(signal.SIGINT, _request_stop)
     nodes: Sequence[Node] = ()
     code = 0
     try:
@@ -380,8 +385,7 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
         if loop is not None:
             loop(executor, nodes)
         else:
-            while rclpy.ok():  # bounded waits: SIGINT/SIGTERM are handled within 0.1 s
-                executor.spin_once(timeout_sec=0.1)
+            spin_until_stopped(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         code = 0
     finally:
@@ -441,8 +445,23 @@ def _flatten_ns(val: dict) -> dict:
     return cur if isinstance(cur, dict) else {}
 
 
-def _raise_keyboard_interrupt() -> None:
-    raise KeyboardInterrupt
+_STOP = threading.Event()
+"""Set by SIGINT/SIGTERM in a node process (see :func:`run_nodes`)."""
+
+
+def _request_stop(*_: Any) -> None:
+    _STOP.set()
+
+
+def stop_requested() -> bool:
+    """True once the process got SIGINT or SIGTERM (loops end, nodes close cleanly)."""
+    return _STOP.is_set()
+
+
+def spin_until_stopped(executor: SingleThreadedExecutor) -> None:
+    """Spin with bounded waits until SIGINT/SIGTERM or the context shuts down."""
+    while executor.context.ok() and not stop_requested():
+        executor.spin_once(timeout_sec=0.1)
 
 
 def _one_line(exc: BaseException) -> str:

@@ -35,7 +35,8 @@ from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_CLOCK, QOS_EVENTS, QOS_LATCHED, QOS_RELIABLE, QOS_SENSOR,
                                     OK, WARN, NodeConfigError, RuntimeParams,
                                     SubscriptionPoller, bulk_publisher, bulk_subscription,
-                                    diag_status, run_nodes, static)
+                                    diag_status, run_nodes, spin_until_stopped, static,
+                                    stop_requested)
 
 
 _REGULATOR_NAMES = {code: name for name, code in conv.REGULATOR_CODES.items()}
@@ -118,6 +119,7 @@ class LineSimulator(Node):
         self.started = False
         self.regulators: dict[str, int] = {}
         self.planners: dict[str, int] = {}
+        self.planned: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
         self._health_last = (time.monotonic(), 0.0, 0, 0)
         self._matched = np.zeros(n, dtype=np.int64)
 
@@ -188,6 +190,13 @@ class LineSimulator(Node):
     def _on_profile(self, msg: SpeedProfile) -> None:
         name = str(msg.planner)[:32] or "unknown"
         self.planners[name] = self.planners.get(name, 0) + 1
+        i = self.index.get(str(msg.train_id))
+        x = np.asarray(msg.planned_position_m, dtype=float)
+        v = np.asarray(msg.planned_speed_mps, dtype=float)
+        if i is not None and x.size and x.size == v.size and np.isfinite(x).all() \
+                and np.isfinite(v).all():
+            # the latest plan of each run is the one that was tracked (for the plots)
+            self.planned.setdefault(i, {})[int(msg.from_station)] = (x, v)
 
     def _set_progress_period(self, value: float) -> None:
         self.progress_period_s = float(value)
@@ -368,7 +377,7 @@ class LineSimulator(Node):
         k["scenario"] = self.scenario_name
         k["lockstep"] = bool(self.lockstep)
         k["regulators_seen"] = dict(sorted(self.regulators.items()))
-        k["planners_seen"] = dict(sorted(self.planners.items()))
+        k["planners_seen"] = sorted(self.planners)  # names only: latched, depth-1 reader
         return k
 
     def close(self) -> None:
@@ -382,7 +391,7 @@ class LineSimulator(Node):
         try:
             from metro_atc import plots
             if self.plots:
-                plots.write_outputs(self.sim, out, kpis=k)
+                plots.write_outputs(self.sim, out, kpis=k, planned=self.planned)
                 return
             plots.write_events_csv(self.sim, out / "events.csv")
         except Exception as exc:  # noqa: BLE001 - outputs must not hide the KPIs
@@ -412,6 +421,8 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
 
     t0 = time.monotonic()
     while not sim.graph_ready() and time.monotonic() - t0 < sim.startup_timeout_s:
+        if stop_requested():
+            return
         executor.spin_once(timeout_sec=0.05)
     if not sim.graph_ready():
         log.warning("startup: not every ATO/ATS endpoint was discovered; starting anyway")
@@ -429,12 +440,14 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
             last_slow = now
             executor.spin_once(timeout_sec=0.0)
 
-    while not sim.finished:
+    while not sim.finished and not stop_requested():
         active = sim.publish_step()
         if sim.lockstep:
             deadline = time.monotonic() + sim.step_timeout_s
             resend = time.monotonic() + 0.5
             while not sim.commands_complete(active) and time.monotonic() < deadline:
+                if stop_requested():
+                    return
                 wait(0.02)
                 if time.monotonic() > resend and not sim.commands_complete(active):
                     # a state may have been published before a late (or restarted) ATO
@@ -457,6 +470,9 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
             slow_path(force=True)
         else:
             executor.spin_once(timeout_sec=0.0)
+    if not sim.finished:
+        log.info(f"stopped by a signal at t={sim.sim.t:.1f} s, step {sim.k}")
+        return
     log.info(f"scenario finished at t={sim.sim.t:.1f} s after {sim.k} steps, "
              f"{time.monotonic() - t0:.1f} s wall")
     # let the last events/status reach late subscribers before the process exits
@@ -472,7 +488,7 @@ def main(args: Sequence[str] | None = None) -> int:
         assert isinstance(node, LineSimulator)
         lockstep_loop(executor, node)
         if not node.exit_on_finish:
-            executor.spin()
+            spin_until_stopped(executor)
 
     return run_nodes(lambda: [LineSimulator()], loop, args)
 
