@@ -77,9 +77,10 @@ def ran_trains(sim: "LineSim") -> list[int]:
 def _train_colours(n: int) -> list[Any]:
     """``n`` distinguishable colours (tab10 then tab20b/tab20c shades, no repeat up to 50)."""
     from matplotlib import colormaps
-    base = list(colormaps["tab10"].colors)
-    more = list(colormaps["tab20b"].colors) + list(colormaps["tab20c"].colors)
-    cols = base + more
+    cols: list[Any] = []
+    for name, k in (("tab10", 10), ("tab20b", 20), ("tab20c", 20)):
+        cmap = colormaps[name]
+        cols += [cmap(j) for j in range(k)]  # listed colormaps: integer j = j-th colour
     return [cols[i % len(cols)] for i in range(n)]
 
 

@@ -171,8 +171,7 @@ def test_clock_is_monotonic(two_runs: dict[str, Any]) -> None:
 def test_lockstep_is_deterministic(two_runs: dict[str, Any]) -> None:
     """Two lockstep runs of the same scenario give identical events and KPIs."""
     a, b = two_runs["kpis"]
-    skip = {"wall_time_s", "real_time_factor", "out_dir", "sim_wall_time_s",
-            "sim_real_time_factor", "bag"}
+    skip = {"wall_time_s", "real_time_factor", "out_dir", "bag"}
     assert {k: v for k, v in a.items() if k not in skip} == \
         {k: v for k, v in b.items() if k not in skip}
     assert two_runs["events"][0] == two_runs["events"][1]
@@ -279,8 +278,7 @@ def test_single_process_matches(two_runs: dict[str, Any], ros_env: dict[str, str
                                 tmp_path: Path) -> None:
     """``--single-process`` runs the same nodes and gives the same KPIs as the graph."""
     k = _run_graph(ros_env, tmp_path, "--single-process")
-    skip = {"wall_time_s", "real_time_factor", "out_dir", "mode", "sim_wall_time_s",
-            "sim_real_time_factor", "bag"}
+    skip = {"wall_time_s", "real_time_factor", "out_dir", "mode", "bag"}
     assert {x: v for x, v in k.items() if x not in skip} == \
         {x: v for x, v in two_runs["kpis"][0].items() if x not in skip}
 

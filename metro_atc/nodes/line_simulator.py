@@ -367,9 +367,6 @@ class LineSimulator(Node):
     def kpis(self) -> dict[str, Any]:
         """The core's KPIs plus the node's lockstep/rejection counters."""
         k = dict(self.sim.kpis())
-        wall = time.monotonic() - self._wall0 if self.started else 0.0
-        k["sim_wall_time_s"] = round(wall, 3)
-        k["sim_real_time_factor"] = round(float(self.sim.t) / wall, 2) if wall > 0 else 0.0
         k["lockstep_misses"] = int(self.lockstep_misses)
         k["rejected_messages"] = int(self.rejected)
         k["ats_timeouts"] = int(self.ats_misses)
