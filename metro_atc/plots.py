@@ -90,6 +90,16 @@ def _station_labels(sim: "LineSim") -> list[str]:
             for c, nm in zip(sim.station_codes, sim.station_names)]
 
 
+def _tsr_windows(sim: "LineSim",
+                 t_end_s: float) -> list[tuple[float, float, float, float, float]]:
+    """TSRs of the scenario (line and incidents): (start m, end m, from s, to s, km/h)."""
+    tsrs = [(z.start_m, z.end_m, z.from_s, min(z.to_s, t_end_s), z.limit_kmh)
+            for z in sim.scn.line.temporary_speed_limits]
+    tsrs += [(z.start_m, z.end_m, z.at_s, min(z.at_s + z.duration_s, t_end_s), z.limit_kmh)
+             for z in sim.scn.incidents if z.kind == "tsr"]
+    return tsrs
+
+
 def _shade_incidents(ax: Any, sim: "LineSim", t_end_s: float) -> None:
     """Shade TSR windows (time x zone) and breakdown/hold times on a train graph [min, km]."""
     from matplotlib.patches import Rectangle
@@ -101,11 +111,7 @@ def _shade_incidents(ax: Any, sim: "LineSim", t_end_s: float) -> None:
         labelled.add(key)
         return text
 
-    tsrs = [(z.start_m, z.end_m, z.from_s, min(z.to_s, t_end_s), z.limit_kmh)
-            for z in sim.scn.line.temporary_speed_limits]
-    tsrs += [(z.start_m, z.end_m, z.at_s, min(z.at_s + z.duration_s, t_end_s), z.limit_kmh)
-             for z in sim.scn.incidents if z.kind == "tsr"]
-    for x0, x1, t0, t1, lim in tsrs:
+    for x0, x1, t0, t1, lim in _tsr_windows(sim, t_end_s):
         if t1 <= t0:
             continue
         ax.add_patch(Rectangle((t0 / 60.0, x0 / 1000.0), (t1 - t0) / 60.0, (x1 - x0) / 1000.0,
@@ -223,6 +229,11 @@ def plot_speed_profile(sim: "LineSim", train_idx: int, path: Path,
     if sel.any():
         ax.plot(x[sel, train_idx] / 1000.0, v[sel, train_idx] * KMH, color="tab:blue",
                 lw=1.4, label="actual speed")
+    for k, (x0, x1, t0, t1, lim) in enumerate(_tsr_windows(sim, math.inf)):
+        ax.axvspan(x0 / 1000.0, x1 / 1000.0, color="gold", alpha=0.3, zorder=0,
+                   label="temporary speed restriction (part of the run)" if k == 0 else None)
+        ax.text((x0 + x1) / 2000.0, lim, f"TSR {lim:g} km/h\n{t0 / 60:.0f}-{t1 / 60:.0f} min",
+                fontsize=7, ha="center", va="bottom", color="darkgoldenrod")
     names = _station_labels(sim)
     shown = [j for j, px_m in enumerate(sim.station_positions_m) if lo - 1.0 <= px_m <= hi]
     for j in shown:
