@@ -36,10 +36,12 @@ from rclpy.publisher import Publisher
 from rclpy.subscription import Subscription
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
-QOS_RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
+QOS_RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=500,
                           reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.VOLATILE)
-"""Commands and per-step states: every sample matters, no history for late joiners."""
+"""Commands and per-step states: every sample matters, no history for late joiners. A keep-last
+writer overwrites samples a reader has not acknowledged: 500 steps cover a recorder that
+falls behind the lockstep for a few seconds."""
 
 QOS_LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                          reliability=ReliabilityPolicy.RELIABLE,
@@ -56,12 +58,13 @@ QOS_SENSOR = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=20,
                         durability=DurabilityPolicy.VOLATILE)
 """High-rate sensor data: best effort, a lost sample is replaced by the next one."""
 
-QOS_CLOCK = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+QOS_CLOCK = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                        reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
 """/clock: matches rclpy's best-effort and reliable clock subscribers; a writer history of
-100 ticks so that a reliable reader (a recorder) that falls a few steps behind loses none
-(with depth 1 the writer overwrites unacknowledged ticks)."""
+1 000 ticks so that a reliable reader (a recorder) that falls behind loses none (a keep-last
+writer overwrites unacknowledged ticks; after the last train left, steps need no command
+and run at thousands per second)."""
 
 QOS_DIAGNOSTICS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
                              reliability=ReliabilityPolicy.RELIABLE,

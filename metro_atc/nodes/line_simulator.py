@@ -24,6 +24,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from metro_atc_msgs.msg import (BrakeSensorData, DepartureCommand, LineStatus, SpeedProfile,
                                 TractionCommand, TrainEvent, TrainState)
+from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
@@ -259,6 +260,23 @@ class LineSimulator(Node):
                 return False
         return True
 
+    def wait_acked(self, timeout_s: float = 5.0) -> None:
+        """Wait until every reliable reader acknowledged what was published (a recorder).
+
+        With ``wait_for_subscribers`` the lockstep calls this once after the last step, so
+        the last messages reach the recorder before the process exits (a reliable writer
+        that exits cannot resend). During the run the writers' histories (1 000 clock
+        ticks, 500 states) cover a recorder that falls behind; acknowledgements come with
+        the DDS heartbeat (~1 s), too slow to wait for during the run.
+        """
+        end = time.monotonic() + timeout_s
+        for p in (self.clock_pub, self.event_pub, self.status_pub, *self.state_pubs):
+            rest = end - time.monotonic()
+            if rest <= 0.0 or not p.wait_for_all_acked(Duration(seconds=rest)):
+                self.get_logger().warning(f"{p.topic_name}: not every reader acknowledged "
+                                          f"the last messages within {timeout_s:g} s")
+                return
+
     def new_subscribers(self, active: np.ndarray) -> np.ndarray:
         """Active trains whose state topic matched a new subscriber since the last check."""
         cnt = np.array([p.get_subscription_count() for p in self.state_pubs], dtype=np.int64)
@@ -467,6 +485,8 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
             slow_path(force=True)
         else:
             executor.spin_once(timeout_sec=0.0)
+    if sim.wait_for_subscribers:
+        sim.wait_acked()
     if not sim.finished:
         log.info(f"stopped by a signal at t={sim.sim.t:.1f} s, step {sim.k}")
         return
