@@ -10,7 +10,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
-    package_data={PACKAGE: ["scenarios/*.yaml", "scenarios/*.md", "data/*", "config/*.xml"]},
+    package_data={PACKAGE: ["scenarios/*.yaml", "scenarios/*.md", "data/*"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -30,6 +30,7 @@ setup(
             f"ats_regulator = {PACKAGE}.nodes.ats_regulator:main",
             f"ato_controller = {PACKAGE}.nodes.ato_controller:main",
             f"brake_diagnostic = {PACKAGE}.nodes.brake_diagnostic:main",
+            f"bag_recorder = {PACKAGE}.nodes.bag_recorder:main",
         ],
     },
 )

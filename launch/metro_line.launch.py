@@ -2,50 +2,62 @@
 
     ros2 launch metro_atc metro_line.launch.py scenario:=taipei_blue regulator:=lqr
 
-One ``ato_controller`` process per train is started here (namespaced ``/train_NN``); the
-tested bring-up without ``launch`` is ``python -m metro_atc run`` (same executables).
+The same processes as ``python -m metro_atc run`` (both take them from
+:func:`metro_atc.launcher.graph_processes`): the line simulator, the ATS, the brake
+diagnosis, the ATO nodes composed ``ato_per_process`` to a process, and with ``record:=DIR``
+the bag recorder (the lockstep then waits for it). The whole launch shuts down when the
+line simulator exits (scenario end), as ``run`` does.
 """
 
-import os
-
-from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.actions import (DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler,
+                            Shutdown)
+from launch.event_handlers import OnProcessExit
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+
+ARGUMENTS = {
+    "scenario": ("taipei_blue", "embedded scenario name or path to a scenario YAML"),
+    "regulator": ("none", "ATS regulator: none | lqr | dhp | aoc | elqr"),
+    "seed": ("0", "random seed of disturbances and sensor noise"),
+    "lockstep": ("true", "deterministic lockstep (true) or free-run at real_time_factor"),
+    "real_time_factor": ("10.0", "free-run pacing: simulated seconds per wall second"),
+    "duration": ("0.0", "stop after this much simulated time [s] (0: scenario end)"),
+    "out_dir": ("", "directory for kpis.json, events.csv and plots ('' : none)"),
+    "plots": ("true", "write PNG plots into out_dir"),
+    "ato_per_process": ("8", "ATO nodes composed per OS process"),
+    "record": ("", "record every topic to this rosbag2 MCAP directory ('' : no)"),
+}
+"""Launch arguments: name -> (default, description)."""
+
+
+def _true(text: str) -> bool:
+    return text.strip().lower() in ("true", "1", "yes", "on")
 
 
 def _nodes(context, *args, **kwargs):
     """Create the node actions once the launch arguments are known."""
-    from metro_atc.launcher import scenario_train_ids
     from metro_atc.core.line.scenario import load_scenario
+    from metro_atc.launcher import graph_processes, scenario_train_ids
 
-    scenario = LaunchConfiguration("scenario").perform(context)
-    regulator = LaunchConfiguration("regulator").perform(context)
-    cfg = os.path.join(get_package_share_directory("metro_atc"), "config")
-    common = {"use_sim_time": True, "scenario": scenario}
-    actions = [
-        Node(package="metro_atc", executable="line_simulator", name="line_simulator",
-             parameters=[os.path.join(cfg, "line_simulator.yaml"), common]),
-        Node(package="metro_atc", executable="ats_regulator", name="ats_regulator",
-             parameters=[os.path.join(cfg, "ats_regulator.yaml"), common,
-                         {"regulator": regulator}]),
-        Node(package="metro_atc", executable="brake_diagnostic", name="brake_diagnostic",
-             parameters=[os.path.join(cfg, "brake_diagnostic.yaml"), common]),
-    ]
-    for tid in scenario_train_ids(load_scenario(scenario)):
-        actions.append(Node(package="metro_atc", executable="ato_controller",
-                            name="ato_controller", namespace=tid,
-                            parameters=[os.path.join(cfg, "ato_controller.yaml"), common,
-                                        {"train_ids": [tid]}]))
+    a = {k: LaunchConfiguration(k).perform(context) for k in ARGUMENTS}
+    procs = graph_processes(
+        a["scenario"], scenario_train_ids(load_scenario(a["scenario"])),
+        regulator=a["regulator"], seed=int(a["seed"]), lockstep=_true(a["lockstep"]),
+        rtf=float(a["real_time_factor"]), duration_s=float(a["duration"]),
+        out_dir=a["out_dir"], plots=_true(a["plots"]),
+        ato_per_process=int(a["ato_per_process"]), record_dir=a["record"] or None)
+    actions = [Node(package="metro_atc", executable=p.executable, output="screen",
+                    parameters=([p.params_file] if p.params_file else []) + [p.params])
+               for p in procs]
+    actions.append(RegisterEventHandler(OnProcessExit(
+        target_action=actions[0],
+        on_exit=[Shutdown(reason="line_simulator exited (scenario end)")])))
     return actions
 
 
 def generate_launch_description():
-    """Launch arguments: scenario, regulator."""
-    return LaunchDescription([
-        DeclareLaunchArgument("scenario", default_value="taipei_blue"),
-        DeclareLaunchArgument("regulator", default_value="none",
-                              description="none | lqr | dhp | aoc"),
-        OpaqueFunction(function=_nodes),
-    ])
+    """Launch arguments (see ARGUMENTS) and the graph."""
+    return LaunchDescription(
+        [DeclareLaunchArgument(k, default_value=d, description=text)
+         for k, (d, text) in ARGUMENTS.items()] + [OpaqueFunction(function=_nodes)])

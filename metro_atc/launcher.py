@@ -5,8 +5,18 @@ executables installed at ``install/metro_atc/lib/metro_atc/`` are started as sep
 processes, per-train ATO nodes composed several to a process (``--ato-per-process``).
 ``line_simulator`` drives the lockstep and exits when the scenario ends, after writing
 ``kpis.json`` (and events CSV and plots) into the output directory; the launcher then stops
-every other process (SIGINT, then SIGKILL after a grace period; also on Ctrl-C/SIGTERM, so no
-orphans remain) and prints the KPIs.
+every other process (SIGTERM, then SIGKILL after a grace period; also on Ctrl-C/SIGTERM, so
+no orphans remain) and prints the KPIs. SIGTERM, not SIGINT: a node still importing its
+modules then ends silently (SIGINT would raise KeyboardInterrupt with a traceback), one that
+runs ends its loop and closes cleanly.
+
+No silent degradation: if any process exits with an error, the graph is stopped and the
+run exits non-zero with one line naming the process and its reason; the wall-clock
+``--timeout`` exits non-zero too. ``--record DIR`` adds the ``bag_recorder`` node (a rosbag2
+MCAP directory of every topic) and the simulator waits for it before step 0.
+
+The process list comes from :func:`graph_processes` (ROS-free), which the launch file
+``launch/metro_line.launch.py`` uses as well.
 """
 
 from __future__ import annotations
@@ -21,13 +31,21 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
 from metro_atc.dds import config_dir, dds_defaults
 
-NODE_EXECUTABLES = ("line_simulator", "ats_regulator", "ato_controller", "brake_diagnostic")
+NODE_EXECUTABLES = ("line_simulator", "ats_regulator", "ato_controller", "brake_diagnostic",
+                    "bag_recorder")
 REGULATORS = ("none", "lqr", "dhp", "aoc", "elqr")
+RECORDER_NODE = "bag_recorder"
+"""Node name of the recorder (the simulator waits for it before step 0)."""
+EXIT_TIMEOUT = 124
+"""Exit code of a run stopped by the wall-clock ``--timeout`` (as coreutils ``timeout``)."""
+EXIT_NODE_FAILED = 3
+"""Exit code of a run stopped because a node process failed."""
 
 
 def executable(name: str) -> list[str]:
@@ -68,12 +86,73 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--plots", action=argparse.BooleanOptionalAction, default=True,
                    help="write PNG plots into --out (default on)")
     p.add_argument("--log-dir", default=None, help="node logs (default OUT/logs)")
+    p.add_argument("--record", nargs="?", const="", default=None, metavar="BAG_DIR",
+                   help="record every topic to a rosbag2 MCAP directory (default OUT/bag); "
+                        "the lockstep waits for the recorder before step 0")
+    p.add_argument("--wait-for-subscribers", default="", metavar="NODE[,NODE]",
+                   help="node names that must subscribe to the simulator's topics before "
+                        "step 0 (e.g. an outside recorder)")
     return p
 
 
-def common_params(a: argparse.Namespace, out_dir: Path) -> dict[str, Any]:
-    """Parameters every node of the run gets."""
-    return {"use_sim_time": True, "scenario": a.scenario}
+@dataclass
+class ProcessSpec:
+    """One OS process of the graph: executable, parameter file and parameters (ROS-free)."""
+
+    label: str
+    executable: str
+    params_file: str | None
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "none",
+                    seed: int = 0, lockstep: bool = True, rtf: float = 10.0,
+                    duration_s: float = 0.0, out_dir: str = "", plots: bool = True,
+                    ato_per_process: int = 8, record_dir: str | None = None,
+                    wait_for: Sequence[str] = (),
+                    cfg: Path | None = None) -> list[ProcessSpec]:
+    """The processes of a run, as ``run`` starts them and the launch file declares them."""
+    cfg = cfg or config_dir()
+    base: dict[str, Any] = {"use_sim_time": True, "scenario": scenario}
+    waits = list(wait_for) + ([RECORDER_NODE] if record_dir is not None else [])
+    sim = dict(base, seed=int(seed), lockstep=bool(lockstep), real_time_factor=float(rtf),
+               out_dir=str(out_dir), plots=bool(plots), exit_on_finish=True,
+               max_sim_time_s=float(duration_s))
+    if waits:
+        sim["wait_for_subscribers"] = waits
+    procs = [ProcessSpec("line_simulator", "line_simulator", str(cfg / "line_simulator.yaml"),
+                         sim),
+             ProcessSpec("ats_regulator", "ats_regulator", str(cfg / "ats_regulator.yaml"),
+                         dict(base, regulator=regulator)),
+             ProcessSpec("brake_diagnostic", "brake_diagnostic",
+                         str(cfg / "brake_diagnostic.yaml"), dict(base))]
+    n = max(1, int(ato_per_process))
+    for g in range(0, len(train_ids), n):
+        group = list(train_ids[g:g + n])
+        procs.append(ProcessSpec(f"ato_{group[0]}", "ato_controller",
+                                 str(cfg / "ato_controller.yaml"),
+                                 dict(base, train_ids=group)))
+    if record_dir is not None:
+        procs.append(ProcessSpec("bag_recorder", "bag_recorder", None,
+                                 dict(base, output=str(record_dir))))
+    return procs
+
+
+def record_dir(a: argparse.Namespace, out_dir: Path) -> str | None:
+    """The bag directory of ``--record`` (None: not recording)."""
+    if a.record is None:
+        return None
+    return str(Path(a.record) if a.record else out_dir / "bag")
+
+
+def processes_for(a: argparse.Namespace, train_ids: Sequence[str],
+                  out_dir: Path) -> list[ProcessSpec]:
+    """:func:`graph_processes` for the parsed ``run`` options."""
+    return graph_processes(
+        a.scenario, train_ids, regulator=a.regulator, seed=a.seed, lockstep=not a.free_run,
+        rtf=a.rtf, duration_s=a.duration, out_dir=str(out_dir), plots=a.plots,
+        ato_per_process=a.ato_per_process, record_dir=record_dir(a, out_dir),
+        wait_for=[x for x in a.wait_for_subscribers.split(",") if x])
 
 
 def _ros_args(params: dict[str, Any], params_file: Path | None) -> list[str]:
@@ -107,48 +186,19 @@ def ros_param_value(v: Any) -> str:
     return str(v)
 
 
-def check_out_dir(out_dir: Path) -> str | None:
-    """Create ``out_dir`` and check a file can be written in it; return an error line or None.
-
-    Called before any node starts (an unwritable directory would otherwise lose the KPIs
-    at the end of the run).
-    """
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=out_dir, prefix=".write_check_"):
-            pass
-    except OSError as exc:
-        return f"output directory {out_dir}: not writable ({exc.strerror or exc})"
-    return None
-
-
 def build_commands(a: argparse.Namespace, train_ids: Sequence[str],
                    out_dir: Path) -> list[tuple[str, list[str]]]:
     """The process list of a run: (label, argv)."""
-    cfg = config_dir()
-    base = common_params(a, out_dir)
-    sim_params = dict(base, seed=a.seed, lockstep=not a.free_run, real_time_factor=a.rtf,
-                      out_dir=str(out_dir), plots=a.plots, exit_on_finish=True,
-                      max_sim_time_s=float(a.duration))
-    procs = [("line_simulator", executable("line_simulator")
-              + _ros_args(sim_params, cfg / "line_simulator.yaml")),
-             ("ats_regulator", executable("ats_regulator")
-              + _ros_args(dict(base, regulator=a.regulator), cfg / "ats_regulator.yaml")),
-             ("brake_diagnostic", executable("brake_diagnostic")
-              + _ros_args(base, cfg / "brake_diagnostic.yaml"))]
-    n = max(1, int(a.ato_per_process))
-    for g in range(0, len(train_ids), n):
-        group = list(train_ids[g:g + n])
-        procs.append((f"ato_{group[0]}", executable("ato_controller")
-                      + _ros_args(dict(base, train_ids=group), cfg / "ato_controller.yaml")))
-    return procs
+    return [(p.label, executable(p.executable)
+             + _ros_args(p.params, Path(p.params_file) if p.params_file else None))
+            for p in processes_for(a, train_ids, out_dir)]
 
 
-def _stop(procs: list[tuple[str, subprocess.Popen[bytes]]], grace_s: float = 5.0) -> None:
+def _stop(procs: list[tuple[str, subprocess.Popen[bytes]]], grace_s: float = 15.0) -> None:
     for _, p in procs:
         if p.poll() is None:
             try:
-                os.killpg(p.pid, signal.SIGINT)
+                os.killpg(p.pid, signal.SIGTERM)
             except ProcessLookupError:
                 pass
     deadline = time.monotonic() + grace_s
@@ -161,6 +211,26 @@ def _stop(procs: list[tuple[str, subprocess.Popen[bytes]]], grace_s: float = 5.0
             except ProcessLookupError:
                 pass
             p.wait()
+
+
+def check_out_dir(path: Path) -> str | None:
+    """Create ``path`` if needed and check it is a writable directory; one error line or None.
+
+    Called before any node starts (an unwritable directory would otherwise lose the KPIs
+    at the end of the run).
+    """
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return f"--out {path}: cannot create it: {exc.strerror}"
+    if not path.is_dir():
+        return f"--out {path}: not a directory"
+    try:
+        with tempfile.NamedTemporaryFile(dir=path, prefix=".write_test_"):
+            pass
+    except OSError as exc:
+        return f"--out {path}: not writable: {exc.strerror}"
+    return None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -176,6 +246,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     out_dir = Path(a.out) if a.out else Path(tempfile.mkdtemp(prefix="metro_atc_run_"))
     problem = check_out_dir(out_dir)
+    if problem is None and a.log_dir:
+        problem = check_out_dir(Path(a.log_dir))
+    if problem is None and a.record is not None:
+        bag = Path(record_dir(a, out_dir) or "")
+        if bag.exists():
+            problem = f"--record {bag}: already exists (rosbag2 does not overwrite a bag)"
+        else:
+            problem = check_out_dir(bag.parent)
+    if problem is None and a.single_process and (a.record is not None
+                                                 or a.wait_for_subscribers):
+        problem = "--record and --wait-for-subscribers need the multi-process graph"
     if problem:
         print(f"metro_atc run: error: {problem}", file=sys.stderr)
         return 2
@@ -187,23 +268,29 @@ def main(argv: Sequence[str] | None = None) -> int:
         code = _run_processes(a, train_ids, out_dir)
     wall = time.monotonic() - t0
     kpi_file = out_dir / "kpis.json"
+    if code != 0:
+        return code
     if not kpi_file.is_file():
-        print(f"metro_atc run: error: the simulator wrote no KPIs (exit {code}); "
-              f"see the logs in {out_dir / 'logs'}", file=sys.stderr)
-        return code or 1
+        print(f"metro_atc run: error: the simulator wrote no KPIs; see the logs in "
+              f"{out_dir / 'logs'}", file=sys.stderr)
+        return 1
     kpis = json.loads(kpi_file.read_text())
+    # the printed report adds the launcher's view; kpis.json stays as the simulator wrote it
     kpis["wall_time_s"] = round(wall, 3)
     sim_t = float(kpis.get("sim_time_s", 0.0))
     kpis["real_time_factor"] = round(sim_t / wall, 2) if wall > 0 else math.nan
-    kpis["regulator"] = a.regulator
+    seen = kpis.get("regulators_seen") or {}
+    kpis["regulator"] = ",".join(sorted(seen)) if seen else "none (no departure commands)"
+    kpis["planner"] = ",".join(kpis.get("planners_seen") or []) or "none"
     kpis["mode"] = "single_process" if a.single_process else "multi_process"
     kpis["out_dir"] = str(out_dir)
-    kpi_file.write_text(json.dumps(kpis, indent=2, sort_keys=True))
+    if a.record is not None:
+        kpis["bag"] = record_dir(a, out_dir)
     if a.json:
         print(json.dumps(kpis, sort_keys=True))
     else:
         _print_table(kpis)
-    return code
+    return 0
 
 
 def scenario_train_ids(scn: Any) -> list[str]:
@@ -211,11 +298,24 @@ def scenario_train_ids(scn: Any) -> list[str]:
     return list(scn.train_ids)
 
 
+def _last_error_line(log: Path) -> str:
+    """The reason a node gave: its last ``error:`` line (or last line) in its log."""
+    try:
+        lines = [ln.strip() for ln in log.read_text(errors="replace").splitlines()
+                 if ln.strip()]
+    except OSError:
+        return "no log"
+    for ln in reversed(lines):
+        if "error" in ln.lower():
+            return ln[:300]
+    return lines[-1][:300] if lines else "no output"
+
+
 def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Path) -> int:
     log_dir = Path(a.log_dir) if a.log_dir else out_dir / "logs"
     log_dir.mkdir(parents=True, exist_ok=True)
     procs: list[tuple[str, subprocess.Popen[bytes]]] = []
-    interrupted = False
+    code = 0
 
     def on_term(*_: Any) -> None:
         raise KeyboardInterrupt
@@ -229,33 +329,46 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
                                                   start_new_session=True, env=env)))
         sim = procs[0][1]
         deadline = time.monotonic() + a.timeout
-        reported: set[str] = set()
-        while sim.poll() is None:
-            if time.monotonic() > deadline:
-                print("metro_atc run: error: wall-clock timeout", file=sys.stderr)
+        while code == 0:
+            failed = [(label, p.returncode) for label, p in procs
+                      if p.poll() not in (None, 0)]
+            if failed:
+                label, rc = failed[0]
+                why = _last_error_line(log_dir / f"{label}.log")
+                print(f"metro_atc run: error: {label} exited with {rc}: {why} "
+                      f"(log: {log_dir / (label + '.log')})", file=sys.stderr)
+                code = EXIT_NODE_FAILED
+            elif sim.poll() == 0:
                 break
-            for label, p in procs[1:]:
-                if p.poll() not in (None, 0) and label not in reported:
-                    reported.add(label)
-                    print(f"metro_atc run: warning: {label} exited with {p.returncode} "
-                          f"(log: {log_dir / (label + '.log')})", file=sys.stderr)
-            time.sleep(0.1)
+            elif time.monotonic() > deadline:
+                print(f"metro_atc run: error: wall-clock timeout after {a.timeout:g} s "
+                      f"(logs: {log_dir})", file=sys.stderr)
+                code = EXIT_TIMEOUT
+            else:
+                time.sleep(0.1)
     except KeyboardInterrupt:
-        interrupted = True
+        code = 130
     finally:
         _stop(procs)
         signal.signal(signal.SIGTERM, old)
-    if interrupted:
-        return 130
-    rc = procs[0][1].returncode if procs else 1
-    return 0 if rc == 0 else rc
+    if code == 0:
+        # the rest of the graph was stopped by SIGTERM: a node that then fails (or a recorder
+        # that could not close its bag) still fails the run
+        bad = [(label, p.returncode) for label, p in procs[1:]
+               if p.returncode not in (0, -signal.SIGTERM, -signal.SIGKILL)]
+        if bad:
+            label, rc = bad[0]
+            print(f"metro_atc run: error: {label} exited with {rc} at shutdown: "
+                  f"{_last_error_line(log_dir / f'{label}.log')}", file=sys.stderr)
+            code = EXIT_NODE_FAILED
+    return code
 
 
 def _print_table(k: dict[str, Any]) -> None:
     keys = ("trains", "completed_trains", "atp_violations", "atp_interventions",
             "min_separation_m", "energy_kwh", "max_delay_s", "recovery_time_s",
             "late_departures", "passengers_left_behind", "sim_time_s", "wall_time_s",
-            "real_time_factor", "lockstep_misses", "regulator", "out_dir")
+            "real_time_factor", "lockstep_misses", "regulator", "planner", "out_dir", "bag")
     width = max(len(x) for x in keys)
     for key in keys:
         if key in k:

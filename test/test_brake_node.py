@@ -262,6 +262,14 @@ def test_bad_samples_are_skipped_node_stays_alive(installed: Path, ros_env: dict
             vals = [m.friction_coefficient, m.friction_coefficient_std,
                     *m.longitudinal_force_n, *m.force_residual_n]
             assert all(math.isfinite(x) for x in vals), m
+        # /diagnostics is periodic in wall time (0.5 s here): wait for a tick after the above
+
+        def rejected_seen() -> bool:
+            last = [s for a in diags for s in a.status if s.hardware_id == "train_01/car_1"]
+            kv = {k.key: k.value for k in last[-1].values} if last else {}
+            return int(kv.get("samples_rejected", 0)) >= 3
+
+        assert probe.wait_for(rejected_seen, 10)
         last = [s for a in list(diags) for s in a.status if s.hardware_id == "train_01/car_1"]
         kv = {k.key: k.value for k in last[-1].values}
         assert int(kv["samples_rejected"]) >= 3 and int(kv["samples_degraded"]) >= 1

@@ -47,7 +47,7 @@ def two_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
                                         QOS_SENSOR)
 
     results: dict[str, Any] = {"kpis": [], "events": [], "clock": [], "profiles": [],
-                               "states": [], "sensors": []}
+                               "states": [], "sensors": [], "out": []}
     with DomainAllocator().allocate() as dom:
         env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
         for k in range(2):
@@ -60,8 +60,11 @@ def two_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
                 states = probe.subscribe(TrainState, "/train_01/state", QOS_RELIABLE)
                 sensors = probe.subscribe(BrakeSensorData, "/train_01/brake_sensors",
                                           QOS_SENSOR)
-                kpis = _run_graph(env, tmp_path_factory.mktemp(f"run{k}"),
-                                  "--ato-per-process", "1")
+                out = tmp_path_factory.mktemp(f"run{k}")
+                # the first run is recorded (the recorder must not change the run)
+                kpis = _run_graph(env, out, "--ato-per-process", "1",
+                                  *(["--record"] if k == 0 else []))
+                results["out"].append(out)
                 n_ev = sum(int(t["departures"]) for t in kpis["per_train"])
                 probe.wait_for(lambda: len(events) >= n_ev, timeout=10.0)
                 results["kpis"].append(kpis)
@@ -168,17 +171,114 @@ def test_clock_is_monotonic(two_runs: dict[str, Any]) -> None:
 def test_lockstep_is_deterministic(two_runs: dict[str, Any]) -> None:
     """Two lockstep runs of the same scenario give identical events and KPIs."""
     a, b = two_runs["kpis"]
-    skip = {"wall_time_s", "real_time_factor", "out_dir"}
+    skip = {"wall_time_s", "real_time_factor", "out_dir", "bag"}
     assert {k: v for k, v in a.items() if k not in skip} == \
         {k: v for k, v in b.items() if k not in skip}
     assert two_runs["events"][0] == two_runs["events"][1]
+
+
+def test_recorded_bag_reads_back(two_runs: dict[str, Any]) -> None:
+    """The rosbag2 MCAP of the recorded run, read by ``rosbags``: every topic of the graph,
+    one /clock and one state per train per step from step 0, no duplicate, a command for
+    every state; QoS and type definitions stored with the topics."""
+    from rosbags.highlevel import AnyReader
+
+    from metro_atc.nodes.bag_recorder import graph_topics
+
+    kpis = two_runs["kpis"][0]
+    bag = Path(kpis["bag"])
+    assert (bag / "metadata.yaml").is_file()
+    steps = int(kpis["steps"])
+    ids = [t["train_id"] for t in kpis["per_train"]]
+    clock: list[float] = []
+    state: dict[str, list[int]] = {t: [] for t in ids}
+    command: dict[str, list[int]] = {t: [] for t in ids}
+    diag_names: set[str] = set()
+    with AnyReader([bag]) as r:
+        topics = {c.topic: c for c in r.connections}
+        assert set(topics) >= {t for t, _, _ in graph_topics(ids)}
+        assert all(c.ext.offered_qos_profiles for c in r.connections)
+        assert all(c.msgdef.data for c in r.connections)
+        for con, _, raw in r.messages():
+            m = r.deserialize(raw, con.msgtype)
+            tid = con.topic.split("/")[1]
+            if con.topic == "/clock":
+                clock.append(m.clock.sec + 1e-9 * m.clock.nanosec)
+            elif con.topic.endswith("/state"):
+                state[tid].append(int(m.step))
+            elif con.topic.endswith("/command"):
+                command[tid].append(int(m.step))
+            elif con.topic == "/diagnostics":
+                diag_names.update(s.name.split(":")[0] for s in m.status)
+    dt = clock[1] - clock[0]
+    assert len(clock) == steps and clock[0] == 0.0, (len(clock), steps, clock[:3])
+    assert np_allclose_steps(clock, dt)
+    for t in ids:
+        s = state[t]
+        assert s and len(s) == len(set(s)), f"{t}: duplicate states"
+        assert s == list(range(s[0], s[-1] + 1)), f"{t}: gap in the states"
+        assert command[t] == s, f"{t}: a command per state"
+    # health from each of the four node kinds (and the recorder)
+    assert {"line_simulator", "ats_regulator", "ato_controller", "brake_diagnostic",
+            "bag_recorder"} <= diag_names, diag_names
+
+
+def np_allclose_steps(t: list[float], dt: float) -> bool:
+    """Strictly increasing by one control period each."""
+    return all(abs((b - a) - dt) < 1e-6 for a, b in zip(t, t[1:]))
+
+
+def test_logs_of_normal_runs_are_clean(two_runs: dict[str, Any]) -> None:
+    """No traceback, rcl error or invalid-context message in any node log of the runs."""
+    bad = ("Traceback", "RCLError", "context is invalid", "context is not valid",
+           "never awaited", "Exception")
+    for out in two_runs["out"]:
+        logs = sorted((out / "logs").glob("*.log"))
+        assert len(logs) >= 5, logs
+        for log in logs:
+            text = log.read_text(errors="replace")
+            hits = [b for b in bad if b in text]
+            assert not hits, f"{log}: {hits}\n{text[-2000:]}"
+
+
+def test_run_fails_fast_when_a_node_cannot_start(ros_env: dict[str, str],
+                                                 tmp_path: Path) -> None:
+    """AOC weights trained for another line: the ATS exits, so does ``run``, naming it."""
+    import time
+
+    t0 = time.monotonic()
+    r = subprocess.run([sys.executable, "-m", "metro_atc", "run", "--scenario", SCENARIO,
+                        "--regulator", "aoc", "--no-plots", "--out", str(tmp_path / "o")],
+                       env=ros_env, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    wall = time.monotonic() - t0
+    assert r.returncode != 0
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "ats_regulator" in lines[0] and "stations" in lines[0], lines
+    print(f"\nrun with a failing ATS exited {r.returncode} after {wall:.1f} s: {lines[0]}")
+
+
+def test_run_timeout_and_bad_out_dir_exit_nonzero(ros_env: dict[str, str],
+                                                  tmp_path: Path) -> None:
+    """``--timeout`` exits 124; an --out that cannot be a directory exits 2 before any node."""
+    run = [sys.executable, "-m", "metro_atc", "run", "--scenario", SCENARIO, "--no-plots"]
+    r = subprocess.run(run + ["--timeout", "2", "--out", str(tmp_path / "o")], env=ros_env,
+                       capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert r.returncode == 124 and "timeout" in r.stderr, r.stderr
+    assert not [p for p in (tmp_path / "o" / "logs").glob("*.log")
+                if "Traceback" in p.read_text(errors="replace")]
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    r = subprocess.run(run + ["--out", str(blocker)], env=ros_env, capture_output=True,
+                       text=True, timeout=60, cwd=tmp_path)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / "file" / "logs").exists()
 
 
 def test_single_process_matches(two_runs: dict[str, Any], ros_env: dict[str, str],
                                 tmp_path: Path) -> None:
     """``--single-process`` runs the same nodes and gives the same KPIs as the graph."""
     k = _run_graph(ros_env, tmp_path, "--single-process")
-    skip = {"wall_time_s", "real_time_factor", "out_dir", "mode"}
+    skip = {"wall_time_s", "real_time_factor", "out_dir", "mode", "bag"}
     assert {x: v for x, v in k.items() if x not in skip} == \
         {x: v for x, v in two_runs["kpis"][0].items() if x not in skip}
 

@@ -22,10 +22,11 @@ import math
 import time
 from typing import Any, Sequence
 
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticStatus
 from metro_atc_msgs.msg import DepartureCommand, SpeedProfile, TractionCommand, TrainState
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 
 from metro_atc.core.ato.controller import TRACKERS, AtoCore
 from metro_atc.core.ato.planner import PLANNERS, Profile
@@ -34,9 +35,10 @@ from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.simple_ato import FlatOutTracker
 from metro_atc.core.validate import Rejections, StepWindow, bounds_for
 from metro_atc.nodes import conversions as conv
-from metro_atc.nodes.common import (QOS_LATCHED, QOS_LATCHED_IN, QOS_RELIABLE, NodeConfigError,
-                                    bulk_publisher, bulk_subscription, declare, run_nodes,
-                                    spin_fast)
+from metro_atc.nodes.common import (OK, QOS_LATCHED, QOS_LATCHED_IN, QOS_RELIABLE, WARN,
+                                    NodeConfigError, RuntimeParams, bulk_publisher,
+                                    bulk_subscription, declare, diag_status, run_nodes,
+                                    spin_fast, static)
 
 _STOP_GUARD = 0.85
 """Deceleration needed to stop at the platform, as a share of the service brake, above
@@ -54,24 +56,26 @@ class AtoController(Node):
     def __init__(self, train_id: str, scenario: Any = None, timetable: Any = None,
                  shared: dict[str, Any] | None = None, **kwargs: Any) -> None:
         """Declare parameters, load the line, create the per-train topics."""
-        # the type-description service (one more service per node in every wait set) is
-        # off for the composed per-train nodes; parameter services stay on
-        overrides = list(kwargs.pop("parameter_overrides", None) or [])
-        overrides.append(Parameter("start_type_description_service", value=False))
-        super().__init__("ato_controller", namespace=f"/{train_id}",
-                         parameter_overrides=overrides, **kwargs)
+        # the executor (parameter and type-description services, timers) is spun every
+        # 50 ms by spin_fast, so the services cost little: all are on (remote tools can
+        # fetch the types of /<train>/command and /<train>/speed_profile)
+        super().__init__("ato_controller", namespace=f"/{train_id}", **kwargs)
         self.train_id = train_id
-        self.scenario_name = declare(self, "scenario", "taipei_blue",
-                                     "embedded scenario name or path to a scenario YAML")
-        declare(self, "train_ids", [""], "trains hosted by this process (launcher use)")
-        planner = declare(self, "planner", "ectp",
-                          f"speed-profile planner: {' | '.join(PLANNERS)}")
-        tracker = declare(self, "tracker", "fuzzy",
-                          f"speed tracker: {' | '.join(TRACKERS)}")
-        mmas_ants = declare(self, "mmas_ants", 50, "MMAS: ants per iteration (seed 001)", 1, 1000)
-        mmas_iter = declare(self, "mmas_iterations", 100, "MMAS: iterations (seed 001)", 1, 10000)
-        mmas_sections = declare(self, "mmas_sections", 50, "MMAS: sections per run (seed 001)",
-                                2, 500)
+        self.scenario_name = static(self, "scenario", "taipei_blue",
+                                    "embedded scenario name or path to a scenario YAML")
+        static(self, "train_ids", [""], "trains hosted by this process (launcher use)")
+        planner = static(self, "planner", "ectp", "speed-profile planner", choices=PLANNERS)
+        tracker = static(self, "tracker", "fuzzy", "speed tracker", choices=TRACKERS)
+        mmas_ants = static(self, "mmas_ants", 50, "MMAS: ants per iteration (seed 001)", 1, 1000)
+        mmas_iter = static(self, "mmas_iterations", 100, "MMAS: iterations (seed 001)", 1, 10000)
+        mmas_sections = static(self, "mmas_sections", 50, "MMAS: sections per run (seed 001)",
+                               2, 500)
+        self.planner, self.tracker = planner, tracker
+        self.plans = 0
+        self.infeasible = 0
+        self.last_step = -1
+        self._tick = (0, 0)
+        self.rt = RuntimeParams(self, self.health)
         if planner not in PLANNERS:
             raise NodeConfigError(f"parameter planner='{planner}' is not one of "
                                   f"{', '.join(PLANNERS)}")
@@ -118,6 +122,24 @@ class AtoController(Node):
             bulk_subscription(self, DepartureCommand, "departure_command", self._on_departure,
                               QOS_LATCHED_IN)]
 
+    def health(self) -> list[DiagnosticStatus]:
+        """/diagnostics: this train's planner/tracker, plans, infeasible plans, rejections.
+
+        WARN when a plan of the last period was infeasible (the target running time cannot
+        be met; the tracker follows the planner's best effort) or an input was rejected.
+        """
+        inf0, rej0 = self._tick
+        self._tick = (self.infeasible, self.rejected)
+        level, msg = OK, "tracking"
+        if self.infeasible > inf0:
+            level, msg = WARN, f"{self.infeasible - inf0} infeasible plans in the last period"
+        elif self.rejected > rej0:
+            level, msg = WARN, f"{self.rejected - rej0} inputs rejected in the last period"
+        return [diag_status(f"ato_controller: {self.train_id}", self.train_id, level, msg, {
+            "planner": self.planner, "tracker": self.tracker, "plans": self.plans,
+            "infeasible_plans": self.infeasible, "rejected_inputs": self.rejected,
+            "last_step": self.last_step, "planned_from_station": self.planned_from})]
+
     def _warn(self, key: str, text: str) -> None:
         now = time.monotonic()
         if now - self._last_warn.get(key, -math.inf) > 1.0:
@@ -157,6 +179,8 @@ class AtoController(Node):
         x0, x1 = float(self.stations[st]), float(self.stations[st + 1])
         prof = self.core.plan(x0, x1, target_s)
         self.planned_from = st
+        self.plans += 1
+        self.infeasible += int(not prof.feasible)
         if not prof.feasible and not late:
             self._warn("plan", f"run {st}->{st + 1}: {prof.message}")
         self.profile_pub.publish(self._profile_msg(st, target_s, prof, stamp_s))
@@ -179,6 +203,7 @@ class AtoController(Node):
         p.feasible = bool(prof.feasible)
         p.planner = str(prof.planner)
         p.message = str(prof.message)
+        p.planned_position_m, p.planned_speed_mps = planned_curve(prof)
         return p
 
     # ------------------------------------------------------------------ tracking
@@ -200,6 +225,7 @@ class AtoController(Node):
         except conv.MessageRejected as exc:
             self._reject("state", exc)
             return
+        self.last_step = int(s["step"])
         self._last_cmd = conv.traction_msg(self.train_id, s["step"], s["t_s"], effort, mode)
         self.cmd_pub.publish(self._last_cmd)
 
@@ -255,6 +281,23 @@ class AtoController(Node):
             if over > 0.0:
                 bound = min(bound, -min(1.0, self.guard.gain * over))
         return bound
+
+
+PLANNED_POINTS = 200
+"""Samples of the planned speed curve carried by a SpeedProfile message."""
+
+
+def planned_curve(prof: Profile) -> tuple[list[float], list[float]]:
+    """The plan's speed over chainage, at most PLANNED_POINTS samples ([m], [m/s])."""
+    s = np.asarray(prof.s_grid, dtype=float)
+    v = np.asarray(prof.v_profile, dtype=float)
+    if s.size == 0 or s.size != v.size:
+        return [], []
+    idx = np.unique(np.linspace(0, s.size - 1, min(s.size, PLANNED_POINTS)).astype(int))
+    d = 1.0 if prof.x_stop_m >= prof.x_start_m else -1.0
+    x = prof.x_start_m + d * s[idx]
+    ok = np.isfinite(x) & np.isfinite(v[idx])
+    return [float(a) for a in x[ok]], [float(b) for b in v[idx][ok]]
 
 
 def build_nodes() -> list[Node]:

@@ -19,6 +19,7 @@ import time
 from typing import Any, Sequence
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticStatus
 from metro_atc_msgs.msg import DepartureCommand, TrainEvent
 from rclpy.node import Node
 
@@ -27,8 +28,13 @@ from metro_atc.core.atr.dispatch import Dispatch, make_dispatcher
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.nodes import conversions as conv
-from metro_atc.nodes.common import (QOS_EVENTS, QOS_LATCHED, NodeConfigError, bulk_publisher,
-                                    declare, run_nodes)
+from metro_atc.nodes.common import (OK, QOS_EVENTS, QOS_LATCHED, WARN, NodeConfigError,
+                                    RuntimeParams, bulk_publisher, diag_status, run_nodes,
+                                    static)
+
+
+REGULATORS = ("none", "lqr", "dhp", "aoc", "elqr")
+"""Values of the ``regulator`` parameter."""
 
 
 class AtsRegulator(Node):
@@ -37,26 +43,26 @@ class AtsRegulator(Node):
     def __init__(self, **kwargs: Any) -> None:
         """Declare parameters, build the timetable, create publishers and the event sub."""
         super().__init__("ats_regulator", **kwargs)
-        self.scenario_name = declare(self, "scenario", "taipei_blue",
-                                     "embedded scenario name or path to a scenario YAML")
-        self.regulator = declare(self, "regulator", "none",
-                                 "regulator: none (timetable) | lqr | dhp | aoc | elqr "
-                                 "(energy-aware LQR, seed 003)")
-        weights_file = declare(self, "weights_file", "",
-                               "dhp/aoc weights ('' : the shipped taipei_blue weights)")
-        q = declare(self, "cost_q", 1.0, "schedule-deviation weight q (seed 000 eq. 17)",
-                    1e-6, 1e6)
-        r = declare(self, "cost_r", 0.1, "control-effort weight r (seed 000 eq. 17)", 1e-6, 1e6)
-        horizon = declare(self, "horizon", 40, "adjustable services K (seed 000 eq. 17)",
-                          1, 1000)
-        w_energy = declare(self, "energy_weight", 1.0,
-                           "elqr: weight w_E of one service's traction energy (seed 003)",
-                           0.0, 1000.0)
-        hold_max = declare(self, "hold_max_s", 60.0,
-                           "longest hold a regulator may add at a platform [s]", 0.0, 600.0)
-        tolerance = declare(self, "dwell_cut_tolerance_s", 30.0,
-                            "a regulator's dwell cut never closes the doors before the "
-                            "timetable departure plus this [s]", 0.0, 3600.0)
+        self.scenario_name = static(self, "scenario", "taipei_blue",
+                                    "embedded scenario name or path to a scenario YAML")
+        self.regulator = static(self, "regulator", "none",
+                                "regulator: none (timetable) | lqr | dhp | aoc | elqr "
+                                "(energy-aware LQR, seed 003)", choices=REGULATORS)
+        weights_file = static(self, "weights_file", "",
+                              "dhp/aoc weights ('' : the shipped taipei_blue weights)")
+        q = static(self, "cost_q", 1.0, "schedule-deviation weight q (seed 000 eq. 17)",
+                   1e-6, 1e6)
+        r = static(self, "cost_r", 0.1, "control-effort weight r (seed 000 eq. 17)", 1e-6, 1e6)
+        horizon = static(self, "horizon", 40, "adjustable services K (seed 000 eq. 17)",
+                         1, 1000)
+        w_energy = static(self, "energy_weight", 1.0,
+                          "elqr: weight w_E of one service's traction energy (seed 003)",
+                          0.0, 1000.0)
+        hold_max = static(self, "hold_max_s", 60.0,
+                          "longest hold a regulator may add at a platform [s]", 0.0, 600.0)
+        tolerance = static(self, "dwell_cut_tolerance_s", 30.0,
+                           "a regulator's dwell cut never closes the doors before the "
+                           "timetable departure plus this [s]", 0.0, 3600.0)
         try:
             scn = load_scenario(self.scenario_name)
             self.bounds = bounds_for(scn)
@@ -78,6 +84,8 @@ class AtsRegulator(Node):
         self.last_seq: dict[str, int] = {}
         """Sequence number of the last accepted event per train (events are 1, 2, ...)."""
         self.decision_time_s: list[float] = []
+        self._rejected_at_tick = 0
+        self.rt = RuntimeParams(self, self.health)
         self.pubs = [bulk_publisher(self, DepartureCommand, f"/{t}/departure_command",
                                     QOS_LATCHED) for t in self.ids]
         self.create_subscription(TrainEvent, "/line/events", self._on_event, QOS_EVENTS)
@@ -85,6 +93,20 @@ class AtsRegulator(Node):
             self._publish(d)
         self.get_logger().info(f"regulator '{self.regulator}' on '{self.scenario_name}': "
                                f"{n} trains, {m} stations")
+
+    def health(self) -> list[DiagnosticStatus]:
+        """/diagnostics: regulator, decisions and their time; WARN on rejected events."""
+        t = np.asarray(self.decision_time_s[-1000:]) * 1e3
+        new = self.rejected - self._rejected_at_tick
+        self._rejected_at_tick = self.rejected
+        level, msg = (WARN, f"{new} events rejected in the last period") if new else \
+            (OK, f"regulating ({self.regulator})")
+        return [diag_status("ats_regulator: regulation", "ats", level, msg, {
+            "regulator": self.regulator, "decisions": len(self.decision_time_s),
+            "decision_time_median_ms": float(np.median(t)) if t.size else float("nan"),
+            "decision_time_max_ms": float(t.max()) if t.size else float("nan"),
+            "rejected_events": self.rejected,
+            "rejected_by_kind": self.rejections.summary(), "trains": len(self.ids)})]
 
     def _on_event(self, msg: TrainEvent) -> None:
         """Validate an event (conv.event_from_msg) and hand it to the dispatcher."""

@@ -5,10 +5,11 @@ One node watches all trains of the scenario.  It subscribes to ``/<train>/brake_
 seed 000 second-paper UKF, metro variant) per train at the sensor rate, and publishes
 
 * ``/<train>/brake_diagnosis`` (``metro_atc_msgs/BrakeDiagnosis``, latched) every
-  ``diagnostics_period_s`` of simulated time and at once when the train's level changes;
+  ``diagnostics_period_s`` of wall time and at once when the train's level changes;
 * ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``): one status per train, OK / WARN /
   ERROR, with key-values (mu_b estimate and std, per-axle residuals and forces, counters),
-  every ``diagnostics_period_s`` of simulated time, so rqt_robot_monitor-style tools show it.
+  every ``diagnostics_period_s`` of wall time (a steady-clock timer, so ~1 Hz whatever the
+  lockstep speed), stamped with the newest sample's simulated time.
 
 **One process for all trains.**  The per-train work is one UKF step (19 states, 39 sigma
 points) per sample, ~0.15 ms of numpy (about 7 000 observer updates per CPU second in
@@ -21,11 +22,9 @@ needs about one core; one process per train would cost 30 Python interpreters an
 participants for no gain.  The 30 sensor subscriptions are served by
 :func:`~metro_atc.nodes.common.spin_fast` (a direct wait set), not by the executor.
 
-**Time.**  Everything is driven by the sample stamps (simulated time): the filter's step,
-the decision logic's persistence, and the ``/diagnostics`` period (published when a sample
-crosses the next multiple of ``diagnostics_period_s``), so the verdicts do not depend on
-wall-clock speed.  A timer on the node clock publishes when no sample arrived during a
-period (no data yet, train out of service, sensors silent).
+**Time.**  The filter's step and the decision logic's persistence are driven by the sample
+stamps (simulated time), so the verdicts do not depend on wall-clock speed; only the
+publication period of ``/diagnostics`` is wall time.
 
 **Robustness.**  A sample with a wrong number of axles, a train id that does not match
 the topic, a stamp outside the run's horizon, an implausible channel value
@@ -96,7 +95,7 @@ from functools import partial
 from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from metro_atc_msgs.msg import BrakeDiagnosis, BrakeSensorData
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -108,9 +107,9 @@ from metro_atc.core.line.rolling_stock import train_params_for
 from metro_atc.core.line.scenario import Scenario, ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.nodes import conversions as conv
-from metro_atc.nodes.common import (QOS_LATCHED, QOS_RELIABLE, NodeConfigError,
-                                    bulk_publisher, bulk_subscription, declare, run_nodes,
-                                    spin_fast)
+from metro_atc.nodes.common import (QOS_LATCHED, NodeConfigError, RuntimeParams,
+                                    bulk_publisher, bulk_subscription, run_nodes, spin_fast,
+                                    static)
 
 N_AXLES = mc.N_AX
 """Axles of the instrumented car."""
@@ -399,13 +398,8 @@ class BrakeDiagnostic(Node):
     def __init__(self, **kwargs: Any) -> None:
         """Declare parameters, build one observer per train, subscribe to their sensors."""
         super().__init__("brake_diagnostic", **kwargs)
-        self.scenario_name = declare(self, "scenario", "taipei_blue",
-                                     "embedded scenario name or path to a scenario YAML")
-        self.period_s = declare(self, "diagnostics_period_s", 1.0,
-                                "/diagnostics period in simulated time [s]", 0.05, 3600.0)
-        self.log_period_s = declare(self, "log_period_s", 2.0,
-                                    "at most one log line per train and kind this often "
-                                    "(wall clock) [s]", 0.0, 3600.0)
+        self.scenario_name = static(self, "scenario", "taipei_blue",
+                                    "embedded scenario name or path to a scenario YAML")
         try:
             scn = load_scenario(self.scenario_name)
         except ScenarioError as exc:
@@ -417,16 +411,18 @@ class BrakeDiagnostic(Node):
         self.ids = list(scn.sensors.trains or scn.train_ids)
         self.watch = {t: TrainBrakeWatch(t, setup) for t in self.ids}
         self._logged: dict[tuple[str, str], tuple[float, int]] = {}
-        self._next_diag_t = self.period_s
-        self._published_since_tick = False
         self._levels = {t: -1 for t in self.ids}
-        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", QOS_RELIABLE)
+        # /diagnostics (one status per train) and every BrakeDiagnosis on a wall-clock
+        # period; a train's BrakeDiagnosis also at once when its level changes
+        self.rt = RuntimeParams(self, self.health, stamp=self.last_sample_t)
+        self.log_period_s = self.rt.dynamic(
+            "log_period_s", 2.0, "at most one log line per train and kind this often "
+            "(wall clock) [s]", partial(setattr, self, "log_period_s"), 0.0, 3600.0)
         self.pubs = {t: bulk_publisher(self, BrakeDiagnosis, f"/{t}/brake_diagnosis",
                                        QOS_LATCHED) for t in self.ids}
         self.fast_subs = [bulk_subscription(self, BrakeSensorData, f"/{t}/brake_sensors",
                                             partial(self._on_sample, t), QOS_SENSOR_DEEP)
                           for t in self.ids]
-        self.create_timer(self.period_s, self._on_timer)
         self.get_logger().info(
             f"watching {len(self.ids)} trains of scenario '{scn.name}' "
             f"({scn.line.adhesion} rail, {scn.sensors.rate_hz:g} Hz samples)")
@@ -476,10 +472,6 @@ class BrakeDiagnostic(Node):
         lvl, _ = w.level_message()
         if lvl != self._levels[train_id]:
             self._publish_train(train_id, s["t_s"])
-        if s["t_s"] >= self._next_diag_t - 1e-9:
-            self._publish_all(s["t_s"])
-            self._next_diag_t = (math.floor(s["t_s"] / self.period_s + 1e-9) + 1.0) \
-                * self.period_s
 
     # ------------------------------------------------------------------ outputs
     def _publish_train(self, train_id: str, stamp_s: float) -> tuple[int, str]:
@@ -523,23 +515,19 @@ class BrakeDiagnostic(Node):
         st.values = [KeyValue(key=k, value=v) for k, v in kv]
         return st
 
-    def _publish_all(self, stamp_s: float) -> None:
-        """One DiagnosticArray for all trains and every train's BrakeDiagnosis."""
-        arr = DiagnosticArray()
-        arr.header.stamp = conv.to_time(stamp_s)
+    def last_sample_t(self) -> float:
+        """Stamp of the newest sample of any train [s] (simulated time), 0 before any."""
+        last = max((w.t_last for w in self.watch.values()), default=-math.inf)
+        return last if math.isfinite(last) else 0.0
+
+    def health(self) -> list[DiagnosticStatus]:
+        """/diagnostics: one status per train (and its BrakeDiagnosis published now)."""
+        stamp_s = self.last_sample_t()
+        out = []
         for t in self.ids:
             level, text = self._publish_train(t, stamp_s)
-            arr.status.append(self._status(t, level, text))
-        self.diag_pub.publish(arr)
-        self._published_since_tick = True
-
-    def _on_timer(self) -> None:
-        """No sample crossed a period boundary since the last tick: publish anyway."""
-        if not self._published_since_tick:
-            now = self.get_clock().now().nanoseconds * 1e-9
-            last = max((w.t_last for w in self.watch.values()), default=-math.inf)
-            self._publish_all(max(now, last, 0.0))
-        self._published_since_tick = False
+            out.append(self._status(t, level, text))
+        return out
 
     def observer_rate(self) -> tuple[int, float]:
         """Total observer updates and their rate [updates per CPU second in the filter]."""

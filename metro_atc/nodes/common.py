@@ -14,15 +14,20 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import threading
 import time
 from contextlib import ExitStack
 from typing import Any, Callable, Iterable, Sequence
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType)
+                                ParameterType, SetParametersResult)
+from rclpy.clock import Clock, ClockType
 from rclpy.context import Context
 from rclpy.exceptions import ParameterException
+from rclpy.logging import LoggingSeverity
+from rclpy.signals import SignalHandlerOptions
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -33,10 +38,12 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 
 from metro_atc.dds import dds_defaults
 
-QOS_RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
+QOS_RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=500,
                           reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.VOLATILE)
-"""Commands and per-step states: every sample matters, no history for late joiners."""
+"""Commands and per-step states: every sample matters, no history for late joiners. A keep-last
+writer overwrites samples a reader has not acknowledged: 500 steps cover a recorder that
+falls behind the lockstep for a few seconds."""
 
 QOS_LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                          reliability=ReliabilityPolicy.RELIABLE,
@@ -60,10 +67,18 @@ QOS_SENSOR = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=20,
                         durability=DurabilityPolicy.VOLATILE)
 """High-rate sensor data: best effort, a lost sample is replaced by the next one."""
 
-QOS_CLOCK = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+QOS_CLOCK = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                        reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
-"""/clock: matches rclpy's best-effort and reliable clock subscribers."""
+"""/clock: matches rclpy's best-effort and reliable clock subscribers; a writer history of
+1 000 ticks so that a reliable reader (a recorder) that falls behind loses none (a keep-last
+writer overwrites unacknowledged ticks; after the last train left, steps need no command
+and run at thousands per second)."""
+
+QOS_DIAGNOSTICS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.VOLATILE)
+"""/diagnostics: reliable, volatile (as diagnostic_updater publishes it)."""
 
 
 def bulk_publisher(node: Node, msg_type: Any, topic: str, qos: QoSProfile) -> Publisher:
@@ -143,7 +158,7 @@ def spin_fast(executor: SingleThreadedExecutor, nodes: Sequence[Node],
     ctx = nodes[0].context if nodes else executor.context
     poller = SubscriptionPoller(ctx, fast_subs)
     last_slow = 0.0
-    while ctx.ok() and not (until is not None and until()):
+    while ctx.ok() and not stop_requested() and not (until is not None and until()):
         poller.poll(slow_period_s)
         now = time.monotonic()
         if now - last_slow >= slow_period_s:
@@ -153,13 +168,20 @@ def spin_fast(executor: SingleThreadedExecutor, nodes: Sequence[Node],
 
 def declare(node: Node, name: str, default: Any, description: str,
             lo: float | int | None = None, hi: float | int | None = None,
-            step: float | int | None = None, read_only: bool = False) -> Any:
-    """Declare a parameter with a descriptor (description and range); return its value.
+            step: float | int | None = None, read_only: bool = False,
+            choices: Sequence[str] | None = None) -> Any:
+    """Declare a parameter with a descriptor (description, range, choices); return its value.
 
     Integer and float ranges are enforced by rclpy: an out-of-range value given with
     ``-p`` or ``--params-file`` makes the declaration fail with a message naming it.
+    ``read_only`` parameters are fixed for the node's life (``ros2 param set`` is refused by
+    rclpy with a reason); ``choices`` (string enumerations) go into the descriptor's
+    ``additional_constraints`` and a value outside them is refused at declaration (and at
+    runtime by :class:`RuntimeParams`).
     """
     desc = ParameterDescriptor(description=description, read_only=read_only)
+    if choices is not None:
+        desc.additional_constraints = "one of: " + ", ".join(choices)
     if isinstance(default, bool):
         desc.type = ParameterType.PARAMETER_BOOL
     elif isinstance(default, int):
@@ -176,7 +198,151 @@ def declare(node: Node, name: str, default: Any, description: str,
         desc.type = ParameterType.PARAMETER_STRING
     elif isinstance(default, list):
         desc.type = ParameterType.PARAMETER_STRING_ARRAY
-    return node.declare_parameter(name, default, desc).value
+    value = node.declare_parameter(name, default, desc).value
+    if choices is not None and value not in choices:
+        raise NodeConfigError(f"parameter {name}='{value}' is not one of {', '.join(choices)}")
+    return value
+
+
+def static(node: Node, name: str, default: Any, description: str,
+           lo: float | int | None = None, hi: float | int | None = None,
+           choices: Sequence[str] | None = None) -> Any:
+    """:func:`declare` a read-only parameter (set at start-up only); return its value."""
+    return declare(node, name, default, description, lo, hi, read_only=True, choices=choices)
+
+
+LOG_LEVELS = {"debug": LoggingSeverity.DEBUG, "info": LoggingSeverity.INFO,
+              "warn": LoggingSeverity.WARN, "error": LoggingSeverity.ERROR,
+              "fatal": LoggingSeverity.FATAL}
+"""Values of the ``log_level`` parameter."""
+
+OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR,
+                          DiagnosticStatus.STALE)
+"""diagnostic_msgs levels (bytes): OK / WARN (degraded, still working) / ERROR (not doing
+its job) / STALE (no data yet)."""
+
+
+def diag_status(name: str, hardware_id: str, level: bytes, message: str,
+                values: dict[str, Any]) -> DiagnosticStatus:
+    """One diagnostic_updater-shaped status (``name`` as ``node: task``, key-values as str)."""
+    return DiagnosticStatus(level=level, name=name, message=message, hardware_id=hardware_id,
+                            values=[KeyValue(key=str(k), value=_kv(v))
+                                    for k, v in values.items()])
+
+
+def _kv(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    return str(v)
+
+
+class RuntimeParams:
+    """The dynamic parameters of a node and its wall-time ``/diagnostics`` publisher.
+
+    Declares the parameters every node has, both applied at runtime:
+
+    * ``diagnostics_period_s`` -- wall-clock period of the node's ``/diagnostics`` array
+      (a steady-clock timer, independent of ``use_sim_time``);
+    * ``log_level`` -- the node logger's severity (debug, info, warn, error, fatal).
+
+    Nodes add their own dynamic parameters with :meth:`dynamic`; one on-set callback
+    validates a whole change (choices) and then applies every parameter of it through its
+    setter, so ``ros2 param set`` takes effect or is refused with a reason. Parameters not
+    registered here and not read-only are refused by the callback too (nothing accepts a
+    value it then ignores).
+    """
+
+    def __init__(self, node: Node, statuses: Callable[[], list[DiagnosticStatus]],
+                 period_s: float = 1.0, stamp: Callable[[], float] | None = None) -> None:
+        """Declare the common parameters, start the /diagnostics timer, hook the callback.
+
+        ``stamp`` gives the header stamp [s] (default: the node clock, i.e. simulated time
+        under ``use_sim_time``).
+        """
+        self.node = node
+        self.statuses = statuses
+        self.stamp = stamp
+        self._setters: dict[str, Callable[[Any], None]] = {}
+        self._choices: dict[str, Sequence[str]] = {}
+        self._declaring = False
+        node.add_on_set_parameters_callback(self._on_set)
+        self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", QOS_DIAGNOSTICS)
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.period_s = float(self.dynamic(
+            "diagnostics_period_s", period_s,
+            "/diagnostics period in wall-clock time [s]", self._set_period, 0.05, 3600.0))
+        self.timer = node.create_timer(self.period_s, self.publish, clock=self._steady)
+        self.dynamic("log_level", "info", "logger severity", self._set_log_level,
+                     choices=tuple(LOG_LEVELS))
+        self._set_log_level(node.get_parameter("log_level").value)
+
+    def dynamic(self, name: str, default: Any, description: str,
+                setter: Callable[[Any], None], lo: float | int | None = None,
+                hi: float | int | None = None, choices: Sequence[str] | None = None) -> Any:
+        """Declare a parameter applied at runtime by ``setter``; return its start value.
+
+        Call after the node's read-only declarations (the on-set callback refuses runtime
+        changes of anything not registered here).
+        """
+        self._declaring = True
+        try:
+            value = declare(self.node, name, default, description, lo, hi, choices=choices)
+        finally:
+            self._declaring = False
+        self._setters[name] = setter
+        if choices is not None:
+            self._choices[name] = choices
+        return value
+
+    def _on_set(self, params: list[Any]) -> SetParametersResult:
+        if self._declaring:
+            return SetParametersResult(successful=True)
+        for p in params:
+            if p.name == "use_sim_time" or p.name.startswith("qos_overrides."):
+                continue
+            desc = self.node.describe_parameter(p.name) if self.node.has_parameter(
+                p.name) else None
+            if desc is not None and desc.read_only:
+                return SetParametersResult(successful=False,
+                                           reason=f"{p.name} is read-only (set at start-up)")
+            if p.name not in self._setters:
+                return SetParametersResult(successful=False,
+                                           reason=f"{p.name} cannot be changed at runtime")
+            ch = self._choices.get(p.name)
+            if ch is not None and p.value not in ch:
+                return SetParametersResult(
+                    successful=False, reason=f"{p.name}='{p.value}' is not one of "
+                    f"{', '.join(ch)}")
+        for p in params:
+            if p.name in self._setters:
+                self._setters[p.name](p.value)
+        return SetParametersResult(successful=True)
+
+    def _set_period(self, value: float) -> None:
+        self.period_s = float(value)
+        old = getattr(self, "timer", None)
+        if old is not None:
+            self.node.destroy_timer(old)
+            self.timer = self.node.create_timer(self.period_s, self.publish,
+                                                clock=self._steady)
+
+    def _set_log_level(self, value: str) -> None:
+        self.node.get_logger().set_level(LOG_LEVELS[value])
+
+    def publish(self) -> None:
+        """Publish the node's statuses now (timer callback)."""
+        if not self.node.context.ok():
+            return
+        arr = DiagnosticArray()
+        if self.stamp is None:
+            arr.header.stamp = self.node.get_clock().now().to_msg()
+        else:
+            t = max(float(self.stamp()), 0.0)
+            arr.header.stamp.sec = int(t)
+            arr.header.stamp.nanosec = int(round((t - int(t)) * 1e9)) % 1000000000
+        arr.status = list(self.statuses())
+        if arr.status:
+            self.pub.publish(arr)
 
 
 class NodeConfigError(RuntimeError):
@@ -198,11 +364,20 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
         print(f"{name}: error: {problem}", file=sys.stderr)
         return 2
     try:
-        rclpy.init(args=argv)
+        # rclpy's own SIGINT handler shuts the context down under the running callbacks
+        # (RCLError "failed to initialize wait set", "publisher's context is invalid" in
+        # the logs); here SIGINT and SIGTERM raise KeyboardInterrupt in the main thread and
+        # the context is shut down once, after the nodes are closed and destroyed
+        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except RuntimeError as exc:
         print(f"{name}: error: {_one_line(exc).split(', at /')[0]}", file=sys.stderr)
         return 2
-    signal.signal(signal.SIGTERM, lambda *_: _raise_keyboard_interrupt())
+    # a flag, not an exception: raised inside rclpy's executor an exception leaves
+    # half-made tasks ("coroutine ... was never awaited"); every loop here waits at most
+    # ~0.1 s and checks the flag
+    _STOP.clear()
+    signal.signal(signal.SIGTERM, _request_stop)
+    signal.signal(signal.SIGINT, _request_stop)
     nodes: Sequence[Node] = ()
     code = 0
     try:
@@ -218,10 +393,13 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
         if loop is not None:
             loop(executor, nodes)
         else:
-            executor.spin()
+            spin_until_stopped(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         code = 0
     finally:
+        # a second signal during the clean-up must not leave a traceback either
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         for n in nodes:
             close = getattr(n, "close", None)
             if callable(close):
@@ -230,8 +408,7 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
                 except Exception as exc:  # noqa: BLE001 - best effort at shutdown
                     print(f"shutdown: {exc}", file=sys.stderr)
             n.destroy_node()
-        if rclpy.ok():
-            rclpy.try_shutdown()
+        rclpy.try_shutdown()
     return code
 
 
@@ -284,8 +461,23 @@ def _flatten_ns(val: dict) -> dict:
     return cur if isinstance(cur, dict) else {}
 
 
-def _raise_keyboard_interrupt() -> None:
-    raise KeyboardInterrupt
+_STOP = threading.Event()
+"""Set by SIGINT/SIGTERM in a node process (see :func:`run_nodes`)."""
+
+
+def _request_stop(*_: Any) -> None:
+    _STOP.set()
+
+
+def stop_requested() -> bool:
+    """True once the process got SIGINT or SIGTERM (loops end, nodes close cleanly)."""
+    return _STOP.is_set()
+
+
+def spin_until_stopped(executor: SingleThreadedExecutor) -> None:
+    """Spin with bounded waits until SIGINT/SIGTERM or the context shuts down."""
+    while executor.context.ok() and not stop_requested():
+        executor.spin_once(timeout_sec=0.1)
 
 
 def _one_line(exc: BaseException) -> str:

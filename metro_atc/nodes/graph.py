@@ -8,19 +8,23 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from pathlib import Path
 from typing import Any, Sequence
 
 import rclpy
+from rclpy.exceptions import ParameterException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
 
 from metro_atc.core.bridge import timetable_for
 from metro_atc.core.line.scenario import load_scenario
 from metro_atc.nodes.ato_controller import AtoController
 from metro_atc.nodes.ats_regulator import AtsRegulator
 from metro_atc.nodes.brake_diagnostic import BrakeDiagnostic
+from metro_atc.nodes.common import NodeConfigError
 from metro_atc.nodes.line_simulator import LineSimulator, lockstep_loop
 
 
@@ -31,23 +35,35 @@ def _overrides(values: dict[str, Any]) -> list[Parameter]:
 def run_single_process(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Path) -> int:
     """Run the scenario with every node in this process; return an exit code."""
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    rclpy.init(args=["metro_atc_graph"])
+    # SIGINT raises KeyboardInterrupt here; the context is shut down once, at the end
+    rclpy.init(args=["metro_atc_graph"], signal_handler_options=SignalHandlerOptions.NO)
     nodes: list[Node] = []
+    stage = "line_simulator"
     try:
         common = {"use_sim_time": True, "scenario": a.scenario}
         sim = LineSimulator(parameter_overrides=_overrides(dict(
             common, seed=a.seed, lockstep=not a.free_run, real_time_factor=a.rtf,
             out_dir=str(out_dir), plots=a.plots, max_sim_time_s=float(a.duration))))
         nodes.append(sim)
+        stage = "ats_regulator"
         nodes.append(AtsRegulator(parameter_overrides=_overrides(
             dict(common, regulator=a.regulator))))
+        stage = "brake_diagnostic"
         nodes.append(BrakeDiagnostic(parameter_overrides=_overrides(common)))
+        stage = "ato_controller"
         scn = load_scenario(a.scenario)
         tt = timetable_for(scn)
         shared: dict[str, Any] = {}
         for tid in train_ids:
             nodes.append(AtoController(tid, scenario=scn, timetable=tt, shared=shared,
                                        parameter_overrides=_overrides(common)))
+    except (NodeConfigError, ParameterException, ValueError) as exc:
+        print(f"metro_atc run: error: {stage} cannot start: {exc}", file=sys.stderr)
+        for n in nodes:
+            n.destroy_node()
+        rclpy.try_shutdown()
+        return 3
+    try:
         executor = SingleThreadedExecutor()
         for n in nodes:
             executor.add_node(n)

@@ -21,8 +21,10 @@ from types import SimpleNamespace
 from typing import Any, Sequence
 
 import numpy as np
-from metro_atc_msgs.msg import (BrakeSensorData, DepartureCommand, LineStatus, TractionCommand,
-                                TrainEvent, TrainState)
+from diagnostic_msgs.msg import DiagnosticStatus
+from metro_atc_msgs.msg import (BrakeSensorData, DepartureCommand, LineStatus, SpeedProfile,
+                                TractionCommand, TrainEvent, TrainState)
+from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
@@ -34,9 +36,15 @@ from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.jsonsafe import json_safe
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_CLOCK, QOS_EVENTS, QOS_LATCHED, QOS_LATCHED_IN,
-                                    QOS_RELIABLE, QOS_SENSOR, NodeConfigError,
+                                    QOS_RELIABLE, QOS_SENSOR, OK, WARN, NodeConfigError,
+                                    RuntimeParams,
                                     SubscriptionPoller, bulk_publisher, bulk_subscription,
-                                    declare, run_nodes)
+                                    diag_status, run_nodes, spin_until_stopped, static,
+                                    stop_requested)
+
+
+_REGULATOR_NAMES = {code: name for name, code in conv.REGULATOR_CODES.items()}
+"""DepartureCommand.regulator codes -> regulator names (what ran, for the KPIs)."""
 
 
 class LineSimulator(Node):
@@ -45,40 +53,50 @@ class LineSimulator(Node):
     def __init__(self, **kwargs: Any) -> None:
         """Declare parameters, load the scenario, create the publishers and subscriptions."""
         super().__init__("line_simulator", **kwargs)
-        self.scenario_name = declare(self, "scenario", "taipei_blue",
-                                     "embedded scenario name or path to a scenario YAML")
-        self.seed = declare(self, "seed", 0, "random seed of disturbances and noise",
-                            0, 2**31 - 1)
-        self.lockstep = declare(self, "lockstep", True,
-                                "deterministic lockstep (true) or free-run at real_time_factor")
-        self.rtf = declare(self, "real_time_factor", 10.0,
-                           "free-run pacing: simulated seconds per wall second", 0.01, 10000.0)
-        self.step_timeout_s = declare(self, "step_timeout_s", 10.0,
-                                      "lockstep: wall time to wait for all commands [s]",
-                                      0.01, 600.0)
-        self.startup_timeout_s = declare(self, "startup_timeout_s", 60.0,
-                                         "wall time to wait for ATO/ATS discovery [s]",
-                                         0.0, 3600.0)
-        self.max_sim_time_s = declare(self, "max_sim_time_s", 0.0,
-                                      "stop after this simulated time [s]; 0: scenario end",
-                                      0.0, 1e7)
-        self.out_dir = declare(self, "out_dir", "",
-                               "directory for kpis.json, events.csv and plots ('' : none)")
-        self.plots = declare(self, "plots", True, "write PNG plots into out_dir")
-        self.exit_on_finish = declare(self, "exit_on_finish", True,
-                                      "shut the node down when the scenario ends")
-        self.status_period_s = declare(self, "status_period_s", 1.0,
-                                       "simulated time between /line/status messages [s]",
-                                       0.01, 3600.0)
-        self.sensor_idle_period_s = declare(
-            self, "sensor_idle_period_s", 1.0,
+        self.scenario_name = static(self, "scenario", "taipei_blue",
+                                    "embedded scenario name or path to a scenario YAML")
+        self.seed = static(self, "seed", 0, "random seed of disturbances and noise",
+                           0, 2**31 - 1)
+        self.lockstep = static(self, "lockstep", True,
+                               "deterministic lockstep (true) or free-run at real_time_factor")
+        self.rtf = static(self, "real_time_factor", 10.0,
+                          "free-run pacing: simulated seconds per wall second", 0.01, 10000.0)
+        self.startup_timeout_s = static(self, "startup_timeout_s", 60.0,
+                                        "wall time to wait for ATO/ATS discovery [s]",
+                                        0.0, 3600.0)
+        self.wait_for_subscribers = [x for x in static(
+            self, "wait_for_subscribers", [""],
+            "node names (e.g. a recorder) that must subscribe to every topic of the "
+            "simulator before step 0") if x]
+        self.max_sim_time_s = static(self, "max_sim_time_s", 0.0,
+                                     "stop after this simulated time [s]; 0: scenario end",
+                                     0.0, 1e7)
+        self.out_dir = static(self, "out_dir", "",
+                              "directory for kpis.json, events.csv and plots ('' : none)")
+        self.plots = static(self, "plots", True, "write PNG plots into out_dir")
+        self.exit_on_finish = static(self, "exit_on_finish", True,
+                                     "shut the node down when the scenario ends")
+        self.rt = RuntimeParams(self, self.health)
+        self.step_timeout_s = self.rt.dynamic(
+            "step_timeout_s", 10.0, "lockstep: wall time to wait for all commands [s]",
+            partial(setattr, self, "step_timeout_s"), 0.01, 600.0)
+        self.status_period_s = self.rt.dynamic(
+            "status_period_s", 1.0, "simulated time between /line/status messages [s]",
+            partial(setattr, self, "status_period_s"), 0.01, 3600.0)
+        self.sensor_idle_period_s = self.rt.dynamic(
+            "sensor_idle_period_s", 1.0,
             "brake sensors: samples are published at the scenario rate while the instrumented "
             "car brakes, and every this many simulated seconds otherwise (0: every sample)",
-            0.0, 3600.0)
-        self.progress_period_s = declare(self, "progress_period_s", 600.0,
-                                         "simulated time between progress log lines [s]",
-                                         1.0, 1e6)
-        self.ato_lost_steps = declare(
+            partial(setattr, self, "sensor_idle_period_s"), 0.0, 3600.0)
+        self.progress_period_s = self.rt.dynamic(
+            "progress_period_s", 600.0, "simulated time between progress log lines [s]",
+            self._set_progress_period, 1.0, 1e6)
+        self.min_rtf = self.rt.dynamic(
+            "min_real_time_factor", 1.0,
+            "/diagnostics: WARN when the simulated seconds per wall second over the last "
+            "diagnostics period fall below this", partial(setattr, self, "min_rtf"),
+            0.0, 1e6)
+        self.ato_lost_steps = static(
             self, "ato_lost_steps", 8,
             "a train whose ATO misses this many consecutive steps is braked to a stop "
             "(CBTC fault) until its ATO answers again", 1, 1_000_000)
@@ -111,6 +129,12 @@ class LineSimulator(Node):
         self._last_warn: dict[str, float] = {}
         self._next_status_t = 0.0
         self.finished = False
+        self.started = False
+        self.regulators: dict[str, int] = {}
+        self.planners: dict[str, int] = {}
+        self.planned: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
+        self._health_last = (time.monotonic(), 0.0, 0, 0)
+        self._matched = np.zeros(n, dtype=np.int64)
 
         self.clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK)
         self.event_pub = self.create_publisher(TrainEvent, "/line/events", QOS_EVENTS)
@@ -125,6 +149,10 @@ class LineSimulator(Node):
         self.dep_subs = [bulk_subscription(self, DepartureCommand, f"/{t}/departure_command",
                                            partial(self._on_departure, i), QOS_LATCHED_IN)
                          for i, t in enumerate(self.ids)]
+        # what actually ran (KPIs): the planner of every profile the ATOs published
+        self.profile_subs = [bulk_subscription(self, SpeedProfile, f"/{t}/speed_profile",
+                                               self._on_profile, QOS_LATCHED)
+                             for t in self.ids]
         self.get_logger().info(
             f"scenario '{self.scenario_name}': {n} trains, {len(self.sim.station_names)} "
             f"stations, control period {self.sim.control_period_s} s, "
@@ -164,17 +192,118 @@ class LineSimulator(Node):
         try:
             st, dep, run, dwell = conv.departure_from_msg(msg, topic, self.ids[i], self.bounds)
             conv.guarded(topic, self.sim.set_departure, i, st, dep, run, dwell)
+            if not self.dep_received[i, st]:
+                reg = _REGULATOR_NAMES.get(int(msg.regulator), f"code {msg.regulator}")
+                self.regulators[reg] = self.regulators.get(reg, 0) + 1
             self.dep_received[i, st] = True
         except conv.MessageRejected as exc:
             self._reject("departure command", exc)
 
+    def _on_profile(self, msg: SpeedProfile) -> None:
+        name = str(msg.planner)[:32] or "unknown"
+        self.planners[name] = self.planners.get(name, 0) + 1
+        i = self.index.get(str(msg.train_id))
+        x = np.asarray(msg.planned_position_m, dtype=float)
+        v = np.asarray(msg.planned_speed_mps, dtype=float)
+        if i is not None and x.size and x.size == v.size and np.isfinite(x).all() \
+                and np.isfinite(v).all():
+            # the latest plan of each run is the one that was tracked (for the plots)
+            self.planned.setdefault(i, {})[int(msg.from_station)] = (x, v)
+
+    def _set_progress_period(self, value: float) -> None:
+        self.progress_period_s = float(value)
+        self._next_progress_t = float(self.sim.t) + self.progress_period_s \
+            if hasattr(self, "sim") else self.progress_period_s
+
+    # ------------------------------------------------------------------ health
+    def health(self) -> list[DiagnosticStatus]:
+        """/diagnostics: the lockstep's progress, misses and real-time factor (wall period).
+
+        WARN when a lockstep step timed out during the last period, or when the simulated
+        seconds per wall second over the period fell below ``min_real_time_factor`` (in
+        free-run: below 90 % of the requested ``real_time_factor``).
+        """
+        now = time.monotonic()
+        w0, t0, k0, m0 = self._health_last
+        t = float(self.sim.t)
+        self._health_last = (now, t, self.k, self.lockstep_misses)
+        dw = max(now - w0, 1e-9)
+        rtf = (t - t0) / dw
+        steps = self.k - k0
+        misses = self.lockstep_misses - m0
+        level, msg = OK, "running"
+        want = self.min_rtf if self.lockstep else 0.9 * self.rtf
+        if not self.started:
+            msg = "waiting for the graph before step 0"
+        elif self.finished:
+            msg = "scenario finished"
+        elif misses > 0:
+            level, msg = WARN, f"{misses} lockstep steps timed out in the last {dw:.1f} s"
+        elif rtf < want:
+            level, msg = WARN, f"real-time factor {rtf:.2f} below {want:.2f}"
+        return [diag_status("line_simulator: lockstep", "line", level, msg, {
+            "step": self.k, "sim_time_s": t, "steps_per_s": steps / dw,
+            "real_time_factor": rtf,
+            "step_time_ms": 1e3 * dw / steps if steps else float("nan"),
+            "lockstep": self.lockstep, "lockstep_misses": self.lockstep_misses,
+            "lockstep_misses_in_period": misses, "ats_timeouts": self.ats_misses,
+            "rejected_messages": self.rejected,
+            "rejected_by_kind": self.rejections.summary(),
+            "ato_losses": self.watchdog.losses,
+            "ato_stop_steps": int(self.watchdog.stop_steps),
+            "trains_in_service": int(np.count_nonzero(self.sim.active_mask()))})]
+
     # ------------------------------------------------------------------ stepping
     def graph_ready(self) -> bool:
-        """Every train has an ATO, the ATS and the brake diagnosis connected."""
-        return all(p.get_subscription_count() > 0 for p in self.state_pubs) and \
+        """Every train has an ATO, the ATS and the brake diagnosis connected.
+
+        With ``wait_for_subscribers``, each named node must also subscribe to every topic
+        the simulator publishes (a recorder then sees step 0).
+        """
+        ready = all(p.get_subscription_count() > 0 for p in self.state_pubs) and \
             all(s.get_publisher_count() > 0 for s in self.cmd_subs) and \
             all(s.get_publisher_count() > 0 for s in self.dep_subs) and \
             all(p.get_subscription_count() > 0 for p in self.sensor_pubs)
+        if not ready or not self.wait_for_subscribers:
+            return ready
+        pubs = [self.clock_pub, self.event_pub, self.status_pub, *self.state_pubs,
+                *self.sensor_pubs]
+        for p in pubs:
+            names = {i.node_name for i in self.get_subscriptions_info_by_topic(p.topic_name)}
+            if not all(w in names for w in self.wait_for_subscribers):
+                return False
+        return True
+
+    def wait_acked(self, timeout_s: float = 5.0) -> None:
+        """Wait until every reliable reader acknowledged what was published (a recorder).
+
+        With ``wait_for_subscribers`` the lockstep calls this once after the last step, so
+        the last messages reach the recorder before the process exits (a reliable writer
+        that exits cannot resend). During the run the writers' histories (1 000 clock
+        ticks, 500 states) cover a recorder that falls behind; acknowledgements come with
+        the DDS heartbeat (~1 s), too slow to wait for during the run.
+        """
+        end = time.monotonic() + timeout_s
+        for p in (self.clock_pub, self.event_pub, self.status_pub, *self.state_pubs):
+            rest = end - time.monotonic()
+            if rest <= 0.0 or not p.wait_for_all_acked(Duration(seconds=rest)):
+                self.get_logger().warning(f"{p.topic_name}: not every reader acknowledged "
+                                          f"the last messages within {timeout_s:g} s")
+                return
+
+    def new_subscribers(self, active: np.ndarray) -> np.ndarray:
+        """Active trains whose state topic matched a new subscriber since the last check."""
+        cnt = np.array([p.get_subscription_count() for p in self.state_pubs], dtype=np.int64)
+        changed = active & (cnt != self._matched)
+        self._matched = cnt
+        return changed
+
+    def publish_states(self, trains: np.ndarray) -> None:
+        """Publish again the step-k states of ``trains`` (a late or restarted ATO)."""
+        t = float(self.sim.t)
+        for i, m in conv.state_msgs(self.ids, np.flatnonzero(trains), self.sim.states(),
+                                    self.k, t):
+            self.state_pubs[i].publish(m)
 
     def publish_step(self) -> np.ndarray:
         """Publish /clock and the states of step k; return the active mask."""
@@ -293,6 +422,8 @@ class LineSimulator(Node):
         k["steps"] = int(self.k)
         k["scenario"] = self.scenario_name
         k["lockstep"] = bool(self.lockstep)
+        k["regulators_seen"] = dict(sorted(self.regulators.items()))
+        k["planners_seen"] = sorted(self.planners)  # names only: latched, depth-1 reader
         return k
 
     def close(self) -> None:
@@ -301,16 +432,16 @@ class LineSimulator(Node):
             return
         out = Path(self.out_dir)
         out.mkdir(parents=True, exist_ok=True)
+        k = self.kpis()
+        k["finished"] = bool(self.finished)
         try:
             from metro_atc import plots
             if self.plots:
-                plots.write_outputs(self.sim, out)
-            else:
-                plots.write_events_csv(self.sim, out / "events.csv")
+                plots.write_outputs(self.sim, out, kpis=k, planned=self.planned)
+                return
+            plots.write_events_csv(self.sim, out / "events.csv")
         except Exception as exc:  # noqa: BLE001 - outputs must not hide the KPIs
             self.get_logger().error(f"writing outputs to {out} failed: {exc}")
-        k = self.kpis()
-        k["finished"] = bool(self.finished)
         (out / "kpis.json").write_text(json.dumps(json_safe(k), indent=2, sort_keys=True))
 
 
@@ -336,10 +467,14 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
 
     t0 = time.monotonic()
     while not sim.graph_ready() and time.monotonic() - t0 < sim.startup_timeout_s:
+        if stop_requested():
+            return
         executor.spin_once(timeout_sec=0.05)
     if not sim.graph_ready():
         log.warning("startup: not every ATO/ATS endpoint was discovered; starting anyway")
     log.info(f"graph ready after {time.monotonic() - t0:.2f} s")
+    sim.started = True
+    sim.new_subscribers(np.ones(len(sim.ids), dtype=bool))
     wall0, sim0 = time.monotonic(), float(sim.sim.t)
     sim._wall0 = wall0
     last_slow = time.monotonic()
@@ -351,17 +486,22 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
             last_slow = now
             executor.spin_once(timeout_sec=0.0)
 
-    while not sim.finished:
+    while not sim.finished and not stop_requested():
         active = sim.publish_step()
         if sim.lockstep:
             deadline = time.monotonic() + sim.step_timeout_s
             resend = time.monotonic() + 0.5
             while not sim.commands_complete(active) and time.monotonic() < deadline:
+                if stop_requested():
+                    return
                 wait(0.02)
                 if time.monotonic() > resend and not sim.commands_complete(active):
-                    # a state may have been published before a late subscriber matched
+                    # a state may have been published before a late (or restarted) ATO
+                    # matched: only then, and only to that train, is it sent again
                     resend = time.monotonic() + 0.5
-                    sim.publish_step()
+                    again = sim.new_subscribers(active)
+                    if again.any():
+                        sim.publish_states(again)
             sim.advance(active, timed_out=not sim.commands_complete(active))
         else:
             target = wall0 + (float(sim.sim.t) + sim.sim.control_period_s - sim0) / sim.rtf
@@ -376,6 +516,11 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
             slow_path(force=True)
         else:
             executor.spin_once(timeout_sec=0.0)
+    if sim.wait_for_subscribers:
+        sim.wait_acked()
+    if not sim.finished:
+        log.info(f"stopped by a signal at t={sim.sim.t:.1f} s, step {sim.k}")
+        return
     log.info(f"scenario finished at t={sim.sim.t:.1f} s after {sim.k} steps, "
              f"{time.monotonic() - t0:.1f} s wall")
     # let the last events/status reach late subscribers before the process exits
@@ -391,7 +536,7 @@ def main(args: Sequence[str] | None = None) -> int:
         assert isinstance(node, LineSimulator)
         lockstep_loop(executor, node)
         if not node.exit_on_finish:
-            executor.spin()
+            spin_until_stopped(executor)
 
     return run_nodes(lambda: [LineSimulator()], loop, args)
 

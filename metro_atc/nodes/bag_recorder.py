@@ -1,0 +1,217 @@
+"""bag_recorder node: every topic of the graph into a rosbag2 MCAP directory (``run --record``).
+
+rosbag2's recorder is not installable from PyPI; this node does its job for the metro_atc
+graph with rclpy and the ``mcap`` library (:mod:`metro_atc.bag` lays the bag out):
+
+* it subscribes at start-up to every topic of the graph's topic map (:func:`graph_topics`,
+  the scenario's trains) with the QoS of the topic's publishers, so the simulator, which
+  waits for this node (``wait_for_subscribers``), loses nothing from step 0; every
+  ``discovery_period_s`` it also subscribes to any other topic that appears, with a QoS
+  adapted from its publishers (reliable / transient-local only if every publisher is);
+* subscriptions are raw (serialized CDR bytes, no deserialization) and are served by a
+  direct wait set (:class:`~metro_atc.nodes.common.SubscriptionPoller`);
+* at shutdown (SIGINT/SIGTERM from the launcher after the simulator ended) it drains what
+  is queued, finishes the MCAP file and writes ``metadata.yaml``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureCommand, LineStatus,
+                                SpeedProfile, TractionCommand, TrainEvent, TrainState)
+from rcl_interfaces.msg import Log, ParameterEvent
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+from rclpy.subscription import Subscription
+from rosgraph_msgs.msg import Clock as ClockMsg
+
+from metro_atc.bag import BagWriter, Qos
+from metro_atc.core.plant.scenario import ScenarioError, load_scenario
+from metro_atc.nodes.common import (OK, QOS_CLOCK, QOS_DIAGNOSTICS, QOS_EVENTS, QOS_LATCHED,
+                                    QOS_RELIABLE, QOS_SENSOR, WARN, NodeConfigError,
+                                    RuntimeParams, SubscriptionPoller, diag_status, run_nodes,
+                                    static, stop_requested)
+
+QOS_LOG = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                     reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.VOLATILE)
+"""/rosout and /parameter_events as read here (rcl publishes them reliable, depth 1000)."""
+
+
+READER_DEPTH = 10000
+"""Reader queue of every recorded topic [messages]."""
+
+
+def graph_topics(train_ids: Sequence[str]) -> list[tuple[str, Any, QoSProfile]]:
+    """The topic map of a run: (topic, message class, publishers' QoS) (README topic map)."""
+    out: list[tuple[str, Any, QoSProfile]] = [
+        ("/clock", ClockMsg, QOS_CLOCK), ("/line/events", TrainEvent, QOS_EVENTS),
+        ("/line/status", LineStatus, QOS_LATCHED),
+        ("/diagnostics", DiagnosticArray, QOS_DIAGNOSTICS),
+        ("/rosout", Log, QOS_LOG), ("/parameter_events", ParameterEvent, QOS_LOG)]
+    for t in train_ids:
+        out += [(f"/{t}/state", TrainState, QOS_RELIABLE),
+                (f"/{t}/command", TractionCommand, QOS_RELIABLE),
+                (f"/{t}/departure_command", DepartureCommand, QOS_LATCHED),
+                (f"/{t}/speed_profile", SpeedProfile, QOS_LATCHED),
+                (f"/{t}/brake_sensors", BrakeSensorData, QOS_SENSOR),
+                (f"/{t}/brake_diagnosis", BrakeDiagnosis, QOS_LATCHED)]
+    return out
+
+
+def type_name(cls: Any) -> str:
+    """``pkg/msg/Name`` of a generated message class."""
+    return f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
+
+
+def bag_qos(q: QoSProfile) -> Qos:
+    """An rclpy QoS profile as the bag stores it."""
+    return Qos(history=q.history.name.lower(), depth=int(q.depth),
+               reliability=q.reliability.name.lower(), durability=q.durability.name.lower(),
+               liveliness=q.liveliness.name.lower())
+
+
+def find_msg(package: str, name: str) -> str:
+    """Text of ``share/<package>/msg/<name>.msg`` (ament index)."""
+    from ament_index_python.packages import get_package_share_directory
+    return (Path(get_package_share_directory(package)) / "msg" / f"{name}.msg").read_text()
+
+
+class BagRecorder(Node):
+    """The recorder node (see module docstring)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        """Open the bag and subscribe to the graph's topic map."""
+        super().__init__("bag_recorder", **kwargs)
+        scenario = static(self, "scenario", "taipei_blue",
+                          "embedded scenario name or path to a scenario YAML (its trains)")
+        output = static(self, "output", "", "bag directory to create (must not exist)")
+        self.discovery_period_s = static(self, "discovery_period_s", 0.5,
+                                         "wall time between topic discovery passes [s]",
+                                         0.05, 60.0)
+        if not output:
+            raise NodeConfigError("parameter output (bag directory) is empty")
+        try:
+            from metro_atc.launcher import scenario_train_ids
+            ids = scenario_train_ids(load_scenario(scenario))
+        except ScenarioError as exc:
+            raise NodeConfigError(str(exc)) from None
+        if Path(output).exists():
+            raise NodeConfigError(f"bag directory {output} already exists")
+        self.bag = BagWriter(Path(output), find_msg)
+        try:
+            self.bag.open()
+        except OSError as exc:
+            raise NodeConfigError(f"cannot create bag {output}: {exc.strerror}") from None
+        self.subs: list[Subscription] = []
+        self.ignored: set[str] = set()
+        self.bytes = 0
+        self.rt = RuntimeParams(self, self.health)
+        for topic, cls, qos in graph_topics(ids):
+            self._record(topic, cls, qos)
+        self.create_timer(self.discovery_period_s, self.discover,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.get_logger().info(f"recording {len(self.subs)} topics to {output}")
+
+    def _record(self, topic: str, cls: Any, qos: QoSProfile, offered: list[Qos] | None = None,
+                type_hash: str = "") -> None:
+        def cb(data: bytes, topic: str = topic) -> None:
+            self.bag.write(topic, data, time.time_ns())
+            self.bytes += len(data)
+
+        self.bag.add_topic(topic, type_name(cls), offered or [bag_qos(qos)], type_hash)
+        # the reader queue is deeper than the publishers' (QoS-compatible): a burst that
+        # arrives while the bag compresses a chunk must not overwrite unread samples
+        deep = QoSProfile(history=HistoryPolicy.KEEP_LAST,
+                          depth=max(int(qos.depth), READER_DEPTH),
+                          reliability=qos.reliability, durability=qos.durability)
+        self.subs.append(self.create_subscription(cls, topic, cb, deep, raw=True))
+
+    def discover(self) -> None:
+        """Subscribe to topics that appeared since the last pass (QoS from the publishers)."""
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self.bag.topics or topic in self.ignored or len(types) != 1:
+                continue
+            pubs = self.get_publishers_info_by_topic(topic)
+            if not pubs:
+                continue
+            pkg, _, name = types[0].split("/")
+            try:
+                cls = getattr(importlib.import_module(f"{pkg}.msg"), name)
+            except (ImportError, AttributeError):
+                self.get_logger().warning(f"not recording {topic}: type {types[0]} unknown "
+                                          f"here")
+                self.ignored.add(topic)
+                continue
+            qs = [p.qos_profile for p in pubs]
+            reliable = all(q.reliability == ReliabilityPolicy.RELIABLE for q in qs)
+            latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in qs)
+            qos = QoSProfile(
+                history=HistoryPolicy.KEEP_LAST, depth=max(100, max(q.depth for q in qs)),
+                reliability=ReliabilityPolicy.RELIABLE if reliable
+                else ReliabilityPolicy.BEST_EFFORT,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
+                else DurabilityPolicy.VOLATILE)
+            h = str(getattr(pubs[0], "topic_type_hash", "") or "")
+            self._record(topic, cls, qos, [bag_qos(q) for q in qs],
+                         h if h.startswith("RIHS") else "")
+            self.get_logger().info(f"recording {topic} ({types[0]})")
+
+    def health(self) -> list[DiagnosticStatus]:
+        """/diagnostics: topics, messages and bytes recorded."""
+        n = sum(t.count for t in self.bag.topics.values())
+        level, msg = (OK, "recording") if self.subs else (WARN, "no topic")
+        return [diag_status("bag_recorder: bag", str(self.bag.path), level, msg, {
+            "topics": len(self.subs), "messages": n, "bytes": self.bytes})]
+
+    def drain(self) -> int:
+        """Take every queued message (after the graph stopped); return how many."""
+        poller = SubscriptionPoller(self.context, self.subs)
+        total = 0
+        for _ in range(50):
+            n = poller.poll(0.02)
+            total += n
+            if n == 0:
+                break
+        return total
+
+    def close(self) -> None:
+        """Drain the queues, finish the MCAP file, write metadata.yaml."""
+        if self.context.ok():
+            self.drain()
+        self.bag.close()
+        n = sum(t.count for t in self.bag.topics.values())
+        text = f"bag {self.bag.path}: {n} messages on {len(self.bag.topics)} topics"
+        if self.context.ok():
+            self.get_logger().info(text)
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    """Entry point of the ``bag_recorder`` executable."""
+    def loop(executor: SingleThreadedExecutor, nodes: Sequence[Node]) -> None:
+        node = nodes[0]
+        assert isinstance(node, BagRecorder)
+        ctx = node.context
+        last_slow = 0.0
+        while ctx.ok() and not stop_requested():
+            poller = SubscriptionPoller(ctx, node.subs)
+            n_subs = len(node.subs)
+            while ctx.ok() and not stop_requested() and len(node.subs) == n_subs:
+                poller.poll(0.05)
+                now = time.monotonic()
+                if now - last_slow >= 0.05:
+                    last_slow = now
+                    executor.spin_once(timeout_sec=0.0)
+
+    return run_nodes(lambda: [BagRecorder()], loop, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
