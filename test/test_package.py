@@ -117,7 +117,7 @@ def test_launch_file_starts_what_run_starts(monkeypatch: pytest.MonkeyPatch,
                                             record: str) -> None:
     """Same executables, parameter files and parameters; shutdown when the simulator exits."""
     from metro_atc import launcher
-    from metro_atc.core.plant.scenario import load_scenario
+    from metro_atc.core.line.scenario import load_scenario
 
     _stub_launch(monkeypatch, {})
     spec = importlib.util.spec_from_file_location("metro_line_launch",

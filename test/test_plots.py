@@ -9,7 +9,7 @@ import numpy as np
 
 from metro_atc.core.plant.driver import simple_driver
 from metro_atc.core.plant.line import LineSim
-from metro_atc.core.plant.scenario import IncidentSpec, load_scenario
+from metro_atc.core.line.scenario import IncidentSpec, load_scenario
 from metro_atc.plots import energy_terms, plot_energy, plot_train_graph, ran_trains
 
 

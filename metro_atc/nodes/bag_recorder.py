@@ -33,7 +33,7 @@ from rclpy.subscription import Subscription
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from metro_atc.bag import BagWriter, Qos
-from metro_atc.core.plant.scenario import ScenarioError, load_scenario
+from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.nodes.common import (OK, QOS_CLOCK, QOS_DIAGNOSTICS, QOS_EVENTS, QOS_LATCHED,
                                     QOS_RELIABLE, QOS_SENSOR, WARN, NodeConfigError,
                                     RuntimeParams, SubscriptionPoller, diag_status, run_nodes,

@@ -300,9 +300,9 @@ class RuntimeParams:
         for p in params:
             if p.name == "use_sim_time" or p.name.startswith("qos_overrides."):
                 continue
-            desc = self.node.describe_parameter(p.name) if self.node.has_parameter(
-                p.name) else None
-            if desc is not None and desc.read_only:
+            if not self.node.has_parameter(p.name):
+                continue  # being declared (its start-up value): declare() checks it
+            if self.node.describe_parameter(p.name).read_only:
                 return SetParametersResult(successful=False,
                                            reason=f"{p.name} is read-only (set at start-up)")
             if p.name not in self._setters:
