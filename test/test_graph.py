@@ -531,7 +531,7 @@ def test_fuzz_every_subscribed_topic(two_runs: dict[str, Any], ros_env: dict[str
     fuzzed = json.loads(r.stdout.strip().splitlines()[-1])
     clean = two_runs["kpis"][0]
     skip = {"wall_time_s", "real_time_factor", "out_dir", "rejected_messages",
-            "rejected_by_kind", "scenario"}
+            "rejected_by_kind", "scenario", "bag"}
     assert fuzzed["scenario"] == str(scn_path)
     assert {k: v for k, v in fuzzed.items() if k not in skip} == \
         {k: v for k, v in clean.items() if k not in skip}
