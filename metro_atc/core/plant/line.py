@@ -49,7 +49,8 @@ from .timetable import (PassengerFlow, dispatch_times, nominal_dwells, required_
                         schedule)
 from .track import (G, braking_envelope, cell_min, curve_resistance_per_kg,
                     step_profile, window_min_ahead, window_min_behind)
-from .vehicle import THSR_700T, TAIPEI_MRT_6CAR, TrainParams, max_traction_accel
+from .vehicle import (THSR_700T, TAIPEI_MRT_6CAR, TrainParams, max_traction_accel,
+                      train_params_from_spec)
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -217,25 +218,8 @@ class _TimedEvent:
 
 
 def train_params_for(scn: Scenario) -> TrainParams:
-    """Rolling stock of a scenario: preset with the scenario overrides applied."""
-    p = PRESETS[scn.trains.preset]
-    over: dict[str, Any] = {}
-    if scn.trains.mass_kg is not None:
-        over["mass_kg"] = scn.trains.mass_kg
-    if scn.trains.length_m is not None:
-        over["length_m"] = scn.trains.length_m
-    if scn.trains.max_speed_kmh is not None:
-        over["max_speed_mps"] = scn.trains.max_speed_kmh * KMH
-    if scn.trains.capacity_pax is not None:
-        over["capacity_pax"] = scn.trains.capacity_pax
-    e = scn.energy
-    if e.traction_efficiency is not None:
-        over["traction_efficiency"] = e.traction_efficiency
-    if e.regen_efficiency is not None:
-        over["regen_efficiency"] = e.regen_efficiency
-    if e.aux_power_kw is not None:
-        over["aux_power_w"] = e.aux_power_kw * 1e3
-    return dataclasses.replace(p, **over) if over else p
+    """Rolling stock of a scenario: preset with the scenario's data applied."""
+    return train_params_from_spec(PRESETS[scn.trains.preset], scn.trains, scn.energy)
 
 
 class LineSim:
