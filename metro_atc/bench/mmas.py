@@ -7,8 +7,9 @@ Case 1: 2 000 m inter-station run, line speed 80 km/h, the gradient table, avera
 restrictions.  Reported per case: MMAS energy [kWh] (exact re-simulation of the best tour),
 the flat-out energy, the independent optimum at the running-time bound (LP,
 :mod:`metro_atc.core.ato.oracle`; the gap column is against it), the DP at the same bound
-and at the MMAS running time (achievable profile and energy-time hull), average speed [km/h], running time [s], compute time [s] (CPU time of
-the online stage and of the pre-work stage; the paper's 42 s is MATLAB on a 2010 PC).
+and at the MMAS running time (achievable profile and energy-time hull), average speed
+[km/h], running time [s], compute time [s] (CPU time of the online stage and of the
+pre-work stage; the paper's 42 s is MATLAB on a 2010 PC).
 
 Assumed data (the seed's Table 1 gradients, Table 3 restrictions and the train data are on
 pages missing from the extraction): see :data:`GRADIENTS`, :data:`RESTRICTIONS` and the

@@ -207,8 +207,8 @@ def map_track(src: str, d: dict[str, Any], drop: set[str], notes: list[str]
     if not isinstance(meta, dict) or not isinstance(meta.get("id"), str):
         raise TtobenchError(f"ttobench {src}: metadata.id: expected a string")
     st = d["stops"]
-    if not isinstance(st, dict) or st.get("unit") != "m" or not isinstance(st.get("values"),
-                                                                            list):
+    if not (isinstance(st, dict) and st.get("unit") == "m"
+            and isinstance(st.get("values"), list)):
         raise TtobenchError(f"ttobench {src}: stops: expected {{unit: 'm', values: [...]}}")
     stops = [_num(src, f"stops[{i}]", x) for i, x in enumerate(st["values"])]
     if len(stops) < 2 or stops[0] != 0.0 or any(b <= a for a, b in zip(stops, stops[1:])):

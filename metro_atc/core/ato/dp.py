@@ -304,9 +304,11 @@ def _stage_exact(run: RunModel, tab: DPTables, k: int, e: float, mode: int, leve
 def _blend_rollout(run: RunModel, tab: DPTables, prefix: IntArray, k: int, level: float,
                    mu: float, j_val: FloatArray) -> tuple[IntArray, FloatArray, FloatArray,
                                                           float, float]:
-    """Exact rollout: ``prefix`` controls before stage k, traction at ``level`` on stage k,
-    then the policy (mu, j_val).  Returns (controls, levels, e at stages, energy [J],
-    time [s])."""
+    """Exact rollout of a blended profile.
+
+    ``prefix`` controls before stage k, traction at ``level`` on stage k, then the policy
+    (mu, j_val).  Returns (controls, levels, e at stages, energy [J], time [s]).
+    """
     if tab.lists is None:
         tab.lists = (tab.e_next.tolist(), tab.energy_j.tolist(), tab.time_s.tolist())
     n_st = tab.n_stages

@@ -34,7 +34,6 @@ Modelling choices (SI units throughout):
 
 from __future__ import annotations
 
-import dataclasses
 import heapq
 import math
 from dataclasses import dataclass, field

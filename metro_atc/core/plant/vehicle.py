@@ -322,7 +322,7 @@ def train_params_from_data(base: TrainParams, data: dict[str, float | int | None
     for k, v in d.items():
         if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0.0):
             raise ValueError(f"rolling stock {k}: expected a finite number >= 0, got {v!r}")
-    over: dict[str, float | int] = {}
+    over: dict[str, Any] = {}
     m0 = base.mass_kg
     m = float(d.get("mass_kg", m0))
     if m <= 0.0:
