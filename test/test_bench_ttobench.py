@@ -25,3 +25,23 @@ def test_bench_one_interstation(capsys: pytest.CaptureFixture[str]) -> None:
         assert abs(pl[name]["time_error_s"]) <= 0.5, name
     assert pl["fotp"]["time_s"] < r["target_s"]
     assert pl["fotp"]["energy_kwh"] > pl["optimum"]["energy_kwh"]
+
+
+def test_shipped_reference_reproduces() -> None:
+    """The shipped optimal energy of one instance is what the oracle computes today."""
+    from metro_atc.core.ato import coasting
+    from metro_atc.core.ato.envelope import RunModel
+    from metro_atc.core.ato.oracle import solve_oracle
+    from metro_atc.core.bridge import ato_limits_for, track_for, train_for
+
+    ref = json.loads((ttobench.data_dir() / ttobench.REFERENCE_FILE).read_text())
+    rows = [v for v in ref["values"] if v["interstation"] == 1 and v["factor"] == 1.2]
+    assert len(ref["values"]) == 13 * 3 and len(rows) == 1
+    scn = ttobench.metro_scenario()
+    train = train_for(scn)
+    pos = [s.position_m for s in scn.line.stations]
+    run = RunModel(train, track_for(scn), pos[1], pos[2], ato_limits_for(train))
+    target = 1.2 * coasting.fotp(run, float("inf")).time_s
+    assert target == pytest.approx(rows[0]["target_s"], abs=1e-2)
+    e = solve_oracle(run, target, ref["instance"]["oracle_grid_m"]).energy_j / 3.6e6
+    assert e == pytest.approx(rows[0]["energy_kwh"], rel=1e-4)

@@ -50,6 +50,15 @@ FACTORS = (1.05, 1.10, 1.20)
 """Trip time / flat-out running time."""
 PLANNERS = ("optimum", "dp", "mmas", "ectp", "fctp", "fotp")
 REFERENCE_FILE = "reference_energies.json"
+ASSUMPTIONS = (
+    "train length 141 m (not in the TTOBench train; speed limits hold for the whole train); "
+    "net acceleration <= 1 m/s^2 and braking <= 0.8 x (260 kN / 278 t) = 0.748 m/s^2 "
+    "(the ATO's planning limits), braking curves to lower limits and to the stop at that "
+    "deceleration; traction 310 kN up to 10 m/s then 3100 kW; Davis r0 + r2 v^2; no rotating "
+    "mass (rho 0); trip time = factor x the flat-out (full traction, no coasting) running "
+    "time under the same limits; substation = traction / 0.70 - 0.80 x electric braking work "
+    "within 260 kN and 4333 kW")
+"""What the reference energies assume (written into the reference file)."""
 
 
 def metro_scenario() -> Scenario:
@@ -231,6 +240,7 @@ def main(argv: Optional[list[str]] = None) -> int:
                "instance": out["instance"],
                "energy_definition": "minimum traction energy at the wheel [kWh] for running "
                                     "time <= target_s (factor x flat-out), ATO planning limits",
+               "assumptions": ASSUMPTIONS,
                "values": [{"interstation": r["interstation"], "from_m": r["from_m"],
                            "to_m": r["to_m"], "factor": r["factor"],
                            "target_s": round(r["target_s"], 3),
