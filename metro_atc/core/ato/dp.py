@@ -302,11 +302,12 @@ def _stage_exact(run: RunModel, tab: DPTables, k: int, e: float, mode: int, leve
 
 
 def _blend_rollout(run: RunModel, tab: DPTables, prefix: IntArray, k: int, level: float,
-                   mu: float, j_val: FloatArray) -> tuple[IntArray, FloatArray, FloatArray,
-                                                          float, float]:
+                   mu: float, j_val: FloatArray, mode_k: int = MODE_ACCEL
+                   ) -> tuple[IntArray, FloatArray, FloatArray, float, float]:
     """Exact rollout of a blended profile.
 
-    ``prefix`` controls before stage k, traction at ``level`` on stage k, then the policy
+    ``prefix`` controls before stage k, ``mode_k`` (accelerate or cruise) with traction
+    level ``level`` on stage k, then the policy
     (mu, j_val).  Returns (controls, levels, e at stages, energy [J], time [s]).
     """
     if tab.lists is None:
@@ -323,7 +324,7 @@ def _blend_rollout(run: RunModel, tab: DPTables, prefix: IntArray, k: int, level
         if i < k:
             u, mode, lv = int(ctrl[i]), CONTROL_MODES[int(ctrl[i])], float(lev[i])
         elif i == k:
-            u, mode, lv = 0, MODE_ACCEL, level
+            u, mode, lv = CONTROL_MODES.index(mode_k), mode_k, level
         else:
             u = _policy_control(tab, i, e, mu, j_val[i + 1].tolist())
             if u < 0:
@@ -342,12 +343,13 @@ def _blend(run: RunModel, tab: DPTables, target_time_s: float, fast: tuple[float
            ) -> Optional[tuple[IntArray, FloatArray, FloatArray, float, float]]:
     """Continuous switch inside stage k of the spliced profile ``c_fast``.
 
-    Stage k's traction level is bisected between 0 (coasting-like) and the fast control's
-    level so that the running time meets the target (stage k simulated exactly, the fast
-    policy after it on the tables); the chosen profile is then simulated exactly.  None when
-    stage k of ``c_fast`` is not a traction control.
+    Stage k's traction level (accelerate or cruise) is bisected between 0 (coasting-like)
+    and the fast control's level so that the running time meets the target (stage k
+    simulated exactly, the fast policy after it on the tables); the chosen profile is then
+    simulated exactly.  None when stage k of ``c_fast`` coasts.
     """
-    if CONTROL_MODES[int(c_fast[k])] != MODE_ACCEL:
+    mode_k = CONTROL_MODES[int(c_fast[k])]
+    if mode_k not in (MODE_ACCEL, MODE_CRUISE):
         return None
     e_k, en_pre, tm_pre = 0.0, 0.0, 0.0
     for i in range(k):
@@ -357,7 +359,7 @@ def _blend(run: RunModel, tab: DPTables, target_time_s: float, fast: tuple[float
         tm_pre += dt
 
     def total(level: float) -> tuple[float, float]:
-        e1, dj, dt = _stage_exact(run, tab, k, e_k, MODE_ACCEL, level)
+        e1, dj, dt = _stage_exact(run, tab, k, e_k, mode_k, level)
         _, en, tm = _forward_table(tab, fast[0], fast[1], start=(k + 1, e1))
         return en_pre + dj + en, tm_pre + dt + tm
 
@@ -370,7 +372,7 @@ def _blend(run: RunModel, tab: DPTables, target_time_s: float, fast: tuple[float
             hi_l = mid
         else:
             lo_l = mid
-    return _blend_rollout(run, tab, c_fast, k, hi_l, fast[0], fast[1])
+    return _blend_rollout(run, tab, c_fast, k, hi_l, fast[0], fast[1], mode_k)
 
 
 def simulate_controls(run: RunModel, tab: DPTables, controls: IntArray

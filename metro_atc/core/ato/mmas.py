@@ -68,6 +68,7 @@ class MmasParams:
     ls_max_passes: int = 60
     polish_rounds: int = 10
     continuous_polish: bool = True
+    ls_every_iteration: bool = False
     grade_scale: float = 0.02
     seed: int = 1
 
@@ -403,7 +404,7 @@ def solve_mmas(tables: SectionTables, t_max_s: float,
         k_ib = int(np.argmin(sc))
         ib_m, ib_c, ib_score = modes[k_ib], codes[k_ib], float(sc[k_ib])
         improved = ib_score < best_score - 1e-6
-        if improved and p.local_search:
+        if p.local_search and (improved or p.ls_every_iteration):
             ib_m, ib_c, ib_score, n_ev = local_search(tables, ib_m, ib_c, t_max_s,
                                                       p.ls_max_passes)
             evals += n_ev
