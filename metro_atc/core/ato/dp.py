@@ -19,6 +19,15 @@ Running-time constraint by Lagrangian relaxation: for a multiplier mu [J/s] the 
 recursion minimises ``E + mu T``; ``T(mu)`` is non-increasing and a bisection on log(mu)
 meets the target time.  The final profile is obtained by a forward pass that simulates the
 chosen controls exactly from the exact state (no grid error in the reported energy / time).
+
+Closing the duality gap.  ``T(mu)`` jumps (a stage more or less of traction changes the
+running time by up to a second on descents), so the best Lagrangian profile can leave time
+unused and cost several per cent more than the constrained optimum (seen against the
+independent LP optimum, :mod:`metro_atc.core.ato.oracle`).  The two profiles bracketing the
+target are therefore spliced (the slower policy up to stage k, the faster one after it; the
+latest k meeting the time, by bisection), and inside the switching stage the traction level
+of its accelerate / cruise control is bisected so that the exact running time meets the
+target; the faster policy continues from the exact state.
 """
 
 from __future__ import annotations

@@ -27,7 +27,11 @@ Algorithm (seed 001 Sec. 2 and 4.2 items 3-8; Stuetzle & Hoos, refs [8, 9]):
   tour (lexicographic penalty);
 - local search (Stuetzle & Hoos [8]: "MAX-MIN ant system and local search"): best-improvement
   single-section moves on every new best-so-far tour (on by default; ``local_search=False``
-  gives the plain ant system).
+  gives the plain ant system; ``ls_every_iteration=True`` applies it to every
+  iteration-best ant, about 20x slower for little gain on the TTOBench metro line);
+- continuous polish (not in the seed): the speed commands of the best tour are refined off
+  the 5 km/h lattice, one section at a time, by exact vectorised simulation, so the tour
+  uses the running time the lattice leaves unused (:func:`continuous_code_polish`).
 
 All ants are evaluated together (vectorised over ants); one iteration costs N_s table
 look-ups on arrays of n_ants elements.
