@@ -309,7 +309,7 @@ def lagrangian_polish(tables: SectionTables, modes: IntArray, codes: IntArray, t
 def continuous_code_polish(tables: SectionTables, modes: IntArray, speeds_mps: FloatArray,
                            t_max: float, rounds: int = 3, n_offsets: int = 9,
                            span_mps: float = 5.0 / 3.6
-                           ) -> tuple[FloatArray, float, float, int]:
+                           ) -> tuple[FloatArray, float, float, int, IntArray]:
     """Refine the speed commands of a tour continuously (exact simulation, vectorised).
 
     The seed's codes are 5 km/h apart, so the best tour on the code lattice can leave up to
@@ -330,13 +330,19 @@ def continuous_code_polish(tables: SectionTables, modes: IntArray, speeds_mps: F
     hi_v = float(tables.codes_mps[-1])
     offsets = np.linspace(-1.0, 1.0, n_offsets)
     span = span_mps
+    cur_m = modes.copy()
     for _ in range(rounds):
-        cand = np.repeat(cur[None, :], n_s * n_offsets, axis=0)
+        n_sp = n_s * n_offsets
+        cand = np.repeat(cur[None, :], n_sp + 2 * n_s, axis=0)
+        cand_m = np.repeat(cur_m[None, :], n_sp + 2 * n_s, axis=0)
         sec = np.repeat(np.arange(n_s), n_offsets)
         off = np.tile(offsets, n_s) * span
-        cand[np.arange(cand.shape[0]), sec] = np.clip(cur[sec] + off, lo_v, hi_v)
-        t, en, _, stl, _, _ = simulate_tours(tables, np.repeat(modes[None, :], cand.shape[0],
-                                                               axis=0),
+        cand[np.arange(n_sp), sec] = np.clip(cur[sec] + off, lo_v, hi_v)
+        # mode changes of one section at its current speed command
+        rows = n_sp + np.arange(2 * n_s)
+        sec2 = np.repeat(np.arange(n_s), 2)
+        cand_m[rows, sec2] = (cur_m[sec2] + np.tile([1, 2], n_s)) % 3
+        t, en, _, stl, _, _ = simulate_tours(tables, cand_m,
                                              np.zeros_like(cand, dtype=np.int64),
                                              code_speeds_mps=cand)
         evals += cand.shape[0]
@@ -346,8 +352,9 @@ def continuous_code_polish(tables: SectionTables, modes: IntArray, speeds_mps: F
             if en[k] < best_e:
                 best_e, best_t = float(en[k]), float(t[k])
                 cur = cand[k].copy()
+                cur_m = cand_m[k].copy()
         span *= 0.5
-    return cur, best_e, best_t, evals
+    return cur, best_e, best_t, evals, cur_m
 
 
 def solve_mmas(tables: SectionTables, t_max_s: float,
@@ -454,10 +461,11 @@ def solve_mmas(tables: SectionTables, t_max_s: float,
             tables, best_m[None, :], best_c[None, :], record=True)
     speeds = tables.codes_mps[best_c].astype(float)
     if p.continuous_polish and p.local_search and np.isfinite(best_score):
-        sp, e_cp, t_cp, n_ev = continuous_code_polish(tables, best_m, speeds, t_max_s)
+        sp, e_cp, t_cp, n_ev, m_cp = continuous_code_polish(tables, best_m, speeds, t_max_s)
         evals += n_ev
         if e_cp < float(e_ex[0]) or t_ex[0] > t_max_s + 1e-6:
             speeds = sp
+            best_m = m_cp
             t_ex, e_ex, _, stalled, s_grid, e_hist = simulate_tours(
                 tables, best_m[None, :], best_c[None, :], record=True,
                 code_speeds_mps=speeds[None, :])
