@@ -10,7 +10,8 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
-    package_data={PACKAGE: ["scenarios/*.yaml", "scenarios/*.md", "data/*"]},
+    package_data={PACKAGE: ["scenarios/*.yaml", "scenarios/*.md", "data/*", "data/ttobench/*",
+                            "ttobench/*.md"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

@@ -4,6 +4,7 @@
   run a scenario to its end, tear everything down and print KPIs.
 - ``bench NAME``: the reproductions and benchmarks (``bench --list`` names them).
 - ``train {aoc,dhp}``: train the ATR critic/actor networks.
+- ``import ttobench``: a TTOBench track + train (+ journey) as a scenario YAML.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import Sequence
 
 BENCHES = {
     "perf": "metro_atc.bench.perf",
+    "ttobench": "metro_atc.bench.ttobench",
     "regulator-synthesis": "metro_atc.bench.regulator_synthesis",
     "regulation": "metro_atc.bench.regulation",
     "closed-loop": "metro_atc.bench.closed_loop",
@@ -32,7 +34,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if not args or args[0] in ("-h", "--help"):
         print(__doc__.strip())
-        print("\nusage: python -m metro_atc {run,bench,train} [options]   (-h after each)")
+        print("\nusage: python -m metro_atc {run,bench,train,import} [options]   (-h after each)")
         return 0 if args else 2
     cmd, rest = args[0], args[1:]
     if cmd == "run":
@@ -40,6 +42,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return run_main(rest)
     if cmd == "bench":
         return _bench(rest)
+    if cmd == "import":
+        if not rest or rest[0] != "ttobench":
+            print("usage: python -m metro_atc import ttobench --track T.json --train R.json "
+                  "[--journey J.json] --out scenario.yaml", file=sys.stderr)
+            return 2
+        from metro_atc.ttobench.importer import main as import_main
+        return import_main(rest[1:])
     if cmd == "train":
         try:
             mod = importlib.import_module("metro_atc.atr_train")
@@ -47,7 +56,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print("metro_atc train: the ATR training module is not available", file=sys.stderr)
             return 2
         return int(mod.main(rest))
-    print(f"metro_atc: unknown command '{cmd}' (expected run, bench or train)", file=sys.stderr)
+    print(f"metro_atc: unknown command {cmd!r} (expected run, bench, train or import)",
+          file=sys.stderr)
     return 2
 
 

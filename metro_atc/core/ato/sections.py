@@ -148,7 +148,7 @@ def build_section_tables(run: RunModel, n_sections: int = 50,
 
 
 def simulate_tours(tables: SectionTables, modes: IntArray, codes: IntArray,
-                   record: bool = False
+                   record: bool = False, code_speeds_mps: Optional[ArrayLike] = None
                    ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_],
                               Optional[FloatArray], Optional[FloatArray]]:
     """Exact (non-interpolated) simulation of tours ``modes, codes`` of shape (K, N_s).
@@ -156,6 +156,8 @@ def simulate_tours(tables: SectionTables, modes: IntArray, codes: IntArray,
     Returns (time [s] (K,), energy [J] (K,), e_end (K,), stalled (K,), s grid, e history
     (K, n_points) if ``record``).  This is the same physics as the pre-work tables without
     the entry-speed interpolation; it gives the reported figures of a planned profile.
+    ``code_speeds_mps`` (K, N_s), if given, replaces the tabulated code speeds [m/s]
+    (continuous speed commands; ``codes`` is then ignored).
     """
     run = tables.run
     modes = np.atleast_2d(np.asarray(modes, dtype=np.int64))
@@ -172,8 +174,10 @@ def simulate_tours(tables: SectionTables, modes: IntArray, codes: IntArray,
     s_sub = tables.bounds_s[:-1, None] + np.arange(n_sub)[None, :] * h
     fg_all = run.mean_grade_force(s_sub, s_sub + h)
     cap_all = run.ceiling_e(s_sub + h)
+    speeds = (np.broadcast_to(np.asarray(code_speeds_mps, dtype=float), (n_k, n_s))
+              if code_speeds_mps is not None else tables.codes_mps[codes])
     for i in range(n_s):
-        e_code = 0.5 * tables.codes_mps[codes[:, i]] ** 2
+        e_code = 0.5 * speeds[:, i] ** 2
         hold = np.minimum(e, e_code)
         m = modes[:, i]
         latch = (m == MODE_ACCEL) & (e >= e_code)

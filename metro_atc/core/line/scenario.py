@@ -68,6 +68,32 @@ class SimSpec:
 
 
 @dataclass(frozen=True, kw_only=True)
+class RollingStockSpec:
+    """Rolling stock from data (every key null = the preset's value; see SCHEMA.md)."""
+
+    rotating_allowance: float | None = _f(None, 0.0, 1.0, "rotating-mass allowance lambda "
+                                          "(effective mass m (1 + lambda))")
+    cars: int | None = _f(None, 1, 32, "cars in the consist")
+    davis_a_n: float | None = _f(None, 0.0, 1e6, "running resistance A [N]")
+    davis_b_n_per_mps: float | None = _f(None, 0.0, 1e6, "running resistance B [N/(m/s)]")
+    davis_c_n_per_mps2: float | None = _f(None, 0.0, 1e5, "running resistance C [N/(m/s)^2]")
+    traction_force_kn: float | None = _f(None, 1.0, 5000.0, "maximum tractive force [kN]")
+    traction_power_kw: float | None = _f(None, 1.0, 1e5, "maximum traction power at the "
+                                         "wheel [kW] (constant power above P/F)")
+    accel_max_mps2: float | None = _f(None, 0.05, 3.0, "starting-acceleration cap [m/s^2]")
+    service_brake_mps2: float | None = _f(None, 0.1, 3.0, "maximum service deceleration")
+    regen_force_kn: float | None = _f(None, 0.0, 5000.0, "maximum electric brake force [kN]")
+    friction_brake_force_kn: float | None = _f(None, 0.0, 10000.0, "maximum friction "
+                                               "(pneumatic) service brake force [kN]")
+    regen_power_kw: float | None = _f(None, 0.0, 1e5, "maximum electric brake power [kW]")
+    emergency_brake_mps2: float | None = _f(None, 0.1, 3.0, "guaranteed emergency "
+                                            "deceleration (ATP braking model)")
+    emergency_brake_actual_mps2: float | None = _f(None, 0.1, 4.0, "nominal emergency "
+                                                   "deceleration (plant)")
+    jerk_max_mps3: float | None = _f(None, 0.1, 10.0, "jerk limit")
+
+
+@dataclass(frozen=True, kw_only=True)
 class TrainsSpec:
     """Fleet: number of train services and the rolling stock."""
 
@@ -77,6 +103,7 @@ class TrainsSpec:
     length_m: float | None = _f(None, 5.0, 600.0, "override: train length")
     max_speed_kmh: float | None = _f(None, 10.0, 400.0, "override: design max speed")
     capacity_pax: float | None = _f(None, 1.0, 5000.0, "override: crush capacity")
+    stock: RollingStockSpec = _f(RollingStockSpec(), doc="rolling stock from data")
     initial_load_pax: float = _f(0.0, 0.0, 5000.0, "passengers on board when entering")
     instrumented_car: int = _f(1, 1, 16, "car (1-based) carrying the brake sensors")
 

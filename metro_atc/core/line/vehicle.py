@@ -19,7 +19,9 @@ References
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -269,3 +271,128 @@ THSR_700T = TrainParams(
     aux_power_w=400e3,  # estimate
 )
 """THSR 700T 12-car trainset (seed 004 Table 4; estimates marked)."""
+
+
+STOCK_KEYS = (
+    "mass_kg", "rotating_allowance", "length_m", "cars", "max_speed_kmh",
+    "davis_a_n", "davis_b_n_per_mps", "davis_c_n_per_mps2",
+    "traction_force_kn", "traction_power_kw", "accel_max_mps2",
+    "service_brake_mps2", "regen_force_kn", "regen_power_kw", "friction_brake_force_kn",
+    "emergency_brake_mps2", "emergency_brake_actual_mps2", "jerk_max_mps3",
+    "capacity_pax", "traction_efficiency", "regen_efficiency", "aux_power_kw",
+)
+"""Keys accepted by :func:`train_params_from_data` (units in the suffix, km/h, kN, kW)."""
+
+
+def train_params_from_data(base: TrainParams, data: dict[str, float | int | None]
+                           ) -> TrainParams:
+    """Rolling stock described by data, on top of a preset ``base`` (None = keep the preset).
+
+    Keys (:data:`STOCK_KEYS`, SI unless the suffix says km/h, kN or kW):
+
+    - ``mass_kg``: loaded mass.  Without explicit Davis terms, A and B scale with the mass
+      (rolling / mechanical resistance is proportional to the weight) and C (aerodynamic)
+      is kept; without an explicit traction force the preset's tractive *force* is kept
+      (a1 scales with 1/mass), so a heavier train accelerates less.
+    - ``rotating_allowance`` lambda (effective mass m (1 + lambda)), ``length_m``, ``cars``,
+      ``max_speed_kmh``, ``capacity_pax``;
+    - ``davis_a_n`` [N], ``davis_b_n_per_mps`` [N/(m/s)], ``davis_c_n_per_mps2`` [N/(m/s)^2];
+    - ``traction_force_kn`` and ``traction_power_kw``: constant force up to
+      v_1 = P / F, constant power above (seed 002 eq. 3 and 5 with a_2 region collapsed:
+      v_2 -> infinity); ``accel_max_mps2`` caps the starting acceleration F / m (the force
+      below v_1 = P / (m a_max) is then m a_max);
+    - ``service_brake_mps2``, or brake forces ``regen_force_kn`` + ``friction_brake_force_kn``
+      divided by the mass (the smaller of the two when both are given);
+      ``regen_power_kw``: electric brake power limit;
+    - ``emergency_brake_mps2`` (guaranteed, used by ATP), ``emergency_brake_actual_mps2``
+      (nominal), ``jerk_max_mps3``;
+    - ``traction_efficiency``, ``regen_efficiency`` [-], ``aux_power_kw``.
+
+    Every key left None keeps the preset's value, so ``train_params_from_data(p, {})`` is
+    ``p`` itself.  Raises ValueError on an unknown key or an inconsistent set (emergency
+    deceleration below the service brake's guaranteed part is allowed; a non-positive value is
+    not).
+    """
+    unknown = set(data) - set(STOCK_KEYS)
+    if unknown:
+        raise ValueError(f"unknown rolling-stock keys {sorted(unknown)}")
+    d = {k: v for k, v in data.items() if v is not None}
+    if not d:
+        return base
+    for k, v in d.items():
+        if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0.0):
+            raise ValueError(f"rolling stock {k}: expected a finite number >= 0, got {v!r}")
+    over: dict[str, Any] = {}
+    m0 = base.mass_kg
+    m = float(d.get("mass_kg", m0))
+    if m <= 0.0:
+        raise ValueError("rolling stock mass_kg: expected > 0")
+    if m != m0:
+        over["mass_kg"] = m
+        over["davis_a_n"] = base.davis_a_n * m / m0
+        over["davis_b_n_per_mps"] = base.davis_b_n_per_mps * m / m0
+        over["a1_mps2"] = base.a1_mps2 * m0 / m
+    simple = {"rotating_allowance": "rotary_allowance", "length_m": "length_m", "cars": "cars",
+              "davis_a_n": "davis_a_n", "davis_b_n_per_mps": "davis_b_n_per_mps",
+              "davis_c_n_per_mps2": "davis_c_n_per_mps2",
+              "emergency_brake_mps2": "emergency_brake_mps2",
+              "emergency_brake_actual_mps2": "emergency_brake_actual_mps2",
+              "jerk_max_mps3": "max_jerk_mps3", "capacity_pax": "capacity_pax",
+              "traction_efficiency": "traction_efficiency",
+              "regen_efficiency": "regen_efficiency"}
+    for key, attr in simple.items():
+        if key in d:
+            over[attr] = int(d[key]) if attr == "cars" else float(d[key])
+    if "max_speed_kmh" in d:
+        over["max_speed_mps"] = float(d["max_speed_kmh"]) / 3.6
+    if "aux_power_kw" in d:
+        over["aux_power_w"] = float(d["aux_power_kw"]) * 1e3
+    if "traction_force_kn" in d or "traction_power_kw" in d or "accel_max_mps2" in d:
+        f = float(d.get("traction_force_kn", m * over.get("a1_mps2", base.a1_mps2) / 1e3)) * 1e3
+        a1 = f / m
+        if "accel_max_mps2" in d:
+            a1 = min(a1, float(d["accel_max_mps2"]))
+        if a1 <= 0.0:
+            raise ValueError("rolling stock: traction force / acceleration must be > 0")
+        over["a1_mps2"] = a1
+        if "traction_power_kw" in d:
+            p_w = float(d["traction_power_kw"]) * 1e3
+            if p_w <= 0.0:
+                raise ValueError("rolling stock traction_power_kw: expected > 0")
+            over["v1_mps"] = p_w / (m * a1)
+            over["v2_mps"] = 1e9
+            over["b2_mps"] = 0.0
+            over["b3_mps"] = 0.0
+    brake: list[float] = []
+    if "service_brake_mps2" in d:
+        brake.append(float(d["service_brake_mps2"]))
+    if "regen_force_kn" in d or "friction_brake_force_kn" in d:
+        brake.append((float(d.get("regen_force_kn", 0.0))
+                      + float(d.get("friction_brake_force_kn", 0.0))) * 1e3 / m)
+    if brake:
+        b = min(brake)
+        if b <= 0.0:
+            raise ValueError("rolling stock: service brake deceleration must be > 0")
+        over["max_service_brake_mps2"] = b
+    if "regen_power_kw" in d:
+        over["max_regen_power_w"] = float(d["regen_power_kw"]) * 1e3
+    return dataclasses.replace(base, **over) if over else base
+
+
+def train_params_from_spec(base: TrainParams, trains: Any, energy: Any) -> TrainParams:
+    """Rolling stock of a scenario: ``base`` preset with its ``trains`` / ``energy`` data.
+
+    ``trains`` is the scenario's ``trains`` section (mass_kg, length_m, max_speed_kmh,
+    capacity_pax and the ``stock`` mapping), ``energy`` its ``energy`` section (efficiencies,
+    auxiliary power); see :func:`train_params_from_data` for the semantics.
+    """
+    data: dict[str, float | int | None] = {
+        "mass_kg": trains.mass_kg, "length_m": trains.length_m,
+        "max_speed_kmh": trains.max_speed_kmh, "capacity_pax": trains.capacity_pax,
+        "traction_efficiency": energy.traction_efficiency,
+        "regen_efficiency": energy.regen_efficiency, "aux_power_kw": energy.aux_power_kw,
+    }
+    stock = trains.stock
+    for f in dataclasses.fields(stock):
+        data[f.name] = getattr(stock, f.name)
+    return train_params_from_data(base, data)
