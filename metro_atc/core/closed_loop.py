@@ -36,9 +36,9 @@ from typing import Any, Optional
 
 import numpy as np
 
-from metro_atc.core.ato.onboard import OnboardAto, tsr_zones
+from metro_atc.core.ato.onboard import OnboardAto, atp_model_for, envelope_limits, tsr_zones
 from metro_atc.core.atr.dispatch import Dispatch, make_dispatcher
-from metro_atc.core.bridge import ato_limits_for, timetable_for, track_for, train_for
+from metro_atc.core.bridge import timetable_for, track_for, train_for
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.plant.scenario import Scenario
 
@@ -116,12 +116,13 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
     tt = timetable_for(scn)
     train = train_for(scn)
     track = track_for(scn)
-    limits = ato_limits_for(train)
+    limits = envelope_limits(scn, train)
+    atp = atp_model_for(scn, train)
     shared: dict[str, Any] = {}
     tsrs = tsr_zones(scn)
     atos = [OnboardAto(train, track, tt.station_positions_m, planner=planner, tracker=tracker,
                        control_period_s=float(scn.sim.control_period_s), limits=limits,
-                       shared=shared, tsrs=tsrs) for _ in tt.train_ids]
+                       shared=shared, tsrs=tsrs, atp=atp) for _ in tt.train_ids]
     ats = make_dispatcher(scn, regulator, tt=tt)
     ids = list(tt.train_ids)
     n = len(ids)

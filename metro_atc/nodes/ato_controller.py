@@ -28,9 +28,10 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from metro_atc.core.ato.controller import TRACKERS
-from metro_atc.core.ato.onboard import OnboardAto, PlanEvent, tsr_zones
+from metro_atc.core.ato.onboard import (OnboardAto, PlanEvent, atp_model_for, envelope_limits,
+                                        tsr_zones)
 from metro_atc.core.ato.planner import PLANNERS, Profile
-from metro_atc.core.bridge import ato_limits_for, timetable_for, track_for, train_for
+from metro_atc.core.bridge import timetable_for, track_for, train_for
 from metro_atc.core.plant.scenario import ScenarioError, load_scenario
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_LATCHED, QOS_RELIABLE, NodeConfigError, bulk_publisher,
@@ -83,12 +84,13 @@ class AtoController(Node):
         if planner == "mmas":
             extra = {"n_ants": mmas_ants, "n_iterations": mmas_iter, "n_sections": mmas_sections}
         train = train_for(scenario)
-        limits = ato_limits_for(train)  # planning limits from the rolling stock
+        limits = envelope_limits(scenario, train)  # planning limits inside the ATP envelope
         self.stations = self.tt.station_positions_m
         self.onboard = OnboardAto(train, self.track, self.stations, planner=planner,
                                   tracker=tracker,
                                   control_period_s=float(scenario.sim.control_period_s),
                                   limits=limits, shared=shared, tsrs=tsr_zones(scenario),
+                                  atp=atp_model_for(scenario, train),
                                   **extra)
         self.core = self.onboard.core
         self.rejected = 0

@@ -118,7 +118,7 @@ class AtoCore:
             self._plans[memo] = prof
         self.run = run
         self.profile = prof
-        b = self.limits.brake_decel_mps2
+        b = float(run.brake_decel(run.length_m))  # at the platform (grade-aware option)
         self._ref = ProfileReference(prof.s_grid, prof.v_profile, run.length_m,
                                      tail_decel=b, creep_speed=0.5, tail_brake=0.5 * b)
         self.tracker.reset(0.0)
@@ -131,9 +131,20 @@ class AtoCore:
 
     # ------------------------------------------------------------------ control
     def command(self, t_s: float, x_m: float, v_mps: float,
-                now_s: Optional[float] = None) -> float:
+                now_s: Optional[float] = None, r_cap_mps: float = math.inf) -> float:
         """Normalised effort u in [-1, 1]; see :meth:`command_ex` (reason in last_reason)."""
-        return self.command_ex(t_s, x_m, v_mps, now_s).u
+        return self.command_ex(t_s, x_m, v_mps, now_s, r_cap_mps).u
+
+    def applied(self, u: float) -> None:
+        """Align the tracker and the jerk limiter with the effort actually applied.
+
+        Called when an outer guard lowered the command: the tracker's state then follows
+        the applied effort (no wind-up against the guard) and the next command is rate
+        limited from it.
+        """
+        if math.isfinite(u) and u != self._last_u:
+            self._last_u = float(u)
+            self.tracker.set_output(float(u))
 
     def _fail(self, reason: str) -> Command:
         self.last_reason = reason
@@ -141,8 +152,13 @@ class AtoCore:
         return Command(SAFE_BRAKE, False, reason, 0.0)
 
     def command_ex(self, t_s: float, x_m: float, v_mps: float,
-                   now_s: Optional[float] = None) -> Command:
-        """Tracking command for the state (time [s], chainage [m], speed [m/s])."""
+                   now_s: Optional[float] = None, r_cap_mps: float = math.inf) -> Command:
+        """Tracking command for the state (time [s], chainage [m], speed [m/s]).
+
+        ``r_cap_mps``: a ceiling on the desired speed from outside the plan (the on-board
+        guards: ATP supervision, authority and TSR braking curves) [m/s]; the tracker
+        follows min(plan, cap), so a restriction is approached smoothly, jerk limited.
+        """
         vals = (t_s, x_m, v_mps) + (() if now_s is None else (now_s,))
         try:
             if not all(math.isfinite(float(a)) for a in vals):
@@ -171,6 +187,8 @@ class AtoCore:
         if s > run.length_m + 2.0:
             return self._fail(f"overshot the stopping point by {s - run.length_m:.2f} m")
         r = float(self._ref.speed(s))
+        if r_cap_mps < r:
+            r = max(float(r_cap_mps), 0.0)
         u = float(self.tracker.step(r, v, dt))
         ceiling = float(np.sqrt(2.0 * run.ceiling_e(min(max(s, 0.0), run.length_m))))
         reason = "tracking"

@@ -27,6 +27,7 @@ Guards on top of the planned profile only ever *lower* the tracker's command:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any, Optional, Sequence
@@ -36,7 +37,11 @@ import numpy as np
 from metro_atc.core.ato.controller import AtoCore
 from metro_atc.core.ato.envelope import OperatingLimits
 from metro_atc.core.ato.planner import Profile
-from metro_atc.core.plant.vehicle import G_MPS2, Track, TrainParams
+from metro_atc.core.bridge import ato_limits_for
+from metro_atc.core.plant.line import LineSim
+from metro_atc.core.plant.track import (braking_envelope, ebi_speed, window_min_ahead,
+                                        window_min_behind)
+from metro_atc.core.plant.vehicle import G_MPS2, Track, TrainParams, max_traction_accel
 
 MODE_DWELL = 1
 """TrainState.MODE_DWELL (msg_defs/TrainState.msg)."""
@@ -57,7 +62,14 @@ SPEED_MARGIN_MPS = 0.5
 AUTHORITY_MARGIN_M = 10.0
 """Distance the ATO aims to stop short of the end of movement authority [m]."""
 GUARD_GAIN = 0.8
-LEGACY = False
+GUARD_SLACK_MPS = 0.3
+"""The hard guard brakes only when the speed is this far above a cap [m/s] (below it the
+tracker follows the cap)."""
+CAP_LOOKAHEAD_S = 2.0
+"""The speed cap takes the lowest static SBI speed over the distance run in this time [s]."""
+SBI_OFFSET_MPS = 0.3
+"""The plant's service-brake intervention speed lies this far below its EBI curve [m/s]
+(``metro_atc.core.plant.line``, ``v_sbi = ... - 0.3``)."""
 """Effort per m/s of speed above a guard curve [1/(m/s)]."""
 
 
@@ -97,7 +109,8 @@ class OnboardAto:
                  planner: str = "ectp", tracker: str = "fuzzy", control_period_s: float = 0.25,
                  limits: Optional[OperatingLimits] = None,
                  shared: Optional[dict[str, Any]] = None,
-                 tsrs: Sequence[TsrZone] = (), **planner_params: Any) -> None:
+                 tsrs: Sequence[TsrZone] = (), atp: Optional["AtpModel"] = None,
+                 **planner_params: Any) -> None:
         """Build the :class:`AtoCore` and the guard state."""
         self.core = AtoCore(train, track, planner=planner, tracker=tracker,
                             control_period_s=control_period_s, limits=limits, shared=shared,
@@ -106,7 +119,12 @@ class OnboardAto:
         self.track = track
         self.stations = np.asarray(stations_m, dtype=float)
         self.tsrs = tuple(tsrs)
+        self.atp = atp if atp is not None else AtpModel(
+            b_g=0.5 * train.emergency_brake_mps2, t_r=1.0, t_sbi=2.0,
+            g_down=0.0, sbi_offset_mps=SBI_OFFSET_MPS, train=train)
         self.commands: dict[int, tuple[float, float]] = {}
+        self._b_run: Any = None
+        self._b_tab = np.zeros(1)
         self.planned_from = -1
         self.cur_station = -1
         self.last_mode = -1
@@ -153,8 +171,11 @@ class OnboardAto:
         elif self.planned_from != cur and 0 <= cur == nxt - 1:
             # started mid-run (e.g. the node was restarted): plan from here
             planned = self.plan(cur, float(s["target_running_time_s"]), float(s["t_s"]))
-        u = float(self.core.command(s["t_s"], s["x_m"], s["v_mps"]))
-        u = min(u, self.guard(s))
+        cap = self.speed_cap(s)
+        u_trk = float(self.core.command(s["t_s"], s["x_m"], s["v_mps"], r_cap_mps=cap))
+        u = min(u_trk, self.guard(s, cap))
+        if u < u_trk:
+            self.core.applied(u)
         mode = MODE_ACCELERATE if u > 0.05 else (MODE_BRAKE if u < -0.05 else MODE_COAST)
         return u, mode, planned
 
@@ -168,72 +189,162 @@ class OnboardAto:
         g = float(np.min(self.track.grade_at(xs)))
         return max(self.train.max_service_brake_mps2 + G_MPS2 * min(g, 0.0), 0.05)
 
-    def legacy_guard(self, s: dict[str, Any]) -> float:
-        """TEMPORARY: the node's guard before this branch (baseline measurement)."""
-        from metro_atc.core.simple_ato import FlatOutTracker
-        g = FlatOutTracker()
-        bound = 1.0
-        ma = s["movement_authority_m"]
-        nxt = s["next_station"]
-        x_stop = float(self.stations[nxt]) if 0 <= nxt < len(self.stations) else math.inf
-        if math.isfinite(ma) and ma - g.authority_margin_m < x_stop:
-            limit = float(self.track.limit_at(s["x_m"]))
-            bound = min(bound, g.command(s["x_m"], s["v_mps"], ma, limit, ma))
-        d = x_stop - s["x_m"]
-        if 0.0 < d < 400.0 and s["v_mps"] > 0.3:
-            a_req = s["v_mps"] ** 2 / (2.0 * max(d - 0.15, 0.05))
-            if a_req > 0.85 * self.core.train.max_service_brake_mps2:
-                bound = min(bound, -min(1.0, a_req / self.core.train.max_service_brake_mps2))
-        sup = s["supervision_speed_mps"]
-        if math.isfinite(sup):
-            over = s["v_mps"] - (sup - 0.5)
-            if over > 0.0:
-                bound = min(bound, -min(1.0, g.gain * over))
-        return bound
+    def speed_cap(self, s: dict[str, Any]) -> float:
+        """Ceiling on the desired speed from the ATP data and known TSRs [m/s].
 
-    def guard(self, s: dict[str, Any]) -> float:
-        """Upper bound on the effort from authority, TSRs, the stop and supervision."""
-        if LEGACY:
-            return self.legacy_guard(s)
+        - the ATP's service-brake intervention speed, estimated from the supervision (EBI)
+          speed of the state less the SBI offset, minus ``SPEED_MARGIN_MPS``;
+        - end of movement authority: the speed whose SBI distance (:class:`AtpModel`) plus
+          ``AUTHORITY_MARGIN_M`` fits in the authority left, and a braking curve at the
+          planned deceleration to a stop ``AUTHORITY_MARGIN_M`` short of it;
+        - every TSR known and not yet cleared by the rear: a braking curve at the planned
+          deceleration reaching ``limit - margin`` ``lead`` metres before the zone, then
+          the limit inside it.
+        """
+        x, v, t = float(s["x_m"]), float(s["v_mps"]), float(s["t_s"])
+        cap = math.inf
+        atp = self.atp
+        sup = float(s["supervision_speed_mps"])
+        if math.isfinite(sup):
+            cap = sup - atp.sbi_offset_mps - SPEED_MARGIN_MPS
+        # the static SBI curve a little ahead (the tracker needs time to follow it down)
+        cap = min(cap, atp.static_sbi(x, x + v * CAP_LOOKAHEAD_S + 1.0) - SPEED_MARGIN_MPS)
+        b = self._plan_decel(x)
+        ma = float(s["movement_authority_m"])
+        if math.isfinite(ma):
+            d = ma - x - AUTHORITY_MARGIN_M
+            cap = min(cap, math.sqrt(2.0 * b * max(d, 0.0)),
+                      atp.sbi_speed(d, v) - SPEED_MARGIN_MPS)
+        lead = self.core.limits.restriction_lead_m
+        margin = self.core.limits.speed_margin_mps
+        for z in self.tsrs:
+            if not (z.known_s <= t < z.to_s) or x - self.train.length_m >= z.end_m:
+                continue
+            lim = max(z.limit_mps - margin, 0.5 * z.limit_mps)
+            d = z.start_m - lead - x
+            cap = min(cap, math.sqrt(lim * lim + 2.0 * b * max(d, 0.0)))
+        return max(cap, 0.0)
+
+    def _plan_decel(self, x: float) -> float:
+        """Planned braking deceleration at chainage x (the run's, else the capability)."""
+        run = self.core.run
+        if run is None:
+            return 0.8 * self._brake_capability(x, x + 400.0)
+        if self._b_run is not run:
+            # lowest planned deceleration over [s - 50, s + 400] on a 10 m grid of the run
+            ss = np.arange(-50.0, run.length_m + 410.0, 10.0)
+            b = run.brake_decel(np.clip(ss, 0.0, run.length_m))
+            k = 45
+            pad = np.concatenate((b, np.full(k, b[-1])))
+            self._b_tab = np.lib.stride_tricks.sliding_window_view(pad, k + 1).min(axis=1)
+            self._b_run = run
+        i = int((float(run.run_coordinate(x)) + 50.0) / 10.0)
+        return float(self._b_tab[min(max(i, 0), self._b_tab.size - 1)])
+
+    def guard(self, s: dict[str, Any], cap: Optional[float] = None) -> float:
+        """Upper bound on the effort from authority, TSRs, the stop and supervision.
+
+        The caps of :meth:`speed_cap` are followed by the tracker; this hard bound only acts
+        when the train is well above one (speed feedback on top of the curve's
+        deceleration) and when it is above the curve that still stops at the platform.
+        """
         bound = 1.0
         x, v = float(s["x_m"]), float(s["v_mps"])
         nxt = int(s["next_station"])
         x_stop = float(self.stations[nxt]) if 0 <= nxt < len(self.stations) else math.inf
-        b_ach = self._brake_capability(x, x_stop if math.isfinite(x_stop) else x + 500.0)
-        ma = float(s["movement_authority_m"])
-        if math.isfinite(ma) and ma - AUTHORITY_MARGIN_M < x_stop:
-            bound = min(bound, self._curve_bound(v, ma - AUTHORITY_MARGIN_M - x, 0.0,
-                                                 0.7 * b_ach))
-        for z in self.tsrs:
-            if not (z.known_s <= s["t_s"] < z.to_s) or x - self.train.length_m >= z.end_m:
-                continue
-            d = z.start_m - x
-            bound = min(bound, self._curve_bound(v, d, z.limit_mps, 0.7 * b_ach))
+        bs = self.train.max_service_brake_mps2
+        # the service brake's deceleration at the train's own position (its grade)
+        b_ach = self._brake_capability(x, x)
         d = x_stop - x
         if 0.0 < d < 400.0 and v > 0.3:
             # stopping guard: above the curve that ends at the stop point (late, e.g. after
             # an authority restriction released near the platform) brake with the
-            # deceleration that ends there
+            # deceleration that ends there, plus the grade's pull
             a_req = v * v / (2.0 * max(d - 0.15, 0.05))
             if a_req > STOP_GUARD * b_ach:
-                bound = min(bound, -min(1.0, a_req / self.train.max_service_brake_mps2
-                                        + (self.train.max_service_brake_mps2 - b_ach)
-                                        / self.train.max_service_brake_mps2))
-        sup = float(s["supervision_speed_mps"])
-        if math.isfinite(sup):
-            over = v - (sup - SPEED_MARGIN_MPS)
-            if over > 0.0:
-                bound = min(bound, -min(1.0, GUARD_GAIN * over))
+                bound = min(bound, -min(1.0, (a_req + bs - b_ach) / bs))
+        cap = self.speed_cap(s) if cap is None else cap
+        over = v - cap - GUARD_SLACK_MPS
+        if over > 0.0:
+            bound = min(bound, -min(1.0, (bs - b_ach) / bs + GUARD_GAIN * over))
         return bound
 
-    def _curve_bound(self, v: float, dist_m: float, target_mps: float, b: float) -> float:
-        """Effort bound to stay under ``v^2 = target^2 + 2 b d`` (speed-error feedback)."""
-        r = math.sqrt(max(target_mps * target_mps + 2.0 * b * max(dist_m, 0.0), 0.0))
-        if dist_m <= 0.0:
-            r = target_mps
-        if v <= r:
-            return 1.0 if r - v > 0.5 else GUARD_GAIN * (r - v)
-        return -min(1.0, b / self.train.max_service_brake_mps2 + GUARD_GAIN * (v - r))
+
+@dataclass(frozen=True)
+class AtpModel:
+    """What the ATO knows of the ATP's supervision (seed 001 Fig. 1; SI units).
+
+    b_g: guaranteed deceleration on the steepest downhill [m/s^2]; t_r: response time [s];
+    t_sbi: service-brake-intervention lead time [s]; g_down: g x the steepest downhill
+    [m/s^2]; sbi_offset_mps: the SBI speed lies this far below the EBI curve [m/s];
+    train: rolling stock (traction for the worst-case response acceleration).
+    """
+
+    b_g: float
+    t_r: float
+    t_sbi: float
+    g_down: float
+    sbi_offset_mps: float
+    train: TrainParams
+    grid_x0_m: float = 0.0
+    grid_dx_m: float = 1.0
+    sbi_static_mps: Optional[np.ndarray] = None
+
+    def static_sbi(self, x_from_m: float, x_to_m: float) -> float:
+        """Lowest static SBI speed [m/s] (limits, no TSR) with the front in [from, to] [m].
+
+        The plant's static supervision (``LineSim.sbi_static`` less the SBI offset) on its
+        grid; inf when the model has no table.
+        """
+        tab = self.sbi_static_mps
+        if tab is None:
+            return math.inf
+        k0 = int((x_from_m - self.grid_x0_m) / self.grid_dx_m)
+        k1 = int((x_to_m - self.grid_x0_m) / self.grid_dx_m) + 1
+        k0 = min(max(k0, 0), tab.size - 1)
+        k1 = min(max(k1, k0 + 1), tab.size)
+        return float(np.min(tab[k0:k1])) - self.sbi_offset_mps
+
+    def sbi_speed(self, dist_m: float, v_mps: float) -> float:
+        """ATP service-brake intervention speed [m/s] for a stop ``dist_m`` ahead at v.
+
+        ``ebi_speed(dist - t_sbi v)`` with the worst-case response acceleration
+        ``a_w = traction(v) + g_down`` (:func:`metro_atc.core.plant.track.ebi_speed`).
+        """
+        a_w = float(max_traction_accel(self.train, v_mps)) + self.g_down
+        return float(ebi_speed(dist_m - self.t_sbi * v_mps, 0.0, a_w, self.t_r, self.b_g)) \
+            - self.sbi_offset_mps
+
+
+def atp_model_for(scn: Any, train: TrainParams) -> AtpModel:
+    """The ATP constants of a scenario as the plant derives them (a pure function of it)."""
+    sim = LineSim(scn, seed=0, params=train, trace_period_s=0.0)
+    # the static supervision without TSRs (the ATO follows those by its own curves)
+    lim = np.asarray(sim.static_limit, dtype=float)
+    ceil = window_min_behind(lim, sim.n_len) + sim.ceiling_tol
+    env = braking_envelope(ceil, sim.dx, sim.b_g)
+    e_min = window_min_ahead(env, sim.n_resp)
+    a_w = max_traction_accel(train, e_min) + G_MPS2 * float(sim.max_down)
+    # v + a_w(v) t_r = E solved with a_w at E (a_w falls with speed: conservative)
+    ebi = e_min - a_w * float(sim.t_r)
+    sbi = window_min_ahead(ebi, sim.n_sbi)
+    return AtpModel(b_g=float(sim.b_g), t_r=float(sim.t_r), t_sbi=float(sim.t_sbi),
+                    g_down=G_MPS2 * float(sim.max_down), sbi_offset_mps=SBI_OFFSET_MPS,
+                    train=train, grid_x0_m=float(sim.x0), grid_dx_m=float(sim.dx),
+                    sbi_static_mps=np.asarray(sbi, dtype=float))
+
+
+def envelope_limits(scn: Any, train: TrainParams) -> OperatingLimits:
+    """Planning limits of the ATO for a scenario: the rolling stock's, inside the envelope.
+
+    :func:`metro_atc.core.bridge.ato_limits_for` plus grade-aware braking curves, the
+    tracking margin ``SPEED_MARGIN_MPS`` below the civil limit and a restriction lead of
+    the distance run at the maximum speed during the ATP's SBI lead and response times.
+    """
+    sg = scn.signalling
+    lead = train.max_speed_mps * (float(sg.sbi_lead_s) + float(sg.response_time_s))
+    return dataclasses.replace(ato_limits_for(train), grade_aware_braking=True,
+                               speed_margin_mps=SPEED_MARGIN_MPS, restriction_lead_m=lead)
 
 
 def tsr_zones(scn: Any) -> list[TsrZone]:
