@@ -26,7 +26,8 @@ from metro_atc.core.ato.fuzzy import FuzzyController, FuzzyParams
 from metro_atc.core.ato.pi import PIController, PIParams
 from metro_atc.core.ato.planner import PLANNERS, Profile, plan_profile
 from metro_atc.core.ato.reference_curve import ProfileReference
-from metro_atc.core.plant.vehicle import Track, TrainParams
+from metro_atc.core.plant.vehicle import (Track, TrainParams, max_traction_force,
+                                          resistance_force)
 
 TRACKERS = ("fuzzy", "pi")
 """Tracker names accepted by :class:`AtoCore`."""
@@ -34,6 +35,9 @@ HOLD_BRAKE = -0.5
 """Holding-brake command at the platform [-]."""
 SAFE_BRAKE = -1.0
 """Command on bad input: full service brake [-]."""
+PREVIEW_PERIODS = 1.0
+"""The tracker follows the reference this many control periods ahead of the train (the
+effort is held over the next period and the plant limits its rate) [-]."""
 
 
 @dataclass(frozen=True)
@@ -58,12 +62,14 @@ class AtoCore:
     def __init__(self, train: TrainParams, track: Track, planner: str = "ectp",
                  tracker: str = "fuzzy", control_period_s: float = 0.1,
                  stale_after_s: float = 1.0, limits: Optional[OperatingLimits] = None,
-                 shared: Optional[dict[str, Any]] = None, **planner_params: Any) -> None:
+                 shared: Optional[dict[str, Any]] = None, feedforward: bool = True,
+                 **planner_params: Any) -> None:
         """Validate the names and build the tracker.
 
         ``shared``: a dict shared by the cores of one process (same train and track): the
         pre-work tables, run models and finished plans are then computed once per run and
-        target instead of once per train.
+        target instead of once per train.  ``feedforward``: add the effort that holds the
+        reference on the grade (:meth:`_feedforward`) to the tracker's output.
         """
         if planner.lower().replace("-", "_") not in PLANNERS:
             raise ValueError(f"unknown planner {planner!r}; expected one of {PLANNERS}")
@@ -90,6 +96,8 @@ class AtoCore:
         self._ref: Optional[ProfileReference] = None
         self._last_t: Optional[float] = None
         self._last_u = 0.0
+        self._last_ff = 0.0
+        self.feedforward = bool(feedforward)
         self._arrived = False
         self._still_s = 0.0
         self.last_reason = "no plan"
@@ -135,6 +143,28 @@ class AtoCore:
         """Normalised effort u in [-1, 1]; see :meth:`command_ex` (reason in last_reason)."""
         return self.command_ex(t_s, x_m, v_mps, now_s, r_cap_mps).u
 
+    def _feedforward(self, s: float, v: float, r: float, capped: bool) -> float:
+        """Effort [-1, 1] that holds the reference on the grade (seed 004 Newton's law).
+
+        ``F = M_eff a_ref + F_r(v) + F_g`` with the grade force averaged over the train
+        length behind the front at s and ``a_ref = d(r^2/2)/ds`` of the planned reference
+        (0 when an outer cap sets r); normalised by the maximum tractive force (F > 0) or
+        the service brake ``M_eff b_s`` (F < 0), as the plant applies the effort.
+        """
+        run = self.run
+        assert run is not None and self._ref is not None
+        tr = self.train
+        a_ref = 0.0
+        if not capped and r > 0.0:
+            h = max(v * self.period, 0.5)
+            r1 = float(self._ref.speed(s + h))
+            a_ref = (r1 * r1 - r * r) / (2.0 * h)
+        f_g = float(run.mean_grade_force(s - tr.length_m, s))
+        f = tr.effective_mass_kg * a_ref + float(resistance_force(tr, v)) + f_g
+        if f >= 0.0:
+            return min(f / max(float(max_traction_force(tr, v)), 1.0), 1.0)
+        return max(f / (tr.effective_mass_kg * tr.max_service_brake_mps2), -1.0)
+
     def applied(self, u: float) -> None:
         """Align the tracker and the jerk limiter with the effort actually applied.
 
@@ -144,7 +174,7 @@ class AtoCore:
         """
         if math.isfinite(u) and u != self._last_u:
             self._last_u = float(u)
-            self.tracker.set_output(float(u))
+            self.tracker.set_output(float(u), self._last_ff)
 
     def _fail(self, reason: str) -> Command:
         self.last_reason = reason
@@ -186,10 +216,15 @@ class AtoCore:
             return Command(HOLD_BRAKE, True, self.last_reason, 0.0)
         if s > run.length_m + 2.0:
             return self._fail(f"overshot the stopping point by {s - run.length_m:.2f} m")
-        r = float(self._ref.speed(s))
-        if r_cap_mps < r:
+        # preview: the command acts over the coming control period, so track the reference
+        # where the train will be (PREVIEW_PERIODS control periods ahead at its speed)
+        r = float(self._ref.speed(s + PREVIEW_PERIODS * v * self.period))
+        capped = r_cap_mps < r
+        if capped:
             r = max(float(r_cap_mps), 0.0)
-        u = float(self.tracker.step(r, v, dt))
+        u_ff = self._feedforward(s, v, r, capped) if self.feedforward else 0.0
+        self._last_ff = u_ff
+        u = float(self.tracker.step(r, v, dt, u_ff))
         ceiling = float(np.sqrt(2.0 * run.ceiling_e(min(max(s, 0.0), run.length_m))))
         reason = "tracking"
         if s >= run.pss_start_s:
@@ -200,7 +235,7 @@ class AtoCore:
         du = self._du_max_per_s * dt
         u_lim = min(max(u, self._last_u - du), self._last_u + du)
         if u_lim != u and reason != "above the speed envelope":
-            self.tracker.set_output(u_lim)
+            self.tracker.set_output(u_lim, u_ff)
         u = u_lim
         if v <= 1e-6 and s > run.length_m - 2.0:
             self._still_s += dt

@@ -121,9 +121,12 @@ class FuzzyController:
         self._e_prev: Optional[FloatArray] = None
         self._u = np.asarray(u0, dtype=float)
 
-    def set_output(self, u: ArrayLike) -> None:
-        """Align the effort state with the effort actually applied (after rate limits)."""
-        self._u = np.asarray(u, dtype=float)
+    def set_output(self, u: ArrayLike, u_ff: ArrayLike = 0.0) -> None:
+        """Align the effort state with the effort u actually applied (after rate limits).
+
+        ``u_ff``: the feedforward part of that effort (the state keeps the feedback part).
+        """
+        self._u = np.asarray(u, dtype=float) - np.asarray(u_ff, dtype=float)
 
     def step(self, r_mps: ArrayLike, v_mps: ArrayLike, dt_s: float = 0.1,
              u_ff: ArrayLike = 0.0) -> FloatArray:
