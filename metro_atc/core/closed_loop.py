@@ -23,7 +23,8 @@ ATO that drives inside the ATP envelope (all SI):
   permanent/temporary limit in force for the whole train (``LineSim.ceiling_phys`` minus
   the overspeed margin) by more than ``CIVIL_TOL_MPS``;
 - speed minima per TSR approach (hunting): the speed of each train from
-  ``TSR_APPROACH_M`` before a zone in force to the zone's end, reduced to its turning points
+  ``TSR_APPROACH_M`` before a zone in force (or the last platform before it) to where its
+  rear leaves the zone, reduced to its turning points
   with a hysteresis of ``HUNT_HYSTERESIS_MPS``; one approach (brake, hold, release) has one.
 """
 
@@ -201,7 +202,11 @@ def _watch_tsrs(sim: LineSim, tsrs: list[Any], run: Any,
         for i in np.flatnonzero(run):
             x, v = float(sim.x[i]), float(sim.v[i])
             key = (z_i, int(i))
-            inside = z.start_m - TSR_APPROACH_M <= x <= z.end_m + sim.length_m
+            st = sim.station_positions_m
+            before = st[st <= z.start_m]
+            w0 = max(z.start_m - TSR_APPROACH_M, float(before[-1]) + 1.0 if before.size
+                     else -math.inf)
+            inside = w0 <= x <= z.end_m + sim.length_m
             a = approaches.get(key)
             if not inside:
                 if a is not None:

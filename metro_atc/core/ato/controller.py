@@ -139,23 +139,25 @@ class AtoCore:
 
     # ------------------------------------------------------------------ control
     def command(self, t_s: float, x_m: float, v_mps: float,
-                now_s: Optional[float] = None, r_cap_mps: float = math.inf) -> float:
+                now_s: Optional[float] = None, r_cap_mps: float = math.inf,
+                cap_accel_mps2: float = 0.0) -> float:
         """Normalised effort u in [-1, 1]; see :meth:`command_ex` (reason in last_reason)."""
-        return self.command_ex(t_s, x_m, v_mps, now_s, r_cap_mps).u
+        return self.command_ex(t_s, x_m, v_mps, now_s, r_cap_mps, cap_accel_mps2).u
 
-    def _feedforward(self, s: float, v: float, r: float, capped: bool) -> float:
+    def _feedforward(self, s: float, v: float, r: float, a_cap: Optional[float]) -> float:
         """Effort [-1, 1] that holds the reference on the grade (seed 004 Newton's law).
 
         ``F = M_eff a_ref + F_r(v) + F_g`` with the grade force averaged over the train
         length behind the front at s and ``a_ref = d(r^2/2)/ds`` of the planned reference
-        (0 when an outer cap sets r); normalised by the maximum tractive force (F > 0) or
-        the service brake ``M_eff b_s`` (F < 0), as the plant applies the effort.
+        (``a_cap``, the cap's slope, when an outer cap sets r); normalised by the maximum
+        tractive force (F > 0) or the service brake ``M_eff b_s`` (F < 0), as the plant
+        applies the effort.
         """
         run = self.run
         assert run is not None and self._ref is not None
         tr = self.train
-        a_ref = 0.0
-        if not capped and r > 0.0:
+        a_ref = float(a_cap) if a_cap is not None and math.isfinite(a_cap) else 0.0
+        if a_cap is None and r > 0.0:
             h = max(v * self.period, 0.5)
             r1 = float(self._ref.speed(s + h))
             a_ref = (r1 * r1 - r * r) / (2.0 * h)
@@ -182,12 +184,15 @@ class AtoCore:
         return Command(SAFE_BRAKE, False, reason, 0.0)
 
     def command_ex(self, t_s: float, x_m: float, v_mps: float,
-                   now_s: Optional[float] = None, r_cap_mps: float = math.inf) -> Command:
+                   now_s: Optional[float] = None, r_cap_mps: float = math.inf,
+                   cap_accel_mps2: float = 0.0) -> Command:
         """Tracking command for the state (time [s], chainage [m], speed [m/s]).
 
         ``r_cap_mps``: a ceiling on the desired speed from outside the plan (the on-board
-        guards: ATP supervision, authority and TSR braking curves) [m/s]; the tracker
-        follows min(plan, cap), so a restriction is approached smoothly, jerk limited.
+        guards: ATP supervision, authority and TSR braking curves), taken at the preview
+        position [m/s]; the tracker follows min(plan, cap), so a restriction is approached
+        smoothly, jerk limited; ``cap_accel_mps2``: the cap's slope d(cap^2/2)/ds there
+        (the feedforward acceleration while the cap sets the reference) [m/s^2].
         """
         vals = (t_s, x_m, v_mps) + (() if now_s is None else (now_s,))
         try:
@@ -222,7 +227,8 @@ class AtoCore:
         capped = r_cap_mps < r
         if capped:
             r = max(float(r_cap_mps), 0.0)
-        u_ff = self._feedforward(s, v, r, capped) if self.feedforward else 0.0
+        u_ff = self._feedforward(s, v, r, cap_accel_mps2 if capped else None) \
+            if self.feedforward else 0.0
         self._last_ff = u_ff
         u = float(self.tracker.step(r, v, dt, u_ff))
         ceiling = float(np.sqrt(2.0 * run.ceiling_e(min(max(s, 0.0), run.length_m))))

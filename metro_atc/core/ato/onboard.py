@@ -34,7 +34,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
-from metro_atc.core.ato.controller import AtoCore
+from metro_atc.core.ato.controller import PREVIEW_PERIODS, AtoCore
 from metro_atc.core.ato.envelope import OperatingLimits
 from metro_atc.core.ato.planner import Profile
 from metro_atc.core.bridge import ato_limits_for
@@ -171,9 +171,18 @@ class OnboardAto:
         elif self.planned_from != cur and 0 <= cur == nxt - 1:
             # started mid-run (e.g. the node was restarted): plan from here
             planned = self.plan(cur, float(s["target_running_time_s"]), float(s["t_s"]))
-        cap = self.speed_cap(s)
-        u_trk = float(self.core.command(s["t_s"], s["x_m"], s["v_mps"], r_cap_mps=cap))
-        u = min(u_trk, self.guard(s, cap))
+        # caps at the tracker's preview position and a little beyond (their slope is the
+        # feedforward acceleration while a cap sets the reference)
+        v = float(s["v_mps"])
+        xp = float(s["x_m"]) + PREVIEW_PERIODS * v * self.core.period
+        h = max(v * self.core.period, 0.5)
+        cap_p = self.speed_cap(s, xp)
+        cap_h = self.speed_cap(s, xp + h)
+        slope = (cap_h * cap_h - cap_p * cap_p) / (2.0 * h) \
+            if math.isfinite(cap_p) and math.isfinite(cap_h) else 0.0
+        u_trk = float(self.core.command(s["t_s"], s["x_m"], v, r_cap_mps=cap_p,
+                                        cap_accel_mps2=slope))
+        u = min(u_trk, self.guard(s))
         if u < u_trk:
             self.core.applied(u)
         mode = MODE_ACCELERATE if u > 0.05 else (MODE_BRAKE if u < -0.05 else MODE_COAST)
@@ -189,7 +198,7 @@ class OnboardAto:
         g = float(np.min(self.track.grade_at(xs)))
         return max(self.train.max_service_brake_mps2 + G_MPS2 * min(g, 0.0), 0.05)
 
-    def speed_cap(self, s: dict[str, Any]) -> float:
+    def speed_cap(self, s: dict[str, Any], x_at: Optional[float] = None) -> float:
         """Ceiling on the desired speed from the ATP data and known TSRs [m/s].
 
         - the ATP's service-brake intervention speed, estimated from the supervision (EBI)
@@ -200,8 +209,13 @@ class OnboardAto:
         - every TSR known and not yet cleared by the rear: a braking curve at the planned
           deceleration reaching ``limit - margin`` ``lead`` metres before the zone, then
           the limit inside it.
+
+        ``x_at``: evaluate at this chainage instead of the state's position [m] (the
+        supervision speed of the state still applies).
         """
         x, v, t = float(s["x_m"]), float(s["v_mps"]), float(s["t_s"])
+        if x_at is not None:
+            x = float(x_at)
         cap = math.inf
         atp = self.atp
         sup = float(s["supervision_speed_mps"])
@@ -222,7 +236,8 @@ class OnboardAto:
                 continue
             lim = max(z.limit_mps - margin, 0.5 * z.limit_mps)
             d = z.start_m - lead - x
-            cap = min(cap, math.sqrt(lim * lim + 2.0 * b * max(d, 0.0)))
+            cap = min(cap, math.sqrt(lim * lim + 2.0 * b * max(d, 0.0)),
+                      atp.sbi_speed_to(z.start_m - x, z.limit_mps) - SPEED_MARGIN_MPS)
         return max(cap, 0.0)
 
     def _plan_decel(self, x: float) -> float:
@@ -241,7 +256,7 @@ class OnboardAto:
         i = int((float(run.run_coordinate(x)) + 50.0) / 10.0)
         return float(self._b_tab[min(max(i, 0), self._b_tab.size - 1)])
 
-    def guard(self, s: dict[str, Any], cap: Optional[float] = None) -> float:
+    def guard(self, s: dict[str, Any]) -> float:
         """Upper bound on the effort from authority, TSRs, the stop and supervision.
 
         The caps of :meth:`speed_cap` are followed by the tracker; this hard bound only acts
@@ -263,7 +278,7 @@ class OnboardAto:
             a_req = v * v / (2.0 * max(d - 0.15, 0.05))
             if a_req > STOP_GUARD * b_ach:
                 bound = min(bound, -min(1.0, (a_req + bs - b_ach) / bs))
-        cap = self.speed_cap(s) if cap is None else cap
+        cap = self.speed_cap(s)
         over = v - cap - GUARD_SLACK_MPS
         if over > 0.0:
             bound = min(bound, -min(1.0, (bs - b_ach) / bs + GUARD_GAIN * over))
@@ -289,6 +304,23 @@ class AtpModel:
     grid_x0_m: float = 0.0
     grid_dx_m: float = 1.0
     sbi_static_mps: Optional[np.ndarray] = None
+    tol_mps: float = 0.0
+    resp_dist_m: float = 0.0
+    sbi_dist_m: float = 0.0
+
+    def sbi_speed_to(self, dist_m: float, target_mps: float) -> float:
+        """Static SBI speed [m/s] ``dist_m`` before a point where the limit is ``target``.
+
+        The plant's static construction (:mod:`metro_atc.core.plant.track`): braking
+        envelope ``E^2 = (target + tol)^2 + 2 b_g D`` evaluated past the response and SBI
+        look-ahead distances, ``v + a_w(v) t_r = E`` (one fixed-point step), less the SBI
+        offset.
+        """
+        d = max(dist_m - self.resp_dist_m - self.sbi_dist_m, 0.0)
+        e = math.sqrt((target_mps + self.tol_mps) ** 2 + 2.0 * self.b_g * d)
+        v = e - (float(max_traction_accel(self.train, e)) + self.g_down) * self.t_r
+        v = e - (float(max_traction_accel(self.train, max(v, 0.0))) + self.g_down) * self.t_r
+        return v - self.sbi_offset_mps
 
     def static_sbi(self, x_from_m: float, x_to_m: float) -> float:
         """Lowest static SBI speed [m/s] (limits, no TSR) with the front in [from, to] [m].
@@ -331,7 +363,9 @@ def atp_model_for(scn: Any, train: TrainParams) -> AtpModel:
     return AtpModel(b_g=float(sim.b_g), t_r=float(sim.t_r), t_sbi=float(sim.t_sbi),
                     g_down=G_MPS2 * float(sim.max_down), sbi_offset_mps=SBI_OFFSET_MPS,
                     train=train, grid_x0_m=float(sim.x0), grid_dx_m=float(sim.dx),
-                    sbi_static_mps=np.asarray(sbi, dtype=float))
+                    sbi_static_mps=np.asarray(sbi, dtype=float),
+                    tol_mps=float(sim.ceiling_tol), resp_dist_m=float(sim.n_resp * sim.dx),
+                    sbi_dist_m=float(sim.n_sbi * sim.dx))
 
 
 def envelope_limits(scn: Any, train: TrainParams) -> OperatingLimits:
