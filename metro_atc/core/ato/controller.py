@@ -35,6 +35,10 @@ HOLD_BRAKE = -0.5
 """Holding-brake command at the platform [-]."""
 SAFE_BRAKE = -1.0
 """Command on bad input: full service brake [-]."""
+JOIN_BAND_MPS = 0.3
+"""Below the reference by more than this [m/s], the tracker aims at the reference where a
+swing from full traction to the planned braking would end (no overshoot of a braking
+curve joined from below)."""
 PREVIEW_PERIODS = 1.0
 """The tracker follows the reference this many control periods ahead of the train (the
 effort is held over the next period and the plant limits its rate) [-]."""
@@ -103,6 +107,8 @@ class AtoCore:
         self.last_reason = "no plan"
         a_ref = max(train.a1_mps2, train.max_service_brake_mps2)
         self._du_max_per_s = self.limits.jerk_max_mps3 / max(a_ref, 1e-6)
+        self._swing_s = (self.limits.accel_max_mps2 + self.limits.brake_decel_mps2) \
+            / max(self.limits.jerk_max_mps3, 1e-6)
 
     # ------------------------------------------------------------------ planning
     def plan(self, x_start_m: float, x_stop_m: float,
@@ -223,7 +229,12 @@ class AtoCore:
             return self._fail(f"overshot the stopping point by {s - run.length_m:.2f} m")
         # preview: the command acts over the coming control period, so track the reference
         # where the train will be (PREVIEW_PERIODS control periods ahead at its speed)
-        r = float(self._ref.speed(s + PREVIEW_PERIODS * v * self.period))
+        s_p = s + PREVIEW_PERIODS * v * self.period
+        r = float(self._ref.speed(s_p))
+        if r - v > JOIN_BAND_MPS:
+            # below the reference: while accelerating toward a braking curve, aim at the
+            # curve where the jerk-limited swing from traction to braking would end
+            r = min(r, float(self._ref.speed(s_p + v * self._swing_s)))
         capped = r_cap_mps < r
         if capped:
             r = max(float(r_cap_mps), 0.0)
