@@ -95,7 +95,9 @@ def main(argv: Optional[List[str]] = None) -> int:
         row["stock"] = scn.trains.preset
         rows.append(row)
         errors.extend(res.stop_errors_m)
-        if not a.json:
+        if a.json:  # progress: one JSON row per line on stderr
+            print(json.dumps(json_safe(row)), file=sys.stderr, flush=True)
+        else:
             print(f"{row['scenario']:>18s} {row['stations']:3d} st {row['trains']:3d} tr "
                   f"viol {row['atp_violations']} missed {row['missed_stops']} "
                   f"int/100 {row['atp_interventions_per_100_stops']:5.1f} "
