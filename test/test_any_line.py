@@ -97,8 +97,8 @@ def test_atp_model_matches_the_plant_supervision_with_a_tsr() -> None:
 
 
 @pytest.mark.parametrize("seed,incidents", [(3, False), (7, True)])
-def test_closed_loop_on_generated_lines_stays_inside_the_envelope(seed: int,
-                                                                   incidents: bool) -> None:
+def test_closed_loop_on_generated_lines_stays_inside_the_envelope(
+        seed: int, incidents: bool) -> None:
     """Property (issue 11 acceptance): no violation, intervention, missed stop, overspeed."""
     scn = load_generated(seed, incidents=incidents, n_stations=5, n_trains=3,
                          stock="taipei_mrt_6car")

@@ -176,9 +176,9 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
             if ev.kind == "arrival":
                 stop_err.append(float(sim.x[ev.train_idx]
                                       - sim.station_positions_m[ev.station_idx]))
-            d = ats.on_event(ids[ev.train_idx], ev.station_idx, ev.kind, ev.t_s)
-            if d is not None:
-                dispatch(d)
+            cmd = ats.on_event(ids[ev.train_idx], ev.station_idx, ev.kind, ev.t_s)
+            if cmd is not None:
+                dispatch(cmd)
     for a in approaches.values():
         minima.append(a.minima + (1 if a.direction < 0 else 0))
     kp = sim.kpis()

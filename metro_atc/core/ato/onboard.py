@@ -105,7 +105,8 @@ class OnboardAto:
     ``tsrs`` the temporary speed restrictions of the scenario.
     """
 
-    def __init__(self, train: TrainParams, track: Track, stations_m: Sequence[float],
+    def __init__(self, train: TrainParams, track: Track,
+                 stations_m: "Sequence[float] | np.ndarray",
                  planner: str = "ectp", tracker: str = "fuzzy", control_period_s: float = 0.25,
                  limits: Optional[OperatingLimits] = None,
                  shared: Optional[dict[str, Any]] = None,
