@@ -86,12 +86,17 @@ class AtoController(Node):
         train = train_for(scenario)
         limits = envelope_limits(scenario, train)  # planning limits inside the ATP envelope
         self.stations = self.tt.station_positions_m
+        # the ATP model (one plant grid per process, shared by its trains)
+        atp = shared.get("atp_model") if shared is not None else None
+        if atp is None:
+            atp = atp_model_for(scenario, train)
+            if shared is not None:
+                shared["atp_model"] = atp
         self.onboard = OnboardAto(train, self.track, self.stations, planner=planner,
                                   tracker=tracker,
                                   control_period_s=float(scenario.sim.control_period_s),
                                   limits=limits, shared=shared, tsrs=tsr_zones(scenario),
-                                  atp=atp_model_for(scenario, train),
-                                  **extra)
+                                  atp=atp, **extra)
         self.core = self.onboard.core
         self.rejected = 0
         self._last_warn: dict[str, float] = {}
