@@ -39,6 +39,14 @@ JOIN_BAND_MPS = 0.3
 """Below the reference by more than this [m/s], the tracker aims at the reference where a
 swing from full traction to the planned braking would end (no overshoot of a braking
 curve joined from below)."""
+BERTH_WINDOW_M = 0.3
+"""A standstill this close to the stopping point is the arrival (issue 11: +-0.30 m, the
+platform-screen-door tolerance); stopped further short, the train creeps on [m]."""
+STOP_FF_MPS = 0.5
+"""Below this desired speed [m/s] the feedforward never commands traction."""
+JOIN_MIN_SPEED_MPS = 3.0
+"""The join rule applies above this speed only (in the final creep to the stopping point the
+reference ahead is zero) [m/s]."""
 PREVIEW_PERIODS = 1.0
 """The tracker follows the reference this many control periods ahead of the train (the
 effort is held over the next period and the plant limits its rate) [-]."""
@@ -169,6 +177,10 @@ class AtoCore:
             a_ref = (r1 * r1 - r * r) / (2.0 * h)
         f_g = float(run.mean_grade_force(s - tr.length_m, s))
         f = tr.effective_mass_kg * a_ref + float(resistance_force(tr, v)) + f_g
+        if r < STOP_FF_MPS:
+            # final stop: no traction feedforward (the resistance at standstill is static
+            # friction, and a creeping train would never come to rest at the platform)
+            f = min(f, 0.0)
         if f >= 0.0:
             return min(f / max(float(max_traction_force(tr, v)), 1.0), 1.0)
         return max(f / (tr.effective_mass_kg * tr.max_service_brake_mps2), -1.0)
@@ -231,10 +243,11 @@ class AtoCore:
         # where the train will be (PREVIEW_PERIODS control periods ahead at its speed)
         s_p = s + PREVIEW_PERIODS * v * self.period
         r = float(self._ref.speed(s_p))
-        if r - v > JOIN_BAND_MPS:
-            # below the reference: while accelerating toward a braking curve, aim at the
-            # curve where the jerk-limited swing from traction to braking would end
+        if r - v > JOIN_BAND_MPS and v > JOIN_MIN_SPEED_MPS and self._last_u > 0.0:
+            # below the reference while in traction: when accelerating toward a braking
+            # curve, aim at the curve where the jerk-limited swing to braking would end
             r = min(r, float(self._ref.speed(s_p + v * self._swing_s)))
+        r_plan = r
         capped = r_cap_mps < r
         if capped:
             r = max(float(r_cap_mps), 0.0)
@@ -242,6 +255,8 @@ class AtoCore:
             if self.feedforward else 0.0
         self._last_ff = u_ff
         u = float(self.tracker.step(r, v, dt, u_ff))
+        if r_plan <= 0.0 and s >= run.length_m - BERTH_WINDOW_M:
+            u = min(u, HOLD_BRAKE)  # at the stopping point: brake to rest, never creep
         ceiling = float(np.sqrt(2.0 * run.ceiling_e(min(max(s, 0.0), run.length_m))))
         reason = "tracking"
         if s >= run.pss_start_s:
@@ -254,7 +269,7 @@ class AtoCore:
         if u_lim != u and reason != "above the speed envelope":
             self.tracker.set_output(u_lim, u_ff)
         u = u_lim
-        if v <= 1e-6 and s > run.length_m - 2.0:
+        if v <= 1e-6 and s > run.length_m - BERTH_WINDOW_M:
             self._still_s += dt
             if self._still_s >= 1.0:
                 self._arrived = True
