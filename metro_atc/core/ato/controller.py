@@ -115,8 +115,9 @@ class AtoCore:
         self.last_reason = "no plan"
         a_ref = max(train.a1_mps2, train.max_service_brake_mps2)
         self._du_max_per_s = self.limits.jerk_max_mps3 / max(a_ref, 1e-6)
-        self._swing_s = (self.limits.accel_max_mps2 + self.limits.brake_decel_mps2) \
+        self.swing_s = (self.limits.accel_max_mps2 + self.limits.brake_decel_mps2) \
             / max(self.limits.jerk_max_mps3, 1e-6)
+        """Time of a jerk-limited swing from full traction to the planned braking [s]."""
 
     # ------------------------------------------------------------------ planning
     def plan(self, x_start_m: float, x_stop_m: float,
@@ -185,6 +186,11 @@ class AtoCore:
             return min(f / max(float(max_traction_force(tr, v)), 1.0), 1.0)
         return max(f / (tr.effective_mass_kg * tr.max_service_brake_mps2), -1.0)
 
+    @property
+    def last_effort(self) -> float:
+        """The last effort commanded (after rate limits and guards) [-1, 1]."""
+        return self._last_u
+
     def applied(self, u: float) -> None:
         """Align the tracker and the jerk limiter with the effort actually applied.
 
@@ -246,7 +252,7 @@ class AtoCore:
         if r - v > JOIN_BAND_MPS and v > JOIN_MIN_SPEED_MPS and self._last_u > 0.0:
             # below the reference while in traction: when accelerating toward a braking
             # curve, aim at the curve where the jerk-limited swing to braking would end
-            r = min(r, float(self._ref.speed(s_p + v * self._swing_s)))
+            r = min(r, float(self._ref.speed(s_p + v * self.swing_s)))
         r_plan = r
         capped = r_cap_mps < r
         if capped:

@@ -34,7 +34,8 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
-from metro_atc.core.ato.controller import PREVIEW_PERIODS, AtoCore
+from metro_atc.core.ato.controller import (JOIN_BAND_MPS, JOIN_MIN_SPEED_MPS, PREVIEW_PERIODS,
+                                           AtoCore)
 from metro_atc.core.ato.envelope import OperatingLimits
 from metro_atc.core.ato.planner import Profile
 from metro_atc.core.bridge import ato_limits_for
@@ -178,6 +179,11 @@ class OnboardAto:
         xp = float(s["x_m"]) + PREVIEW_PERIODS * v * self.core.period
         h = max(v * self.core.period, 0.5)
         cap_p = self.speed_cap(s, xp)
+        if cap_p - v > JOIN_BAND_MPS and v > JOIN_MIN_SPEED_MPS \
+                and self.core.last_effort > 0.0:
+            # in traction below a falling cap: aim where the swing to braking would end
+            xp += v * self.core.swing_s
+            cap_p = min(cap_p, self.speed_cap(s, xp))
         cap_h = self.speed_cap(s, xp + h)
         slope = (cap_h * cap_h - cap_p * cap_p) / (2.0 * h) \
             if math.isfinite(cap_p) and math.isfinite(cap_h) else 0.0
