@@ -21,6 +21,7 @@ BENCHES = {
     "regulator-synthesis": "metro_atc.bench.regulator_synthesis",
     "regulation": "metro_atc.bench.regulation",
     "closed-loop": "metro_atc.bench.closed_loop",
+    "lines": "metro_atc.bench.lines",
     "energy-regulation": "metro_atc.bench.energy_regulation",
     "mmas": "metro_atc.bench.mmas",
     "profiles": "metro_atc.bench.profiles",

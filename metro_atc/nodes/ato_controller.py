@@ -28,26 +28,18 @@ from metro_atc_msgs.msg import DepartureCommand, SpeedProfile, TractionCommand, 
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from metro_atc.core.ato.controller import TRACKERS, AtoCore
+from metro_atc.core.ato.controller import TRACKERS
+from metro_atc.core.ato.onboard import (OnboardAto, PlanEvent, atp_model_for, envelope_limits,
+                                        tsr_zones)
 from metro_atc.core.ato.planner import PLANNERS, Profile
-from metro_atc.core.bridge import ato_limits_for, timetable_for, track_for, train_for
+from metro_atc.core.bridge import timetable_for, track_for, train_for
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
-from metro_atc.core.simple_ato import FlatOutTracker
 from metro_atc.core.validate import Rejections, StepWindow, bounds_for
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (OK, QOS_LATCHED, QOS_LATCHED_IN, QOS_RELIABLE, WARN,
                                     NodeConfigError, RuntimeParams, bulk_publisher,
                                     bulk_subscription, declare, diag_status, run_nodes,
                                     spin_fast, static)
-
-_STOP_GUARD = 0.85
-"""Deceleration needed to stop at the platform, as a share of the service brake, above
-which the stopping guard brakes (the planners brake at 0.8 of it) [-]."""
-
-_SPEED_MARGIN_MPS = 0.5
-"""Margin kept below the ATP supervision (emergency-brake intervention) speed by the guard
-[m/s]; it must stay below the overspeed margin over the line limit (0.8 m/s on the Blue
-line) or the guard would fight the plan's cruise at the limit."""
 
 
 class AtoController(Node):
@@ -74,6 +66,7 @@ class AtoController(Node):
         self.plans = 0
         self.infeasible = 0
         self.last_step = -1
+        self.planned_from = -1
         self._tick = (0, 0)
         self.rt = RuntimeParams(self, self.health)
         if planner not in PLANNERS:
@@ -98,16 +91,20 @@ class AtoController(Node):
         if planner == "mmas":
             extra = {"n_ants": mmas_ants, "n_iterations": mmas_iter, "n_sections": mmas_sections}
         train = train_for(scenario)
-        limits = ato_limits_for(train)  # planning limits from the rolling stock
-        self.core = AtoCore(train, self.track, planner=planner, tracker=tracker,
-                            control_period_s=float(scenario.sim.control_period_s),
-                            limits=limits, shared=shared, **extra)
-        self.guard = FlatOutTracker()
+        limits = envelope_limits(scenario, train)  # planning limits inside the ATP envelope
         self.stations = self.tt.station_positions_m
-        self.commands: dict[int, tuple[float, float]] = {}
-        self.planned_from = -1
-        self.cur_station = -1
-        self.last_mode = -1
+        # the ATP model (one plant grid per process, shared by its trains)
+        atp = shared.get("atp_model") if shared is not None else None
+        if atp is None:
+            atp = atp_model_for(scenario, train)
+            if shared is not None:
+                shared["atp_model"] = atp
+        self.onboard = OnboardAto(train, self.track, self.stations, planner=planner,
+                                  tracker=tracker,
+                                  control_period_s=float(scenario.sim.control_period_s),
+                                  limits=limits, shared=shared, tsrs=tsr_zones(scenario),
+                                  atp=atp, **extra)
+        self.core = self.onboard.core
         self.rejected = 0
         self.rejections = Rejections()
         """Rejected input messages per kind (:mod:`metro_atc.core.validate`)."""
@@ -165,25 +162,22 @@ class AtoController(Node):
             self._reject("departure command", exc)
 
     def _take_departure(self, st: int, dep: float, run: float, stamp_s: float) -> None:
-        """Remember a validated departure command; pre-plan while standing."""
-        if st + 1 >= len(self.stations) or st < self.cur_station:
-            return  # the terminus, or a station already left (an ATS replaying its history)
-        self.commands[st] = (dep, run)
-        if self.last_mode in (-1, TrainState.MODE_OUT_OF_SERVICE, TrainState.MODE_DWELL):
-            # pre-plan while standing (publishes the profile early, warms the plan cache);
+        """Hand a validated departure command to the onboard ATO; publish a pre-plan."""
+        planned = self.onboard.on_departure(st, dep, run, stamp_s)
+        if planned is not None:
+            # pre-planned while standing (publishes the profile early, warms the plan cache);
             # the run is planned definitively from the state at departure
-            self._plan(st, run, stamp_s)
+            self._publish_plan(planned)
 
-    def _plan(self, st: int, target_s: float, stamp_s: float, late: bool = False) -> None:
-        """Plan the run from station ``st`` to ``st + 1`` and publish the profile."""
-        x0, x1 = float(self.stations[st]), float(self.stations[st + 1])
-        prof = self.core.plan(x0, x1, target_s)
-        self.planned_from = st
+    def _publish_plan(self, ev: PlanEvent) -> None:
+        """Publish a planned run's profile (warn when it is infeasible and not late)."""
+        self.planned_from = ev.station
         self.plans += 1
-        self.infeasible += int(not prof.feasible)
-        if not prof.feasible and not late:
-            self._warn("plan", f"run {st}->{st + 1}: {prof.message}")
-        self.profile_pub.publish(self._profile_msg(st, target_s, prof, stamp_s))
+        self.infeasible += int(not ev.profile.feasible)
+        if not ev.profile.feasible and not ev.late:
+            self._warn("plan", f"run {ev.station}->{ev.station + 1}: {ev.profile.message}")
+        self.profile_pub.publish(self._profile_msg(ev.station, ev.target_s, ev.profile,
+                                                   ev.stamp_s))
 
     def _profile_msg(self, st: int, target_s: float, prof: Profile,
                      stamp_s: float) -> SpeedProfile:
@@ -230,57 +224,11 @@ class AtoController(Node):
         self.cmd_pub.publish(self._last_cmd)
 
     def control(self, s: dict[str, Any]) -> tuple[float, int]:
-        """Effort in [-1, 1] and intended mode for one state."""
-        departing = self.last_mode == TrainState.MODE_DWELL
-        self.last_mode = s["mode"]
-        self.cur_station = max(self.cur_station, int(s["current_station"]))
-        if s["mode"] == TrainState.MODE_DWELL:
-            return -0.5, TrainState.MODE_DWELL
-        cur, nxt = s["current_station"], s["next_station"]
-        if departing and 0 <= cur == nxt - 1:
-            # plan the run definitively at departure from the state (deterministic in the
-            # lockstep): the ATS target fixes the arrival (departure + running time), so a
-            # late departure shortens the target (down to flat-out); rounded to 1 s when
-            # late so the trains of a process share plans
-            target = s["target_running_time_s"]
-            late = s["t_s"] - s["departure_time_s"]
-            if math.isfinite(late) and late > 1.0:
-                target = float(max(round(target - late), 1.0))
-            self._plan(cur, target, s["t_s"], late=late > 1.0)
-        elif self.planned_from != cur and 0 <= cur == nxt - 1:
-            # started mid-run (e.g. the node was restarted): plan from here
-            self._plan(cur, s["target_running_time_s"], s["t_s"])
-        u = float(self.core.command(s["t_s"], s["x_m"], s["v_mps"]))
-        u = min(u, self._guard(s, u))
-        mode = TrainState.MODE_ACCELERATE if u > 0.05 else (
-            TrainState.MODE_BRAKE if u < -0.05 else TrainState.MODE_COAST)
+        """Effort in [-1, 1] and intended mode for one state (:class:`OnboardAto`)."""
+        u, mode, planned = self.onboard.control(s)
+        if planned is not None:
+            self._publish_plan(planned)
         return u, mode
-
-    def _guard(self, s: dict[str, Any], u: float) -> float:
-        """Upper bound on the effort from the movement authority and supervision speed."""
-        bound = 1.0
-        ma = s["movement_authority_m"]
-        nxt = s["next_station"]
-        x_stop = float(self.stations[nxt]) if 0 <= nxt < len(self.stations) else math.inf
-        if math.isfinite(ma) and ma - self.guard.authority_margin_m < x_stop:
-            # braking curve to the end of authority (the tracker wants finite inputs: a
-            # non-finite one means "bad state" and gives a full brake)
-            limit = float(self.track.limit_at(s["x_m"]))
-            bound = min(bound, self.guard.command(s["x_m"], s["v_mps"], ma, limit, ma))
-        d = x_stop - s["x_m"]
-        if 0.0 < d < 400.0 and s["v_mps"] > 0.3:
-            # stopping guard: once the train is above the plan's braking curve (late, e.g.
-            # after an authority restriction released near the platform), brake with the
-            # deceleration that ends at the stop point (load-compensated service brake)
-            a_req = s["v_mps"] ** 2 / (2.0 * max(d - 0.15, 0.05))
-            if a_req > _STOP_GUARD * self.core.train.max_service_brake_mps2:
-                bound = min(bound, -min(1.0, a_req / self.core.train.max_service_brake_mps2))
-        sup = s["supervision_speed_mps"]
-        if math.isfinite(sup):
-            over = s["v_mps"] - (sup - _SPEED_MARGIN_MPS)
-            if over > 0.0:
-                bound = min(bound, -min(1.0, self.guard.gain * over))
-        return bound
 
 
 PLANNED_POINTS = 200

@@ -26,7 +26,8 @@ from metro_atc.core.ato.fuzzy import FuzzyController, FuzzyParams
 from metro_atc.core.ato.pi import PIController, PIParams
 from metro_atc.core.ato.planner import PLANNERS, Profile, plan_profile
 from metro_atc.core.ato.reference_curve import ProfileReference
-from metro_atc.core.line.vehicle import Track, TrainParams
+from metro_atc.core.line.vehicle import (Track, TrainParams, max_traction_force,
+                                         resistance_force)
 
 TRACKERS = ("fuzzy", "pi")
 """Tracker names accepted by :class:`AtoCore`."""
@@ -34,6 +35,21 @@ HOLD_BRAKE = -0.5
 """Holding-brake command at the platform [-]."""
 SAFE_BRAKE = -1.0
 """Command on bad input: full service brake [-]."""
+JOIN_BAND_MPS = 0.3
+"""Below the reference by more than this [m/s], the tracker aims at the reference where a
+swing from full traction to the planned braking would end (no overshoot of a braking
+curve joined from below)."""
+BERTH_WINDOW_M = 0.3
+"""A standstill this close to the stopping point is the arrival (issue 11: +-0.30 m, the
+platform-screen-door tolerance); stopped further short, the train creeps on [m]."""
+STOP_FF_MPS = 0.5
+"""Below this desired speed [m/s] the feedforward never commands traction."""
+JOIN_MIN_SPEED_MPS = 3.0
+"""The join rule applies above this speed only (in the final creep to the stopping point the
+reference ahead is zero) [m/s]."""
+PREVIEW_PERIODS = 1.0
+"""The tracker follows the reference this many control periods ahead of the train (the
+effort is held over the next period and the plant limits its rate) [-]."""
 
 
 @dataclass(frozen=True)
@@ -58,12 +74,14 @@ class AtoCore:
     def __init__(self, train: TrainParams, track: Track, planner: str = "ectp",
                  tracker: str = "fuzzy", control_period_s: float = 0.1,
                  stale_after_s: float = 1.0, limits: Optional[OperatingLimits] = None,
-                 shared: Optional[dict[str, Any]] = None, **planner_params: Any) -> None:
+                 shared: Optional[dict[str, Any]] = None, feedforward: bool = True,
+                 **planner_params: Any) -> None:
         """Validate the names and build the tracker.
 
         ``shared``: a dict shared by the cores of one process (same train and track): the
         pre-work tables, run models and finished plans are then computed once per run and
-        target instead of once per train.
+        target instead of once per train.  ``feedforward``: add the effort that holds the
+        reference on the grade (:meth:`_feedforward`) to the tracker's output.
         """
         if planner.lower().replace("-", "_") not in PLANNERS:
             raise ValueError(f"unknown planner {planner!r}; expected one of {PLANNERS}")
@@ -90,11 +108,16 @@ class AtoCore:
         self._ref: Optional[ProfileReference] = None
         self._last_t: Optional[float] = None
         self._last_u = 0.0
+        self._last_ff = 0.0
+        self.feedforward = bool(feedforward)
         self._arrived = False
         self._still_s = 0.0
         self.last_reason = "no plan"
         a_ref = max(train.a1_mps2, train.max_service_brake_mps2)
         self._du_max_per_s = self.limits.jerk_max_mps3 / max(a_ref, 1e-6)
+        self.swing_s = (self.limits.accel_max_mps2 + self.limits.brake_decel_mps2) \
+            / max(self.limits.jerk_max_mps3, 1e-6)
+        """Time of a jerk-limited swing from full traction to the planned braking [s]."""
 
     # ------------------------------------------------------------------ planning
     def plan(self, x_start_m: float, x_stop_m: float,
@@ -118,7 +141,7 @@ class AtoCore:
             self._plans[memo] = prof
         self.run = run
         self.profile = prof
-        b = self.limits.brake_decel_mps2
+        b = float(run.brake_decel(run.length_m))  # at the platform (grade-aware option)
         self._ref = ProfileReference(prof.s_grid, prof.v_profile, run.length_m,
                                      tail_decel=b, creep_speed=0.5, tail_brake=0.5 * b)
         self.tracker.reset(0.0)
@@ -131,9 +154,53 @@ class AtoCore:
 
     # ------------------------------------------------------------------ control
     def command(self, t_s: float, x_m: float, v_mps: float,
-                now_s: Optional[float] = None) -> float:
+                now_s: Optional[float] = None, r_cap_mps: float = math.inf,
+                cap_accel_mps2: float = 0.0) -> float:
         """Normalised effort u in [-1, 1]; see :meth:`command_ex` (reason in last_reason)."""
-        return self.command_ex(t_s, x_m, v_mps, now_s).u
+        return self.command_ex(t_s, x_m, v_mps, now_s, r_cap_mps, cap_accel_mps2).u
+
+    def _feedforward(self, s: float, v: float, r: float, a_cap: Optional[float]) -> float:
+        """Effort [-1, 1] that holds the reference on the grade (seed 004 Newton's law).
+
+        ``F = M_eff a_ref + F_r(v) + F_g`` with the grade force averaged over the train
+        length behind the front at s and ``a_ref = d(r^2/2)/ds`` of the planned reference
+        (``a_cap``, the cap's slope, when an outer cap sets r); normalised by the maximum
+        tractive force (F > 0) or the service brake ``M_eff b_s`` (F < 0), as the plant
+        applies the effort.
+        """
+        run = self.run
+        assert run is not None and self._ref is not None
+        tr = self.train
+        a_ref = float(a_cap) if a_cap is not None and math.isfinite(a_cap) else 0.0
+        if a_cap is None and r > 0.0:
+            h = max(v * self.period, 0.5)
+            r1 = float(self._ref.speed(s + h))
+            a_ref = (r1 * r1 - r * r) / (2.0 * h)
+        f_g = float(run.mean_grade_force(s - tr.length_m, s))
+        f = tr.effective_mass_kg * a_ref + float(resistance_force(tr, v)) + f_g
+        if r < STOP_FF_MPS:
+            # final stop: no traction feedforward (the resistance at standstill is static
+            # friction, and a creeping train would never come to rest at the platform)
+            f = min(f, 0.0)
+        if f >= 0.0:
+            return min(f / max(float(max_traction_force(tr, v)), 1.0), 1.0)
+        return max(f / (tr.effective_mass_kg * tr.max_service_brake_mps2), -1.0)
+
+    @property
+    def last_effort(self) -> float:
+        """The last effort commanded (after rate limits and guards) [-1, 1]."""
+        return self._last_u
+
+    def applied(self, u: float) -> None:
+        """Align the tracker and the jerk limiter with the effort actually applied.
+
+        Called when an outer guard lowered the command: the tracker's state then follows
+        the applied effort (no wind-up against the guard) and the next command is rate
+        limited from it.
+        """
+        if math.isfinite(u) and u != self._last_u:
+            self._last_u = float(u)
+            self.tracker.set_output(float(u), self._last_ff)
 
     def _fail(self, reason: str) -> Command:
         self.last_reason = reason
@@ -141,8 +208,16 @@ class AtoCore:
         return Command(SAFE_BRAKE, False, reason, 0.0)
 
     def command_ex(self, t_s: float, x_m: float, v_mps: float,
-                   now_s: Optional[float] = None) -> Command:
-        """Tracking command for the state (time [s], chainage [m], speed [m/s])."""
+                   now_s: Optional[float] = None, r_cap_mps: float = math.inf,
+                   cap_accel_mps2: float = 0.0) -> Command:
+        """Tracking command for the state (time [s], chainage [m], speed [m/s]).
+
+        ``r_cap_mps``: a ceiling on the desired speed from outside the plan (the on-board
+        guards: ATP supervision, authority and TSR braking curves), taken at the preview
+        position [m/s]; the tracker follows min(plan, cap), so a restriction is approached
+        smoothly, jerk limited; ``cap_accel_mps2``: the cap's slope d(cap^2/2)/ds there
+        (the feedforward acceleration while the cap sets the reference) [m/s^2].
+        """
         vals = (t_s, x_m, v_mps) + (() if now_s is None else (now_s,))
         try:
             if not all(math.isfinite(float(a)) for a in vals):
@@ -170,8 +245,24 @@ class AtoCore:
             return Command(HOLD_BRAKE, True, self.last_reason, 0.0)
         if s > run.length_m + 2.0:
             return self._fail(f"overshot the stopping point by {s - run.length_m:.2f} m")
-        r = float(self._ref.speed(s))
-        u = float(self.tracker.step(r, v, dt))
+        # preview: the command acts over the coming control period, so track the reference
+        # where the train will be (PREVIEW_PERIODS control periods ahead at its speed)
+        s_p = s + PREVIEW_PERIODS * v * self.period
+        r = float(self._ref.speed(s_p))
+        if r - v > JOIN_BAND_MPS and v > JOIN_MIN_SPEED_MPS and self._last_u > 0.0:
+            # below the reference while in traction: when accelerating toward a braking
+            # curve, aim at the curve where the jerk-limited swing to braking would end
+            r = min(r, float(self._ref.speed(s_p + v * self.swing_s)))
+        r_plan = r
+        capped = r_cap_mps < r
+        if capped:
+            r = max(float(r_cap_mps), 0.0)
+        u_ff = self._feedforward(s, v, r, cap_accel_mps2 if capped else None) \
+            if self.feedforward else 0.0
+        self._last_ff = u_ff
+        u = float(self.tracker.step(r, v, dt, u_ff))
+        if r_plan <= 0.0 and s >= run.length_m - BERTH_WINDOW_M:
+            u = min(u, HOLD_BRAKE)  # at the stopping point: brake to rest, never creep
         ceiling = float(np.sqrt(2.0 * run.ceiling_e(min(max(s, 0.0), run.length_m))))
         reason = "tracking"
         if s >= run.pss_start_s:
@@ -182,9 +273,9 @@ class AtoCore:
         du = self._du_max_per_s * dt
         u_lim = min(max(u, self._last_u - du), self._last_u + du)
         if u_lim != u and reason != "above the speed envelope":
-            self.tracker.set_output(u_lim)
+            self.tracker.set_output(u_lim, u_ff)
         u = u_lim
-        if v <= 1e-6 and s > run.length_m - 2.0:
+        if v <= 1e-6 and s > run.length_m - BERTH_WINDOW_M:
             self._still_s += dt
             if self._still_s >= 1.0:
                 self._arrived = True

@@ -29,7 +29,7 @@ from typing import Optional
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from metro_atc.core.line.vehicle import Track, TrainParams, grade_force
+from metro_atc.core.line.vehicle import G_MPS2, Track, TrainParams, grade_force
 
 FloatArray = NDArray[np.float64]
 
@@ -57,6 +57,15 @@ class OperatingLimits:
     pss_distance_m: programmed station stopping starts this far before the stop [m]
     (seed 001 Sec. 5: 350 m, Taipei MRT practice).
     envelope_step_m: grid step of the tabulated envelope [m].
+    grade_aware_braking: plan braking curves at the deceleration the service brake achieves
+    on the grade (issue 11): ``brake_decel_mps2`` less the downhill pull ``g |grade|`` of the
+    steepest grade under the train, so the reserve of the service brake over the plan is the
+    same on every grade (False: ``brake_decel_mps2`` everywhere, the seed 001 constant).
+    speed_margin_mps: the profile stays this far below the civil limit (tracking margin,
+    so the tracked speed never exceeds the limit) [m/s].
+    restriction_lead_m: braking curves to a lower limit reach it this far before the
+    restriction starts (the ATP's service-brake intervention looks ahead by its lead time
+    and response distance) [m]; the stopping point has no lead.
     """
 
     accel_max_mps2: float = 1.0
@@ -64,6 +73,13 @@ class OperatingLimits:
     jerk_max_mps3: float = 1.0
     pss_distance_m: float = 350.0
     envelope_step_m: float = 1.0
+    grade_aware_braking: bool = False
+    speed_margin_mps: float = 0.0
+    restriction_lead_m: float = 0.0
+
+
+MIN_BRAKE_DECEL_MPS2 = 0.05
+"""Floor of the planned braking deceleration on a steep descent [m/s^2]."""
 
 
 class RunModel:
@@ -155,16 +171,51 @@ class RunModel:
             out = np.where(inside, np.minimum(out, v), out)
         return np.where(np.isfinite(out), out, self.train.max_speed_mps)
 
+    def brake_decel(self, s: ArrayLike) -> FloatArray:
+        """Planned braking deceleration [m/s^2] with the front at s [m] (grade-aware option).
+
+        ``brake_decel_mps2 + g min(grade, 0)`` with the steepest grade under the train
+        (front at s, rear at s - length), floored at ``MIN_BRAKE_DECEL_MPS2``.
+        """
+        sa = np.asarray(s, dtype=float)
+        b = self.limits.brake_decel_mps2
+        if not self.limits.grade_aware_braking:
+            return np.full(sa.shape, b)
+        g_min = np.minimum(self.grade(sa), self.grade(sa - self.train.length_m))
+        mid = self.grade(sa - 0.5 * self.train.length_m)
+        g_min = np.minimum(g_min, mid)
+        return np.asarray(np.maximum(b + G_MPS2 * np.minimum(g_min, 0.0),
+                                     MIN_BRAKE_DECEL_MPS2), dtype=float)
+
     def _build_envelope(self) -> None:
         lim = self.limits
         n = max(2, int(np.ceil(self.length_m / lim.envelope_step_m)))
         s = np.linspace(0.0, self.length_m, n + 1)
-        e_static = 0.5 * self.static_limit(s) ** 2
+        v_lim = self.static_limit(s)
+        v_lim = np.maximum(v_lim - lim.speed_margin_mps, 0.5 * v_lim)
+        e_static = 0.5 * v_lim ** 2
+        if lim.restriction_lead_m > 0.0:
+            # a lower limit applies restriction_lead_m before it starts (window min ahead)
+            k = int(np.ceil(lim.restriction_lead_m / (s[1] - s[0])))
+            pad = np.concatenate((e_static, np.full(k, e_static[-1])))
+            win = np.lib.stride_tricks.sliding_window_view(pad, k + 1)
+            e_static = win.min(axis=1)
         e_static[-1] = 0.0
-        b = lim.brake_decel_mps2
-        # e_c(s_k) = min_{j>=k} (e_s(s_j) + b (s_j - s_k)): reverse cumulative minimum
-        key = e_static + b * s
-        e_c = np.minimum.accumulate(key[::-1])[::-1] - b * s
+        if not lim.grade_aware_braking:
+            b = lim.brake_decel_mps2
+            # e_c(s_k) = min_{j>=k} (e_s(s_j) + b (s_j - s_k)): reverse cumulative minimum
+            key = e_static + b * s
+            e_c = np.minimum.accumulate(key[::-1])[::-1] - b * s
+        else:
+            # e_c(s_k) = min(e_s(s_k), e_c(s_{k+1}) + b(s_k) ds): braking at the achievable
+            # deceleration of each grid cell (exact for the piecewise-constant b)
+            bb = (self.brake_decel(0.5 * (s[:-1] + s[1:])) * np.diff(s)).tolist()
+            ec = e_static.tolist()
+            for k in range(n - 1, -1, -1):
+                nxt = ec[k + 1] + bb[k]
+                if nxt < ec[k]:
+                    ec[k] = nxt
+            e_c = np.asarray(ec, dtype=float)
         self.s_env = s
         self.e_static = e_static
         self.e_ceiling = np.maximum(e_c, 0.0)

@@ -121,9 +121,12 @@ class FuzzyController:
         self._e_prev: Optional[FloatArray] = None
         self._u = np.asarray(u0, dtype=float)
 
-    def set_output(self, u: ArrayLike) -> None:
-        """Align the effort state with the effort actually applied (after rate limits)."""
-        self._u = np.asarray(u, dtype=float)
+    def set_output(self, u: ArrayLike, u_ff: ArrayLike = 0.0) -> None:
+        """Align the effort state with the effort u actually applied (after rate limits).
+
+        ``u_ff``: the feedforward part of that effort (the state keeps the feedback part).
+        """
+        self._u = np.asarray(u, dtype=float) - np.asarray(u_ff, dtype=float)
 
     def step(self, r_mps: ArrayLike, v_mps: ArrayLike, dt_s: float = 0.1,
              u_ff: ArrayLike = 0.0) -> FloatArray:
@@ -138,8 +141,10 @@ class FuzzyController:
         self._e_prev = e
         y = flc_output(e / self.p.e_scale_mps, d / self.p.d_scale_mps)
         if self.p.incremental:
-            self._u = np.clip(self._u + self.p.gain * y, -1.0, 1.0)
-            out = np.clip(self._u + np.asarray(u_ff, dtype=float), -1.0, 1.0)
+            ff = np.asarray(u_ff, dtype=float)
+            # anti-windup: the state (feedback part) keeps the total effort in [-1, 1]
+            self._u = np.clip(self._u + self.p.gain * y, -1.0 - ff, 1.0 - ff)
+            out = np.clip(self._u + ff, -1.0, 1.0)
         else:
             out = np.clip(self.p.gain * y + np.asarray(u_ff, dtype=float), -1.0, 1.0)
             self._u = out

@@ -40,9 +40,13 @@ class PIController:
         self._i = np.asarray(u0, dtype=float) / max(self.p.ki, 1e-12)
         self._e = np.zeros_like(self._i)
 
-    def set_output(self, u: ArrayLike) -> None:
-        """Back-calculate the integrator so that the last output equals the applied u."""
-        self._i = (np.asarray(u, dtype=float) - self.p.kp * self._e) / max(self.p.ki, 1e-12)
+    def set_output(self, u: ArrayLike, u_ff: ArrayLike = 0.0) -> None:
+        """Back-calculate the integrator so that the last output equals the applied u.
+
+        ``u_ff``: the feedforward part of u [-].
+        """
+        self._i = (np.asarray(u, dtype=float) - np.asarray(u_ff, dtype=float)
+                   - self.p.kp * self._e) / max(self.p.ki, 1e-12)
 
     def step(self, r_mps: ArrayLike, v_mps: ArrayLike, dt_s: float = 0.1,
              u_ff: ArrayLike = 0.0) -> FloatArray:

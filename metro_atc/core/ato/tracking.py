@@ -46,8 +46,8 @@ class Tracker(Protocol):
         """Normalised effort in [-1, 1]."""
         ...
 
-    def set_output(self, u: ArrayLike) -> None:
-        """Align the internal state with the applied effort."""
+    def set_output(self, u: ArrayLike, u_ff: ArrayLike = 0.0) -> None:
+        """Align the internal state with the applied effort (u_ff: its feedforward part)."""
         ...
 
 

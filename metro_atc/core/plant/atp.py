@@ -21,11 +21,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from metro_atc.core.line.adhesion import AdhesionCurve
+from metro_atc.core.line.atp_constants import SBI_OFFSET_MPS, atp_constants
 from metro_atc.core.line.geometry import LineGeometry
 from metro_atc.core.line.rolling_stock import KMH
 from metro_atc.core.line.scenario import Scenario
 from metro_atc.core.line.service import drive_envelope
-from metro_atc.core.line.track import (G, BrakingCurve, braking_envelope, window_min_ahead,
+from metro_atc.core.line.track import (BrakingCurve, braking_envelope, window_min_ahead,
                                        window_min_behind)
 from metro_atc.core.line.vehicle import TrainParams
 
@@ -43,40 +44,29 @@ class AtpSupervisor:
     """ATP constants, supervision grids and per-train ATP state (EB, SB, counters)."""
 
     def __init__(self, scn: Scenario, p: TrainParams, geom: LineGeometry,
-                 tables: VehicleTables, curve: AdhesionCurve, m_rot: float,
-                 b_drive: float) -> None:
+                 tables: VehicleTables, curve: AdhesionCurve, b_drive: float) -> None:
         """Constants and the worst-case assumptions; state for ``scn.trains.count`` trains."""
         self.geom = geom
         self.p = p
         self.tables = tables
-        sg = scn.signalling
-        b_lvl = sg.guaranteed_decel_mps2
-        if b_lvl is None:
-            # adhesion-limited guarantee: locked-wheel adhesion with 10 % margin
-            # (empty train: smallest adhesion mass relative to the rotating allowance)
-            tare = max(p.mass_kg - p.nominal_load_pax * p.pax_mass_kg, 0.3 * p.mass_kg)
-            b_lvl = min(p.emergency_brake_mps2,
-                        0.9 * curve.mu_slide * G * tare / (tare + m_rot))
-        self.b_guar_level = float(b_lvl)
-        self.b_g = float(b_lvl - G * geom.max_down)
-        if self.b_g <= 0.05:
-            raise ValueError("guaranteed emergency braking is not positive on the steepest "
-                             "downhill grade")
-        self.a_w = float(p.a1_mps2 + G * geom.max_down)
-        self.t_r = float(sg.response_time_s)
-        self.margin = float(sg.safety_margin_m)
-        self.t_sbi = float(sg.sbi_lead_s)
-        self.tsr_notice_s = float(sg.tsr_notice_s)
-        self.fixed_block = sg.mode == "fixed_block"
+        c = atp_constants(scn, p, geom, curve)
+        self.constants = c
+        self.b_guar_level = c.b_guar_level
+        self.b_g = c.b_g
+        self.a_w = c.a_w
+        self.t_r = c.t_r
+        self.margin = c.margin_m
+        self.t_sbi = c.t_sbi
+        self.tsr_notice_s = c.tsr_notice_s
+        self.fixed_block = c.fixed_block
         self.block_len = geom.block_len
-        d_r = p.max_speed_mps * self.t_r + 0.5 * self.a_w * self.t_r ** 2
-        self.n_resp = int(math.ceil(d_r / geom.dx)) + 1
-        self.n_sbi = int(math.ceil(p.max_speed_mps * self.t_sbi / geom.dx)) + 1
+        self.n_resp = c.n_resp
+        self.n_sbi = c.n_sbi
         # v_ebi(D) with the worst-case response acceleration at the current speed,
         # a_w(v) = phi(v) + g max_down (traction only falls as the speed rises during the
         # response time, so this is conservative)
         self.curve = BrakingCurve(self.b_g, self.t_r)
-        self.g_down = G * geom.max_down
+        self.g_down = c.g_down
         # static curve: v + a_w(v) t_r <= E  ->  v = g^-1(E), g monotone on the speed table
         aw_tab = tables.phi + self.g_down
         self._ebi_g_tab = np.maximum.accumulate(tables.v + aw_tab * self.t_r)
@@ -161,7 +151,7 @@ class AtpSupervisor:
         v_ma = self.curve.speed_from(c0, c2, dist)
         v_ebi = np.minimum(self.ebi_static[k], v_ma)
         v_sb_ma = self.curve.speed_from(c0, c2, dist - self.t_sbi * v)
-        v_sbi = np.minimum(self.sbi_static[k], v_sb_ma) - 0.3
+        v_sbi = np.minimum(self.sbi_static[k], v_sb_ma) - SBI_OFFSET_MPS
         self.atp_limit = v_ebi
         if self.fixed_block:
             self.speed_codes(x, eoa)

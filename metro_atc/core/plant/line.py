@@ -132,8 +132,7 @@ class LineSim:
         self.tables = VehicleTables(p, self.curve)
         self.fleet = Fleet(n, p, g, scn.trains.initial_load_pax)
         self.brakes = Brakes(n, p, self.curve, self.tables, dt)
-        self.atp = AtpSupervisor(scn, p, g, self.tables, self.curve, self.fleet.m_rot,
-                                 sv.b_drive)
+        self.atp = AtpSupervisor(scn, p, g, self.tables, self.curve, sv.b_drive)
         self.energy = EnergyMeter(n, p, scn.energy.regen_receptivity, dt)
         self.incidents = Incidents(scn, self.n_st)
         self.stations = Stations(scn, sv, g, self.fleet, self.incidents.extra_hold, self.rng)

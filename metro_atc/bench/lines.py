@@ -1,0 +1,123 @@
+"""Benchmark: the ATO/ATS stack on a corpus of generated lines (issue 11 item 6).
+
+``python -m metro_atc bench lines --count N [--seed S] [--incidents] [--regulator R]
+[--planner P] [--tracker T] [--scenario FILE ...] [--json]``
+
+Runs N lines of :func:`metro_atc.core.linegen.generate_line` (seeds S .. S+N-1, with a TSR
+and a breakdown each under ``--incidents``) plus any ``--scenario`` files or embedded
+scenario names (e.g. the TTOBench line once imported, or ``taipei_blue``) through the
+ROS-free closed loop :func:`metro_atc.core.closed_loop.run_closed_loop` (real ATO and ATS
+cores, the plant, lockstep) and prints one row per line plus totals: ATP violations, missed
+stops, ATP interventions per 100 stops, stop error p50/p95/max [m], stops outside +-0.30 m,
+time above the civil limit [s], speed minima per TSR approach (hunting) and energy per
+train-km [kWh].  Exit code 1 when a line fails to run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from typing import Any, List, Optional
+
+import numpy as np
+
+from metro_atc.core.closed_loop import STOP_WINDOW_M, run_closed_loop
+from metro_atc.core.linegen import load_generated
+from metro_atc.core.line.scenario import ScenarioError, load_scenario
+from metro_atc.jsonsafe import json_safe
+
+
+def totals(rows: List[dict[str, Any]], errors: List[float]) -> dict[str, Any]:
+    """Totals over the rows; stop-error percentiles over every arrival of every line."""
+    err = np.abs(np.asarray(errors, dtype=float))
+    stops = int(sum(r["stops"] for r in rows))
+    ints = int(sum(r["atp_interventions"] for r in rows))
+    km = float(sum(r["train_km"] for r in rows))
+    e = float(sum(r["energy_kwh"] for r in rows))
+    return {
+        "lines": len(rows), "stops": stops,
+        "atp_violations": int(sum(r["atp_violations"] for r in rows)),
+        "missed_stops": int(sum(r["missed_stops"] for r in rows)),
+        "atp_interventions": ints,
+        "atp_interventions_per_100_stops": 100.0 * ints / max(stops, 1),
+        "stop_error_p50_m": float(np.percentile(err, 50)) if err.size else math.nan,
+        "stop_error_p95_m": float(np.percentile(err, 95)) if err.size else math.nan,
+        "stop_error_max_m": float(err.max()) if err.size else math.nan,
+        "stops_outside_0p30_m": int(np.count_nonzero(err > STOP_WINDOW_M)),
+        "time_above_civil_limit_s": float(sum(r["time_above_civil_limit_s"] for r in rows)),
+        "tsr_approaches": int(sum(r["tsr_approaches"] for r in rows)),
+        "tsr_speed_minima_max": int(max([r["tsr_speed_minima_max"] for r in rows] or [0])),
+        "energy_kwh_per_train_km": e / max(km, 1e-9), "train_km": km,
+        "unfinished": int(sum(not r["finished"] for r in rows)),
+    }
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    """Command-line entry point (see the module docstring)."""
+    ap = argparse.ArgumentParser(prog="python -m metro_atc bench lines",
+                                 description=__doc__.splitlines()[0])
+    ap.add_argument("--count", type=int, default=10, help="generated lines")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the first generated line")
+    ap.add_argument("--incidents", action="store_true", help="a TSR and a breakdown per line")
+    ap.add_argument("--scenario", nargs="*", default=[],
+                    help="extra scenario files or embedded names run after the generated lines")
+    ap.add_argument("--regulator", default="none")
+    ap.add_argument("--planner", default="ectp")
+    ap.add_argument("--tracker", default="fuzzy")
+    ap.add_argument("--sim-seed", type=int, default=0, help="plant random seed")
+    ap.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    a = ap.parse_args(argv)
+    if a.count < 0:
+        ap.error("--count must be >= 0")
+    t0 = time.perf_counter()
+    rows: List[dict[str, Any]] = []
+    errors: List[float] = []
+    failed: List[str] = []
+    jobs: List[Any] = [("gen", a.seed + k) for k in range(a.count)] + \
+        [("file", f) for f in a.scenario]
+    for kind, what in jobs:
+        try:
+            scn = load_generated(what, incidents=a.incidents) if kind == "gen" \
+                else load_scenario(what)
+            res = run_closed_loop(scn, regulator=a.regulator, planner=a.planner,
+                                  tracker=a.tracker, seed=a.sim_seed)
+        except (ScenarioError, ValueError) as exc:
+            failed.append(f"{what}: {exc}")
+            print(f"bench lines: {what}: {exc}", file=sys.stderr)
+            continue
+        row = res.row()
+        row["line_km"] = float(np.ptp([s.position_m for s in scn.line.stations])) / 1000.0
+        row["stations"] = len(scn.line.stations)
+        row["trains"] = scn.trains.count
+        row["stock"] = scn.trains.preset
+        rows.append(row)
+        errors.extend(res.stop_errors_m)
+        if a.json:  # progress: one JSON row per line on stderr
+            print(json.dumps(json_safe(row)), file=sys.stderr, flush=True)
+        else:
+            print(f"{row['scenario']:>18s} {row['stations']:3d} st {row['trains']:3d} tr "
+                  f"viol {row['atp_violations']} missed {row['missed_stops']} "
+                  f"int/100 {row['atp_interventions_per_100_stops']:5.1f} "
+                  f"err p50/p95/max {row['stop_error_p50_m']:.3f}/{row['stop_error_p95_m']:.3f}"
+                  f"/{row['stop_error_max_m']:.3f} m out {row['stops_outside_0p30_m']} "
+                  f"above {row['time_above_civil_limit_s']:6.1f} s "
+                  f"tsr-min {row['tsr_speed_minima_max']} "
+                  f"{row['energy_kwh_per_train_km']:.2f} kWh/train-km "
+                  f"({row['wall_s']:.1f} s)", flush=True)
+    tot = totals(rows, errors)
+    result = {"bench": "lines", "incidents": a.incidents, "regulator": a.regulator,
+              "planner": a.planner, "tracker": a.tracker, "rows": rows, "totals": tot,
+              "failed": failed, "seconds": time.perf_counter() - t0}
+    if a.json:
+        print(json.dumps(json_safe(result)))
+    else:
+        print("totals: " + ", ".join(f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}"
+                                     for k, v in tot.items()))
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

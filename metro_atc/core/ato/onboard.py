@@ -1,0 +1,401 @@
+"""The on-board ATO of one train as the ``ato_controller`` node runs it (ROS-free).
+
+:class:`OnboardAto` is the whole per-train decision logic of the node: it keeps the ATS
+departure commands, plans each inter-station run (:class:`AtoCore`) definitively at the
+departure from the state (pre-planning while standing), and turns every lockstep state into
+an effort u in [-1, 1] and an intended mode.  The node only converts messages and publishes;
+the ROS-free closed loop (:mod:`metro_atc.core.closed_loop`) calls the same object, so both
+drive the plant identically.
+
+States are the plain dicts of :func:`metro_atc.nodes.conversions.state_from_msg` (keys
+``step``, ``t_s``, ``x_m``, ``v_mps``, ``mode``, ``current_station``, ``next_station``,
+``departure_time_s``, ``target_running_time_s``, ``supervision_speed_mps`` (the ATP's
+emergency-brake intervention speed, inf when unknown), ``movement_authority_m``; SI units).
+
+Guards on top of the planned profile only ever *lower* the tracker's command:
+
+- **end of movement authority** (train ahead): a braking curve, at the deceleration the
+  service brake achieves on the steepest downhill grade of the remaining run, to a point
+  ``authority_margin_m`` short of the end of authority;
+- **temporary speed restrictions** the ATO knows from the line description (the same
+  notice as the ATP, ``signalling.tsr_notice_s``): a braking curve to ``limit`` at the zone
+  entry and the limit inside it, for the whole train length;
+- **stopping guard**: above the curve that still ends at the stopping point at the
+  achievable deceleration, brake with the deceleration that ends there;
+- **supervision speed**: stay ``SPEED_MARGIN_MPS`` below the ATP intervention speed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any, Optional, Sequence
+
+import numpy as np
+
+from metro_atc.core.ato.controller import (JOIN_BAND_MPS, JOIN_MIN_SPEED_MPS, PREVIEW_PERIODS,
+                                           AtoCore)
+from metro_atc.core.ato.envelope import OperatingLimits
+from metro_atc.core.ato.planner import Profile
+from metro_atc.core.bridge import ato_limits_for
+from metro_atc.core.line.atp_constants import SBI_OFFSET_MPS, atp_constants
+from metro_atc.core.line.geometry import build_geometry
+from metro_atc.core.line.track import (braking_envelope, ebi_speed, window_min_ahead,
+                                       window_min_behind)
+from metro_atc.core.line.vehicle import G_MPS2, Track, TrainParams, max_traction_accel
+
+MODE_DWELL = 1
+"""TrainState.MODE_DWELL (msg_defs/TrainState.msg)."""
+MODE_ACCELERATE = 2
+"""TrainState.MODE_ACCELERATE."""
+MODE_COAST = 4
+"""TrainState.MODE_COAST."""
+MODE_BRAKE = 5
+"""TrainState.MODE_BRAKE."""
+MODE_OUT_OF_SERVICE = 0
+"""TrainState.MODE_OUT_OF_SERVICE."""
+
+STOP_GUARD = 0.85
+"""Deceleration needed to stop at the platform, as a share of the achievable service brake,
+above which the stopping guard brakes [-]."""
+SPEED_MARGIN_MPS = 0.5
+"""Margin kept below the ATP supervision (emergency-brake intervention) speed [m/s]."""
+AUTHORITY_MARGIN_M = 10.0
+"""Distance the ATO aims to stop short of the end of movement authority [m]."""
+GUARD_GAIN = 0.8
+"""Effort per m/s of speed above a guard curve [1/(m/s)]."""
+GUARD_SLACK_MPS = 0.3
+"""The hard guard brakes only when the speed is this far above a cap [m/s] (below it the
+tracker follows the cap)."""
+CAP_LOOKAHEAD_S = 2.0
+"""The speed cap takes the lowest static SBI speed over the distance run in this time [s]."""
+
+
+@dataclass(frozen=True)
+class TsrZone:
+    """A temporary speed restriction as the ATO knows it (chainage [m], speed [m/s], [s])."""
+
+    start_m: float
+    end_m: float
+    limit_mps: float
+    known_s: float
+    from_s: float
+    to_s: float
+
+
+@dataclass(frozen=True)
+class PlanEvent:
+    """A run planned during :meth:`OnboardAto.control` / :meth:`OnboardAto.on_departure`."""
+
+    station: int
+    target_s: float
+    profile: Profile
+    stamp_s: float
+    late: bool
+
+
+class OnboardAto:
+    """Per-train ATO decision logic (module docstring).
+
+    Parameters: train, track; ``stations_m`` stop-point chainages [m]; planner / tracker
+    names and extra planner parameters (:class:`AtoCore`); ``control_period_s`` [s];
+    ``limits`` planning limits; ``shared`` cache shared by the trains of a process;
+    ``tsrs`` the temporary speed restrictions of the scenario.
+    """
+
+    def __init__(self, train: TrainParams, track: Track,
+                 stations_m: "Sequence[float] | np.ndarray",
+                 planner: str = "ectp", tracker: str = "fuzzy", control_period_s: float = 0.25,
+                 limits: Optional[OperatingLimits] = None,
+                 shared: Optional[dict[str, Any]] = None,
+                 tsrs: Sequence[TsrZone] = (), atp: Optional["AtpModel"] = None,
+                 **planner_params: Any) -> None:
+        """Build the :class:`AtoCore` and the guard state."""
+        self.core = AtoCore(train, track, planner=planner, tracker=tracker,
+                            control_period_s=control_period_s, limits=limits, shared=shared,
+                            **planner_params)
+        self.train = train
+        self.track = track
+        self.stations = np.asarray(stations_m, dtype=float)
+        self.tsrs = tuple(tsrs)
+        self.atp = atp if atp is not None else AtpModel(
+            b_g=0.5 * train.emergency_brake_mps2, t_r=1.0, t_sbi=2.0,
+            g_down=0.0, sbi_offset_mps=SBI_OFFSET_MPS, train=train)
+        self.commands: dict[int, tuple[float, float]] = {}
+        self._b_run: Any = None
+        self._b_tab = np.zeros(1)
+        self.planned_from = -1
+        self.cur_station = -1
+        self.last_mode = -1
+
+    # ------------------------------------------------------------------ planning
+    def on_departure(self, station: int, departure_s: float, running_s: float,
+                     stamp_s: float) -> Optional[PlanEvent]:
+        """Record an ATS departure command; pre-plan while standing (returns the plan)."""
+        st = int(station)
+        if st + 1 >= len(self.stations) or st < self.cur_station:
+            return None  # the terminus, or a station already left (an ATS replaying history)
+        self.commands[st] = (float(departure_s), float(running_s))
+        if self.last_mode in (-1, MODE_OUT_OF_SERVICE, MODE_DWELL):
+            return self.plan(st, float(running_s), stamp_s)
+        return None
+
+    def plan(self, st: int, target_s: float, stamp_s: float, late: bool = False) -> PlanEvent:
+        """Plan the run from station ``st`` to ``st + 1``."""
+        x0, x1 = float(self.stations[st]), float(self.stations[st + 1])
+        prof = self.core.plan(x0, x1, target_s)
+        self.planned_from = st
+        return PlanEvent(st, float(target_s), prof, float(stamp_s), late)
+
+    # ------------------------------------------------------------------ control
+    def control(self, s: dict[str, Any]) -> tuple[float, int, Optional[PlanEvent]]:
+        """Effort in [-1, 1], intended mode and the run planned at this state (if any)."""
+        departing = self.last_mode == MODE_DWELL
+        self.last_mode = int(s["mode"])
+        self.cur_station = max(self.cur_station, int(s["current_station"]))
+        if s["mode"] == MODE_DWELL:
+            return -0.5, MODE_DWELL, None
+        cur, nxt = int(s["current_station"]), int(s["next_station"])
+        planned: Optional[PlanEvent] = None
+        if departing and 0 <= cur == nxt - 1:
+            # plan the run definitively at departure from the state (deterministic in the
+            # lockstep): the ATS target fixes the arrival (departure + running time), so a
+            # late departure shortens the target (down to flat-out); rounded to 1 s when
+            # late so the trains of a process share plans
+            target = float(s["target_running_time_s"])
+            late = float(s["t_s"]) - float(s["departure_time_s"])
+            if math.isfinite(late) and late > 1.0:
+                target = float(max(round(target - late), 1.0))
+            planned = self.plan(cur, target, float(s["t_s"]), late=late > 1.0)
+        elif self.planned_from != cur and 0 <= cur == nxt - 1:
+            # started mid-run (e.g. the node was restarted): plan from here
+            planned = self.plan(cur, float(s["target_running_time_s"]), float(s["t_s"]))
+        # caps at the tracker's preview position and a little beyond (their slope is the
+        # feedforward acceleration while a cap sets the reference)
+        v = float(s["v_mps"])
+        xp = float(s["x_m"]) + PREVIEW_PERIODS * v * self.core.period
+        h = max(v * self.core.period, 0.5)
+        cap_p = self.speed_cap(s, xp)
+        if cap_p - v > JOIN_BAND_MPS and v > JOIN_MIN_SPEED_MPS \
+                and self.core.last_effort > 0.0:
+            # in traction below a falling cap: aim where the swing to braking would end
+            xp += v * self.core.swing_s
+            cap_p = min(cap_p, self.speed_cap(s, xp))
+        cap_h = self.speed_cap(s, xp + h)
+        slope = (cap_h * cap_h - cap_p * cap_p) / (2.0 * h) \
+            if math.isfinite(cap_p) and math.isfinite(cap_h) else 0.0
+        u_trk = float(self.core.command(s["t_s"], s["x_m"], v, r_cap_mps=cap_p,
+                                        cap_accel_mps2=slope))
+        u = min(u_trk, self.guard(s))
+        if u < u_trk:
+            self.core.applied(u)
+        mode = MODE_ACCELERATE if u > 0.05 else (MODE_BRAKE if u < -0.05 else MODE_COAST)
+        return u, mode, planned
+
+    def _brake_capability(self, x_from: float, x_to: float) -> float:
+        """Service deceleration [m/s^2] achievable on the steepest downhill of [x_from, x_to].
+
+        Full service brake minus the grade's pull (resistance neglected: conservative).
+        """
+        a, b = (x_from, x_to) if x_from <= x_to else (x_to, x_from)
+        xs = np.linspace(a - self.train.length_m, max(b, a) + 1.0, 64)
+        g = float(np.min(self.track.grade_at(xs)))
+        return max(self.train.max_service_brake_mps2 + G_MPS2 * min(g, 0.0), 0.05)
+
+    def speed_cap(self, s: dict[str, Any], x_at: Optional[float] = None) -> float:
+        """Ceiling on the desired speed from the ATP data and known TSRs [m/s].
+
+        - the ATP's service-brake intervention speed, estimated from the supervision (EBI)
+          speed of the state less the SBI offset, minus ``SPEED_MARGIN_MPS``;
+        - end of movement authority: the speed whose SBI distance (:class:`AtpModel`) plus
+          ``AUTHORITY_MARGIN_M`` fits in the authority left, and a braking curve at the
+          planned deceleration to a stop ``AUTHORITY_MARGIN_M`` short of it;
+        - every TSR known and not yet cleared by the rear: a braking curve at the planned
+          deceleration reaching ``limit - margin`` ``lead`` metres before the zone, then
+          the limit inside it.
+
+        ``x_at``: evaluate at this chainage instead of the state's position [m] (the
+        supervision speed of the state still applies).
+        """
+        x, v, t = float(s["x_m"]), float(s["v_mps"]), float(s["t_s"])
+        if x_at is not None:
+            x = float(x_at)
+        cap = math.inf
+        atp = self.atp
+        sup = float(s["supervision_speed_mps"])
+        if math.isfinite(sup):
+            cap = sup - atp.sbi_offset_mps - SPEED_MARGIN_MPS
+        # the static SBI curve a little ahead (the tracker needs time to follow it down)
+        cap = min(cap, atp.static_sbi(x, x + v * CAP_LOOKAHEAD_S + 1.0) - SPEED_MARGIN_MPS)
+        b = self._plan_decel(x)
+        ma = float(s["movement_authority_m"])
+        if math.isfinite(ma):
+            d = ma - x - AUTHORITY_MARGIN_M
+            cap = min(cap, math.sqrt(2.0 * b * max(d, 0.0)),
+                      atp.sbi_speed(d, v) - SPEED_MARGIN_MPS)
+        lead = self.core.limits.restriction_lead_m
+        margin = self.core.limits.speed_margin_mps
+        for z in self.tsrs:
+            if not (z.known_s <= t < z.to_s) or x - self.train.length_m >= z.end_m:
+                continue
+            lim = max(z.limit_mps - margin, 0.5 * z.limit_mps)
+            d = z.start_m - lead - x
+            cap = min(cap, math.sqrt(lim * lim + 2.0 * b * max(d, 0.0)),
+                      atp.sbi_speed_to(z.start_m - x, z.limit_mps) - SPEED_MARGIN_MPS)
+        return max(cap, 0.0)
+
+    def _plan_decel(self, x: float) -> float:
+        """Planned braking deceleration at chainage x (the run's, else the capability)."""
+        run = self.core.run
+        if run is None:
+            return 0.8 * self._brake_capability(x, x + 400.0)
+        if self._b_run is not run:
+            # lowest planned deceleration over [s - 50, s + 400] on a 10 m grid of the run
+            ss = np.arange(-50.0, run.length_m + 410.0, 10.0)
+            b = run.brake_decel(np.clip(ss, 0.0, run.length_m))
+            k = 45
+            pad = np.concatenate((b, np.full(k, b[-1])))
+            self._b_tab = np.lib.stride_tricks.sliding_window_view(pad, k + 1).min(axis=1)
+            self._b_run = run
+        i = int((float(run.run_coordinate(x)) + 50.0) / 10.0)
+        return float(self._b_tab[min(max(i, 0), self._b_tab.size - 1)])
+
+    def guard(self, s: dict[str, Any]) -> float:
+        """Upper bound on the effort from authority, TSRs, the stop and supervision.
+
+        The caps of :meth:`speed_cap` are followed by the tracker; this hard bound only acts
+        when the train is well above one (speed feedback on top of the curve's
+        deceleration) and when it is above the curve that still stops at the platform.
+        """
+        bound = 1.0
+        x, v = float(s["x_m"]), float(s["v_mps"])
+        nxt = int(s["next_station"])
+        x_stop = float(self.stations[nxt]) if 0 <= nxt < len(self.stations) else math.inf
+        bs = self.train.max_service_brake_mps2
+        # the service brake's deceleration at the train's own position (its grade)
+        b_ach = self._brake_capability(x, x)
+        d = x_stop - x
+        if 0.0 < d < 400.0 and v > 0.3:
+            # stopping guard: above the curve that ends at the stop point (late, e.g. after
+            # an authority restriction released near the platform) brake with the
+            # deceleration that ends there, plus the grade's pull
+            a_req = v * v / (2.0 * max(d - 0.15, 0.05))
+            if a_req > STOP_GUARD * b_ach:
+                bound = min(bound, -min(1.0, (a_req + bs - b_ach) / bs))
+        cap = self.speed_cap(s)
+        over = v - cap - GUARD_SLACK_MPS
+        if over > 0.0:
+            bound = min(bound, -min(1.0, (bs - b_ach) / bs + GUARD_GAIN * over))
+        return bound
+
+
+@dataclass(frozen=True)
+class AtpModel:
+    """What the ATO knows of the ATP's supervision (seed 001 Fig. 1; SI units).
+
+    b_g: guaranteed deceleration on the steepest downhill [m/s^2]; t_r: response time [s];
+    t_sbi: service-brake-intervention lead time [s]; g_down: g x the steepest downhill
+    [m/s^2]; sbi_offset_mps: the SBI speed lies this far below the EBI curve [m/s];
+    train: rolling stock (traction for the worst-case response acceleration).
+    """
+
+    b_g: float
+    t_r: float
+    t_sbi: float
+    g_down: float
+    sbi_offset_mps: float
+    train: TrainParams
+    grid_x0_m: float = 0.0
+    grid_dx_m: float = 1.0
+    sbi_static_mps: Optional[np.ndarray] = None
+    tol_mps: float = 0.0
+    resp_dist_m: float = 0.0
+    sbi_dist_m: float = 0.0
+
+    def sbi_speed_to(self, dist_m: float, target_mps: float) -> float:
+        """Static SBI speed [m/s] ``dist_m`` before a point where the limit is ``target``.
+
+        The plant's static construction (:mod:`metro_atc.core.line.track`): braking
+        envelope ``E^2 = (target + tol)^2 + 2 b_g D`` evaluated past the response and SBI
+        look-ahead distances, ``v + a_w(v) t_r = E`` (one fixed-point step), less the SBI
+        offset.
+        """
+        d = max(dist_m - self.resp_dist_m - self.sbi_dist_m, 0.0)
+        e = math.sqrt((target_mps + self.tol_mps) ** 2 + 2.0 * self.b_g * d)
+        v = e - (float(max_traction_accel(self.train, e)) + self.g_down) * self.t_r
+        v = e - (float(max_traction_accel(self.train, max(v, 0.0))) + self.g_down) * self.t_r
+        return v - self.sbi_offset_mps
+
+    def static_sbi(self, x_from_m: float, x_to_m: float) -> float:
+        """Lowest static SBI speed [m/s] (limits, no TSR) with the front in [from, to] [m].
+
+        The plant's static supervision (``AtpSupervisor.sbi_static`` less the SBI offset) on its
+        grid; inf when the model has no table.
+        """
+        tab = self.sbi_static_mps
+        if tab is None:
+            return math.inf
+        k0 = int((x_from_m - self.grid_x0_m) / self.grid_dx_m)
+        k1 = int((x_to_m - self.grid_x0_m) / self.grid_dx_m) + 1
+        k0 = min(max(k0, 0), tab.size - 1)
+        k1 = min(max(k1, k0 + 1), tab.size)
+        return float(np.min(tab[k0:k1])) - self.sbi_offset_mps
+
+    def sbi_speed(self, dist_m: float, v_mps: float) -> float:
+        """ATP service-brake intervention speed [m/s] for a stop ``dist_m`` ahead at v.
+
+        ``ebi_speed(dist - t_sbi v)`` with the worst-case response acceleration
+        ``a_w = traction(v) + g_down`` (:func:`metro_atc.core.line.track.ebi_speed`).
+        """
+        a_w = float(max_traction_accel(self.train, v_mps)) + self.g_down
+        return float(ebi_speed(dist_m - self.t_sbi * v_mps, 0.0, a_w, self.t_r, self.b_g)) \
+            - self.sbi_offset_mps
+
+
+def atp_model_for(scn: Any, train: TrainParams) -> AtpModel:
+    """The ATP constants of a scenario as the plant derives them (a pure function of it)."""
+    geom = build_geometry(scn, train)
+    c = atp_constants(scn, train, geom)
+    # the static supervision without TSRs (the ATO follows those by its own curves)
+    lim = np.asarray(geom.static_limit, dtype=float)
+    ceil = window_min_behind(lim, geom.n_len) + geom.ceiling_tol
+    env = braking_envelope(ceil, geom.dx, c.b_g)
+    e_min = window_min_ahead(env, c.n_resp)
+    a_w = max_traction_accel(train, e_min) + c.g_down
+    # v + a_w(v) t_r = E solved with a_w at E (a_w falls with speed: conservative)
+    ebi = e_min - a_w * c.t_r
+    sbi = window_min_ahead(ebi, c.n_sbi)
+    return AtpModel(b_g=c.b_g, t_r=c.t_r, t_sbi=c.t_sbi, g_down=c.g_down,
+                    sbi_offset_mps=SBI_OFFSET_MPS, train=train, grid_x0_m=float(geom.x0),
+                    grid_dx_m=float(geom.dx), sbi_static_mps=np.asarray(sbi, dtype=float),
+                    tol_mps=float(geom.ceiling_tol), resp_dist_m=float(c.n_resp * geom.dx),
+                    sbi_dist_m=float(c.n_sbi * geom.dx))
+
+
+def envelope_limits(scn: Any, train: TrainParams) -> OperatingLimits:
+    """Planning limits of the ATO for a scenario: the rolling stock's, inside the envelope.
+
+    :func:`metro_atc.core.bridge.ato_limits_for` plus grade-aware braking curves, the
+    tracking margin ``SPEED_MARGIN_MPS`` below the civil limit and a restriction lead of
+    the distance run at the maximum speed during the ATP's SBI lead and response times.
+    """
+    sg = scn.signalling
+    lead = train.max_speed_mps * (float(sg.sbi_lead_s) + float(sg.response_time_s))
+    return dataclasses.replace(ato_limits_for(train), grade_aware_braking=True,
+                               speed_margin_mps=SPEED_MARGIN_MPS, restriction_lead_m=lead)
+
+
+def tsr_zones(scn: Any) -> list[TsrZone]:
+    """TSRs of a scenario as the ATO knows them (``signalling.tsr_notice_s`` in advance)."""
+    notice = float(scn.signalling.tsr_notice_s)
+    out = []
+    for t in scn.line.temporary_speed_limits:
+        out.append(TsrZone(t.start_m, t.end_m, t.limit_kmh / 3.6, max(t.from_s - notice, 0.0),
+                           t.from_s, t.to_s))
+    for inc in scn.incidents:
+        if inc.kind == "tsr":
+            out.append(TsrZone(inc.start_m, inc.end_m, inc.limit_kmh / 3.6,
+                               max(inc.at_s - notice, 0.0), inc.at_s,
+                               inc.at_s + inc.duration_s))
+    return out

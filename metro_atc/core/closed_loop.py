@@ -1,0 +1,229 @@
+"""ROS-free closed loop: plant + real ATO + real ATS in lockstep, the graph's data flow.
+
+:func:`run_closed_loop` runs a scenario through :class:`metro_atc.core.plant.line.LineSim`
+with one :class:`metro_atc.core.ato.onboard.OnboardAto` per train (what every
+``ato_controller`` node runs) and the :class:`metro_atc.core.atr.dispatch.AtsDispatcher` of
+``make_dispatcher`` (what the ``ats_regulator`` node runs), step by step:
+
+1. the ATS's start-up commands go to the plant (``set_departure``) and to each ATO
+   (``on_departure``, stamped with the departure time, as the node stamps its messages);
+2. every step the plant's state of each active train becomes the dict the ATO node gets from
+   :func:`metro_atc.nodes.conversions.state_from_msg` (a non-finite supervision speed or
+   authority becomes inf) and the ATO's effort is applied; trains without a fresh command
+   keep the last one (NaN, as the line simulator node does);
+3. every event of the step goes to the ATS; its decision goes to the plant and the ATO before
+   the next step (the lockstep barrier of the line simulator waits for it).
+
+Besides the plant's KPIs it measures, from the plant's public state, what issue 11 asks of an
+ATO that drives inside the ATP envelope (all SI):
+
+- stop error of each arrival [m] (front position at the arrival minus the stop point);
+- ATP interventions (service or emergency brake onsets) per 100 stops;
+- time above the civil limit [s]: train-seconds of trains in service whose speed exceeds the
+  permanent/temporary limit in force for the whole train (``LineSim.ceiling_phys`` minus
+  the overspeed margin) by more than ``CIVIL_TOL_MPS``;
+- speed minima per TSR approach (hunting): the speed of each train from
+  ``TSR_APPROACH_M`` before a zone in force (or the last platform before it) to where its
+  rear leaves the zone, reduced to its turning points
+  with a hysteresis of ``HUNT_HYSTERESIS_MPS``; one approach (brake, hold, release) has one.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+import numpy as np
+
+from metro_atc.core.ato.onboard import OnboardAto, atp_model_for, envelope_limits, tsr_zones
+from metro_atc.core.atr.dispatch import Dispatch, make_dispatcher
+from metro_atc.core.bridge import timetable_for, track_for, train_for
+from metro_atc.core.plant.line import LineSim
+from metro_atc.core.line.scenario import Scenario
+
+CIVIL_TOL_MPS = 0.01
+"""Speed above the civil limit that counts as 'above the limit' [m/s] (numerical noise)."""
+TSR_APPROACH_M = 800.0
+"""Distance before a TSR zone from which a train's speed is watched for hunting [m]."""
+HUNT_HYSTERESIS_MPS = 0.5
+"""A speed minimum counts when the speed rose by this much after it [m/s]."""
+STOP_WINDOW_M = 0.30
+"""Berthing tolerance of issue 11 (platform screen doors, +-0.30 m) [m]."""
+
+
+@dataclass
+class _Approach:
+    """Zig-zag state of one train's speed through one TSR approach."""
+
+    direction: int = 0
+    extreme: float = math.nan
+    minima: int = 0
+
+
+@dataclass
+class ClosedLoopResult:
+    """Figures of one closed-loop run (SI units; see the module docstring)."""
+
+    scenario: str
+    regulator: str
+    planner: str
+    tracker: str
+    stops: int
+    stop_errors_m: list[float]
+    missed_stops: int
+    atp_violations: int
+    atp_interventions: int
+    time_above_civil_s: float
+    tsr_minima: list[int]
+    energy_kwh: float
+    train_km: float
+    sim_time_s: float
+    wall_s: float
+    finished: bool
+    kpis: dict[str, Any] = field(default_factory=dict)
+
+    def row(self) -> dict[str, Any]:
+        """One JSON-friendly row of the bench (``bench lines``)."""
+        err = np.abs(np.asarray(self.stop_errors_m, dtype=float))
+        q = (lambda p: float(np.percentile(err, p))) if err.size else (lambda p: math.nan)
+        return {
+            "scenario": self.scenario, "regulator": self.regulator, "planner": self.planner,
+            "tracker": self.tracker, "stops": self.stops,
+            "missed_stops": self.missed_stops, "atp_violations": self.atp_violations,
+            "atp_interventions": self.atp_interventions,
+            "atp_interventions_per_100_stops": (100.0 * self.atp_interventions
+                                                / max(self.stops, 1)),
+            "stop_error_p50_m": q(50), "stop_error_p95_m": q(95),
+            "stop_error_max_m": float(err.max()) if err.size else math.nan,
+            "stops_outside_0p30_m": int(np.count_nonzero(err > STOP_WINDOW_M)),
+            "time_above_civil_limit_s": self.time_above_civil_s,
+            "tsr_approaches": len(self.tsr_minima),
+            "tsr_speed_minima_max": max(self.tsr_minima) if self.tsr_minima else 0,
+            "energy_kwh": self.energy_kwh,
+            "energy_kwh_per_train_km": self.energy_kwh / max(self.train_km, 1e-9),
+            "train_km": self.train_km, "sim_time_s": self.sim_time_s,
+            "wall_s": self.wall_s, "finished": self.finished,
+        }
+
+
+def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp",
+                    tracker: str = "fuzzy", seed: int = 0,
+                    duration_s: Optional[float] = None) -> ClosedLoopResult:
+    """Run ``scn`` to its end (or ``duration_s``) in the ROS-free lockstep; see module doc."""
+    w0 = time.perf_counter()
+    sim = LineSim(scn, seed=seed, trace_period_s=0.0)
+    tt = timetable_for(scn)
+    train = train_for(scn)
+    track = track_for(scn)
+    limits = envelope_limits(scn, train)
+    atp = atp_model_for(scn, train)
+    shared: dict[str, Any] = {}
+    tsrs = tsr_zones(scn)
+    atos = [OnboardAto(train, track, tt.station_positions_m, planner=planner, tracker=tracker,
+                       control_period_s=float(scn.sim.control_period_s), limits=limits,
+                       shared=shared, tsrs=tsrs, atp=atp) for _ in tt.train_ids]
+    ats = make_dispatcher(scn, regulator, tt=tt)
+    ids = list(tt.train_ids)
+    n = len(ids)
+
+    def dispatch(d: Dispatch) -> None:
+        sim.set_departure(d.train, d.station, d.departure_s, d.running_s, d.dwell_limit_s)
+        atos[d.train].on_departure(d.station, d.departure_s, d.running_s, d.departure_s)
+
+    for d in ats.initial():
+        dispatch(d)
+    limit_s = sim.duration_s if duration_s is None else min(float(duration_s), sim.duration_s)
+    u = np.full(n, math.nan)
+    dt = sim.control_period_s
+    above = 0.0
+    stop_err: list[float] = []
+    x_prev = sim.x.copy()
+    dist = 0.0
+    approaches: dict[tuple[int, int], _Approach] = {}
+    minima: list[int] = []
+    step = 0
+    while not sim.done and sim.t < limit_s - 1e-9:
+        st = sim.states()
+        active = np.flatnonzero(sim.active_mask())
+        t = float(sim.t)
+        for i in active:
+            sup = float(st["atp_limit_mps"][i])
+            ma = float(st["movement_authority_m"][i])
+            s = {"step": step, "t_s": t, "x_m": float(st["x_m"][i]),
+                 "v_mps": float(st["v_mps"][i]), "a_mps2": float(st["a_mps2"][i]),
+                 "current_station": int(st["current_station"][i]),
+                 "next_station": int(st["next_station"][i]), "mode": int(st["mode"][i]),
+                 "departure_time_s": float(st["departure_time_s"][i]),
+                 "target_running_time_s": float(st["target_running_time_s"][i]),
+                 "supervision_speed_mps": sup if math.isfinite(sup) else math.inf,
+                 "movement_authority_m": ma if math.isfinite(ma) else math.inf}
+            u[i] = atos[i].control(s)[0]
+        run = sim.active_mask()
+        res = sim.step(u.copy())
+        step += 1
+        # ---- measurements on the state after the step (public plant state)
+        x, v = sim.x, sim.v
+        k = np.clip(((x - sim.x0) * sim.inv_dx).astype(np.int64), 0, sim.ceiling_phys.size - 1)
+        civil = sim.ceiling_phys[k] - sim.ceiling_tol
+        above += dt * float(np.count_nonzero(run & (v > civil + CIVIL_TOL_MPS)))
+        moved = np.where(run, np.abs(x - x_prev), 0.0)
+        dist += float(np.sum(np.minimum(moved, 100.0)))
+        x_prev = x.copy()
+        _watch_tsrs(sim, tsrs, run, approaches, minima)
+        for ev in res.events:
+            if ev.kind == "arrival":
+                stop_err.append(float(sim.x[ev.train_idx]
+                                      - sim.station_positions_m[ev.station_idx]))
+            cmd = ats.on_event(ids[ev.train_idx], ev.station_idx, ev.kind, ev.t_s)
+            if cmd is not None:
+                dispatch(cmd)
+    for a in approaches.values():
+        minima.append(a.minima + (1 if a.direction < 0 else 0))
+    kp = sim.kpis()
+    return ClosedLoopResult(
+        scenario=scn.name, regulator=regulator, planner=planner, tracker=tracker,
+        stops=len(stop_err), stop_errors_m=stop_err, missed_stops=int(sim.skipped_stops),
+        atp_violations=int(kp["atp_violations"]),
+        atp_interventions=int(np.sum(sim.interventions)), time_above_civil_s=above,
+        tsr_minima=minima, energy_kwh=float(kp["energy_kwh"]), train_km=dist / 1000.0,
+        sim_time_s=float(sim.t), wall_s=time.perf_counter() - w0, finished=bool(sim.done),
+        kpis=kp)
+
+
+def _watch_tsrs(sim: LineSim, tsrs: list[Any], run: Any,
+                approaches: dict[tuple[int, int], _Approach], minima: list[int]) -> None:
+    """Update the zig-zag of every train inside a TSR approach window (hunting count)."""
+    t = float(sim.t)
+    for z_i, z in enumerate(tsrs):
+        if not (z.from_s <= t < z.to_s):
+            continue
+        for i in np.flatnonzero(run):
+            x, v = float(sim.x[i]), float(sim.v[i])
+            key = (z_i, int(i))
+            st = sim.station_positions_m
+            before = st[st <= z.start_m]
+            w0 = max(z.start_m - TSR_APPROACH_M, float(before[-1]) + 1.0 if before.size
+                     else -math.inf)
+            inside = w0 <= x <= z.end_m + sim.length_m
+            a = approaches.get(key)
+            if not inside:
+                if a is not None:
+                    minima.append(a.minima + (1 if a.direction < 0 else 0))
+                    del approaches[key]
+                continue
+            if a is None:
+                a = approaches[key] = _Approach(0, v, 0)
+                continue
+            if a.direction >= 0:
+                if v > a.extreme:
+                    a.extreme = v
+                elif v < a.extreme - HUNT_HYSTERESIS_MPS:
+                    a.direction, a.extreme = -1, v
+            else:
+                if v < a.extreme:
+                    a.extreme = v
+                elif v > a.extreme + HUNT_HYSTERESIS_MPS:
+                    a.minima += 1
+                    a.direction, a.extreme = 1, v
