@@ -48,12 +48,14 @@ def write_events_csv(sim: "LineSim", path: Path) -> None:
     with path.open("w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(["train_id", "station_index", "station_name", "kind", "t_s",
-                    "scheduled_t_s", "delay_s", "boarded", "alighted", "dwell_s"])
+                    "scheduled_t_s", "delay_s", "boarded", "alighted", "dwell_s",
+                    "stop_error_m"])
         for e in sim.event_log():
             w.writerow([sim.train_ids[e.train_idx], e.station_idx,
                         sim.station_names[e.station_idx], e.kind, f"{e.t_s:.2f}",
                         f"{e.scheduled_t_s:.2f}", f"{e.delay_s:.2f}", e.boarded, e.alighted,
-                        f"{e.dwell_s:.2f}"])
+                        f"{e.dwell_s:.2f}",
+                        "" if math.isnan(e.stop_error_m) else f"{e.stop_error_m:.3f}"])
 
 
 def _trace_arrays(sim: "LineSim") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,

@@ -39,6 +39,9 @@ BoolArray = NDArray[np.bool_]
 
 _cnz = np.count_nonzero
 
+CIVIL_TOL_MPS = 0.01
+"""Speed above the civil limit counted as running above it [m/s] (numerical slack)."""
+
 
 class AtpSupervisor:
     """ATP constants, supervision grids and per-train ATP state (EB, SB, counters)."""
@@ -84,6 +87,8 @@ class AtpSupervisor:
         self.atp_limit = np.full(n, p.max_speed_mps)
         self.speed_code = np.full(n, p.max_speed_mps)
         self.min_sep = math.inf
+        self.steps_above_civil = 0
+        """Train-steps run above the civil speed limit (see :meth:`monitor`)."""
         self.drive_env = drive_envelope(geom, geom.static_limit, b_drive)
 
     # ------------------------------------------------------------------ grids
@@ -172,13 +177,18 @@ class AtpSupervisor:
         self.monitor(fl, obst, k)
         return phi, obst, k, n_int
 
-    def monitor(self, fl: Fleet, obst: FloatArray, k: IntArray) -> None:
+    def monitor(self, fl: Fleet, obst: FloatArray, k: IntArray, count: bool = True) -> None:
         """Independent safety monitors: separation and overspeed violations, min separation.
 
         Checks the state at the start of the step (= the end of the previous one) against the
-        physical limits (not the ATP's anticipated ones).
+        physical limits (not the ATP's anticipated ones).  With ``count`` it also counts the
+        train-steps run above the civil limit (the limit in force over the whole train, by
+        more than ``CIVIL_TOL_MPS``; the ATP overspeed margin is for faults, not driving).
         """
         x, v, run = fl.x, fl.v, fl.run
+        if count:
+            civil = self.ceiling_phys[k] - self.geom.ceiling_tol
+            self.steps_above_civil += _cnz(run & (v > civil + CIVIL_TOL_MPS))
         gap = obst - x
         gmin = float(np.min(np.where(run, gap, math.inf)))
         if gmin < self.min_sep:
@@ -193,7 +203,7 @@ class AtpSupervisor:
 
     def monitor_now(self, fl: Fleet) -> None:
         """The safety monitors on the current state (end of a run, before the KPIs)."""
-        self.monitor(fl, self.obstacle_rear(fl, False), self.geom.cells(fl.x))
+        self.monitor(fl, self.obstacle_rear(fl, False), self.geom.cells(fl.x), count=False)
 
     def speed_codes(self, x: FloatArray, eoa: FloatArray) -> None:
         """Fixed-block speed code of each train's current block [m/s] (5 km/h steps).

@@ -14,7 +14,7 @@ deviation: actual minus target (ATS command if any, else timetable) running time
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -72,6 +72,12 @@ class RunLog:
     boarded: FloatArray
     left_behind: FloatArray
     skipped_stops: int
+    stop_errors_m: FloatArray = field(default_factory=lambda: np.zeros(0))
+    """Berthing error of every arrival at a platform (front minus stop point) [m]."""
+    steps_above_civil: int = 0
+    """Train-steps run above the civil speed limit."""
+    control_period_s: float = 0.0
+    """Length of one step [s]."""
 
 
 def compute_kpis(log: RunLog) -> dict[str, Any]:
@@ -144,5 +150,34 @@ def compute_kpis(log: RunLog) -> dict[str, Any]:
         "passengers_boarded": int(round(float(log.boarded.sum()))),
         "passengers_left_behind": int(round(float(log.left_behind.sum()))),
         "skipped_stops": int(log.skipped_stops),
+        **berthing_kpis(log),
         "per_train": per_train,
+    }
+
+
+BERTH_TOL_M = 0.30
+"""Berthing tolerance [m] (platform screen doors, e.g. Taipei Metro +-30 cm)."""
+
+
+def berthing_kpis(log: RunLog) -> dict[str, Any]:
+    """Stopping accuracy and ATP-envelope figures of a run (issue 11 item 3).
+
+    ``stop_error_m`` p50/p95/max of |front - stop point| over the arrivals [m];
+    ``stops_outside_0p30_m``; ``missed_stops`` (ran past the platform);
+    ``atp_interventions_per_100_stops`` (ATP brake interventions: the ATO should never need
+    them); ``time_above_civil_limit_s`` (train-seconds above the civil limit).
+    """
+    err = np.abs(np.asarray(log.stop_errors_m, dtype=float))
+    err = err[np.isfinite(err)]
+    stops = int(err.size) + int(log.skipped_stops)
+    q = (lambda p: float(np.percentile(err, p))) if err.size else (lambda p: None)
+    return {
+        "stops": stops,
+        "stop_error_m": {"p50": q(50), "p95": q(95),
+                         "max": float(err.max()) if err.size else None},
+        "stops_outside_0p30_m": int(np.count_nonzero(err > BERTH_TOL_M)),
+        "missed_stops": int(log.skipped_stops),
+        "atp_interventions_per_100_stops":
+            100.0 * float(log.interventions.sum()) / stops if stops else 0.0,
+        "time_above_civil_limit_s": float(log.steps_above_civil * log.control_period_s),
     }

@@ -260,7 +260,11 @@ class LineSim:
             sched_running_s=sv.sched_running_s, energy=self.energy_breakdown(),
             interventions=atp.interventions.copy(), violations=atp.violations.copy(),
             min_sep=atp.min_sep, margin=atp.margin, boarded=st.boarded.copy(),
-            left_behind=st.left_behind.copy(), skipped_stops=st.skipped_stops)
+            left_behind=st.left_behind.copy(), skipped_stops=st.skipped_stops,
+            stop_errors_m=np.array([e.stop_error_m for e in st.events
+                                    if e.kind == "arrival"], dtype=float),
+            steps_above_civil=int(atp.steps_above_civil),
+            control_period_s=float(self.control_period_s))
 
     def kpis(self) -> dict[str, Any]:
         """KPI dictionary (JSON-serialisable); see :func:`metro_atc.core.plant.kpi.compute_kpis`.

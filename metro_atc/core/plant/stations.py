@@ -30,7 +30,9 @@ class TrainEvent:
     """Arrival at / departure from a station.
 
     ``delay_s`` is actual minus timetable time; ``boarded``/``alighted`` and ``dwell_s`` are
-    filled on departures (arrivals carry 0).
+    filled on departures (arrivals carry 0).  ``stop_error_m`` is the berthing error of an
+    arrival: train front minus the stop point at the standstill [m] (+ overrun); NaN for
+    departures and for a train placed at its first platform on entry.
     """
 
     train_idx: int
@@ -42,6 +44,7 @@ class TrainEvent:
     dwell_s: float
     delay_s: float
     scheduled_t_s: float = math.nan
+    stop_error_m: float = math.nan
 
 
 class Stations:
@@ -96,11 +99,12 @@ class Stations:
         return math.inf
 
     def emit(self, i: int, j: int, kind: str, t: float, boarded: float = 0.0,
-             alighted: float = 0.0, dwell: float = 0.0) -> None:
+             alighted: float = 0.0, dwell: float = 0.0,
+             stop_error_m: float = math.nan) -> None:
         """Record an arrival/departure event."""
         sched = self.sv.sched_arr[i, j] if kind == "arrival" else self.sv.sched_dep[i, j]
         ev = TrainEvent(i, j, kind, t, int(round(boarded)), int(round(alighted)), dwell,
-                        t - sched, float(sched))
+                        t - sched, float(sched), float(stop_error_m))
         self.events.append(ev)
         self.events_out.append(ev)
 
@@ -127,8 +131,11 @@ class Stations:
         self.arrive(i, 0, t)
         return True
 
-    def arrive(self, i: int, j: int, t: float) -> None:
-        """Doors open at station j: alighting, boarding forecast, departure hold time."""
+    def arrive(self, i: int, j: int, t: float, stop_error_m: float = math.nan) -> None:
+        """Doors open at station j: alighting, boarding forecast, departure hold time.
+
+        ``stop_error_m``: train front minus the stop point at the standstill [m].
+        """
         fl = self.fl
         fl.dwelling[i] = True
         fl.set_xv(i, float(fl.x[i]), 0.0)
@@ -138,7 +145,7 @@ class Stations:
         fl.arr_t[i] = t
         alight = fl.load[i] * self.sv.alight_frac[j]
         self.pending_alight[i] = alight
-        self.emit(i, j, "arrival", t)
+        self.emit(i, j, "arrival", t, stop_error_m=stop_error_m)
         self.set_release(i, j, redraw=True)
 
     def set_release(self, i: int, j: int, redraw: bool) -> None:
@@ -222,7 +229,7 @@ class Stations:
                     fl.dwelling[i] = True  # in the siding: turnback time runs
                     fl.done_t[i] = t + self.scn.line.turnback_s
                 else:
-                    self.arrive(i, int(fl.next_stop[i]), t)
+                    self.arrive(i, int(fl.next_stop[i]), t, float(d[i]))
             elif d[i] > tol:
                 if fl.status[i] == TURNBACK:
                     continue  # the buffer-stop authority stops it; accept any standstill
