@@ -190,7 +190,7 @@ class AtpSupervisor:
         """
         x, v, run = fl.x, fl.v, fl.run
         gap = obst - x
-        gmin = float(np.min(np.where(run, gap, math.inf)))
+        gmin = float(np.where(run, gap, math.inf).min())
         if gmin < self.min_sep:
             self.min_sep = gmin
         bad = run & ((gap < self.margin - 1e-6) | (v > self.ceiling_phys[k] + 1e-6))

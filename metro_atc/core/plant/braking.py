@@ -53,7 +53,8 @@ class AxleState:
         """(fx, clamp, slip), each [n_trains, 4]."""
         if self.arrays is None:
             fc_per_n, tb_coef, inv_rw2, adh, jw, tab_mu, tab_slip = self.coef
-            fc = self.f_fa[:, None] * fc_per_n * np.ones_like(tb_coef)
+            fc = np.empty(tb_coef.shape)
+            fc[...] = (self.f_fa * fc_per_n)[:, None]
             fx = fc * tb_coef + (jw * np.minimum(self.a_d, 0.0))[:, None] * inv_rw2
             slip = np.interp(fx / (self.w_axle[:, None] * adh), tab_mu, tab_slip)
             self.arrays = (fx, fc, slip)

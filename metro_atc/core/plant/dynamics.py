@@ -42,11 +42,12 @@ class StepMotion:
 
 def rk4_motion(x: FloatArray, v: FloatArray, f_const: FloatArray, mass: FloatArray,
                meff: FloatArray, p: TrainParams, geom: LineGeometry, dt: float,
-               substeps: int) -> StepMotion:
+               substeps: int, cells: Any = None) -> StepMotion:
     """Integrate one control period with the constant effort ``f_const`` [N].
 
     ``f_const = F_trac - F_brake - A`` (Davis A); accelerations ``k(v) = q - v (cb + cc v)``
-    with ``q = (F_const - F_g - F_c) / M_eff``.
+    with ``q = (F_const - F_g - F_c) / M_eff``.  ``cells``: the grid cells of ``x`` if the
+    caller has them (``geom.cells(x)``; reused by the first sub-step).
     """
     h = dt / substeps
     h2, h6 = 0.5 * h, h / 6.0
@@ -58,8 +59,9 @@ def rk4_motion(x: FloatArray, v: FloatArray, f_const: FloatArray, mass: FloatArr
     w_grade: Any = 0.0
     w_curve: Any = 0.0
     clamped = None
-    for _ in range(substeps):
-        kk = ((xs - geom.x0) * geom.inv_dx).astype(np.int64)
+    for s in range(substeps):
+        kk = (cells if s == 0 and cells is not None
+              else ((xs - geom.x0) * geom.inv_dx).astype(np.int64))
         f_g = mass * geom.gsin_avg[kk]
         f_c = mass * geom.curve_avg[kk]
         q = (f_const - f_g - f_c) * inv_m
