@@ -42,18 +42,21 @@ class StepMotion:
 
 def rk4_motion(x: FloatArray, v: FloatArray, f_const: FloatArray, mass: FloatArray,
                meff: FloatArray, p: TrainParams, geom: LineGeometry, dt: float,
-               substeps: int, cells: Any = None) -> StepMotion:
+               substeps: int, cells: Any = None,
+               coefs: tuple[Any, Any, Any] | None = None) -> StepMotion:
     """Integrate one control period with the constant effort ``f_const`` [N].
 
     ``f_const = F_trac - F_brake - A`` (Davis A); accelerations ``k(v) = q - v (cb + cc v)``
     with ``q = (F_const - F_g - F_c) / M_eff``.  ``cells``: the grid cells of ``x`` if the
-    caller has them (``geom.cells(x)``; reused by the first sub-step).
+    caller has them (``geom.cells(x)``; reused by the first sub-step); ``coefs``:
+    ``(1 / meff, B / meff, C / meff)`` if precomputed (Davis B, C).
     """
     h = dt / substeps
     h2, h6 = 0.5 * h, h / 6.0
-    inv_m = 1.0 / meff
-    cb = p.davis_b_n_per_mps * inv_m
-    cc = p.davis_c_n_per_mps2 * inv_m
+    if coefs is None:
+        inv_m = 1.0 / meff
+        coefs = (inv_m, p.davis_b_n_per_mps * inv_m, p.davis_c_n_per_mps2 * inv_m)
+    inv_m, cb, cc = coefs
     xs, vs = x, v
     w_res: Any = 0.0
     w_grade: Any = 0.0

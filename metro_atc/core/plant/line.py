@@ -336,7 +336,7 @@ class LineSim:
         phi, _, cells, n_int = atp.supervise(fl)
         # demanded acceleration (jerk limited)
         mass = fl.mass
-        meff = mass + fl.m_rot
+        meff = fl.meff
         f_trac_max = phi * mass * fl.trac_level
         bs = p.max_service_brake_mps2
         a_tgt = np.where(ua >= 0.0, ua * f_trac_max / meff, ua * bs)
@@ -352,7 +352,7 @@ class LineSim:
                                                          eb_mask)
         # RK4 (seed 004) with energy quadrature
         mo = rk4_motion(x, v, f_trac - f_brake - p.davis_a_n, mass, meff, p, self.geometry,
-                        dt, self.substeps, cells)
+                        dt, self.substeps, cells, (fl.inv_meff,) + fl.davis_bc)
         x1, v1 = mo.x1, mo.v1
         self.energy.meter(mo, v, x1 - x, meff, f_trac, f_brake, f_e, f_bdem, run)
         fl.acc = (v1 - v) * (1.0 / dt)
