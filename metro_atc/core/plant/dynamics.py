@@ -29,7 +29,8 @@ _cnz = np.count_nonzero
 class StepMotion:
     """End state of one control period and the work of each force over it [m, m/s, J].
 
-    ``clamped`` marks trains that came to rest inside the period (None if none did).
+    ``clamped`` marks trains that came to rest inside the period (None if none did; trains
+    that were already at rest and stay there need no correction and are not marked).
     """
 
     x1: FloatArray
@@ -82,7 +83,13 @@ def rk4_motion(x: FloatArray, v: FloatArray, f_const: FloatArray, mass: FloatArr
         pr = ((q * dxs - h6 * (k1 * vs + 2.0 * (k2 * v2 + k3 * v3) + k4 * v4)) * meff
               + p.davis_a_n * dxs)
         stop = vn <= 0.0
-        if _cnz(stop):
+        if _cnz(stop) and not _cnz(vs[stop]):
+            # only trains already at rest (vs = 0): the branch below gives exactly
+            # vn = 0, dx = 0, resistance work 0 (and the energy meter's stop correction is 0)
+            vn = np.where(stop, 0.0, vn)
+            dxs = np.where(stop, 0.0, dxs)
+            pr = np.where(stop, 0.0, pr)
+        elif _cnz(stop):
             # standstill reached (or kept) inside the sub-step: no roll-back; the distance
             # is that of a uniform deceleration to rest at the deceleration of the sub-step
             # start (exact for a constant deceleration), bounded by the distance covered at
