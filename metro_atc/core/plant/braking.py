@@ -116,6 +116,9 @@ class Brakes:
                   adhesion_factor: float, radius_factor: float) -> None:
         """Pad-friction (``pad_mu``) or wheel fault of train i's sensed axles on / off."""
         p = self.p
+        # new arrays (copy on write): the sensor snapshots of past steps keep the old ones
+        self.pad_mu, self.adh_factor, self.r_w = (self.pad_mu.copy(), self.adh_factor.copy(),
+                                                  self.r_w.copy())
         for a in axles:
             if kind == "pad_mu":
                 self.pad_mu[i, a] = mu_b if on else p.pad_mu_nominal

@@ -107,8 +107,9 @@ class Sensors:
         while self.next_sample_t <= t1 + 1e-9:
             ts.append(self.next_sample_t)
             self.next_sample_t += self.sensor_dt
-        return SensorSnap(np.array(ts), t0, t1, self.mask, self.idx, ax0, ax1, r_w.copy(),
-                          acc, v0, v1.copy(), car_mass)
+        # r_w and the speeds are never changed in place (faults and set_xv copy on write)
+        return SensorSnap(np.array(ts), t0, t1, self.mask, self.idx, ax0, ax1, r_w,
+                          acc, v0, v1, car_mass)
 
     def block(self, sn: SensorSnap) -> SensorBlock:
         """Samples with noise and injected sensor faults from a snapshot."""
