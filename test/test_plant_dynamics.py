@@ -175,3 +175,34 @@ def test_adhesion_curve(curve: Any) -> None:
     m = np.linspace(0.0, 0.99 * curve.mu_peak, 50)
     assert np.allclose(curve.mu(curve.slip_for(m)), m, atol=1e-9)
     assert WET.mu_peak < DRY.mu_peak and WET.mu_slide < WET.mu_peak
+
+
+def test_rk4_resting_branch_equals_standstill_branch() -> None:
+    """Trains held at rest get bit-identical results with or without a train stopping.
+
+    ``rk4_motion`` skips the standstill branch when only trains already at rest would take
+    it; with one moving train braking to rest in the same period the full branch runs for
+    all of them.  The resting trains' outputs must not depend on which branch ran, on a
+    grade (uphill and downhill) with various brake efforts.
+    """
+    from metro_atc.core.plant.dynamics import rk4_motion
+    sim = flat_sim(grades="[{start_m: -5000, grade_permille: 0}, {start_m: 1000, "
+                          "grade_permille: 35}, {start_m: 3000, grade_permille: -35}]")
+    p, g = sim.p, sim.geometry
+    rng = np.random.default_rng(7)
+    n = 40
+    x = rng.uniform(0.0, 5000.0, n)
+    v = np.zeros(n)
+    mass = p.mass_kg + rng.uniform(0.0, 3.0e4, n)
+    meff = mass + p.rotary_allowance * p.mass_kg
+    # held trains: brake effort above the largest downhill grade force (they stay at rest)
+    f = -rng.uniform(2.0e5, 6.0e5, n) - p.davis_a_n
+    rest = rk4_motion(x, v, f, mass, meff, p, g, 0.25, 1)
+    assert rest.clamped is None and np.all(rest.v1 == 0.0) and np.array_equal(rest.x1, x)
+    v_mix, f_mix = v.copy(), f.copy()
+    v_mix[0], f_mix[0] = 0.05, -3.0e5  # comes to rest inside the period
+    mix = rk4_motion(x, v_mix, f_mix, mass, meff, p, g, 0.25, 1)
+    assert mix.clamped is not None and mix.clamped[0]
+    for a, b in ((rest.x1, mix.x1), (rest.v1, mix.v1), (rest.w_res, mix.w_res),
+                 (rest.w_grade, mix.w_grade), (rest.w_curve, mix.w_curve)):
+        np.testing.assert_array_equal(a[1:], b[1:])

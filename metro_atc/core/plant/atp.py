@@ -190,7 +190,7 @@ class AtpSupervisor:
             civil = self.ceiling_phys[k] - self.geom.ceiling_tol
             self.steps_above_civil += _cnz(run & (v > civil + CIVIL_TOL_MPS))
         gap = obst - x
-        gmin = float(np.min(np.where(run, gap, math.inf)))
+        gmin = float(np.where(run, gap, math.inf).min())
         if gmin < self.min_sep:
             self.min_sep = gmin
         bad = run & ((gap < self.margin - 1e-6) | (v > self.ceiling_phys[k] + 1e-6))

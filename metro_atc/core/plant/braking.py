@@ -53,7 +53,8 @@ class AxleState:
         """(fx, clamp, slip), each [n_trains, 4]."""
         if self.arrays is None:
             fc_per_n, tb_coef, inv_rw2, adh, jw, tab_mu, tab_slip = self.coef
-            fc = self.f_fa[:, None] * fc_per_n * np.ones_like(tb_coef)
+            fc = np.empty(tb_coef.shape)
+            fc[...] = (self.f_fa * fc_per_n)[:, None]
             fx = fc * tb_coef + (jw * np.minimum(self.a_d, 0.0))[:, None] * inv_rw2
             slip = np.interp(fx / (self.w_axle[:, None] * adh), tab_mu, tab_slip)
             self.arrays = (fx, fc, slip)
@@ -115,6 +116,9 @@ class Brakes:
                   adhesion_factor: float, radius_factor: float) -> None:
         """Pad-friction (``pad_mu``) or wheel fault of train i's sensed axles on / off."""
         p = self.p
+        # new arrays (copy on write): the sensor snapshots of past steps keep the old ones
+        self.pad_mu, self.adh_factor, self.r_w = (self.pad_mu.copy(), self.adh_factor.copy(),
+                                                  self.r_w.copy())
         for a in axles:
             if kind == "pad_mu":
                 self.pad_mu[i, a] = mu_b if on else p.pad_mu_nominal

@@ -29,7 +29,8 @@ _cnz = np.count_nonzero
 class StepMotion:
     """End state of one control period and the work of each force over it [m, m/s, J].
 
-    ``clamped`` marks trains that came to rest inside the period (None if none did).
+    ``clamped`` marks trains that came to rest inside the period (None if none did; trains
+    that were already at rest and stay there need no correction and are not marked).
     """
 
     x1: FloatArray
@@ -42,24 +43,29 @@ class StepMotion:
 
 def rk4_motion(x: FloatArray, v: FloatArray, f_const: FloatArray, mass: FloatArray,
                meff: FloatArray, p: TrainParams, geom: LineGeometry, dt: float,
-               substeps: int) -> StepMotion:
+               substeps: int, cells: Any = None,
+               coefs: tuple[Any, Any, Any] | None = None) -> StepMotion:
     """Integrate one control period with the constant effort ``f_const`` [N].
 
     ``f_const = F_trac - F_brake - A`` (Davis A); accelerations ``k(v) = q - v (cb + cc v)``
-    with ``q = (F_const - F_g - F_c) / M_eff``.
+    with ``q = (F_const - F_g - F_c) / M_eff``.  ``cells``: the grid cells of ``x`` if the
+    caller has them (``geom.cells(x)``; reused by the first sub-step); ``coefs``:
+    ``(1 / meff, B / meff, C / meff)`` if precomputed (Davis B, C).
     """
     h = dt / substeps
     h2, h6 = 0.5 * h, h / 6.0
-    inv_m = 1.0 / meff
-    cb = p.davis_b_n_per_mps * inv_m
-    cc = p.davis_c_n_per_mps2 * inv_m
+    if coefs is None:
+        inv_m = 1.0 / meff
+        coefs = (inv_m, p.davis_b_n_per_mps * inv_m, p.davis_c_n_per_mps2 * inv_m)
+    inv_m, cb, cc = coefs
     xs, vs = x, v
     w_res: Any = 0.0
     w_grade: Any = 0.0
     w_curve: Any = 0.0
     clamped = None
-    for _ in range(substeps):
-        kk = ((xs - geom.x0) * geom.inv_dx).astype(np.int64)
+    for s in range(substeps):
+        kk = (cells if s == 0 and cells is not None
+              else ((xs - geom.x0) * geom.inv_dx).astype(np.int64))
         f_g = mass * geom.gsin_avg[kk]
         f_c = mass * geom.curve_avg[kk]
         q = (f_const - f_g - f_c) * inv_m
@@ -77,7 +83,13 @@ def rk4_motion(x: FloatArray, v: FloatArray, f_const: FloatArray, mass: FloatArr
         pr = ((q * dxs - h6 * (k1 * vs + 2.0 * (k2 * v2 + k3 * v3) + k4 * v4)) * meff
               + p.davis_a_n * dxs)
         stop = vn <= 0.0
-        if _cnz(stop):
+        if _cnz(stop) and not _cnz(vs[stop]):
+            # only trains already at rest (vs = 0): the branch below gives exactly
+            # vn = 0, dx = 0, resistance work 0 (and the energy meter's stop correction is 0)
+            vn = np.where(stop, 0.0, vn)
+            dxs = np.where(stop, 0.0, dxs)
+            pr = np.where(stop, 0.0, pr)
+        elif _cnz(stop):
             # standstill reached (or kept) inside the sub-step: no roll-back; the distance
             # is that of a uniform deceleration to rest at the deceleration of the sub-step
             # start (exact for a constant deceleration), bounded by the distance covered at

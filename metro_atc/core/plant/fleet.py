@@ -64,6 +64,7 @@ class Fleet:
         self.load = np.full(n, float(load_pax))
         self.mass = p.mass_kg + (self.load - p.nominal_load_pax) * p.pax_mass_kg
         self.m_rot = p.rotary_allowance * p.mass_kg
+        self.mass_changed()
         self.n_done = 0
         self.update_masks(0.0)
 
@@ -71,6 +72,19 @@ class Fleet:
         """Mass of train i [kg] from its passenger load."""
         p = self.p
         self.mass[i] = p.mass_kg + (self.load[i] - p.nominal_load_pax) * p.pax_mass_kg
+        self.mass_changed()
+
+    def mass_changed(self) -> None:
+        """Per-train constants of the masses (new arrays; the step reads them).
+
+        ``meff`` = m + m_rot [kg], ``inv_meff`` [1/kg], ``davis_bc`` = Davis B and C over
+        ``meff`` [1/s, 1/m] (:func:`.dynamics.rk4_motion`).
+        """
+        p = self.p
+        self.meff: FloatArray = self.mass + self.m_rot
+        self.inv_meff: FloatArray = 1.0 / self.meff
+        self.davis_bc = (p.davis_b_n_per_mps * self.inv_meff,
+                         p.davis_c_n_per_mps2 * self.inv_meff)
 
     def set_xv(self, i: int, x: float, v: float) -> None:
         """Set one train's position/speed without mutating arrays shared with the trace."""

@@ -287,7 +287,7 @@ class LineSim:
         """Recompute the discrete-state masks and the next discrete time."""
         fl = self.fleet
         fl.update_masks(self.t)
-        self.sensors.any_sensed = bool((fl.run & self.sensors.sensed_mask).any())
+        self.sensors.set_running(fl.run)
         self._t_next = min(fl.next_discrete_t(), self.incidents.next_t(),
                            self.stations.next_entry_t())
 
@@ -336,10 +336,10 @@ class LineSim:
             ua = np.where(fl.auto, driver_command(self), ua)
         x, v, run = fl.x, fl.v, fl.run
         # ATP supervision (independent of the command) + safety monitors
-        phi, _, _, n_int = atp.supervise(fl)
+        phi, _, cells, n_int = atp.supervise(fl)
         # demanded acceleration (jerk limited)
         mass = fl.mass
-        meff = mass + fl.m_rot
+        meff = fl.meff
         f_trac_max = phi * mass * fl.trac_level
         bs = p.max_service_brake_mps2
         a_tgt = np.where(ua >= 0.0, ua * f_trac_max / meff, ua * bs)
@@ -355,7 +355,7 @@ class LineSim:
                                                          eb_mask)
         # RK4 (seed 004) with energy quadrature
         mo = rk4_motion(x, v, f_trac - f_brake - p.davis_a_n, mass, meff, p, self.geometry,
-                        dt, self.substeps)
+                        dt, self.substeps, cells, (fl.inv_meff,) + fl.davis_bc)
         x1, v1 = mo.x1, mo.v1
         self.energy.meter(mo, v, x1 - x, meff, f_trac, f_brake, f_e, f_bdem, run)
         fl.acc = (v1 - v) * (1.0 / dt)
@@ -375,7 +375,7 @@ class LineSim:
         sen = self.sensors
         if sen.due(t_new):
             br = self.brakes
-            snap = sen.snapshot(t, t_new, run, br.ax_prev, br.ax, br.r_w, fl.acc, v, v1,
+            snap = sen.snapshot(t, t_new, br.ax_prev, br.ax, br.r_w, fl.acc, v, v1,
                                 mass / p.cars)
         # stations
         d = x1 - fl.stop_x

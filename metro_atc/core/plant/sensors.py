@@ -60,6 +60,7 @@ class SensorSnap:
     t0: float
     t1: float
     mask: BoolArray
+    idx: IntArray
     ax0: AxleState
     ax1: AxleState
     r_w: FloatArray
@@ -85,12 +86,20 @@ class Sensors:
         self.rng = np.random.default_rng([seed, 1])
         self.faults = faults
         self.any_sensed = False
+        self.mask = np.zeros(scn.trains.count, dtype=bool)
+        self.idx = np.zeros(0, dtype=np.int64)
+
+    def set_running(self, run: BoolArray) -> None:
+        """Instrumented trains in service (after every discrete change of the fleet)."""
+        self.mask = run & self.sensed_mask
+        self.idx = self.mask.nonzero()[0]
+        self.any_sensed = self.idx.size > 0
 
     def due(self, t1: float) -> bool:
         """A sample falls in the step ending at ``t1`` and an instrumented train runs."""
         return self.next_sample_t <= t1 + 1e-9 and self.any_sensed
 
-    def snapshot(self, t0: float, t1: float, run: BoolArray, ax0: AxleState, ax1: AxleState,
+    def snapshot(self, t0: float, t1: float, ax0: AxleState, ax1: AxleState,
                  r_w: FloatArray, acc: FloatArray, v0: FloatArray, v1: FloatArray,
                  car_mass: FloatArray) -> SensorSnap:
         """Noise-free truth needed for the samples in (t0, t1] (samples built on demand)."""
@@ -98,28 +107,35 @@ class Sensors:
         while self.next_sample_t <= t1 + 1e-9:
             ts.append(self.next_sample_t)
             self.next_sample_t += self.sensor_dt
-        return SensorSnap(np.array(ts), t0, t1, run & self.sensed_mask, ax0, ax1, r_w.copy(),
-                          acc, v0, v1.copy(), car_mass)
+        # r_w and the speeds are never changed in place (faults and set_xv copy on write)
+        return SensorSnap(np.array(ts), t0, t1, self.mask, self.idx, ax0, ax1, r_w,
+                          acc, v0, v1, car_mass)
 
     def block(self, sn: SensorSnap) -> SensorBlock:
         """Samples with noise and injected sensor faults from a snapshot."""
         sen = self.spec
         rng = self.rng
-        idx = np.flatnonzero(sn.mask)
+        idx = sn.idx
         rw = sn.r_w[idx]
         _, clamp1, slip1 = sn.ax1.get()
         slip0 = sn.ax0.get()[2]
-        om0 = (sn.v0[idx][:, None] * (1.0 - slip0[idx])) / rw
-        om1 = (sn.v1[idx][:, None] * (1.0 - slip1[idx])) / rw
+        v0, v1 = sn.v0[idx], sn.v1[idx]
+        om0 = (v0[:, None] * (1.0 - slip0[idx])) / rw
+        om1 = (v1[:, None] * (1.0 - slip1[idx])) / rw
         frac = ((sn.ts - sn.t0) / (sn.t1 - sn.t0))[:, None]
         ns, m = sn.ts.size, idx.size
+        # one standard-normal draw for the four channels, in the order (and with the
+        # values) of separate rng.normal(0, sigma, shape) calls: normal = 0 + sigma * z
+        k = ns * m * N_AXLES_SENSED
+        z = rng.standard_normal(2 * k + 2 * ns * m)
+        shape3 = (ns, m, N_AXLES_SENSED)
         omega = om0[None] + frac[:, :, None] * (om1 - om0)[None]
-        omega = omega + rng.normal(0.0, sen.wheel_omega_noise_radps, omega.shape)
-        noise_c = rng.normal(0.0, sen.clamp_force_noise_n, (ns, m, N_AXLES_SENSED))
-        clamp = np.maximum(clamp1[idx][None] + noise_c, 0.0)
-        accel = sn.acc[idx][None] + rng.normal(0.0, sen.accel_noise_mps2, (ns, m))
-        vs = sn.v0[idx][None] + frac * (sn.v1 - sn.v0)[idx][None]
-        vref = vs + rng.normal(0.0, sen.ref_speed_noise_mps, (ns, m))
+        omega += sen.wheel_omega_noise_radps * z[:k].reshape(shape3)
+        clamp = np.maximum(clamp1[idx][None] + sen.clamp_force_noise_n
+                           * z[k:2 * k].reshape(shape3), 0.0)
+        zs = z[2 * k:].reshape(2, ns, m)
+        accel = sn.acc[idx][None] + sen.accel_noise_mps2 * zs[0]
+        vref = (v0[None] + frac * (v1 - v0)[None]) + sen.ref_speed_noise_mps * zs[1]
         if self.faults:
             self.apply_faults(sn.ts, idx, omega, clamp, accel, vref)
         return SensorBlock(sn.ts, idx, omega, clamp, accel, vref, sn.car_mass[idx])
