@@ -188,7 +188,7 @@ class AtpSupervisor:
         x, v, run = fl.x, fl.v, fl.run
         if count:
             civil = self.ceiling_phys[k] - self.geom.ceiling_tol
-            self.steps_above_civil += _cnz(run & (v > civil + CIVIL_TOL_MPS))
+            self.steps_above_civil += int(_cnz(run & (v > civil + CIVIL_TOL_MPS)))
         gap = obst - x
         gmin = float(np.where(run, gap, math.inf).min())
         if gmin < self.min_sep:
