@@ -89,6 +89,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--record", nargs="?", const="", default=None, metavar="BAG_DIR",
                    help="record every topic to a rosbag2 MCAP directory (default OUT/bag); "
                         "the lockstep waits for the recorder before step 0")
+    p.add_argument("--progress", choices=("auto", "always", "never"), default="auto",
+                   help="progress lines on stderr while the graph runs (auto: when stderr is "
+                        "a terminal)")
     p.add_argument("--wait-for-subscribers", default="", metavar="NODE[,NODE]",
                    help="node names that must subscribe to the simulator's topics before "
                         "step 0 (e.g. an outside recorder)")
@@ -265,7 +268,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         from metro_atc.nodes.graph import run_single_process
         code = run_single_process(a, train_ids, out_dir)
     else:
-        code = _run_processes(a, train_ids, out_dir)
+        horizon_s = a.duration if a.duration > 0 else float(scn.sim.duration_s)
+        show = a.progress == "always" or (a.progress == "auto" and sys.stderr.isatty())
+        code = _run_processes(a, train_ids, out_dir, horizon_s if show else None)
     wall = time.monotonic() - t0
     kpi_file = out_dir / "kpis.json"
     if code != 0:
@@ -311,11 +316,56 @@ def _last_error_line(log: Path) -> str:
     return lines[-1][:300] if lines else "no output"
 
 
-def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Path) -> int:
+PROGRESS_RE = re.compile(r"t=([0-9.]+) s: ([0-9]+) trains in service, ([0-9]+) lockstep "
+                         r"misses, ([0-9.]+)x real time")
+"""The simulator's progress log line (``line_simulator`` parameter ``progress_period_s``)."""
+
+
+class ProgressTail:
+    """Echo the simulator's progress lines from its log file with the simulated horizon and
+    an ETA (wall seconds left = simulated seconds left / real-time factor)."""
+
+    def __init__(self, log: Path, horizon_s: float, stream: Any = None) -> None:
+        """Follow ``log`` (it may not exist yet); ``horizon_s`` simulated end [s]."""
+        self.log, self.horizon_s = log, float(horizon_s)
+        self.stream = sys.stderr if stream is None else stream
+        self.offset = 0
+        self.partial = ""
+
+    def poll(self) -> int:
+        """Print the progress lines written since the last call; return how many."""
+        try:
+            with self.log.open("rb") as fh:
+                fh.seek(self.offset)
+                chunk = fh.read()
+        except OSError:
+            return 0
+        self.offset += len(chunk)
+        lines = (self.partial + chunk.decode("utf-8", errors="replace")).split("\n")
+        self.partial = lines.pop()
+        n = 0
+        for ln in lines:
+            m = PROGRESS_RE.search(ln)
+            if m is None:
+                continue
+            t, trains, misses, rtf = float(m[1]), int(m[2]), int(m[3]), float(m[4])
+            left = max(self.horizon_s - t, 0.0) / rtf if rtf > 0 else math.inf
+            eta = f"{left / 60:.0f} min {left % 60:02.0f} s" if math.isfinite(left) else "?"
+            print(f"metro_atc run: t = {t:.0f} / {self.horizon_s:.0f} s simulated, {trains} "
+                  f"trains in service, {misses} lockstep misses, {rtf:.1f}x real time, "
+                  f"ETA {eta}", file=self.stream, flush=True)
+            n += 1
+        return n
+
+
+def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Path,
+                   progress_horizon_s: float | None = None) -> int:
     log_dir = Path(a.log_dir) if a.log_dir else out_dir / "logs"
     log_dir.mkdir(parents=True, exist_ok=True)
     procs: list[tuple[str, subprocess.Popen[bytes]]] = []
     code = 0
+    tail = None if progress_horizon_s is None else \
+        ProgressTail(log_dir / "line_simulator.log", progress_horizon_s)
 
     def on_term(*_: Any) -> None:
         raise KeyboardInterrupt
@@ -328,7 +378,11 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
             procs.append((label, subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT,
                                                   start_new_session=True, env=env)))
         sim = procs[0][1]
+        if tail is not None:
+            print(f"metro_atc run: {len(procs)} processes started (logs: {log_dir})",
+                  file=sys.stderr, flush=True)
         deadline = time.monotonic() + a.timeout
+        next_poll = 0.0
         while code == 0:
             failed = [(label, p.returncode) for label, p in procs
                       if p.poll() not in (None, 0)]
@@ -345,6 +399,9 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
                       f"(logs: {log_dir})", file=sys.stderr)
                 code = EXIT_TIMEOUT
             else:
+                if tail is not None and time.monotonic() >= next_poll:
+                    tail.poll()
+                    next_poll = time.monotonic() + 1.0
                 time.sleep(0.1)
     except KeyboardInterrupt:
         code = 130
