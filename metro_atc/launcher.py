@@ -322,8 +322,10 @@ PROGRESS_RE = re.compile(r"t=([0-9.]+) s: ([0-9]+) trains in service, ([0-9]+) l
 
 
 class ProgressTail:
-    """Echo the simulator's progress lines from its log file with the simulated horizon and
-    an ETA (wall seconds left = simulated seconds left / real-time factor)."""
+    """Echo the simulator's progress lines from its log file, with horizon and ETA.
+
+    ETA = simulated seconds left / the real-time factor of the line [s of wall time].
+    """
 
     def __init__(self, log: Path, horizon_s: float, stream: Any = None) -> None:
         """Follow ``log`` (it may not exist yet); ``horizon_s`` simulated end [s]."""
