@@ -152,3 +152,22 @@ def test_actp_tc_saves_energy_against_ectp() -> None:
     assert abs(ac.time_s - 90.0) < 1.0
     assert ac.energy_j < ec.energy_j
     assert ac.history.size == 300
+
+
+def test_exact_coasting_point_when_time_is_not_monotonic(monkeypatch: pytest.MonkeyPatch
+                                                         ) -> None:
+    """On steep grades the running time need not fall as y_c moves on: the bracket is found
+    where the time crosses the target, even when the last grid point is slower again
+    (generated line gen_0046 raised IndexError here)."""
+    length = 1000.0
+
+    class _Sim:
+        def __init__(self, grid: np.ndarray) -> None:
+            # faster in the middle, slower at both ends (non-monotonic in y_c)
+            self.time_s = 100.0 + 0.0001 * (grid - 0.6 * length) ** 2
+
+    monkeypatch.setattr(coasting, "simulate_switching", lambda run, grid, d, h: _Sim(grid))
+    run = type("Run", (), {"length_m": length})()
+    yc, ok, _ = coasting.exact_coasting_point(run, 110.0)  # type: ignore[arg-type]
+    assert ok and 0.0 <= yc <= length + 1.0
+    assert abs(100.0 + 0.0001 * (yc - 0.6 * length) ** 2 - 110.0) < 1.0

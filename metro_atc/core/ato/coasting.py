@@ -187,7 +187,10 @@ def exact_coasting_point(run: RunModel, target_time_s: float, delta: float = LEV
                     f"target {target_time_s:.1f} s below the minimum running time "
                     f"{t[-1]:.1f} s (Level {delta:.0%} traction)")
             break
-        k = int(np.nonzero(slower)[0][-1])
+        # the latest bracket where the time crosses the target (on a level line the time
+        # falls monotonically and this is the last slower point; on steep grades it need
+        # not, and the last slower point can be the end of the grid)
+        k = int(np.nonzero(slower[:-1] != slower[1:])[0][-1])
         lo, hi = float(grid[k]), float(grid[k + 1])
         t_lo, t_hi = float(t[k]), float(t[k + 1])
     if not (np.isfinite(t_lo) and np.isfinite(t_hi)) or t_lo == t_hi:
