@@ -1,11 +1,15 @@
-r"""``python -m metro_atc train {aoc,dhp} [--scenario NAME] --out FILE``: train ATR weights.
+r"""``python -m metro_atc train {aoc,dhp} [--scenario NAME] (--out FILE | --cache)``.
+
+Trains ATR regulator weights.
 
 Trains the AOC or DHP regulator of seed 000 (Exp. 2 setting: initial delays of 60-300 s at
 the first station -- for half of the episodes anywhere on the line --, truth traffic model
 with saturation, crowding, knock-on delays and exponential departure delays) on the ATR
 line of ``--scenario`` (for a scenario: the model the ``ats_regulator`` node builds of it)
-and writes a small weights file the node loads.  Deterministic for a given --seed on one
-CPU thread.
+and writes a small weights file the node loads, stamped with the line's traffic-model hash
+(the node refuses it on any other line); ``--cache`` writes it where ``run`` looks
+(:mod:`metro_atc.core.atr.weights_store`).  Progress on stderr.  Deterministic for a given
+--seed on one CPU thread.
 
 The shipped defaults were produced with::
 
@@ -25,11 +29,10 @@ from typing import List, Optional
 
 import torch
 
-from metro_atc.core.atr.lines import get_line
 from metro_atc.core.atr.cost import CostWeights
-from metro_atc.core.atr.problems import AtrProblem
-from metro_atc.core.atr.regulators import save_weights
-from metro_atc.core.atr.training import atr_train_config, train
+from metro_atc.core.atr.fingerprint import line_hash
+from metro_atc.core.atr.lines import get_line
+from metro_atc.core.atr.weights_store import DEFAULT_EPOCHS, cached_path, train_weights
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -38,16 +41,20 @@ def main(argv: Optional[List[str]] = None) -> int:
                                  description="train ATR regulator weights (seed 000 AOC/DHP)")
     ap.add_argument("method", choices=("aoc", "dhp"))
     ap.add_argument("--scenario", default="taipei_blue",
-                    help="line: a scenario name (the ATS node's model of it), "
+                    help="line: a scenario name or file (the ATS node's model of it), "
                          "blue_line_estimates or small<N>")
-    ap.add_argument("--out", type=Path, required=True, help="weights file to write (.pt)")
+    dest = ap.add_mutually_exclusive_group(required=True)
+    dest.add_argument("--out", type=Path, help="weights file to write (.pt)")
+    dest.add_argument("--cache", action="store_true",
+                      help="write into the weights cache, where 'run' finds it "
+                           "(metro_atc.core.atr.weights_store)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--epochs", type=int, default=1500)
+    ap.add_argument("--epochs", type=int, default=DEFAULT_EPOCHS)
     ap.add_argument("--q", type=float, default=CostWeights.q, help="state weight")
     ap.add_argument("--r", type=float, default=CostWeights.r, help="control weight")
     ap.add_argument("--horizon", type=int, default=CostWeights.horizon,
                     help="number of adjustable services K")
-    ap.add_argument("--quiet", action="store_true")
+    ap.add_argument("--quiet", action="store_true", help="no progress on stderr, no summary")
     a = ap.parse_args(argv)
     if a.epochs < 1:
         ap.error("--epochs must be >= 1")
@@ -56,19 +63,16 @@ def main(argv: Optional[List[str]] = None) -> int:
         weights = CostWeights(q=a.q, r=a.r, horizon=a.horizon)
     except ValueError as exc:
         ap.error(str(exc))
+    out = a.out if a.out is not None else cached_path(a.method, line)
     torch.set_num_threads(1)
-    problem = AtrProblem(line, weights)
-    cfg = atr_train_config(a.seed, a.epochs)
-    res = train(a.method, problem, cfg)
-    info = {"seed": a.seed, "epochs": a.epochs, "train_seconds": round(res.seconds, 2),
-            "final_cost": res.history["cost"][-1], "torch": str(torch.__version__),
-            "command": "python -m metro_atc.atr_train " + " ".join(
-                argv if argv is not None else sys.argv[1:])}
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    save_weights(a.out, res.agent(problem), line, weights, info)
+    info = train_weights(a.method, line, out, epochs=a.epochs, seed=a.seed, weights=weights,
+                         progress=None if a.quiet else
+                         (lambda m: print(m, file=sys.stderr, flush=True)),
+                         extra_info={"command": "python -m metro_atc.atr_train " + " ".join(
+                             argv if argv is not None else sys.argv[1:])})
     if not a.quiet:
-        print(json.dumps({"method": a.method, "scenario": line.name, "out": str(a.out),
-                          **info}))
+        print(json.dumps({"method": a.method, "scenario": line.name, "out": str(out),
+                          "line_hash": line_hash(line), **info}))
     return 0
 
 

@@ -92,6 +92,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--progress", choices=("auto", "always", "never"), default="auto",
                    help="progress lines on stderr while the graph runs (auto: when stderr is "
                         "a terminal)")
+    p.add_argument("--train-regulator", choices=("auto", "never"), default="auto",
+                   help="aoc/dhp: when no shipped or cached weights were trained on the "
+                        "scenario's line (traffic-model hash), train them before the graph "
+                        "starts (auto; progress on stderr, cached) or refuse (never)")
+    p.add_argument("--weights", default="", metavar="FILE",
+                   help="aoc/dhp weights file (refused before any node starts if it was "
+                        "trained on another line)")
     p.add_argument("--wait-for-subscribers", default="", metavar="NODE[,NODE]",
                    help="node names that must subscribe to the simulator's topics before "
                         "step 0 (e.g. an outside recorder)")
@@ -108,13 +115,21 @@ class ProcessSpec:
     params: dict[str, Any] = field(default_factory=dict)
 
 
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """The parsed ``run`` options (as :func:`main` reads them)."""
+    return _parser().parse_args(argv)
+
+
 def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "none",
                     seed: int = 0, lockstep: bool = True, rtf: float = 10.0,
                     duration_s: float = 0.0, out_dir: str = "", plots: bool = True,
                     ato_per_process: int = 8, record_dir: str | None = None,
                     wait_for: Sequence[str] = (),
-                    cfg: Path | None = None) -> list[ProcessSpec]:
-    """The processes of a run, as ``run`` starts them and the launch file declares them."""
+                    cfg: Path | None = None, weights_file: str = "") -> list[ProcessSpec]:
+    """The processes of a run, as ``run`` starts them and the launch file declares them.
+
+    ``weights_file``: the aoc/dhp weights the ATS loads ('' : it looks them up itself).
+    """
     cfg = cfg or config_dir()
     base: dict[str, Any] = {"use_sim_time": True, "scenario": scenario}
     waits = list(wait_for) + ([RECORDER_NODE] if record_dir is not None else [])
@@ -126,7 +141,8 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
     procs = [ProcessSpec("line_simulator", "line_simulator", str(cfg / "line_simulator.yaml"),
                          sim),
              ProcessSpec("ats_regulator", "ats_regulator", str(cfg / "ats_regulator.yaml"),
-                         dict(base, regulator=regulator)),
+                         dict(base, regulator=regulator,
+                              **({"weights_file": weights_file} if weights_file else {}))),
              ProcessSpec("brake_diagnostic", "brake_diagnostic",
                          str(cfg / "brake_diagnostic.yaml"), dict(base))]
     n = max(1, int(ato_per_process))
@@ -155,7 +171,8 @@ def processes_for(a: argparse.Namespace, train_ids: Sequence[str],
         a.scenario, train_ids, regulator=a.regulator, seed=a.seed, lockstep=not a.free_run,
         rtf=a.rtf, duration_s=a.duration, out_dir=str(out_dir), plots=a.plots,
         ato_per_process=a.ato_per_process, record_dir=record_dir(a, out_dir),
-        wait_for=[x for x in a.wait_for_subscribers.split(",") if x])
+        wait_for=[x for x in a.wait_for_subscribers.split(",") if x],
+        weights_file=getattr(a, "weights_file", ""))
 
 
 def _ros_args(params: dict[str, Any], params_file: Path | None) -> list[str]:
@@ -238,7 +255,7 @@ def check_out_dir(path: Path) -> str | None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one scenario through the graph; print KPIs (``--json``: one JSON object)."""
-    a = _parser().parse_args(argv)
+    a = parse_args(argv)
     dds_defaults()
     from metro_atc.core.line.scenario import ScenarioError, load_scenario
     try:
@@ -260,6 +277,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if problem is None and a.single_process and (a.record is not None
                                                  or a.wait_for_subscribers):
         problem = "--record and --wait-for-subscribers need the multi-process graph"
+    if problem is None:
+        problem = prepare_regulator(a, scn)
     if problem:
         print(f"metro_atc run: error: {problem}", file=sys.stderr)
         return 2
@@ -296,6 +315,39 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         _print_table(kpis)
     return 0
+
+
+def prepare_regulator(a: argparse.Namespace, scn: Any) -> str | None:
+    """Resolve the aoc/dhp weights before any node starts; one error line or None.
+
+    Sets ``a.weights_file`` to weights trained on the scenario's line (same traffic-model
+    hash, :mod:`metro_atc.core.atr.weights_store`): ``--weights`` if given and valid, else
+    the shipped or cached ones, else (``--train-regulator auto``) weights trained now into
+    the cache with progress on stderr.  The regulator is built once here as the ATS builds
+    it, so a regulator that cannot start stops the run before the graph exists.
+    """
+    a.weights_file = ""
+    if a.regulator not in ("aoc", "dhp", "lqr"):
+        return None
+    from metro_atc.core.atr.lines import atr_line_for
+    from metro_atc.core.atr.regulators import make_regulator
+    from metro_atc.core.atr.weights_store import ensure_weights
+    try:
+        line = atr_line_for(scn)
+        if a.regulator in ("aoc", "dhp"):
+            if a.weights:
+                path = Path(a.weights).resolve()
+            else:
+                path = ensure_weights(a.regulator, line, a.train_regulator == "auto",
+                                      progress=lambda m: print(f"metro_atc run: {m}",
+                                                               file=sys.stderr, flush=True))
+            make_regulator(a.regulator, line, None, path)
+            a.weights_file = str(path)
+        else:
+            make_regulator(a.regulator, line)
+    except (ValueError, FileNotFoundError, OSError) as exc:
+        return f"regulator '{a.regulator}': {exc}"
+    return None
 
 
 def scenario_train_ids(scn: Any) -> list[str]:

@@ -243,18 +243,34 @@ def test_logs_of_normal_runs_are_clean(two_runs: dict[str, Any]) -> None:
 
 def test_run_fails_fast_when_a_node_cannot_start(ros_env: dict[str, str],
                                                  tmp_path: Path) -> None:
-    """AOC weights trained for another line: the ATS exits, so does ``run``, naming it."""
+    """AOC without weights trained on the line: ``run`` refuses before any node (exit 2);
+    with that check bypassed the ATS itself refuses and ``run`` stops (exit 3), naming it."""
     import time
 
+    env = dict(ros_env, METRO_ATC_ATR_CACHE=str(tmp_path / "empty_cache"))
+    args = ["--scenario", SCENARIO, "--regulator", "aoc", "--no-plots", "--out",
+            str(tmp_path / "o")]
     t0 = time.monotonic()
-    r = subprocess.run([sys.executable, "-m", "metro_atc", "run", "--scenario", SCENARIO,
-                        "--regulator", "aoc", "--no-plots", "--out", str(tmp_path / "o")],
-                       env=ros_env, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    r = subprocess.run([sys.executable, "-m", "metro_atc", "run", *args,
+                        "--train-regulator", "never"],
+                       env=env, capture_output=True, text=True, timeout=120, cwd=tmp_path)
     wall = time.monotonic() - t0
-    assert r.returncode != 0
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1 and "ats_regulator" in lines[0] and "stations" in lines[0], lines
-    print(f"\nrun with a failing ATS exited {r.returncode} after {wall:.1f} s: {lines[0]}")
+    assert r.returncode == 2, r.stderr
+    assert len(lines) == 1 and "aoc" in lines[0] and "hash" in lines[0], lines
+    assert not (tmp_path / "o" / "logs").exists()
+    print(f"\nrun refused after {wall:.1f} s: {lines[0]}")
+    # the ATS node's own refusal (defence in depth): skip the launcher's pre-check
+    code = ("import sys; import metro_atc.launcher as L; "
+            "L.prepare_regulator = lambda a, s: None; sys.exit(L.main(sys.argv[1:]))")
+    t0 = time.monotonic()
+    r = subprocess.run([sys.executable, "-c", code, *args], env=env, capture_output=True,
+                       text=True, timeout=120, cwd=tmp_path)
+    wall = time.monotonic() - t0
+    assert r.returncode == 3, r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "ats_regulator" in lines[0] and "weights" in lines[0], lines
+    print(f"run with a failing ATS exited {r.returncode} after {wall:.1f} s: {lines[0]}")
 
 
 def test_run_timeout_and_bad_out_dir_exit_nonzero(ros_env: dict[str, str],

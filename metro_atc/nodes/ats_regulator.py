@@ -49,7 +49,8 @@ class AtsRegulator(Node):
                                 "regulator: none (timetable) | lqr | dhp | aoc | elqr "
                                 "(energy-aware LQR, seed 003)", choices=REGULATORS)
         weights_file = static(self, "weights_file", "",
-                              "dhp/aoc weights ('' : the shipped taipei_blue weights)")
+                              "dhp/aoc weights ('' : the shipped or cached weights trained "
+                              "on this line; weights of another line are refused)")
         q = static(self, "cost_q", 1.0, "schedule-deviation weight q (seed 000 eq. 17)",
                    1e-6, 1e6)
         r = static(self, "cost_r", 0.1, "control-effort weight r (seed 000 eq. 17)", 1e-6, 1e6)

@@ -47,7 +47,9 @@ def run_single_process(a: argparse.Namespace, train_ids: Sequence[str], out_dir:
         nodes.append(sim)
         stage = "ats_regulator"
         nodes.append(AtsRegulator(parameter_overrides=_overrides(
-            dict(common, regulator=a.regulator))))
+            dict(common, regulator=a.regulator,
+                 **({"weights_file": a.weights_file} if getattr(a, "weights_file", "")
+                    else {})))))
         stage = "brake_diagnostic"
         nodes.append(BrakeDiagnostic(parameter_overrides=_overrides(common)))
         stage = "ato_controller"

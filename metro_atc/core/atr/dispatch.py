@@ -44,8 +44,10 @@ from typing import List, Optional
 import numpy as np
 
 from metro_atc.core.atr.cost import CostWeights
+from metro_atc.core.atr.fingerprint import line_hash
 from metro_atc.core.atr.node_core import KINDS, AtsRegulatorCore
-from metro_atc.core.atr.regulators import Regulator, default_weights_path
+from metro_atc.core.atr.regulators import Regulator
+from metro_atc.core.atr.weights_store import find_weights
 from metro_atc.core.bridge import Timetable, atr_line_for, timetable_for
 from metro_atc.core.line.scenario import Scenario
 
@@ -181,7 +183,9 @@ def make_dispatcher(scn: Scenario, regulator: str = "none", weights_file: str = 
                     tt: Optional[Timetable] = None) -> AtsDispatcher:
     """The ATS of a scenario with a regulator by name (what the ``ats_regulator`` node runs).
 
-    ``dhp``/``aoc`` load ``weights_file`` ('' : the shipped ``taipei_blue`` weights);
+    ``dhp``/``aoc`` load ``weights_file`` ('' : the shipped or cached weights trained on
+    this line, :func:`metro_atc.core.atr.weights_store.find_weights`; none: ValueError);
+    weights trained on another line are refused (traffic-model hash);
     ``elqr`` is the energy-aware LQR (:mod:`metro_atc.core.atr.energy`, seed 003) with
     weight ``energy_weight``; its energy table is built from the scenario (a few seconds).
     Raises ValueError / FileNotFoundError with a clear message for a bad choice or file.
@@ -193,8 +197,15 @@ def make_dispatcher(scn: Scenario, regulator: str = "none", weights_file: str = 
     if regulator != "none":
         line = atr_line_for(scn, tt)
         w = cost if cost is not None else CostWeights()
-        path = weights_file or (str(default_weights_path(regulator, "taipei_blue"))
-                                if regulator in ("dhp", "aoc") else None)
+        path: Optional[str] = weights_file or None
+        if regulator in ("dhp", "aoc") and not path:
+            found = find_weights(regulator, line)
+            if found is None:
+                raise ValueError(
+                    f"no {regulator} weights trained on this line (traffic-model hash "
+                    f"{line_hash(line)[:12]}): 'python -m metro_atc run --train-regulator "
+                    f"auto' trains them, or give weights_file")
+            path = str(found)
         reg: Optional[Regulator] = None
         if regulator == "elqr":
             from metro_atc.core.atr.energy import EnergyLqrRegulator, build_energy_table

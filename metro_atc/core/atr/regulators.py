@@ -26,6 +26,7 @@ from scipy.linalg import solve_discrete_are
 
 from metro_atc.core.atr.blue_line import LineData
 from metro_atc.core.atr.cost import CostWeights
+from metro_atc.core.atr.fingerprint import line_hash
 from metro_atc.core.atr.mlp import MLP
 from metro_atc.core.atr.problems import AtrProblem
 from metro_atc.core.atr.training import Agent
@@ -117,12 +118,18 @@ class NeuralRegulator(Regulator):
 
 def save_weights(path: Union[str, Path], agent: Agent, line: LineData, weights: CostWeights,
                  info: Optional[Dict[str, Any]] = None) -> None:
-    """Write a trained agent (small .pt file: dict of tensors and plain values)."""
+    """Write a trained agent (small .pt file: dict of tensors and plain values).
+
+    The file records the traffic-model hash of ``line``
+    (:func:`metro_atc.core.atr.fingerprint.line_hash`): :func:`load_weights` refuses it on
+    any other line.
+    """
     blob = {
         "format": WEIGHTS_FORMAT,
         "method": agent.method,
         "scenario": line.name,
         "n_stations": line.n_stations,
+        "line_hash": line_hash(line),
         "cost": {"q": weights.q, "r": weights.r, "x_scale_s": weights.x_scale_s,
                  "horizon": weights.horizon},
         "critic": agent.critic.state(),
@@ -134,8 +141,12 @@ def save_weights(path: Union[str, Path], agent: Agent, line: LineData, weights: 
     torch.save(blob, str(path))
 
 
-def load_weights(path: Union[str, Path], line: LineData) -> NeuralRegulator:
-    """Load a weights file written by :func:`save_weights` for ``line`` (validated)."""
+def read_blob(path: Union[str, Path]) -> Dict[str, Any]:
+    """The dict of an ATR weights file, read safely (size limit, ``weights_only=True``).
+
+    Raises FileNotFoundError or ValueError (one line) for a missing, oversized, unreadable
+    or foreign file; the networks are not checked here (:func:`load_weights` does).
+    """
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"ATR weights file not found: {p}")
@@ -149,11 +160,30 @@ def load_weights(path: Union[str, Path], line: LineData) -> NeuralRegulator:
         raise ValueError(f"cannot read ATR weights file {p}: {text}") from None
     if not isinstance(blob, dict) or blob.get("format") != WEIGHTS_FORMAT:
         raise ValueError(f"{p} is not an ATR weights file ({WEIGHTS_FORMAT})")
+    return blob
+
+
+def load_weights(path: Union[str, Path], line: LineData) -> NeuralRegulator:
+    """Load a weights file written by :func:`save_weights` for ``line`` (validated).
+
+    Refuses (ValueError) a file trained on another line: its traffic-model hash must be
+    ``line``'s.
+    """
+    p = Path(path)
+    blob = read_blob(p)
     if not isinstance(blob.get("n_stations"), int) or not isinstance(blob.get("cost"), dict):
         raise ValueError(f"{p}: malformed ATR weights file (n_stations or cost missing)")
     if int(blob["n_stations"]) != line.n_stations:
         raise ValueError(f"{p} was trained for {blob['n_stations']} stations, line "
                          f"{line.name!r} has {line.n_stations}")
+    trained_on = blob.get("line_hash")
+    if not isinstance(trained_on, str):
+        raise ValueError(f"{p} records no traffic-model hash of its line (written before "
+                         f"weights were tied to a line): retrain it")
+    if trained_on != line_hash(line):
+        raise ValueError(f"{p} was trained on another line (traffic-model hash "
+                         f"{trained_on[:12]}, scenario {blob.get('scenario')!r}); line "
+                         f"{line.name!r} has hash {line_hash(line)[:12]}")
     try:
         c = blob["cost"]
         weights = CostWeights(q=float(c["q"]), r=float(c["r"]),

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Tuple
+from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 import torch
@@ -287,8 +287,13 @@ def dhp_stage(agent: Agent, ep: Episodes, k: int, x: Tensor) -> Dict[str, Tensor
 
 
 def train(method: str, problem: AdpProblem, cfg: TrainConfig,
-          agent: Optional[Agent] = None, verbose: bool = False) -> TrainResult:
-    """Train AOC or DHP on ``problem`` (truth system in the loop); deterministic for a seed."""
+          agent: Optional[Agent] = None, verbose: bool = False,
+          progress: Optional[Callable[[int, int, float, float], None]] = None
+          ) -> TrainResult:
+    """Train AOC or DHP on ``problem`` (truth system in the loop); deterministic for a seed.
+
+    ``progress(epoch_done, epochs, cost, elapsed_s)`` is called after every epoch.
+    """
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     ag = agent if agent is not None else Agent.create(method, problem, cfg.hidden, cfg.seed,
@@ -343,6 +348,8 @@ def train(method: str, problem: AdpProblem, cfg: TrainConfig,
             print(f"{method} epoch {epoch:3d} cost {hist['cost'][-1]:10.4f} "
                   f"critic {hist['critic_error'][-1]:.3e} actor {hist['actor_error'][-1]:.3e} "
                   f"t={time.perf_counter() - t_start:.1f}s", flush=True)
+        if progress is not None:
+            progress(epoch + 1, cfg.epochs, hist["cost"][-1], time.perf_counter() - t_start)
         if cfg.time_budget_s is not None and time.perf_counter() - t_start > cfg.time_budget_s:
             break
     return TrainResult(method, ag.critic, ag.actor, hist, time.perf_counter() - t_start, steps,
