@@ -106,6 +106,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint-period", type=float, default=60.0, metavar="S",
                    help="simulated seconds between the simulator's resume checkpoints "
                         "(default 60; 0: none, a restarted simulator starts again at t=0)")
+    p.add_argument("--step-timeout", type=float, default=0.0, metavar="S",
+                   help="lockstep: wall time the simulator waits for a step's commands "
+                        "before applying the last ones [s] (0: the node's default, 10 s); "
+                        "a respawned node must be back within it")
     p.add_argument("--resume", action="store_true",
                    help="continue the run in --out from its checkpoints (default: remove them)")
     p.add_argument("--wait-for-subscribers", default="", metavar="NODE[,NODE]",
@@ -130,7 +134,8 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
                     ato_per_process: int = 8, record_dir: str | None = None,
                     wait_for: Sequence[str] = (), cfg: Path | None = None,
                     checkpoint_dir: str = "",
-                    checkpoint_period_s: float = 60.0) -> list[ProcessSpec]:
+                    checkpoint_period_s: float = 60.0,
+                    step_timeout_s: float = 0.0) -> list[ProcessSpec]:
     """The processes of a run, as ``run`` starts them and the launch file declares them.
 
     ``checkpoint_dir`` ('' : none): where the simulator checkpoints every
@@ -147,12 +152,14 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
     resume: dict[str, Any] = {"checkpoint_dir": str(checkpoint_dir)} if checkpoint_dir else {}
     if checkpoint_dir:
         sim.update(resume, checkpoint_period_s=float(checkpoint_period_s))
+    if step_timeout_s > 0:
+        sim["step_timeout_s"] = float(step_timeout_s)
     procs = [ProcessSpec("line_simulator", "line_simulator", str(cfg / "line_simulator.yaml"),
                          sim),
              ProcessSpec("ats_regulator", "ats_regulator", str(cfg / "ats_regulator.yaml"),
                          dict(base, regulator=regulator)),
              ProcessSpec("brake_diagnostic", "brake_diagnostic",
-                         str(cfg / "brake_diagnostic.yaml"), dict(base))]
+                         str(cfg / "brake_diagnostic.yaml"), dict(base, **resume))]
     n = max(1, int(ato_per_process))
     for g in range(0, len(train_ids), n):
         group = list(train_ids[g:g + n])
@@ -180,7 +187,8 @@ def processes_for(a: argparse.Namespace, train_ids: Sequence[str],
         rtf=a.rtf, duration_s=a.duration, out_dir=str(out_dir), plots=a.plots,
         ato_per_process=a.ato_per_process, record_dir=record_dir(a, out_dir),
         wait_for=[x for x in a.wait_for_subscribers.split(",") if x],
-        checkpoint_dir=str(checkpoint_dir(out_dir)), checkpoint_period_s=a.checkpoint_period)
+        checkpoint_dir=str(checkpoint_dir(out_dir)), checkpoint_period_s=a.checkpoint_period,
+        step_timeout_s=a.step_timeout)
 
 
 def checkpoint_dir(out_dir: Path) -> Path:
@@ -290,8 +298,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if problem is None and a.single_process and (a.record is not None
                                                  or a.wait_for_subscribers):
         problem = "--record and --wait-for-subscribers need the multi-process graph"
-    if problem is None and (a.respawn_limit < 0 or not a.checkpoint_period >= 0):
-        problem = "--respawn-limit and --checkpoint-period must be >= 0"
+    if problem is None and (a.respawn_limit < 0 or not a.checkpoint_period >= 0
+                            or not 0 <= a.step_timeout <= 600):
+        problem = "--respawn-limit, --checkpoint-period and --step-timeout (<= 600) must " \
+            "be >= 0"
     if problem is None and not a.single_process:
         problem = prepare_checkpoints(checkpoint_dir(out_dir), a.resume)
     if problem:
@@ -444,7 +454,8 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
                       if p.poll() is not None and (n > 0 or p.returncode != 0)]
             if failed:
                 n, label, rc = failed[0]
-                why = _last_error_line(log_dir / f"{label}.log")
+                why = f"killed by {signal.Signals(-rc).name}" if rc < 0 and \
+                    -rc in signal.valid_signals() else _last_error_line(log_dir / f"{label}.log")
                 if respawns[label] < a.respawn_limit and rc != 2:
                     respawns[label] += 1
                     print(f"metro_atc run: {label} exited with {rc} ({why}); restarting it "

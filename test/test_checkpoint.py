@@ -117,3 +117,21 @@ def test_refuses_another_seed_or_a_foreign_file(tmp_path: Path) -> None:
         read(pickled)
     # the file is written atomically: no temporary file left behind
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.npz", "ck.npz", "pickled.npz"]
+
+
+def test_journal_survives_a_torn_line(tmp_path: Path) -> None:
+    """A line torn by a kill ends the journal; reopening keeps the good lines, appends on."""
+    from metro_atc.core.journal import Journal, read_entries
+
+    j = Journal(tmp_path / "j.jsonl")
+    j.append({"step": 0, "x": math.nan})
+    j.append({"step": 1, "x": math.inf})
+    with open(tmp_path / "j.jsonl", "a") as fh:
+        fh.write('{"step": 2, "x"')  # killed mid-write
+    j2 = Journal(tmp_path / "j.jsonl")
+    assert [e["step"] for e in j2.entries] == [0, 1]
+    assert math.isnan(j2.entries[0]["x"]) and j2.entries[1]["x"] == math.inf
+    j2.append({"step": 2})
+    assert [e["step"] for e in read_entries(tmp_path / "j.jsonl")] == [0, 1, 2]
+    j2.reset(j2.entries[:1])
+    assert [e["step"] for e in read_entries(tmp_path / "j.jsonl")] == [0]

@@ -26,6 +26,7 @@ import json
 import math
 import os
 import time
+from collections import deque
 from functools import partial
 from pathlib import Path
 from types import SimpleNamespace
@@ -64,6 +65,10 @@ CHECKPOINT_FILE = "line_simulator.npz"
 """The simulator's checkpoint in ``checkpoint_dir`` (replaced atomically)."""
 DEPARTURE_JOURNAL = "line_simulator_departures.jsonl"
 """Departure commands applied, one JSON line each (step, train, station, values)."""
+RESEND_CHUNK = 8
+"""Kept sensor samples re-sent back to back before a pause (the writer keeps 20)."""
+RESEND_PAUSE_S = 0.005
+"""Pause between re-sent chunks [s] (wall; ~0.6 ms per sample re-sent)."""
 NODE_STATE = ("k", "cmd_step", "cmd_effort", "lockstep_misses", "rejected", "rejections",
               "event_seq", "sensor_last_t", "dep_received", "dep_given_up", "ats_misses",
               "_next_status_t", "_next_progress_t", "regulators", "planners", "planned",
@@ -128,6 +133,11 @@ class LineSimulator(Node):
             self, "checkpoint_dir", "",
             "directory of the resume checkpoint and departure journal ('' : none); a "
             "checkpoint found there at start-up is resumed from")
+        self.sensor_resend_s = static(
+            self, "sensor_resend_s", 120.0,
+            "brake sensors: the samples of this many simulated seconds are kept and sent "
+            "again when a new reader matches (a restarted brake_diagnostic catches up)",
+            0.0, 1e5)
         self.checkpoint_period_s = static(
             self, "checkpoint_period_s", 60.0,
             "simulated time between checkpoints [s] (0: none)", 0.0, 1e7)
@@ -176,6 +186,9 @@ class LineSimulator(Node):
         self.journaled: set[tuple[Any, ...]] = set()
         """Departure commands of the journal (a late copy from the ATS is not re-applied)."""
         self.resumed_from = -1
+        self.sensor_log: deque[tuple[float, int, BrakeSensorData]] = deque()
+        """Recent brake sensor samples (t, train, message) for a restarted reader."""
+        self._sensor_matched = np.zeros(n, dtype=np.int64)
         self._journal: Any = None
         if self.checkpoint_dir:
             self._open_checkpoints(Path(self.checkpoint_dir))
@@ -542,7 +555,38 @@ class LineSimulator(Node):
                     clamp_force_n=block.clamp[a, b], accel_x_mps2=float(block.accel[a, b]),
                     ref_speed_mps=float(block.vref[a, b]),
                     car_mass_kg=float(block.car_mass[b]))
-                self.sensor_pubs[i].publish(conv.sensor_msg(sample, self.ids))
+                msg = conv.sensor_msg(sample, self.ids)
+                self.sensor_pubs[i].publish(msg)
+                if self.sensor_resend_s > 0.0:
+                    self.sensor_log.append((float(ts), int(i), msg))
+        horizon = float(self.sim.t) - self.sensor_resend_s
+        while self.sensor_log and self.sensor_log[0][0] < horizon:
+            self.sensor_log.popleft()
+
+    def resend_sensors(self) -> int:
+        """Send the kept samples again to trains whose sensor topic gained a reader.
+
+        A restarted ``brake_diagnostic`` misses what was published while it was down (best
+        effort, volatile); it takes the samples it already has as the point to rebuild its
+        observer from, then the ones it missed.  Returns the number of samples re-sent.
+        """
+        cnt = np.array([p.get_subscription_count() for p in self.sensor_pubs], dtype=np.int64)
+        gained = cnt > self._sensor_matched
+        self._sensor_matched = cnt
+        if not gained.any() or not self.started:
+            return 0
+        sent = 0
+        for _, i, msg in self.sensor_log:
+            if gained[i]:
+                self.sensor_pubs[i].publish(msg)
+                sent += 1
+                if sent % RESEND_CHUNK == 0:
+                    # best effort through a writer history of 20: paced, or a burst is lost
+                    time.sleep(RESEND_PAUSE_S)
+        if sent:
+            self.get_logger().info(f"sent {sent} kept brake sensor samples again to a new "
+                                   "reader")
+        return sent
 
     def kpis(self) -> dict[str, Any]:
         """The core's KPIs plus the node's lockstep/rejection counters."""
@@ -638,6 +682,8 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
     log.info(f"graph ready after {time.monotonic() - t0:.2f} s")
     sim.started = True
     sim.new_subscribers(np.ones(len(sim.ids), dtype=bool))
+    sim.resend_sensors()  # the readers of step 0: nothing kept yet, nothing sent
+    next_sensor_check = time.monotonic() + 1.0
     wall0, sim0 = time.monotonic(), float(sim.sim.t)
     sim._wall0 = wall0
     last_slow = time.monotonic()
@@ -650,6 +696,9 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
             executor.spin_once(timeout_sec=0.0)
 
     while not sim.finished and not stop_requested():
+        if time.monotonic() >= next_sensor_check:
+            next_sensor_check = time.monotonic() + 1.0
+            sim.resend_sensors()
         active = sim.publish_step()
         if sim.lockstep:
             deadline = time.monotonic() + sim.step_timeout_s
