@@ -1,7 +1,8 @@
 """Checkpoints of mutable object graphs: capture, restore, and a file format without pickle.
 
-A generic walker (ROS-free) captures the *dynamic* state of an object graph -- numpy arrays,
-Python and numpy scalars, lists/tuples/dicts of them, objects of this package (their
+A generic walker (ROS-free) captures the *dynamic* state of an object graph -- numpy arrays
+(a long list of same-shape arrays, e.g. a trace, as one stacked array), Python and numpy
+scalars, lists/tuples/dicts of them, objects of this package (their
 ``__dict__``/slots, walked recursively) and numpy random generators (their
 ``bit_generator.state``) -- and restores it into a freshly built object of the same kind
 (same scenario and seed).  Objects named as *static* (the line geometry, the rolling stock,
@@ -149,6 +150,12 @@ class _Capture:
             bg = v.bit_generator
             return {"id": ref, "rng": type(bg).__name__,
                     "s": self.enc(bg.state, path + ".state")}
+        if type(v) is list and len(v) > 8 and _stackable(v):
+            # a long list of same-shape arrays (a trace): one stacked array; an element
+            # already seen elsewhere stays a reference
+            refs = [[i, self.memo[id(x)]] for i, x in enumerate(v) if id(x) in self.memo]
+            self.arrays.append(np.stack(v))
+            return {"id": ref, "stack": len(self.arrays) - 1, "refs": refs}
         if type(v) in (list, tuple):
             return {"id": ref, "l" if type(v) is list else "t":
                     [self.enc(x, f"{path}[{i}]") for i, x in enumerate(v)]}
@@ -209,6 +216,11 @@ class _Restore:
                 for k, x in e["f"].items():
                     object.__setattr__(out, k, self.dec(x, cur.get(k)))
                 return out
+        elif "stack" in e:
+            rows = self.arrays[f"a{int(e['stack'])}"]
+            out = [np.array(r, copy=True) for r in rows]
+            for i, r in e["refs"]:
+                out[int(i)] = self.objs[int(r)]
         elif "l" in e or "t" in e:
             enc: list[Any] = list(e["l"] if "l" in e else e["t"])
             old = list(into) if isinstance(into, (list, tuple)) and len(into) == len(enc) \
@@ -221,6 +233,13 @@ class _Restore:
             raise CheckpointError(f"malformed checkpoint entry with keys {sorted(e)[:5]}")
         self.objs[ref] = out
         return out
+
+
+def _stackable(v: list[Any]) -> bool:
+    """Every element an ndarray of one shape and plain dtype."""
+    a0 = v[0]
+    return isinstance(a0, np.ndarray) and not a0.dtype.hasobject and all(
+        type(x) is np.ndarray and x.shape == a0.shape and x.dtype == a0.dtype for x in v)
 
 
 def _hashable(k: Any) -> Any:

@@ -287,12 +287,14 @@ class LineSimulator(Node):
             self.get_logger().warning(
                 f"resuming from the checkpoint of step {self.k} (t={self.sim.t:.2f} s) in "
                 f"{folder}")
+        for tmp in folder.glob(f".{CHECKPOINT_FILE}.*.tmp"):
+            tmp.unlink(missing_ok=True)  # a checkpoint being written when the node died
         entries = _read_journal(journal)
-        if self.resumed_from >= 0:
+        if entries:
+            # resumed, or restarted before the first checkpoint (then from step 0): the
+            # departure commands since are re-applied at their steps, not taken again
             self.journaled = {_nan_key(_journal_key(e)) for e in entries}
-            self.replay = [e for e in entries if int(e["k"]) >= self.resumed_from]
-        else:
-            entries = []
+            self.replay = [e for e in entries if int(e["k"]) >= max(self.resumed_from, 0)]
         # rewrite the journal with the entries kept (a torn last line is dropped)
         tmp = journal.with_name(journal.name + ".tmp")
         tmp.write_text("".join(json.dumps(e) + "\n" for e in entries))
