@@ -435,11 +435,15 @@ class BrakeDiagnostic(Node):
                         "directory of the per-train sample journals ('' : none): a restarted "
                         "node replays them, a simulator resumed behind is followed back")
         self.journals: dict[str, Journal] = {}
+        self.down_since: dict[str, float] = {}
+        """Per train: stamp of the last journaled sample when this process started (a
+        restart): samples after it and before the live stream were missed while down."""
         if ck_dir:
             for t in self.ids:
                 j = self.journals[t] = Journal(Path(ck_dir) / f"brake_{t}.jsonl")
                 if j.entries:
                     self._replay(t, j.entries)
+                    self.down_since[t] = self.watch[t].t_last
                     self.get_logger().warning(f"restarted: replayed {len(j.entries)} journaled "
                                               f"samples of {t}")
         self.fast_subs = [bulk_subscription(self, BrakeSensorData, f"/{t}/brake_sensors",
@@ -485,17 +489,28 @@ class BrakeDiagnostic(Node):
             return False
         key = _sample_entry(s)
         text = json.dumps(key, sort_keys=True)
+        cut = -1
         for n in range(len(j.entries) - 1, -1, -1):
             if j.entries[n].get("t_s") == key["t_s"] \
                     and json.dumps(j.entries[n], sort_keys=True) == text:
-                self._replay(train_id, j.entries[:n])
-                j.entries = j.entries[:n]
-                j.reset(j.entries)
-                self.get_logger().warning(f"{train_id}: samples from t={s['t_s']:.3f} s again "
-                                          "(the simulator resumed): observer rebuilt from "
-                                          "the journal")
-                return True
-        return False
+                cut = n  # a sample the observer had: rebuild up to it
+                break
+        down = self.down_since.get(train_id, math.inf)
+        if cut < 0 and down < key["t_s"]:
+            # a sample published while this node was down (the simulator's re-send): rebuild
+            # up to the first later one (the live stream taken since the restart)
+            cut = next((n for n, e in enumerate(j.entries)
+                        if "t_s" in e and e["t_s"] > key["t_s"]), len(j.entries))
+        if cut < 0:
+            return False
+        self.down_since.pop(train_id, None)  # one catch-up per restart
+        self._replay(train_id, j.entries[:cut])
+        j.entries = j.entries[:cut]
+        j.reset(j.entries)
+        self.get_logger().warning(f"{train_id}: samples from t={s['t_s']:.3f} s again (a "
+                                  "resumed simulator or a re-send): observer rebuilt from the "
+                                  "journal")
+        return True
 
     def _journal(self, train_id: str, entry: dict[str, Any]) -> None:
         j = self.journals.get(train_id)

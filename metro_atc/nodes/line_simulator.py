@@ -188,7 +188,9 @@ class LineSimulator(Node):
         self.resumed_from = -1
         self.sensor_log: deque[tuple[float, int, BrakeSensorData]] = deque()
         """Recent brake sensor samples (t, train, message) for a restarted reader."""
-        self._sensor_matched = np.zeros(n, dtype=np.int64)
+        self._sensor_readers: list[set[bytes]] = [set() for _ in range(n)]
+        self._resend_due = np.zeros(n, dtype=bool)
+        self._readers_known = False
         self._journal: Any = None
         if self.checkpoint_dir:
             self._open_checkpoints(Path(self.checkpoint_dir))
@@ -570,12 +572,22 @@ class LineSimulator(Node):
 
         A restarted ``brake_diagnostic`` misses what was published while it was down (best
         effort, volatile); it takes the samples it already has as the point to rebuild its
-        observer from, then the ones it missed.  Returns the number of samples re-sent.
+        observer from, then the ones it missed.  A reader is new when its endpoint GID was
+        not seen before (a count can stay the same: the dead reader's lease expiring while
+        the new one matches); the samples are sent at the next call (about 1 s later), once
+        the new reader had time to match.  Returns the number of samples re-sent.
         """
-        cnt = np.array([p.get_subscription_count() for p in self.sensor_pubs], dtype=np.int64)
-        gained = cnt > self._sensor_matched
-        self._sensor_matched = cnt
-        if not gained.any() or not self.started:
+        due = self._resend_due
+        self._resend_due = np.zeros(len(self.ids), dtype=bool)
+        for i, pub in enumerate(self.sensor_pubs):
+            gids = {bytes(bytearray(x.endpoint_gid))
+                    for x in self.get_subscriptions_info_by_topic(pub.topic_name)}
+            if gids - self._sensor_readers[i] and self._readers_known:
+                self._resend_due[i] = True
+            self._sensor_readers[i] |= gids
+        self._readers_known = self.started  # the readers at step 0 are not new
+        gained = due
+        if not gained.any():
             return 0
         sent = 0
         for _, i, msg in self.sensor_log:
