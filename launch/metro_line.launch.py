@@ -9,6 +9,8 @@ the bag recorder (the lockstep then waits for it). The whole launch shuts down w
 line simulator exits (scenario end), as ``run`` does.
 """
 
+from pathlib import Path
+
 from launch import LaunchDescription
 from launch.actions import (DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler,
                             Shutdown)
@@ -27,6 +29,9 @@ ARGUMENTS = {
     "plots": ("true", "write PNG plots into out_dir"),
     "ato_per_process": ("8", "ATO nodes composed per OS process"),
     "record": ("", "record every topic to this rosbag2 MCAP directory ('' : no)"),
+    "checkpoints": ("false", "keep resume checkpoints/journals in out_dir/checkpoints (a "
+                    "respawned node takes up where the run was); clear that directory "
+                    "before reusing out_dir"),
 }
 """Launch arguments: name -> (default, description)."""
 
@@ -46,9 +51,14 @@ def _nodes(context, *args, **kwargs):
         regulator=a["regulator"], seed=int(a["seed"]), lockstep=_true(a["lockstep"]),
         rtf=float(a["real_time_factor"]), duration_s=float(a["duration"]),
         out_dir=a["out_dir"], plots=_true(a["plots"]),
-        ato_per_process=int(a["ato_per_process"]), record_dir=a["record"] or None)
+        ato_per_process=int(a["ato_per_process"]), record_dir=a["record"] or None,
+        checkpoint_dir=str(Path(a["out_dir"]) / "checkpoints")
+        if a["out_dir"] and _true(a["checkpoints"]) else "")
+    # every node but the simulator is respawned (as ``run`` does; the simulator's exit ends
+    # the launch); with checkpoints:=true they take up where the run was
     actions = [Node(package="metro_atc", executable=p.executable, output="screen",
-                    parameters=([p.params_file] if p.params_file else []) + [p.params])
+                    parameters=([p.params_file] if p.params_file else []) + [p.params],
+                    respawn=p.executable != "line_simulator", respawn_max_retries=3)
                for p in procs]
     actions.append(RegisterEventHandler(OnProcessExit(
         target_action=actions[0],

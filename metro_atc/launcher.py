@@ -10,8 +10,16 @@ no orphans remain) and prints the KPIs. SIGTERM, not SIGINT: a node still import
 modules then ends silently (SIGINT would raise KeyboardInterrupt with a traceback), one that
 runs ends its loop and closes cleanly.
 
-No silent degradation: if any process exits with an error, the graph is stopped and the
-run exits non-zero with one line naming the process and its reason; the wall-clock
+Respawn and resume: a process that dies (any exit but the simulator's normal end) is started
+again with the same command line, at most ``--respawn-limit`` times per process, one line on
+stderr each time; the simulator resumes from its last checkpoint (``--checkpoint-period``
+simulated seconds apart, in ``OUT/checkpoints``) and the ATOs from their state journals, so
+the run ends with the events and KPIs of an uninterrupted one.  The current process ids
+are in ``LOG_DIR/pids.json``.  ``--resume`` continues a run whose launcher itself was
+stopped (the checkpoints in ``--out`` are kept; otherwise a run starts by removing them).
+
+No silent degradation: if a process fails beyond its respawn limit, the graph is stopped
+and the run exits non-zero with one line naming the process and its reason; the wall-clock
 ``--timeout`` exits non-zero too. ``--record DIR`` adds the ``bag_recorder`` node (a rosbag2
 MCAP directory of every topic) and the simulator waits for it before step 0.
 
@@ -99,6 +107,18 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--weights", default="", metavar="FILE",
                    help="aoc/dhp weights file (refused before any node starts if it was "
                         "trained on another line)")
+    p.add_argument("--respawn-limit", type=int, default=3, metavar="N",
+                   help="restart a node process that dies, at most N times each (default 3; "
+                        "0: a dead node ends the run)")
+    p.add_argument("--checkpoint-period", type=float, default=60.0, metavar="S",
+                   help="simulated seconds between the simulator's resume checkpoints "
+                        "(default 60; 0: none, a restarted simulator starts again at t=0)")
+    p.add_argument("--step-timeout", type=float, default=0.0, metavar="S",
+                   help="lockstep: wall time the simulator waits for a step's commands "
+                        "before applying the last ones [s] (0: the node's default, 10 s); "
+                        "a respawned node must be back within it")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the run in --out from its checkpoints (default: remove them)")
     p.add_argument("--wait-for-subscribers", default="", metavar="NODE[,NODE]",
                    help="node names that must subscribe to the simulator's topics before "
                         "step 0 (e.g. an outside recorder)")
@@ -124,11 +144,15 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
                     seed: int = 0, lockstep: bool = True, rtf: float = 10.0,
                     duration_s: float = 0.0, out_dir: str = "", plots: bool = True,
                     ato_per_process: int = 8, record_dir: str | None = None,
-                    wait_for: Sequence[str] = (),
-                    cfg: Path | None = None, weights_file: str = "") -> list[ProcessSpec]:
+                    wait_for: Sequence[str] = (), cfg: Path | None = None,
+                    weights_file: str = "", checkpoint_dir: str = "",
+                    checkpoint_period_s: float = 60.0,
+                    step_timeout_s: float = 0.0) -> list[ProcessSpec]:
     """The processes of a run, as ``run`` starts them and the launch file declares them.
 
     ``weights_file``: the aoc/dhp weights the ATS loads ('' : it looks them up itself).
+    ``checkpoint_dir`` ('' : none): where the simulator checkpoints every
+    ``checkpoint_period_s`` simulated seconds and the ATOs keep their state journals.
     """
     cfg = cfg or config_dir()
     base: dict[str, Any] = {"use_sim_time": True, "scenario": scenario}
@@ -138,19 +162,24 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
                max_sim_time_s=float(duration_s))
     if waits:
         sim["wait_for_subscribers"] = waits
+    resume: dict[str, Any] = {"checkpoint_dir": str(checkpoint_dir)} if checkpoint_dir else {}
+    if checkpoint_dir:
+        sim.update(resume, checkpoint_period_s=float(checkpoint_period_s))
+    if step_timeout_s > 0:
+        sim["step_timeout_s"] = float(step_timeout_s)
     procs = [ProcessSpec("line_simulator", "line_simulator", str(cfg / "line_simulator.yaml"),
                          sim),
              ProcessSpec("ats_regulator", "ats_regulator", str(cfg / "ats_regulator.yaml"),
                          dict(base, regulator=regulator,
                               **({"weights_file": weights_file} if weights_file else {}))),
              ProcessSpec("brake_diagnostic", "brake_diagnostic",
-                         str(cfg / "brake_diagnostic.yaml"), dict(base))]
+                         str(cfg / "brake_diagnostic.yaml"), dict(base, **resume))]
     n = max(1, int(ato_per_process))
     for g in range(0, len(train_ids), n):
         group = list(train_ids[g:g + n])
         procs.append(ProcessSpec(f"ato_{group[0]}", "ato_controller",
                                  str(cfg / "ato_controller.yaml"),
-                                 dict(base, train_ids=group)))
+                                 dict(base, train_ids=group, **resume)))
     if record_dir is not None:
         procs.append(ProcessSpec("bag_recorder", "bag_recorder", None,
                                  dict(base, output=str(record_dir))))
@@ -172,7 +201,14 @@ def processes_for(a: argparse.Namespace, train_ids: Sequence[str],
         rtf=a.rtf, duration_s=a.duration, out_dir=str(out_dir), plots=a.plots,
         ato_per_process=a.ato_per_process, record_dir=record_dir(a, out_dir),
         wait_for=[x for x in a.wait_for_subscribers.split(",") if x],
-        weights_file=getattr(a, "weights_file", ""))
+        weights_file=getattr(a, "weights_file", ""),
+        checkpoint_dir=str(checkpoint_dir(out_dir)), checkpoint_period_s=a.checkpoint_period,
+        step_timeout_s=a.step_timeout)
+
+
+def checkpoint_dir(out_dir: Path) -> Path:
+    """Where a run's checkpoints and journals live: ``OUT/checkpoints``."""
+    return out_dir / "checkpoints"
 
 
 def _ros_args(params: dict[str, Any], params_file: Path | None) -> list[str]:
@@ -277,6 +313,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if problem is None and a.single_process and (a.record is not None
                                                  or a.wait_for_subscribers):
         problem = "--record and --wait-for-subscribers need the multi-process graph"
+    if problem is None and (a.respawn_limit < 0 or not a.checkpoint_period >= 0
+                            or not 0 <= a.step_timeout <= 600):
+        problem = "--respawn-limit, --checkpoint-period and --step-timeout (<= 600) must " \
+            "be >= 0"
+    if problem is None and not a.single_process:
+        problem = prepare_checkpoints(checkpoint_dir(out_dir), a.resume)
     if problem is None:
         problem = prepare_regulator(a, scn)
     if problem:
@@ -347,6 +389,18 @@ def prepare_regulator(a: argparse.Namespace, scn: Any) -> str | None:
             make_regulator(a.regulator, line)
     except (ValueError, FileNotFoundError, OSError) as exc:
         return f"regulator '{a.regulator}': {exc}"
+    return None
+
+
+def prepare_checkpoints(folder: Path, resume: bool) -> str | None:
+    """Empty the checkpoint directory (a new run) or keep it (``--resume``); error or None."""
+    import shutil
+    try:
+        if folder.exists() and not resume:
+            shutil.rmtree(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return f"checkpoints {folder}: {exc.strerror}"
     return None
 
 
@@ -426,24 +480,42 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
 
     old = signal.signal(signal.SIGTERM, on_term)
     env = dict(os.environ, RCUTILS_LOGGING_BUFFERED_STREAM="0", PYTHONUNBUFFERED="1")
+    commands = dict(build_commands(a, train_ids, out_dir))
+    respawns = {label: 0 for label in commands}
+
+    def start(label: str, mode: str = "wb") -> subprocess.Popen[bytes]:
+        with open(log_dir / f"{label}.log", mode) as log:
+            return subprocess.Popen(commands[label], stdout=log, stderr=subprocess.STDOUT,
+                                    start_new_session=True, env=env)
+
     try:
-        for label, cmd in build_commands(a, train_ids, out_dir):
-            log = open(log_dir / f"{label}.log", "wb")
-            procs.append((label, subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT,
-                                                  start_new_session=True, env=env)))
-        sim = procs[0][1]
+        for label in commands:
+            procs.append((label, start(label)))
+        write_pids(log_dir, procs)
         if tail is not None:
             print(f"metro_atc run: {len(procs)} processes started (logs: {log_dir})",
                   file=sys.stderr, flush=True)
         deadline = time.monotonic() + a.timeout
         next_poll = 0.0
         while code == 0:
-            failed = [(label, p.returncode) for label, p in procs
-                      if p.poll() not in (None, 0)]
+            sim = procs[0][1]
+            # any exit is a failure but the simulator's normal end
+            failed = [(n, label, p.returncode) for n, (label, p) in enumerate(procs)
+                      if p.poll() is not None and (n > 0 or p.returncode != 0)]
             if failed:
-                label, rc = failed[0]
-                why = _last_error_line(log_dir / f"{label}.log")
-                print(f"metro_atc run: error: {label} exited with {rc}: {why} "
+                n, label, rc = failed[0]
+                why = f"killed by {signal.Signals(-rc).name}" if rc < 0 and \
+                    -rc in signal.valid_signals() else _last_error_line(log_dir / f"{label}.log")
+                if respawns[label] < a.respawn_limit and rc != 2:
+                    respawns[label] += 1
+                    print(f"metro_atc run: {label} exited with {rc} ({why}); restarting it "
+                          f"({respawns[label]} of {a.respawn_limit})", file=sys.stderr,
+                          flush=True)
+                    procs[n] = (label, start(label, "ab"))
+                    write_pids(log_dir, procs)
+                    continue
+                limit = " (respawn limit reached)" if a.respawn_limit else ""
+                print(f"metro_atc run: error: {label} exited with {rc}{limit}: {why} "
                       f"(log: {log_dir / (label + '.log')})", file=sys.stderr)
                 code = EXIT_NODE_FAILED
             elif sim.poll() == 0:
@@ -473,6 +545,13 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
                   f"{_last_error_line(log_dir / f'{label}.log')}", file=sys.stderr)
             code = EXIT_NODE_FAILED
     return code
+
+
+def write_pids(log_dir: Path, procs: Sequence[tuple[str, subprocess.Popen[bytes]]]) -> None:
+    """``LOG_DIR/pids.json``: label -> process id of the running graph (atomically)."""
+    tmp = log_dir / ".pids.json.tmp"
+    tmp.write_text(json.dumps({label: p.pid for label, p in procs}, indent=1))
+    os.replace(tmp, log_dir / "pids.json")
 
 
 def _print_table(k: dict[str, Any]) -> None:

@@ -140,7 +140,9 @@ def test_launch_file_starts_what_run_starts(monkeypatch: pytest.MonkeyPatch,
         argv += ["--record", record]
     a = launcher._parser().parse_args(argv)
     ids = launcher.scenario_train_ids(load_scenario("taipei_blue"))
-    run = [(p.executable, ([p.params_file] if p.params_file else []) + [p.params])
+    resume = ("checkpoint_dir", "checkpoint_period_s")  # launch: only with checkpoints:=true
+    run = [(p.executable, ([p.params_file] if p.params_file else [])
+            + [{k: v for k, v in p.params.items() if k not in resume}])
            for p in launcher.processes_for(a, ids, Path("/tmp/x"))]
     assert launched == run
     # 30 trains, 8 per ATO process: 4 ATO processes, not 30
@@ -153,6 +155,8 @@ def test_launch_file_starts_what_run_starts(monkeypatch: pytest.MonkeyPatch,
     assert on_exit.kwargs["target_action"] is nodes[0]
     assert nodes[0].kwargs["executable"] == "line_simulator"
     assert type(on_exit.kwargs["on_exit"][0]).__name__ == "Shutdown"
+    # every node but the simulator is respawned, as ``run`` does
+    assert [n.kwargs["respawn"] for n in nodes] == [e != "line_simulator" for e, _ in launched]
     # the regulator description lists every regulator the ATS accepts
     desc = next(a.kwargs["description"] for a in items
                 if type(a).__name__ == "DeclareLaunchArgument" and a.args[0] == "regulator")

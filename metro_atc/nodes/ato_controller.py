@@ -11,6 +11,14 @@ The tracker follows the plan; two guards only ever *lower* its command: braking 
 of the ATP movement authority (train ahead) and staying below the ATP supervision speed
 (temporary restrictions the plan does not know). ATP in the simulator stays the safety layer.
 
+Restart and resume (``checkpoint_dir``): every state the ATO acts on is appended to
+``<checkpoint_dir>/ato_<train>.jsonl`` before its command is published.  The ATO's commands
+are a deterministic function of that sequence of states (departure commands only pre-plan
+while standing; the run is planned from the state at departure), so a restarted ATO replays
+its journal into a fresh :class:`OnboardAto` and answers on as if never stopped; and when the
+simulator resumes from a checkpoint (its step goes back) and re-sends a state the journal
+holds, field for field, the ATO rebuilds itself from the journal up to that step.
+
 One process may host several trains (parameter ``train_ids``), each its own node on one
 SingleThreadedExecutor: rclpy shares one DDS participant per process, and the trains of a
 process share their planners' pre-work tables and finished plans (same line, same train).
@@ -18,8 +26,11 @@ process share their planners' pre-work tables and finished plans (same line, sam
 
 from __future__ import annotations
 
+import json
 import math
+import os
 import time
+from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -99,12 +110,24 @@ class AtoController(Node):
             atp = atp_model_for(scenario, train)
             if shared is not None:
                 shared["atp_model"] = atp
-        self.onboard = OnboardAto(train, self.track, self.stations, planner=planner,
-                                  tracker=tracker,
-                                  control_period_s=float(scenario.sim.control_period_s),
-                                  limits=limits, shared=shared, tsrs=tsr_zones(scenario),
-                                  atp=atp, **extra)
+        period = float(scenario.sim.control_period_s)
+        tsrs = tsr_zones(scenario)
+
+        def new_onboard() -> OnboardAto:
+            return OnboardAto(train, self.track, self.stations, planner=planner,
+                              tracker=tracker, control_period_s=period, limits=limits,
+                              shared=shared, tsrs=tsrs, atp=atp, **extra)
+
+        self._new_onboard = new_onboard
+        self.onboard = new_onboard()
         self.core = self.onboard.core
+        self.history: list[dict[str, Any]] = []
+        """The states acted on, in order (the journal's content)."""
+        ck_dir = static(self, "checkpoint_dir", "",
+                        "directory of the per-train state journal ('' : none): a restarted "
+                        "ATO replays it, a simulator resumed behind is followed back")
+        self.journal_path = Path(ck_dir) / f"ato_{train_id}.jsonl" if ck_dir else None
+        self._journal: Any = None
         self.rejected = 0
         self.rejections = Rejections()
         """Rejected input messages per kind (:mod:`metro_atc.core.validate`)."""
@@ -118,6 +141,73 @@ class AtoController(Node):
             bulk_subscription(self, TrainState, "state", self._on_state, QOS_RELIABLE),
             bulk_subscription(self, DepartureCommand, "departure_command", self._on_departure,
                               QOS_LATCHED_IN)]
+        if self.journal_path is not None:
+            self._open_journal()
+
+    # ------------------------------------------------------------------ restart
+    def _open_journal(self) -> None:
+        """Replay an existing journal (a restart), then keep appending to it."""
+        assert self.journal_path is not None
+        self.journal_path.parent.mkdir(parents=True, exist_ok=True)
+        states = _read_states(self.journal_path)
+        if states:
+            self._replay(states)
+            self.get_logger().warning(
+                f"restarted: replayed {len(states)} states of the journal up to step "
+                f"{self.last_step}")
+        self._rewrite_journal()
+
+    def _rewrite_journal(self) -> None:
+        """Write ``history`` as the journal (atomically) and reopen it for appending."""
+        assert self.journal_path is not None
+        if self._journal is not None:
+            self._journal.close()
+        tmp = self.journal_path.with_name(self.journal_path.name + ".tmp")
+        tmp.write_text("".join(json.dumps(s) + "\n" for s in self.history))
+        os.replace(tmp, self.journal_path)
+        self._journal = open(self.journal_path, "a", encoding="utf-8")
+
+    def _replay(self, states: list[dict[str, Any]]) -> None:
+        """A fresh on-board ATO driven through ``states`` (no publication)."""
+        self.onboard = self._new_onboard()
+        self.core = self.onboard.core
+        self.steps = StepWindow()
+        self.history = []
+        self._last_cmd = None
+        self.last_step = -1
+        for s in states:
+            effort, mode, _ = self.onboard.control(s)
+            self.steps.accept(int(s["step"]))
+            self._remember(s, effort, mode)
+
+    def _remember(self, s: dict[str, Any], effort: float, mode: int) -> None:
+        """Record a state acted on and its command."""
+        self.history.append(s)
+        self.last_step = int(s["step"])
+        self._last_cmd = conv.traction_msg(self.train_id, s["step"], s["t_s"], effort, mode)
+
+    def _rewind(self, msg: TrainState, topic: str) -> bool:
+        """A state of an earlier step the journal holds identically: the simulator resumed.
+
+        Rebuild the ATO from the journal's states before that step; True when done.
+        """
+        if not self.history:
+            return False
+        j = int(msg.step) - int(self.history[0]["step"])
+        if not 0 <= j < len(self.history):
+            return False
+        try:
+            s = conv.state_from_msg(msg, topic, self.train_id, self.bounds, StepWindow())
+        except conv.MessageRejected:
+            return False
+        if _state_key(s) != _state_key(self.history[j]):
+            return False
+        before = self.last_step
+        self._replay(self.history[:j])
+        self._rewrite_journal()
+        self.get_logger().warning(f"the simulator went back from step {before} to step "
+                                  f"{int(msg.step)}: replayed the journal up to it")
+        return True
 
     def health(self) -> list[DiagnosticStatus]:
         """/diagnostics: this train's planner/tracker, plans, infeasible plans, rejections.
@@ -210,7 +300,12 @@ class AtoController(Node):
         """
         topic = f"/{self.train_id}/state"
         try:
-            s = conv.state_from_msg(msg, topic, self.train_id, self.bounds, self.steps)
+            try:
+                s = conv.state_from_msg(msg, topic, self.train_id, self.bounds, self.steps)
+            except conv.MessageRejected as exc:
+                if exc.kind != "step" or not self._rewind(msg, topic):
+                    raise
+                s = conv.state_from_msg(msg, topic, self.train_id, self.bounds, self.steps)
             last = self._last_cmd
             if s["again"] and last is not None and int(last.step) == s["step"]:
                 self.cmd_pub.publish(last)
@@ -219,8 +314,10 @@ class AtoController(Node):
         except conv.MessageRejected as exc:
             self._reject("state", exc)
             return
-        self.last_step = int(s["step"])
-        self._last_cmd = conv.traction_msg(self.train_id, s["step"], s["t_s"], effort, mode)
+        self._remember(s, effort, mode)
+        if self._journal is not None:
+            self._journal.write(json.dumps(s) + "\n")
+            self._journal.flush()  # in the OS before the command leaves: survives a SIGKILL
         self.cmd_pub.publish(self._last_cmd)
 
     def control(self, s: dict[str, Any]) -> tuple[float, int]:
@@ -229,6 +326,30 @@ class AtoController(Node):
         if planned is not None:
             self._publish_plan(planned)
         return u, mode
+
+
+def _state_key(s: dict[str, Any]) -> str:
+    """A state's fields as one comparable text (NaN equal to NaN; ``again`` left out)."""
+    return json.dumps({k: v for k, v in s.items() if k != "again"}, sort_keys=True)
+
+
+def _read_states(path: Path) -> list[dict[str, Any]]:
+    """The journal's states, consecutive steps from the first (a torn line ends it)."""
+    out: list[dict[str, Any]] = []
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return out
+    for line in text.splitlines():
+        try:
+            s = json.loads(line)
+            ok = isinstance(s, dict) and (not out or int(s["step"]) == out[-1]["step"] + 1)
+        except (ValueError, KeyError, TypeError):
+            ok = False
+        if not ok:
+            break
+        out.append(s)
+    return out
 
 
 PLANNED_POINTS = 200

@@ -81,6 +81,13 @@ wet, true 0.35) nor in 16 normal runs; 1.55 s (6.55 s after the fault) in the gr
 brakes of this rolling stock are blended with the electric brake taking nearly all of it,
 so they rarely make mu_b observable.
 
+**Restart.**  With ``checkpoint_dir`` every sample handed to a train's observer (and every
+rejected one, for the counters) is appended to ``<checkpoint_dir>/brake_<train>.jsonl``
+(:class:`metro_atc.core.journal.Journal`).  A restarted node replays the journals into fresh
+observers: the UKF, the decision logic and the counters are where they were.  When the
+simulator resumes from a checkpoint and sends again a sample the journal holds (same stamp,
+same channels), the train's observer is rebuilt from the journal up to that sample.
+
 The consist adaptation lives here because the core observer has no coupler-force state
 and no adhesion pseudo-measurement; moving both into the core would remove it.
 """
@@ -88,10 +95,12 @@ and no adhesion pseudo-measurement; moving both into the core would remove it.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import sys
 import time
 from functools import partial
+from pathlib import Path
 from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
@@ -102,6 +111,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from metro_atc.core.brake import metro_car as mc
+from metro_atc.core.journal import Journal
 from metro_atc.core.line.adhesion import CURVES, AdhesionCurve
 from metro_atc.core.line.rolling_stock import train_params_for
 from metro_atc.core.line.scenario import Scenario, ScenarioError, load_scenario
@@ -405,6 +415,7 @@ class BrakeDiagnostic(Node):
         except ScenarioError as exc:
             raise NodeConfigError(str(exc)) from None
         setup = observer_setup(scn)
+        self.setup = setup
         self.bounds = bounds_for(scn)
         self.rejections = Rejections()
         """Rejected samples per kind (:mod:`metro_atc.core.validate`; out_of_order too)."""
@@ -420,6 +431,21 @@ class BrakeDiagnostic(Node):
             "(wall clock) [s]", partial(setattr, self, "log_period_s"), 0.0, 3600.0)
         self.pubs = {t: bulk_publisher(self, BrakeDiagnosis, f"/{t}/brake_diagnosis",
                                        QOS_LATCHED) for t in self.ids}
+        ck_dir = static(self, "checkpoint_dir", "",
+                        "directory of the per-train sample journals ('' : none): a restarted "
+                        "node replays them, a simulator resumed behind is followed back")
+        self.journals: dict[str, Journal] = {}
+        self.down_since: dict[str, float] = {}
+        """Per train: stamp of the last journaled sample when this process started (a
+        restart): samples after it and before the live stream were missed while down."""
+        if ck_dir:
+            for t in self.ids:
+                j = self.journals[t] = Journal(Path(ck_dir) / f"brake_{t}.jsonl")
+                if j.entries:
+                    self._replay(t, j.entries)
+                    self.down_since[t] = self.watch[t].t_last
+                    self.get_logger().warning(f"restarted: replayed {len(j.entries)} journaled "
+                                              f"samples of {t}")
         self.fast_subs = [bulk_subscription(self, BrakeSensorData, f"/{t}/brake_sensors",
                                             partial(self._on_sample, t), QOS_SENSOR_DEEP)
                           for t in self.ids]
@@ -439,16 +465,73 @@ class BrakeDiagnostic(Node):
         else:
             self._logged[(train_id, kind)] = (last, suppressed + 1)
 
+    # ------------------------------------------------------------------ restart
+    def _replay(self, train_id: str, entries: list[dict[str, Any]]) -> None:
+        """A fresh observer of ``train_id`` fed with journaled samples (no publication)."""
+        w = self.watch[train_id] = TrainBrakeWatch(train_id, self.setup)
+        for e in entries:
+            if "rejected" in e:
+                w.reject()
+            else:
+                try:
+                    w.feed(_sample_of(e))
+                except (KeyError, TypeError, ValueError) as exc:
+                    self.get_logger().error(f"{train_id}: journal entry not replayed: {exc}")
+        self._levels[train_id] = -1  # publish the diagnosis again at the next sample
+
+    def _rewind(self, train_id: str, s: dict[str, Any]) -> bool:
+        """A sample behind the stream that the journal holds: the simulator resumed.
+
+        Rebuild the train's observer from the journal up to that sample; True when done.
+        """
+        j = self.journals.get(train_id)
+        if j is None or not s["t_s"] <= self.watch[train_id].t_last:
+            return False
+        key = _sample_entry(s)
+        text = json.dumps(key, sort_keys=True)
+        cut = -1
+        for n in range(len(j.entries) - 1, -1, -1):
+            if j.entries[n].get("t_s") == key["t_s"] \
+                    and json.dumps(j.entries[n], sort_keys=True) == text:
+                cut = n  # a sample the observer had: rebuild up to it
+                break
+        down = self.down_since.get(train_id, math.inf)
+        if cut < 0 and down < key["t_s"]:
+            # a sample published while this node was down (the simulator's re-send): rebuild
+            # up to the first later one (the live stream taken since the restart)
+            cut = next((n for n, e in enumerate(j.entries)
+                        if "t_s" in e and e["t_s"] > key["t_s"]), len(j.entries))
+        if cut < 0:
+            return False
+        self.down_since.pop(train_id, None)  # one catch-up per restart
+        self._replay(train_id, j.entries[:cut])
+        j.entries = j.entries[:cut]
+        j.reset(j.entries)
+        self.get_logger().warning(f"{train_id}: samples from t={s['t_s']:.3f} s again (a "
+                                  "resumed simulator or a re-send): observer rebuilt from the "
+                                  "journal")
+        return True
+
+    def _journal(self, train_id: str, entry: dict[str, Any]) -> None:
+        j = self.journals.get(train_id)
+        if j is not None:
+            j.entries.append(entry)
+            j.append(entry)
+
     # ------------------------------------------------------------------ samples
     def _on_sample(self, train_id: str, msg: BrakeSensorData) -> None:
         """Validate one sample and run the train's observer on it."""
-        w = self.watch[train_id]
         topic = f"/{train_id}/brake_sensors"
         try:
             s = conv.sensor_from_msg(msg, topic, train_id, N_AXLES, self.bounds)
+            self._rewind(train_id, s)
+            w = self.watch[train_id]
+            self._journal(train_id, _sample_entry(s))
             what = conv.guarded(topic, w.feed, s)
         except conv.MessageRejected as exc:
+            w = self.watch[train_id]
             w.reject()
+            self._journal(train_id, {"rejected": exc.kind})
             self.rejections.add(exc.kind)
             self._log_bounded(train_id, exc.kind, f"skipped sample ({exc.kind}): {exc}")
             return
@@ -558,6 +641,19 @@ class BrakeDiagnostic(Node):
                 self.get_logger().info(line)
             else:
                 print(f"[brake_diagnostic] {line}", file=sys.stderr, flush=True)
+
+
+def _sample_entry(s: dict[str, Any]) -> dict[str, Any]:
+    """A validated sample as a journal entry (JSON: arrays as lists, NaN as NaN)."""
+    return json.loads(json.dumps({k: (np.asarray(v, dtype=float).tolist()
+                                      if isinstance(v, (np.ndarray, list)) else v)
+                                  for k, v in s.items()}))
+
+
+def _sample_of(e: dict[str, Any]) -> dict[str, Any]:
+    """The sample dict of a journal entry (the arrays back as float arrays)."""
+    return {k: (np.asarray(v, dtype=float) if isinstance(v, list) else v)
+            for k, v in e.items()}
 
 
 def build_nodes(args: Optional[Sequence[str]] = None) -> list[Node]:

@@ -8,13 +8,25 @@ Lockstep (default): step k -> k+1 happens only once every active train's command
 k has arrived; on ``step_timeout_s`` the last command is applied (ATP still supervises), the
 miss is counted and a warning logged. Free-run: steps are paced at ``real_time_factor``.
 The physics, ATP and KPIs are the ROS-free :class:`metro_atc.core.plant.line.LineSim`.
+
+Resume (``checkpoint_dir``): every ``checkpoint_period_s`` of simulated time the node writes
+its full state (the plant with its event log and RNG states, the lockstep step, counters,
+departure bookkeeping: :mod:`metro_atc.core.plant.snapshot`) to
+``<checkpoint_dir>/line_simulator.npz``, and appends every departure command it applies,
+with its step, to ``line_simulator_departures.jsonl``.  Started with a checkpoint there (a
+respawn), it resumes from it: the restored event history is published again (transient
+local, for a restarted ATS), the lockstep restarts at the checkpoint's step, and the
+departure commands of the steps after it are re-applied from the journal at the same steps
+(the ATS does not repeat them); the ATOs follow the step back (``ato_controller``).
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 import time
+from collections import deque
 from functools import partial
 from pathlib import Path
 from types import SimpleNamespace
@@ -30,7 +42,10 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
 from metro_atc.core.ato_watchdog import AtoWatchdog
+from metro_atc.core.checkpoint import CheckpointError, capture, content_hash, read, restore, \
+    save_tree
 from metro_atc.core.plant.line import LineSim
+from metro_atc.core.plant.snapshot import scenario_hash, static_parts
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.jsonsafe import json_safe
@@ -45,6 +60,20 @@ from metro_atc.nodes.common import (QOS_CLOCK, QOS_EVENTS, QOS_LATCHED, QOS_LATC
 
 _REGULATOR_NAMES = {code: name for name, code in conv.REGULATOR_CODES.items()}
 """DepartureCommand.regulator codes -> regulator names (what ran, for the KPIs)."""
+
+CHECKPOINT_FILE = "line_simulator.npz"
+"""The simulator's checkpoint in ``checkpoint_dir`` (replaced atomically)."""
+DEPARTURE_JOURNAL = "line_simulator_departures.jsonl"
+"""Departure commands applied, one JSON line each (step, train, station, values)."""
+RESEND_CHUNK = 8
+"""Kept sensor samples re-sent back to back before a pause (the writer keeps 20)."""
+RESEND_PAUSE_S = 0.005
+"""Pause between re-sent chunks [s] (wall; ~0.6 ms per sample re-sent)."""
+NODE_STATE = ("k", "cmd_step", "cmd_effort", "lockstep_misses", "rejected", "rejections",
+              "event_seq", "sensor_last_t", "dep_received", "dep_given_up", "ats_misses",
+              "_next_status_t", "_next_progress_t", "regulators", "planners", "planned",
+              "watchdog")
+"""Node attributes saved with the plant in a checkpoint."""
 
 
 class LineSimulator(Node):
@@ -100,6 +129,18 @@ class LineSimulator(Node):
             self, "ato_lost_steps", 8,
             "a train whose ATO misses this many consecutive steps is braked to a stop "
             "(CBTC fault) until its ATO answers again", 1, 1_000_000)
+        self.checkpoint_dir = static(
+            self, "checkpoint_dir", "",
+            "directory of the resume checkpoint and departure journal ('' : none); a "
+            "checkpoint found there at start-up is resumed from")
+        self.sensor_resend_s = static(
+            self, "sensor_resend_s", 120.0,
+            "brake sensors: the samples of this many simulated seconds are kept and sent "
+            "again when a new reader matches (a restarted brake_diagnostic catches up)",
+            0.0, 1e5)
+        self.checkpoint_period_s = static(
+            self, "checkpoint_period_s", 60.0,
+            "simulated time between checkpoints [s] (0: none)", 0.0, 1e7)
         self._next_progress_t = self.progress_period_s
         self._wall0 = time.monotonic()
         try:
@@ -135,6 +176,24 @@ class LineSimulator(Node):
         self.planned: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
         self._health_last = (time.monotonic(), 0.0, 0, 0)
         self._matched = np.zeros(n, dtype=np.int64)
+        self.identity = content_hash(scenario_hash(self.sim), bool(self.lockstep),
+                                     int(self.ato_lost_steps), float(self.max_sim_time_s))
+        """What a checkpoint must have been made for (scenario content, seed, parameters)."""
+        period = float(self.checkpoint_period_s) / self.sim.control_period_s
+        self.checkpoint_every = max(int(round(period)), 1) if period > 0 else 0
+        self.replay: list[dict[str, Any]] = []
+        """Journaled departure commands still to re-apply after a resume (in order)."""
+        self.journaled: set[tuple[Any, ...]] = set()
+        """Departure commands of the journal (a late copy from the ATS is not re-applied)."""
+        self.resumed_from = -1
+        self.sensor_log: deque[tuple[float, int, BrakeSensorData]] = deque()
+        """Recent brake sensor samples (t, train, message) for a restarted reader."""
+        self._sensor_readers: list[set[bytes]] = [set() for _ in range(n)]
+        self._resend_due = np.zeros(n, dtype=bool)
+        self._readers_known = False
+        self._journal: Any = None
+        if self.checkpoint_dir:
+            self._open_checkpoints(Path(self.checkpoint_dir))
 
         self.clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK)
         self.event_pub = self.create_publisher(TrainEvent, "/line/events", QOS_EVENTS)
@@ -153,6 +212,8 @@ class LineSimulator(Node):
         self.profile_subs = [bulk_subscription(self, SpeedProfile, f"/{t}/speed_profile",
                                                self._on_profile, QOS_LATCHED)
                              for t in self.ids]
+        if self.resumed_from >= 0:
+            self.republish_history()
         self.get_logger().info(
             f"scenario '{self.scenario_name}': {n} trains, {len(self.sim.station_names)} "
             f"stations, control period {self.sim.control_period_s} s, "
@@ -191,13 +252,97 @@ class LineSimulator(Node):
         topic = f"/{self.ids[i]}/departure_command"
         try:
             st, dep, run, dwell = conv.departure_from_msg(msg, topic, self.ids[i], self.bounds)
-            conv.guarded(topic, self.sim.set_departure, i, st, dep, run, dwell)
-            if not self.dep_received[i, st]:
-                reg = _REGULATOR_NAMES.get(int(msg.regulator), f"code {msg.regulator}")
-                self.regulators[reg] = self.regulators.get(reg, 0) + 1
-            self.dep_received[i, st] = True
+            key = (i, st, dep, run, dwell, int(msg.regulator))
+            if _nan_key(key) in self.journaled:
+                return  # applied (or to be applied) from the journal at its original step
+            conv.guarded(topic, self._apply_departure, *key)
+            self._journal_write(key)
         except conv.MessageRejected as exc:
             self._reject("departure command", exc)
+
+    def _apply_departure(self, i: int, st: int, dep: float, run: float, dwell: float,
+                         regulator: int) -> None:
+        """Hand a validated departure command to the plant; count the regulator."""
+        self.sim.set_departure(i, st, dep, run, dwell)
+        if not self.dep_received[i, st]:
+            reg = _REGULATOR_NAMES.get(int(regulator), f"code {regulator}")
+            self.regulators[reg] = self.regulators.get(reg, 0) + 1
+        self.dep_received[i, st] = True
+
+    # ------------------------------------------------------------------ resume
+    def _open_checkpoints(self, folder: Path) -> None:
+        """Resume from ``folder``'s checkpoint if there is one; open the departure journal."""
+        folder.mkdir(parents=True, exist_ok=True)
+        ck = folder / CHECKPOINT_FILE
+        journal = folder / DEPARTURE_JOURNAL
+        if ck.is_file():
+            try:
+                head, arrays = read(ck, identity=self.identity)
+                holder = SimpleNamespace(line=self.sim, **{a: getattr(self, a)
+                                                           for a in NODE_STATE})
+                restore(holder, head["tree"], arrays, static_parts(self.sim))
+            except (CheckpointError, KeyError, TypeError, ValueError, IndexError) as exc:
+                raise NodeConfigError(f"cannot resume from {ck}: {str(exc)[:200]}") from None
+            for a in NODE_STATE:
+                setattr(self, a, getattr(holder, a))
+            self.resumed_from = int(self.k)
+            self.get_logger().warning(
+                f"resuming from the checkpoint of step {self.k} (t={self.sim.t:.2f} s) in "
+                f"{folder}")
+        for tmp in folder.glob(f".{CHECKPOINT_FILE}.*.tmp"):
+            tmp.unlink(missing_ok=True)  # a checkpoint being written when the node died
+        entries = _read_journal(journal)
+        if entries:
+            # resumed, or restarted before the first checkpoint (then from step 0): the
+            # departure commands since are re-applied at their steps, not taken again
+            self.journaled = {_nan_key(_journal_key(e)) for e in entries}
+            self.replay = [e for e in entries if int(e["k"]) >= max(self.resumed_from, 0)]
+        # rewrite the journal with the entries kept (a torn last line is dropped)
+        tmp = journal.with_name(journal.name + ".tmp")
+        tmp.write_text("".join(json.dumps(e) + "\n" for e in entries))
+        os.replace(tmp, journal)
+        self._journal = open(journal, "a", encoding="utf-8")
+
+    def _journal_write(self, key: tuple[Any, ...]) -> None:
+        """Append an applied departure command (and the step) to the journal."""
+        if self._journal is None:
+            return
+        i, st, dep, run, dwell, reg = key
+        self._journal.write(json.dumps({"k": int(self.k), "i": int(i), "st": int(st),
+                                        "dep": dep, "run": run, "dwell": dwell,
+                                        "reg": int(reg)}) + "\n")
+        self._journal.flush()  # in the OS: survives a SIGKILL of this process
+
+    def replay_departures(self) -> None:
+        """Re-apply the journaled departure commands of the current step (after a resume)."""
+        while self.replay and int(self.replay[0]["k"]) <= self.k:
+            e = self.replay.pop(0)
+            try:
+                self._apply_departure(*_journal_key(e))
+            except (IndexError, ValueError, TypeError) as exc:
+                self.get_logger().error(f"journaled departure command {e} not applied: {exc}")
+
+    def save_checkpoint(self) -> None:
+        """Write the checkpoint of the current step (atomically) if one is due."""
+        if not (self.checkpoint_dir and self.checkpoint_every) or self.k == 0 \
+                or self.k % self.checkpoint_every or self.k == self.resumed_from:
+            return
+        holder = SimpleNamespace(line=self.sim, **{a: getattr(self, a) for a in NODE_STATE})
+        try:
+            tree, arrays = capture(holder, static_parts(self.sim))
+            save_tree(Path(self.checkpoint_dir) / CHECKPOINT_FILE, tree, arrays,
+                      identity=self.identity, step=int(self.k), t=float(self.sim.t))
+        except (OSError, CheckpointError) as exc:
+            self._warn_rate_limited("checkpoint", f"checkpoint of step {self.k} not "
+                                    f"written: {exc}")
+
+    def republish_history(self) -> None:
+        """Publish the restored event history again (a restarted ATS replays it)."""
+        seq = np.zeros(len(self.ids), dtype=np.int64)
+        for ev in self.sim.event_log():
+            seq[ev.train_idx] += 1
+            self.event_pub.publish(conv.event_msg(ev, self.ids, self.sim.station_names,
+                                                  int(seq[ev.train_idx])))
 
     def _on_profile(self, msg: SpeedProfile) -> None:
         name = str(msg.planner)[:32] or "unknown"
@@ -306,7 +451,11 @@ class LineSimulator(Node):
             self.state_pubs[i].publish(m)
 
     def publish_step(self) -> np.ndarray:
-        """Publish /clock and the states of step k; return the active mask."""
+        """Publish /clock and the states of step k; return the active mask.
+
+        After a resume, the journaled departure commands of step k are applied first.
+        """
+        self.replay_departures()
         t = float(self.sim.t)
         self.clock_pub.publish(conv.clock_msg(t))
         active = np.asarray(self.sim.active_mask(), dtype=bool)
@@ -373,6 +522,8 @@ class LineSimulator(Node):
             self.status_pub.publish(conv.line_status_msg(self.kpis(), self.k, t, done))
         if done:
             self.finished = True
+        else:
+            self.save_checkpoint()
 
     def _log_watchdog(self, e: Any) -> None:
         """Log a lost ATO (error) or its return (warning)."""
@@ -408,7 +559,48 @@ class LineSimulator(Node):
                     clamp_force_n=block.clamp[a, b], accel_x_mps2=float(block.accel[a, b]),
                     ref_speed_mps=float(block.vref[a, b]),
                     car_mass_kg=float(block.car_mass[b]))
-                self.sensor_pubs[i].publish(conv.sensor_msg(sample, self.ids))
+                msg = conv.sensor_msg(sample, self.ids)
+                self.sensor_pubs[i].publish(msg)
+                if self.sensor_resend_s > 0.0:
+                    self.sensor_log.append((float(ts), int(i), msg))
+        horizon = float(self.sim.t) - self.sensor_resend_s
+        while self.sensor_log and self.sensor_log[0][0] < horizon:
+            self.sensor_log.popleft()
+
+    def resend_sensors(self) -> int:
+        """Send the kept samples again to trains whose sensor topic gained a reader.
+
+        A restarted ``brake_diagnostic`` misses what was published while it was down (best
+        effort, volatile); it takes the samples it already has as the point to rebuild its
+        observer from, then the ones it missed.  A reader is new when its endpoint GID was
+        not seen before (a count can stay the same: the dead reader's lease expiring while
+        the new one matches); the samples are sent at the next call (about 1 s later), once
+        the new reader had time to match.  Returns the number of samples re-sent.
+        """
+        due = self._resend_due
+        self._resend_due = np.zeros(len(self.ids), dtype=bool)
+        for i, pub in enumerate(self.sensor_pubs):
+            gids = {bytes(bytearray(x.endpoint_gid))
+                    for x in self.get_subscriptions_info_by_topic(pub.topic_name)}
+            if gids - self._sensor_readers[i] and self._readers_known:
+                self._resend_due[i] = True
+            self._sensor_readers[i] |= gids
+        self._readers_known = self.started  # the readers at step 0 are not new
+        gained = due
+        if not gained.any():
+            return 0
+        sent = 0
+        for _, i, msg in self.sensor_log:
+            if gained[i]:
+                self.sensor_pubs[i].publish(msg)
+                sent += 1
+                if sent % RESEND_CHUNK == 0:
+                    # best effort through a writer history of 20: paced, or a burst is lost
+                    time.sleep(RESEND_PAUSE_S)
+        if sent:
+            self.get_logger().info(f"sent {sent} kept brake sensor samples again to a new "
+                                   "reader")
+        return sent
 
     def kpis(self) -> dict[str, Any]:
         """The core's KPIs plus the node's lockstep/rejection counters."""
@@ -445,6 +637,35 @@ class LineSimulator(Node):
         (out / "kpis.json").write_text(json.dumps(json_safe(k), indent=2, sort_keys=True))
 
 
+def _journal_key(e: dict[str, Any]) -> tuple[Any, ...]:
+    """(train, station, departure, running time, dwell limit, regulator) of a journal line."""
+    return (int(e["i"]), int(e["st"]), float(e["dep"]), float(e["run"]), float(e["dwell"]),
+            int(e["reg"]))
+
+
+def _nan_key(key: tuple[Any, ...]) -> tuple[Any, ...]:
+    """A hashable key where NaN equals NaN (NaN marks an unset value)."""
+    return tuple("nan" if isinstance(x, float) and math.isnan(x) else x for x in key)
+
+
+def _read_journal(path: Path) -> list[dict[str, Any]]:
+    """The departure journal's entries (a torn or foreign line ends it)."""
+    out: list[dict[str, Any]] = []
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return out
+    for line in text.splitlines():
+        try:
+            e = json.loads(line)
+            _journal_key(e)
+            int(e["k"])
+        except (ValueError, KeyError, TypeError):
+            break
+        out.append(e)
+    return out
+
+
 def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
                   fast_path: bool = True) -> None:
     """Drive the simulator: lockstep on commands, or free-run paced at the real-time factor.
@@ -475,6 +696,8 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
     log.info(f"graph ready after {time.monotonic() - t0:.2f} s")
     sim.started = True
     sim.new_subscribers(np.ones(len(sim.ids), dtype=bool))
+    sim.resend_sensors()  # the readers of step 0: nothing kept yet, nothing sent
+    next_sensor_check = time.monotonic() + 1.0
     wall0, sim0 = time.monotonic(), float(sim.sim.t)
     sim._wall0 = wall0
     last_slow = time.monotonic()
@@ -487,6 +710,9 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
             executor.spin_once(timeout_sec=0.0)
 
     while not sim.finished and not stop_requested():
+        if time.monotonic() >= next_sensor_check:
+            next_sensor_check = time.monotonic() + 1.0
+            sim.resend_sensors()
         active = sim.publish_step()
         if sim.lockstep:
             deadline = time.monotonic() + sim.step_timeout_s

@@ -1,0 +1,93 @@
+"""``run`` respawns dead node processes up to ``--respawn-limit`` (ROS-free: stand-in processes).
+
+The graph's commands are replaced by small Python processes: a "simulator" that ends
+normally after a while, and nodes that die (SIGKILL, crash) or fail configuration.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from metro_atc import launcher
+
+SIM = [sys.executable, "-c", "import time; time.sleep(4.0)"]
+"""A simulator that runs 4 s and ends normally."""
+
+
+def _node(script: str) -> list[str]:
+    return [sys.executable, "-c", script]
+
+
+def _run(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, node: list[str],
+         limit: int, capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    """Run the stand-in graph; (exit code, stderr)."""
+    monkeypatch.setattr(launcher, "build_commands",
+                        lambda a, ids, out: [("line_simulator", SIM), ("ats_regulator", node)])
+    a = launcher._parser().parse_args(["--out", str(tmp_path), "--respawn-limit", str(limit),
+                                       "--timeout", "60"])
+    code = launcher._run_processes(a, ["train_01"], tmp_path)
+    return code, capsys.readouterr().err
+
+
+def test_a_killed_node_is_restarted_once(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    """Killed on its first start (SIGKILL), the node runs on after one restart: exit 0."""
+    marker = tmp_path / "started_once"
+    node = _node(f"import os, signal, time, pathlib\n"
+                 f"m = pathlib.Path({str(marker)!r})\n"
+                 f"if not m.exists():\n"
+                 f"    m.write_text('x'); os.kill(os.getpid(), signal.SIGKILL)\n"
+                 f"time.sleep(30)\n")
+    code, err = _run(monkeypatch, tmp_path, node, 2, capsys)
+    assert code == 0, err
+    assert err.count("restarting it") == 1, err
+    assert "ats_regulator exited with -9 (killed by SIGKILL); restarting it (1 of 2)" in err
+    pids: dict[str, Any] = json.loads((tmp_path / "logs" / "pids.json").read_text())
+    assert set(pids) == {"line_simulator", "ats_regulator"}
+
+
+def test_beyond_the_limit_the_run_fails(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    """A node that always crashes is restarted ``limit`` times, then the run exits 3."""
+    node = _node("print('error: boom'); raise SystemExit(1)")
+    code, err = _run(monkeypatch, tmp_path, node, 2, capsys)
+    assert code == launcher.EXIT_NODE_FAILED, err
+    assert "(1 of 2)" in err and "(2 of 2)" in err and "(3 of 2)" not in err, err
+    assert "ats_regulator exited with 1 (respawn limit reached): error: boom" in err, err
+    # each start appended to the same log
+    assert (tmp_path / "logs" / "ats_regulator.log").read_text().count("error: boom") == 3
+
+
+@pytest.mark.parametrize("limit", [0, 3])
+def test_no_respawn_for_configuration_errors_or_limit_0(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        limit: int) -> None:
+    """Exit 2 (a configuration error: a restart cannot fix it) and ``--respawn-limit 0``
+    end the run at the first death."""
+    node = _node("raise SystemExit(2)" if limit else "raise SystemExit(1)")
+    code, err = _run(monkeypatch, tmp_path, node, limit, capsys)
+    assert code == launcher.EXIT_NODE_FAILED, err
+    assert "restarting" not in err, err
+
+
+def test_a_simulator_crash_is_respawned_too(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    """The simulator dying (not its normal exit 0) is a death like any other."""
+    marker = tmp_path / "sim_started"
+    sim = _node(f"import pathlib, time\n"
+                f"m = pathlib.Path({str(marker)!r})\n"
+                f"if not m.exists():\n"
+                f"    m.write_text('x'); raise SystemExit(1)\n"
+                f"time.sleep(2.0)\n")
+    monkeypatch.setattr(launcher, "build_commands", lambda a, ids, out: [
+        ("line_simulator", sim), ("ats_regulator", _node("import time; time.sleep(30)"))])
+    a = launcher._parser().parse_args(["--out", str(tmp_path), "--timeout", "60"])
+    code = launcher._run_processes(a, ["train_01"], tmp_path)
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "line_simulator exited with 1" in err and "(1 of 3)" in err, err
