@@ -38,7 +38,7 @@ def test_dp_matches_brute_force_lagrangian(mu: float) -> None:
     run, tab = _tiny()
     en, tm, _ = _brute(run, tab)
     obj = np.where(np.isfinite(tm), en + mu * tm, np.inf)
-    j_val, _, _ = _backward(tab, mu)
+    j_val = _backward(tab, mu)[0]
     ctrl, _, _ = _forward_table(tab, mu, j_val)
     _, e_dp, t_dp = simulate_controls(run, tab, ctrl)
     assert e_dp + mu * t_dp == pytest.approx(float(np.min(obj)), rel=1e-4)
