@@ -98,7 +98,7 @@ class DPResult:
 
     controls: control index per stage; hull_energy_j: energy-time hull at the target time
     [J]; feasible: the target time is met within 0.05 s (else the fastest profile is
-    returned); compute_s: wall time [s]; n_passes: rounds of the multiplier search
+    returned); compute_s: CPU time [s]; n_passes: rounds of the multiplier search
     (each one vectorised backward and forward pass); levels: traction level per stage.
     """
 
@@ -422,7 +422,7 @@ def solve_dp(run: RunModel, target_time_s: float, ds_m: float = 10.0, de_m2s2: f
     target time (the lower convex hull of the energy-time front).  If the target is below
     the fastest profile the fastest profile is returned with ``feasible=False``.
     """
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     tab = tables if tables is not None else build_dp_tables(run, ds_m, de_m2s2)
     n_st = tab.n_stages
     seen, fast, slow, rounds = _search_multiplier(tab, target_time_s)
@@ -433,7 +433,7 @@ def solve_dp(run: RunModel, target_time_s: float, ds_m: float = 10.0, de_m2s2: f
         return DPResult(s_grid=tab.s_grid.copy(), v_profile=v_f, controls=c_fast,
                         energy_j=float(e_f), time_s=float(t_f), mu=mu,
                         hull_energy_j=float(e_f), feasible=False,
-                        compute_s=time.perf_counter() - t0, n_passes=rounds)
+                        compute_s=time.process_time() - t0, n_passes=rounds)
     cands: list[tuple[IntArray, FloatArray]] = []
     feas = [r for r in seen if r[3] <= target_time_s + 0.01]
     best = min(feas, key=lambda r: r[2])
@@ -471,4 +471,4 @@ def solve_dp(run: RunModel, target_time_s: float, ds_m: float = 10.0, de_m2s2: f
     return DPResult(s_grid=tab.s_grid.copy(), v_profile=v_all[i], controls=c_all[i],
                     energy_j=energy, time_s=tm, mu=mu_best, hull_energy_j=float(hull),
                     feasible=bool(tm <= target_time_s + 0.05),
-                    compute_s=time.perf_counter() - t0, n_passes=rounds, levels=l_all[i])
+                    compute_s=time.process_time() - t0, n_passes=rounds, levels=l_all[i])
