@@ -38,7 +38,7 @@ def test_dp_matches_brute_force_lagrangian(mu: float) -> None:
     run, tab = _tiny()
     en, tm, _ = _brute(run, tab)
     obj = np.where(np.isfinite(tm), en + mu * tm, np.inf)
-    j_val, _, _ = _backward(tab, mu)
+    j_val = _backward(tab, mu)[0]
     ctrl, _, _ = _forward_table(tab, mu, j_val)
     _, e_dp, t_dp = simulate_controls(run, tab, ctrl)
     assert e_dp + mu * t_dp == pytest.approx(float(np.min(obj)), rel=1e-4)
@@ -68,3 +68,26 @@ def test_dp_is_a_lower_reference_for_coasting_profiles() -> None:
     assert dp.compute_s < 10.0
     fast = solve_dp(run, 50.0)
     assert not fast.feasible
+
+
+def test_vectorised_passes_match_single_multiplier_passes() -> None:
+    """The backward pass over a batch of multipliers equals one pass per multiplier, and the
+    batched forward pass (policy per candidate and stage) equals the single forward passes.
+    """
+    from metro_atc.core.ato.dp import _forward
+    run, tab = _tiny()
+    mus = np.array([2e4, 1e5, 4e5, 2e6])
+    j_all = _backward(tab, mus)
+    for i, mu in enumerate(mus):
+        assert np.array_equal(j_all[i], _backward(tab, float(mu))[0])
+    pol = np.repeat(np.arange(mus.size)[:, None], tab.n_stages, axis=1)
+    fw = _forward(tab, mus, j_all, pol)
+    for i, mu in enumerate(mus):
+        c, e, t = _forward_table(tab, float(mu), j_all[i])
+        assert np.array_equal(fw.controls[i], c)
+        assert fw.energy_j[i] == pytest.approx(e) and fw.time_s[i] == pytest.approx(t)
+    # a splice (policy 0 before stage k, policy 3 from k on) follows each policy's choices
+    k = 2
+    sp = _forward(tab, mus[[0, 3]], j_all[[0, 3]],
+                  (np.arange(tab.n_stages) >= k).astype(np.int64)[None, :])
+    assert np.array_equal(sp.controls[0, :k], fw.controls[0, :k])

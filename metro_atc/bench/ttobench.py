@@ -12,7 +12,8 @@ running time: the independent LP optimum (:mod:`metro_atc.core.ato.oracle`), the
 (seed 001 parameters, seed 1; spread over seeds 1-5 on request), ECTP, FCTP and FOTP.
 Reported per planner: traction energy at the wheel [kWh], at the substation [kWh] (traction
 / eta_traction - eta_regen x electric braking work within the electric brake's force and
-power limits), gap to the optimum [%], running-time error [s], compute time [s].
+power limits), gap to the optimum [%], running-time error [s], compute time [s] (CPU time,
+of the process, not wall time: the figures stay meaningful on a loaded machine).
 ``--write-reference`` stores the per-instance optima in
 ``metro_atc/data/ttobench/reference_energies.json``.
 """
@@ -84,9 +85,10 @@ def substation_kwh(run: RunModel, s: FloatArray, v: FloatArray) -> tuple[float, 
 
 
 def _timed(fn: Callable[[], Any]) -> tuple[Any, float]:
-    t0 = time.perf_counter()
+    """Result of fn() and the CPU time [s] it took (process time: load-independent-ish)."""
+    t0 = time.process_time()
     out = fn()
-    return out, time.perf_counter() - t0
+    return out, time.process_time() - t0
 
 
 def run_instance(run: RunModel, factor: float, grid_m: float, seeds: tuple[int, ...] = (1,),

@@ -16,18 +16,22 @@ interpolated linearly in e (standard DP on a continuous state, e.g. Bertsekas, *
 Programming and Optimal Control*, Vol. 1, Ch. 6).
 
 Running-time constraint by Lagrangian relaxation: for a multiplier mu [J/s] the backward
-recursion minimises ``E + mu T``; ``T(mu)`` is non-increasing and a bisection on log(mu)
-meets the target time.  The final profile is obtained by a forward pass that simulates the
-chosen controls exactly from the exact state (no grid error in the reported energy / time).
+recursion minimises ``E + mu T``; ``T(mu)`` is non-increasing.  The multiplier is searched
+in rounds of ``MU_BATCH`` values on a log grid, each round one backward and one forward pass
+vectorised over the multipliers (numpy over multipliers x states x controls), until the
+bracket [slowest feasible, fastest infeasible] is narrower than ``MU_LOG_TOL`` in log(mu).
 
 Closing the duality gap.  ``T(mu)`` jumps (a stage more or less of traction changes the
 running time by up to a second on descents), so the best Lagrangian profile can leave time
 unused and cost several per cent more than the constrained optimum (seen against the
 independent LP optimum, :mod:`metro_atc.core.ato.oracle`).  The two profiles bracketing the
-target are therefore spliced (the slower policy up to stage k, the faster one after it; the
-latest k meeting the time, by bisection), and inside the switching stage the traction level
-of its accelerate / cruise control is bisected so that the exact running time meets the
-target; the faster policy continues from the exact state.
+target are therefore spliced (the slower policy up to stage k, the faster one after it;
+every k at once in one vectorised forward pass, the cheapest meeting the time), and inside
+the switching stage the traction level of its accelerate / cruise control is swept over
+``BLEND_LEVELS`` values (vectorised) so that the running time meets the target; the faster
+policy continues from the exact state.  The candidate control sequences (Lagrangian best,
+splice, blend, and the slower bracket end) are finally simulated exactly together (no grid
+error in the reported energy / time) and the cheapest meeting the time within 0.05 s wins.
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, MODE_CRUISE, RunModel
 from metro_atc.core.ato.strategy import strategy_step
@@ -49,6 +53,16 @@ CONTROL_MODES = (MODE_ACCEL, MODE_ACCEL, MODE_CRUISE, MODE_COAST)
 """Mode of each DP control."""
 CONTROL_LEVELS = (1.0, 0.5, 1.0, 1.0)
 """Traction level of each DP control (cruise uses full traction when needed)."""
+MU_MAX = 1e9
+"""Largest multiplier [J/s] (the flat-out end of the energy-time front)."""
+MU_BATCH = 12
+"""Multipliers per round of the multiplier search."""
+MU_ROUNDS = 4
+"""Most rounds of the multiplier search."""
+MU_LOG_TOL = 0.02
+"""Bracket width in log(mu) at which the multiplier search stops."""
+BLEND_LEVELS = 32
+"""Traction levels tried in the switching stage of the spliced profile."""
 
 
 @dataclass
@@ -71,7 +85,6 @@ class DPTables:
     substeps: int
     fg_sub: FloatArray
     cap_sub: FloatArray
-    lists: Optional[tuple[list, list, list]] = None
 
     @property
     def n_stages(self) -> int:
@@ -85,7 +98,8 @@ class DPResult:
 
     controls: control index per stage; hull_energy_j: energy-time hull at the target time
     [J]; feasible: the target time is met within 0.05 s (else the fastest profile is
-    returned); compute_s: wall time [s]; n_passes: backward passes.
+    returned); compute_s: CPU time [s]; n_passes: rounds of the multiplier search
+    (each one vectorised backward and forward pass); levels: traction level per stage.
     """
 
     s_grid: FloatArray
@@ -98,6 +112,7 @@ class DPResult:
     feasible: bool
     compute_s: float
     n_passes: int
+    levels: Optional[FloatArray] = None
 
 
 def build_dp_tables(run: RunModel, ds_m: float = 10.0, de_m2s2: float = 1.0,
@@ -105,7 +120,9 @@ def build_dp_tables(run: RunModel, ds_m: float = 10.0, de_m2s2: float = 1.0,
     """Tabulate every (stage, state, control) transition of the run.
 
     ds_m: stage length [m] (rounded to tile the run); de_m2s2: state step of e = v^2/2
-    [m^2/s^2]; substep_m: integration step inside a stage [m].
+    [m^2/s^2]; substep_m: integration step inside a stage [m].  Vectorised over all stages
+    and states at once, one control at a time (the coasting solution, the costly one, is
+    computed once rather than for every control).
     """
     n_st = max(1, int(round(run.length_m / ds_m)))
     s = np.linspace(0.0, run.length_m, n_st + 1)
@@ -114,38 +131,38 @@ def build_dp_tables(run: RunModel, ds_m: float = 10.0, de_m2s2: float = 1.0,
     cap = run.ceiling_e(s)
     n_states = int(np.ceil(np.max(cap) / de_m2s2)) + 2
     e = np.arange(n_states, dtype=float) * de_m2s2
-    modes = np.asarray(CONTROL_MODES, dtype=np.int64)
-    levels = np.asarray(CONTROL_LEVELS, dtype=float)
-    n_u = modes.size
+    n_u = len(CONTROL_MODES)
     h = ds / n_sub
-    # all stages at once: arrays (n_st, n_states, n_u)
     a_sub = s[:-1, None] + np.arange(n_sub)[None, :] * h
     fg_sub = run.mean_grade_force(a_sub, a_sub + h)
     cap_sub = run.ceiling_e(a_sub + h)
-    cur = np.broadcast_to(e[None, :, None], (n_st, n_states, n_u)).copy()
-    cur = np.minimum(cur, cap[:-1, None, None])
-    hold = cur.copy()
-    en = np.zeros_like(cur)
-    tm = np.zeros_like(cur)
-    for q in range(n_sub):
-        fg = fg_sub[:, q, None, None]
-        c_next = cap_sub[:, q, None, None]
-        cur, dt, de, st = strategy_step(run.train, run.limits, cur, h, fg, c_next,
-                                        modes[None, None, :], np.inf, hold,
-                                        levels[None, None, :])
-        tm += dt
-        en += de
     # states above the envelope start from the envelope (clamped above): this keeps the
     # interpolation between the top feasible state and the next one well defined
+    e_start = np.minimum(e[None, :], cap[:-1, None])
+    e_next = np.empty((n_st, n_states, n_u))
+    en = np.empty_like(e_next)
+    tm = np.empty_like(e_next)
+    for u, (mode, level) in enumerate(zip(CONTROL_MODES, CONTROL_LEVELS)):
+        cur = e_start
+        t_u = np.zeros_like(e_start)
+        j_u = np.zeros_like(e_start)
+        for q in range(n_sub):
+            cur, dt, de, _ = strategy_step(run.train, run.limits, cur, h, fg_sub[:, q, None],
+                                           cap_sub[:, q, None], mode, np.inf, e_start, level)
+            t_u += dt
+            j_u += de
+        e_next[..., u] = cur
+        en[..., u] = j_u
+        tm[..., u] = t_u
     infeasible = ~np.isfinite(tm)
-    tm = np.where(infeasible, np.inf, tm)
-    en = np.where(infeasible, np.inf, en)
-    f = np.clip(cur / de_m2s2, 0.0, n_states - 1.000001)
+    tm[infeasible] = np.inf
+    en[infeasible] = np.inf
+    f = np.clip(e_next / de_m2s2, 0.0, n_states - 1.000001)
     idx0 = f.astype(np.int64)
     w = f - idx0
     top = np.minimum(np.floor(cap / de_m2s2 + 1e-9).astype(np.int64), n_states - 1)
-    return DPTables(s_grid=s, e_grid=e, e_next=cur, energy_j=en, time_s=tm, idx0=idx0, w=w,
-                    top=top, substeps=n_sub, fg_sub=fg_sub, cap_sub=cap_sub)
+    return DPTables(s_grid=s, e_grid=e, e_next=e_next, energy_j=en, time_s=tm, idx0=idx0,
+                    w=w, top=top, substeps=n_sub, fg_sub=fg_sub, cap_sub=cap_sub)
 
 
 def _lerp(a: FloatArray, b: FloatArray, w: FloatArray) -> FloatArray:
@@ -155,318 +172,303 @@ def _lerp(a: FloatArray, b: FloatArray, w: FloatArray) -> FloatArray:
     return np.where(w <= 0.0, a, out)
 
 
-def _backward(tab: DPTables, mu: float) -> tuple[FloatArray, FloatArray, IntArray]:
-    """Value functions J_k (E + mu T) and time-to-go T_k on the grid, and the policy."""
+def _backward(tab: DPTables, mus: ArrayLike) -> FloatArray:
+    """Value functions J_k = min (E + mu T) to go, for every multiplier mu [J/s] at once.
+
+    Returns shape (n_mu, n_stages + 1, n_states) (a scalar mu gives n_mu = 1).  The next
+    stage's value is interpolated linearly in e at the landing speed of each control.
+    """
+    m = np.atleast_1d(np.asarray(mus, dtype=float))
     n_st, n_states = tab.n_stages, tab.e_grid.size
-    j_val = np.zeros((n_st + 1, n_states))
-    t_val = np.zeros((n_st + 1, n_states))
-    policy = np.zeros((n_st, n_states), dtype=np.int64)
-    rows = np.arange(n_states)
+    j_all = np.zeros((m.size, n_st + 1, n_states))
+    mu3 = m[:, None, None]
     for k in range(n_st - 1, -1, -1):
-        jn = j_val[k + 1]
-        tn = t_val[k + 1]
+        jn = j_all[:, k + 1]
         i0 = tab.idx0[k]
-        w = tab.w[k]
-        q = tab.energy_j[k] + mu * tab.time_s[k] + _lerp(jn[i0], jn[i0 + 1], w)
-        u = np.argmin(q, axis=1)
-        policy[k] = u
-        jk = q[rows, u]
-        iu = i0[rows, u]
-        tk = tab.time_s[k][rows, u] + _lerp(tn[iu], tn[iu + 1], w[rows, u])
+        q = tab.energy_j[k][None] + mu3 * tab.time_s[k][None] \
+            + _lerp(jn[:, i0], jn[:, i0 + 1], tab.w[k])
+        jk = np.min(q, axis=2)
         # states above the envelope are unreachable: flat extrapolation from the top state
         top = int(tab.top[k])
-        jk[top + 1:] = jk[top]
-        tk[top + 1:] = tk[top]
-        j_val[k] = jk
-        t_val[k] = tk
-    return j_val, t_val, policy
+        jk[:, top + 1:] = jk[:, top:top + 1]
+        j_all[:, k] = jk
+    return j_all
 
 
-def _lerp_f(a: float, b: float, w: float) -> float:
-    """Scalar linear interpolation keeping a where w == 0 (a, b may be inf)."""
-    if w <= 0.0:
-        return a
-    if a == np.inf or b == np.inf:
-        return np.inf
-    return a + w * (b - a)
+@dataclass
+class _Forward:
+    """Table forward passes of a batch of candidates.
 
-
-def _forward_table(tab: DPTables, mu: float, j_val: FloatArray,
-                   switch: Optional[tuple[int, float, FloatArray]] = None,
-                   start: tuple[int, float] = (0, 0.0)
-                   ) -> tuple[IntArray, float, float]:
-    """Forward pass on the tables: controls chosen on the interpolated value function.
-
-    The state stays exact (off-grid); stage outcomes are interpolated linearly in e between
-    the two neighbouring grid states.  ``switch = (k, mu2, j_val2)`` follows the policy of
-    (mu2, j_val2) from stage k on (a spliced profile); ``start = (k0, e0)`` starts at stage
-    k0 from state e0 (earlier controls are left 0 and count no energy / time).  Returns
-    (controls, energy [J], time [s]).  Pure-Python scalar loop (microseconds per stage).
+    controls (n_c, n_st), energy [J] and time [s] (inf when a candidate fails), e at the
+    stages (n_c, n_st + 1).
     """
-    if tab.lists is None:
-        tab.lists = (tab.e_next.tolist(), tab.energy_j.tolist(), tab.time_s.tolist())
-    e_nx, e_en, e_tm = tab.lists
-    jl = j_val.tolist()
+
+    controls: IntArray
+    energy_j: FloatArray
+    time_s: FloatArray
+    e_path: FloatArray
+
+
+def _forward(tab: DPTables, mus: FloatArray, j_all: FloatArray, policy: IntArray,
+             e0: Optional[FloatArray] = None, k0: int = 0) -> _Forward:
+    """Vectorised forward pass of n_c candidates on the tables.
+
+    Candidate c at stage k follows the policy ``policy[c, k]`` (an index into ``mus`` /
+    ``j_all``): the control minimising stage cost + mu T + interpolated J_{k+1}.  The state
+    stays exact (off-grid); stage outcomes are interpolated linearly in e between the two
+    neighbouring grid states.  Starts at stage k0 from e0 (default: standstill at 0);
+    earlier stages keep control 0 and count nothing.
+    """
+    n_c = policy.shape[0]
     n_st = tab.n_stages
     de = float(tab.e_grid[1] - tab.e_grid[0])
     top_f = tab.e_grid.size - 1.000001
-    n_u = len(CONTROL_MODES)
-    e = float(start[1])
-    ctrl = np.zeros(n_st, dtype=np.int64)
-    energy = 0.0
-    tm = 0.0
-    for k in range(int(start[0]), n_st):
-        if switch is not None and k == switch[0]:
-            mu = switch[1]
-            jl = switch[2].tolist()
-        f = min(max(e / de, 0.0), top_f)
-        i = int(f)
-        a = f - i
-        nx0, nx1 = e_nx[k][i], e_nx[k][i + 1]
-        en0, en1 = e_en[k][i], e_en[k][i + 1]
-        tm0, tm1 = e_tm[k][i], e_tm[k][i + 1]
-        jn = jl[k + 1]
-        best_q = np.inf
-        best = (-1, 0.0, 0.0, 0.0)
-        for u in range(n_u):
-            en = _lerp_f(en0[u], en1[u], a)
-            dt = _lerp_f(tm0[u], tm1[u], a)
-            if dt == np.inf:
-                continue
-            e_n = nx0[u] + a * (nx1[u] - nx0[u])
-            g = min(max(e_n / de, 0.0), top_f)
-            i0 = int(g)
-            q = en + mu * dt + _lerp_f(jn[i0], jn[i0 + 1], g - i0)
-            if q < best_q:
-                best_q = q
-                best = (u, e_n, en, dt)
-        if best[0] < 0:
-            return ctrl, np.inf, np.inf
-        ctrl[k] = best[0]
-        e = best[1]
-        energy += best[2]
-        tm += best[3]
-    return ctrl, energy, tm
+    rows = np.arange(n_c)
+    e = np.zeros(n_c) if e0 is None else np.asarray(e0, dtype=float).copy()
+    ctrl = np.zeros((n_c, n_st), dtype=np.int64)
+    path = np.zeros((n_c, n_st + 1))
+    path[:, k0] = e
+    energy = np.zeros(n_c)
+    tm = np.zeros(n_c)
+    alive = np.ones(n_c, dtype=bool)
+    for k in range(k0, n_st):
+        f = np.clip(e / de, 0.0, top_f)
+        i = f.astype(np.int64)
+        a = (f - i)[:, None]
+        en = _lerp(tab.energy_j[k, i], tab.energy_j[k, i + 1], a)
+        dt = _lerp(tab.time_s[k, i], tab.time_s[k, i + 1], a)
+        nx = tab.e_next[k, i] + a * (tab.e_next[k, i + 1] - tab.e_next[k, i])
+        g = np.clip(nx / de, 0.0, top_f)
+        i1 = g.astype(np.int64)
+        p = policy[:, k][:, None]
+        q = en + mus[p] * dt + _lerp(j_all[p, k + 1, i1], j_all[p, k + 1, i1 + 1], g - i1)
+        q = np.where(np.isfinite(dt), q, np.inf)
+        u = np.argmin(q, axis=1)
+        alive &= np.isfinite(q[rows, u])
+        ctrl[:, k] = u
+        e = nx[rows, u]
+        energy += en[rows, u]
+        tm += dt[rows, u]
+        path[:, k + 1] = e
+    return _Forward(ctrl, np.where(alive, energy, np.inf), np.where(alive, tm, np.inf), path)
 
 
-def _splice(tab: DPTables, target_time_s: float, slow: tuple[float, FloatArray],
-            fast: tuple[float, FloatArray]) -> tuple[IntArray, float, float, int]:
-    """Best spliced profile (slow policy before stage k, fast after) meeting the time.
+def _forward_table(tab: DPTables, mu: float, j_val: FloatArray) -> tuple[IntArray, float, float]:
+    """Forward pass of one policy (mu, J (n_stages + 1, n_states)): (controls, E [J], T [s])."""
+    fw = _forward(tab, np.array([float(mu)]), j_val[None],
+                  np.zeros((1, tab.n_stages), dtype=np.int64))
+    return fw.controls[0], float(fw.energy_j[0]), float(fw.time_s[0])
 
-    The running time grows with k from the fast profile's to the slow one's; a bisection on k
-    finds the latest switch with a table time <= target_time_s.  Returns (controls, energy
-    [J], time [s], switch stage k) of that profile (k = 0: the fast profile itself).
+
+def simulate_controls(run: RunModel, tab: DPTables, controls: IntArray,
+                      levels: Optional[FloatArray] = None
+                      ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Exact simulation of control sequences from standstill (vectorised over sequences).
+
+    controls: (n_st,) or (n_c, n_st) control indices; levels: traction levels of the same
+    shape (default: each control's level).  Returns (v at the stages [m/s], energy [J], time
+    [s]) -- per sequence (leading axis n_c) or, for a single 1-D sequence, one profile and
+    two floats.
     """
-    lo, hi = 0, tab.n_stages
-    best = _forward_table(tab, fast[0], fast[1])
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        c, en, tm = _forward_table(tab, slow[0], slow[1], switch=(mid, fast[0], fast[1]))
-        if tm <= target_time_s + 0.01:
-            lo = mid
-            best = (c, en, tm)
-        else:
-            hi = mid
-    return best[0], best[1], best[2], lo
-
-
-def _policy_control(tab: DPTables, k: int, e: float, mu: float, jn: list) -> int:
-    """Control index the policy (mu, J_{k+1} = jn) picks at stage k from the exact state e."""
-    assert tab.lists is not None
-    e_nx, e_en, e_tm = tab.lists
-    de = float(tab.e_grid[1] - tab.e_grid[0])
-    top_f = tab.e_grid.size - 1.000001
-    f = min(max(e / de, 0.0), top_f)
-    i = int(f)
-    a = f - i
-    best_q, best = np.inf, -1
-    for u in range(len(CONTROL_MODES)):
-        en = _lerp_f(e_en[k][i][u], e_en[k][i + 1][u], a)
-        dt = _lerp_f(e_tm[k][i][u], e_tm[k][i + 1][u], a)
-        if dt == np.inf:
-            continue
-        e_n = e_nx[k][i][u] + a * (e_nx[k][i + 1][u] - e_nx[k][i][u])
-        g = min(max(e_n / de, 0.0), top_f)
-        i0 = int(g)
-        q = en + mu * dt + _lerp_f(jn[i0], jn[i0 + 1], g - i0)
-        if q < best_q:
-            best_q, best = q, u
-    return best
-
-
-def _stage_exact(run: RunModel, tab: DPTables, k: int, e: float, mode: int, level: float
-                 ) -> tuple[float, float, float]:
-    """Exact simulation of stage k from e with (mode, level): (e_next, energy [J], time [s])."""
-    h = run.length_m / tab.n_stages / tab.substeps
-    ea = np.array([e])
-    hold = ea.copy()
-    energy = 0.0
-    tm = 0.0
-    for q in range(tab.substeps):
-        ea, dt, dj, _ = strategy_step(run.train, run.limits, ea, h, tab.fg_sub[k, q],
-                                      tab.cap_sub[k, q], mode, np.inf, hold, level)
-        energy += float(dj[0])
-        tm += float(dt[0])
-    return float(ea[0]), energy, tm
-
-
-def _blend_rollout(run: RunModel, tab: DPTables, prefix: IntArray, k: int, level: float,
-                   mu: float, j_val: FloatArray, mode_k: int = MODE_ACCEL
-                   ) -> tuple[IntArray, FloatArray, FloatArray, float, float]:
-    """Exact rollout of a blended profile.
-
-    ``prefix`` controls before stage k, ``mode_k`` (accelerate or cruise) with traction
-    level ``level`` on stage k, then the policy
-    (mu, j_val).  Returns (controls, levels, e at stages, energy [J], time [s]).
-    """
-    if tab.lists is None:
-        tab.lists = (tab.e_next.tolist(), tab.energy_j.tolist(), tab.time_s.tolist())
-    n_st = tab.n_stages
-    ctrl = np.zeros(n_st, dtype=np.int64)
-    ctrl[:k] = prefix[:k]
-    lev = np.asarray(CONTROL_LEVELS, dtype=float)[ctrl]
-    e_path = np.zeros(n_st + 1)
-    energy = 0.0
-    tm = 0.0
-    e = 0.0
-    for i in range(n_st):
-        if i < k:
-            u, mode, lv = int(ctrl[i]), CONTROL_MODES[int(ctrl[i])], float(lev[i])
-        elif i == k:
-            u, mode, lv = CONTROL_MODES.index(mode_k), mode_k, level
-        else:
-            u = _policy_control(tab, i, e, mu, j_val[i + 1].tolist())
-            if u < 0:
-                return ctrl, lev, e_path, np.inf, np.inf
-            mode, lv = CONTROL_MODES[u], CONTROL_LEVELS[u]
-        ctrl[i], lev[i] = u, lv
-        e, dj, dt = _stage_exact(run, tab, i, e, mode, lv)
-        energy += dj
-        tm += dt
-        e_path[i + 1] = e
-    return ctrl, lev, e_path, energy, tm
-
-
-def _blend(run: RunModel, tab: DPTables, target_time_s: float, fast: tuple[float, FloatArray],
-           k: int, c_fast: IntArray
-           ) -> Optional[tuple[IntArray, FloatArray, FloatArray, float, float]]:
-    """Continuous switch inside stage k of the spliced profile ``c_fast``.
-
-    Stage k's traction level (accelerate or cruise) is bisected between 0 (coasting-like)
-    and the fast control's level so that the running time meets the target (stage k
-    simulated exactly, the fast policy after it on the tables); the chosen profile is then
-    simulated exactly.  None when stage k of ``c_fast`` coasts.
-    """
-    mode_k = CONTROL_MODES[int(c_fast[k])]
-    if mode_k not in (MODE_ACCEL, MODE_CRUISE):
-        return None
-    e_k, en_pre, tm_pre = 0.0, 0.0, 0.0
-    for i in range(k):
-        u = int(c_fast[i])
-        e_k, dj, dt = _stage_exact(run, tab, i, e_k, CONTROL_MODES[u], CONTROL_LEVELS[u])
-        en_pre += dj
-        tm_pre += dt
-
-    def total(level: float) -> tuple[float, float]:
-        e1, dj, dt = _stage_exact(run, tab, k, e_k, mode_k, level)
-        _, en, tm = _forward_table(tab, fast[0], fast[1], start=(k + 1, e1))
-        return en_pre + dj + en, tm_pre + dt + tm
-
-    lo_l, hi_l = 0.0, float(CONTROL_LEVELS[int(c_fast[k])])
-    if total(hi_l)[1] > target_time_s + 0.05:
-        return None
-    for _ in range(12):
-        mid = 0.5 * (lo_l + hi_l)
-        if total(mid)[1] <= target_time_s:
-            hi_l = mid
-        else:
-            lo_l = mid
-    return _blend_rollout(run, tab, c_fast, k, hi_l, fast[0], fast[1], mode_k)
-
-
-def simulate_controls(run: RunModel, tab: DPTables, controls: IntArray
-                      ) -> tuple[FloatArray, float, float]:
-    """Exact simulation of a control sequence: (v at stages [m/s], energy [J], time [s])."""
-    modes = np.asarray(CONTROL_MODES, dtype=np.int64)
-    levels = np.asarray(CONTROL_LEVELS, dtype=float)
-    n_st = tab.n_stages
+    c = np.asarray(controls, dtype=np.int64)
+    single = c.ndim == 1
+    c2 = np.atleast_2d(c)
+    modes = np.asarray(CONTROL_MODES, dtype=np.int64)[c2]
+    lev = (np.asarray(CONTROL_LEVELS, dtype=float)[c2] if levels is None
+           else np.atleast_2d(np.asarray(levels, dtype=float)))
+    n_c, n_st = c2.shape
     h = run.length_m / n_st / tab.substeps
-    e = np.zeros(1)
-    e_path = np.zeros(n_st + 1)
-    energy = 0.0
-    tm = 0.0
+    e = np.zeros(n_c)
+    e_path = np.zeros((n_c, n_st + 1))
+    energy = np.zeros(n_c)
+    tm = np.zeros(n_c)
     for k in range(n_st):
-        u = int(controls[k])
-        hold = e.copy()
+        hold = e
         for q in range(tab.substeps):
             e, dt, de, _ = strategy_step(run.train, run.limits, e, h, tab.fg_sub[k, q],
-                                         tab.cap_sub[k, q], int(modes[u]), np.inf, hold,
-                                         float(levels[u]))
-            energy += float(de[0])
-            tm += float(dt[0])
-        e_path[k + 1] = float(e[0])
-    return np.sqrt(2.0 * e_path), energy, tm
+                                         tab.cap_sub[k, q], modes[:, k], np.inf, hold,
+                                         lev[:, k])
+            energy += de
+            tm += dt
+        e_path[:, k + 1] = e
+    v = np.sqrt(2.0 * e_path)
+    if single:
+        return v[0], energy[0], tm[0]
+    return v, energy, tm
+
+
+def _stage_levels(run: RunModel, tab: DPTables, k: int, e: float, mode: int,
+                  levels: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Exact simulation of stage k from e with (mode, each traction level): (e_next, J, s)."""
+    h = run.length_m / tab.n_stages / tab.substeps
+    ea = np.full(levels.size, float(e))
+    hold = ea.copy()
+    energy = np.zeros(levels.size)
+    tm = np.zeros(levels.size)
+    for q in range(tab.substeps):
+        ea, dt, dj, _ = strategy_step(run.train, run.limits, ea, h, tab.fg_sub[k, q],
+                                      tab.cap_sub[k, q], mode, np.inf, hold, levels)
+        energy += dj
+        tm += dt
+    return ea, energy, tm
+
+
+def _blend(run: RunModel, tab: DPTables, target_time_s: float, mu_fast: float,
+           j_fast: FloatArray, ctrl: IntArray, e_path: FloatArray, k: int
+           ) -> Optional[tuple[IntArray, FloatArray]]:
+    """Continuous switch inside stage k of a spliced profile (controls ``ctrl``).
+
+    Stage k's traction level (accelerate or cruise) is swept over ``BLEND_LEVELS`` values
+    in [0, its level] from the table state at stage k (stage simulated exactly, vectorised
+    over the levels), the fast policy continuing on the tables; the cheapest candidate whose
+    table time meets the target is returned as (controls, levels).  None when stage k
+    coasts or no candidate meets the time.
+    """
+    mode_k = CONTROL_MODES[int(ctrl[k])]
+    if mode_k not in (MODE_ACCEL, MODE_CRUISE) or k >= tab.n_stages - 1:
+        return None
+    lv = np.linspace(0.0, CONTROL_LEVELS[int(ctrl[k])], BLEND_LEVELS + 1)[1:]
+    e1, dj, dt = _stage_levels(run, tab, k, float(e_path[k]), mode_k, lv)
+    fw = _forward(tab, np.array([mu_fast]), j_fast[None],
+                  np.zeros((lv.size, tab.n_stages), dtype=np.int64), e0=e1, k0=k + 1)
+    # time and energy of the common prefix cancel in the comparison between candidates
+    pre_t = _prefix_table(tab, ctrl, e_path, k)
+    ok = np.isfinite(dt) & (pre_t + dt + fw.time_s <= target_time_s + 0.01)
+    if not np.any(ok):
+        return None
+    c = int(np.argmin(np.where(ok, dj + fw.energy_j, np.inf)))
+    out = ctrl.copy()
+    out[k + 1:] = fw.controls[c, k + 1:]
+    levels = np.asarray(CONTROL_LEVELS, dtype=float)[out]
+    levels[k] = lv[c]
+    return out, levels
+
+
+def _prefix_table(tab: DPTables, ctrl: IntArray, e_path: FloatArray, k: int) -> float:
+    """Table running time [s] of stages 0..k-1 along a forward path (interpolated in e)."""
+    de = float(tab.e_grid[1] - tab.e_grid[0])
+    f = np.clip(e_path[:k] / de, 0.0, tab.e_grid.size - 1.000001)
+    i = f.astype(np.int64)
+    st = np.arange(k)
+    u = ctrl[:k]
+    return float(np.sum(_lerp(tab.time_s[st, i, u], tab.time_s[st, i + 1, u], f - i)))
+
+
+def _search_multiplier(tab: DPTables, target_time_s: float
+                       ) -> tuple[list[tuple[float, IntArray, float, float]],
+                                  Optional[tuple[float, FloatArray, _Forward]],
+                                  Optional[tuple[float, FloatArray, _Forward]], int]:
+    """Bracket the multiplier whose table running time meets the target.
+
+    Rounds of ``MU_BATCH`` multipliers on a log grid (one vectorised backward and forward
+    pass per round) narrow [1, MU_MAX] around the switch from too slow to fast enough
+    (T(mu) is non-increasing).  Returns (all evaluated (mu, controls, E, T)), the slowest
+    feasible bracket end (mu, J, forward) and the fastest infeasible one (or None), and the
+    number of rounds.
+    """
+    lo, hi = 0.0, float(np.log(MU_MAX))
+    grid = np.linspace(lo, hi, MU_BATCH)
+    seen: list[tuple[float, IntArray, float, float]] = []
+    fast: Optional[tuple[float, FloatArray, _Forward]] = None
+    slow: Optional[tuple[float, FloatArray, _Forward]] = None
+    rounds = 0
+    while rounds < MU_ROUNDS:
+        rounds += 1
+        mus = np.exp(grid)
+        j_all = _backward(tab, mus)
+        fw = _forward(tab, mus, j_all, np.repeat(np.arange(mus.size)[:, None],
+                                                 tab.n_stages, axis=1))
+        for i in range(mus.size):
+            seen.append((float(mus[i]), fw.controls[i], float(fw.energy_j[i]),
+                         float(fw.time_s[i])))
+        ok = fw.time_s <= target_time_s + 0.01
+        if np.any(ok):
+            i_f = int(np.min(np.nonzero(ok)[0]))
+            fast = (float(mus[i_f]), j_all[i_f], _pick(fw, i_f))
+            hi = float(grid[i_f])
+            below = np.nonzero(~ok[:i_f])[0]
+            if below.size:
+                i_s = int(below[-1])
+                slow = (float(mus[i_s]), j_all[i_s], _pick(fw, i_s))
+                lo = float(grid[i_s])
+            elif rounds == 1:
+                break                       # even the slowest multiplier meets the time
+        elif rounds == 1:
+            break                           # the flat-out end misses the time: infeasible
+        else:
+            lo = float(grid[-1])
+            slow = (float(mus[-1]), j_all[-1], _pick(fw, mus.size - 1))
+        if fast is None or hi - lo < MU_LOG_TOL or \
+                target_time_s - fast[2].time_s[0] < 1e-3:
+            break
+        grid = np.linspace(lo, hi, MU_BATCH + 2)[1:-1]
+    return seen, fast, slow, rounds
+
+
+def _pick(fw: _Forward, i: int) -> _Forward:
+    """Candidate i of a forward batch as a batch of one."""
+    return _Forward(fw.controls[i:i + 1], fw.energy_j[i:i + 1], fw.time_s[i:i + 1],
+                    fw.e_path[i:i + 1])
 
 
 def solve_dp(run: RunModel, target_time_s: float, ds_m: float = 10.0, de_m2s2: float = 1.0,
-             max_passes: int = 40, tables: DPTables | None = None) -> DPResult:
+             tables: DPTables | None = None) -> DPResult:
     """Minimum-energy profile with running time <= target_time_s [s] (Lagrangian DP).
 
-    Bisection on log(mu) with a backward pass and a table forward pass per multiplier; the
-    chosen control sequence is then simulated exactly.  ``hull_energy_j`` interpolates the
-    two exact bracketing solutions to the target time (the lower convex hull of the
-    energy-time front).  If the target is below the fastest profile the fastest profile is
-    returned with ``feasible=False``.
+    Multiplier search by rounds of vectorised backward / forward passes, splice and
+    in-stage blend of the bracketing policies, then the candidate control sequences are
+    simulated exactly together and the cheapest meeting the time (within 0.05 s) is
+    returned.  ``hull_energy_j`` interpolates the two exact bracketing solutions to the
+    target time (the lower convex hull of the energy-time front).  If the target is below
+    the fastest profile the fastest profile is returned with ``feasible=False``.
     """
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     tab = tables if tables is not None else build_dp_tables(run, ds_m, de_m2s2)
-    mu_hi = 1e9
-    j_val, _, _ = _backward(tab, mu_hi)
-    c_best, e_best, t_best = _forward_table(tab, mu_hi, j_val)
-    passes = 1
-    mu_best = mu_hi
-    infeas: tuple[IntArray, float, float] | None = None
-    feasible = bool(t_best <= target_time_s + 0.01)
-    j_best = j_val
-    j_infeas = j_val
-    blend: Optional[tuple[IntArray, FloatArray, FloatArray, float, float]] = None
-    mu_infeas = mu_hi
-    if feasible:
-        lo, hi = np.log(1.0), np.log(mu_hi)
-        while passes < max_passes and hi - lo > 1e-3:
-            mid = 0.5 * (lo + hi)
-            j_m, _, _ = _backward(tab, float(np.exp(mid)))
-            c_m, e_m, t_m = _forward_table(tab, float(np.exp(mid)), j_m)
-            passes += 1
-            if t_m <= target_time_s + 0.01:  # table time: interpolation tolerance
-                hi = mid
-                if e_m < e_best:
-                    c_best, e_best, t_best, mu_best = c_m, e_m, t_m, float(np.exp(mid))
-                    j_best = j_m
-                if target_time_s - t_m < 1e-3:
-                    break
-            else:
-                lo = mid
-                infeas = (c_m, e_m, t_m)
-                j_infeas, mu_infeas = j_m, float(np.exp(mid))
-    if infeas is not None and target_time_s - t_best > 0.02:
-        # Lagrangian duality gap: splice the slower (cheaper) policy up to stage k with the
-        # feasible one after it; the latest switch meeting the target time (bisection on k)
-        c_s, e_s, t_s, k_s = _splice(tab, target_time_s, (mu_infeas, j_infeas),
-                                     (mu_best, j_best))
-        passes += 1
-        if e_s < e_best:
-            c_best, e_best, t_best = c_s, e_s, t_s
-        blend = _blend(run, tab, target_time_s, (mu_best, j_best), k_s, c_s)
-    v, energy, tm = simulate_controls(run, tab, c_best)
-    if blend is not None and blend[3] < energy and blend[4] <= target_time_s + 0.05:
-        c_best, v, energy, tm = blend[0], np.sqrt(2.0 * blend[2]), blend[3], blend[4]
+    n_st = tab.n_stages
+    seen, fast, slow, rounds = _search_multiplier(tab, target_time_s)
+    levels0 = np.asarray(CONTROL_LEVELS, dtype=float)
+    if fast is None:                        # infeasible target: the fastest profile
+        mu, c_fast, _, _ = max(seen, key=lambda r: r[0])
+        v_f, e_f, t_f = simulate_controls(run, tab, c_fast)
+        return DPResult(s_grid=tab.s_grid.copy(), v_profile=v_f, controls=c_fast,
+                        energy_j=float(e_f), time_s=float(t_f), mu=mu,
+                        hull_energy_j=float(e_f), feasible=False,
+                        compute_s=time.process_time() - t0, n_passes=rounds)
+    cands: list[tuple[IntArray, FloatArray]] = []
+    feas = [r for r in seen if r[3] <= target_time_s + 0.01]
+    best = min(feas, key=lambda r: r[2])
+    cands.append((best[1], levels0[best[1]]))
+    mu_best = best[0]
+    if slow is not None and target_time_s - float(fast[2].time_s[0]) > 0.02:
+        # Lagrangian duality gap: the slower (cheaper) policy up to stage k, the faster one
+        # after it -- every switch stage k at once; the cheapest meeting the time
+        pol = (np.arange(n_st)[None, :] >= np.arange(n_st)[:, None]).astype(np.int64)
+        sp = _forward(tab, np.array([slow[0], fast[0]]), np.stack([slow[1], fast[1]]), pol)
+        ok = sp.time_s <= target_time_s + 0.01
+        if np.any(ok):
+            # ties (the policies agree before the switch) go to the latest switch stage
+            k_s = n_st - 1 - int(np.argmin(np.where(ok, sp.energy_j, np.inf)[::-1]))
+            cands.append((sp.controls[k_s], levels0[sp.controls[k_s]]))
+            # the switch stage itself at a partial traction level (continuous switch)
+            bl = _blend(run, tab, target_time_s, fast[0], fast[1], sp.controls[k_s],
+                        sp.e_path[k_s], k_s)
+            if bl is not None:
+                cands.append(bl)
+    if slow is not None:
+        cands.append((slow[2].controls[0], levels0[slow[2].controls[0]]))
+    c_all = np.stack([c for c, _ in cands])
+    l_all = np.stack([lv for _, lv in cands])
+    v_all, e_all, t_all = simulate_controls(run, tab, c_all, l_all)
+    # the exact times decide (the slower bracket end may meet the time after all)
+    ok = t_all <= target_time_s + 0.05
+    i = int(np.argmin(np.where(ok, e_all, np.inf))) if np.any(ok) else int(np.argmin(t_all))
+    energy, tm = float(e_all[i]), float(t_all[i])
     hull = energy
-    if infeas is not None and np.isfinite(infeas[1]):
-        _, e_i, t_i = simulate_controls(run, tab, infeas[0])
-        if t_i > tm + 1e-9 and tm <= target_time_s <= t_i:
+    if slow is not None:
+        e_i, t_i = float(e_all[-1]), float(t_all[-1])
+        if np.isfinite(e_i) and t_i > tm + 1e-9 and tm <= target_time_s <= t_i:
             hull = energy + (e_i - energy) * (target_time_s - tm) / (t_i - tm)
-    return DPResult(s_grid=tab.s_grid.copy(), v_profile=v, controls=c_best, energy_j=energy,
-                    time_s=tm, mu=mu_best, hull_energy_j=float(hull),
-                    feasible=bool(feasible and tm <= target_time_s + 0.05),
-                    compute_s=time.perf_counter() - t0, n_passes=passes)
+    return DPResult(s_grid=tab.s_grid.copy(), v_profile=v_all[i], controls=c_all[i],
+                    energy_j=energy, time_s=tm, mu=mu_best, hull_energy_j=float(hull),
+                    feasible=bool(tm <= target_time_s + 0.05),
+                    compute_s=time.process_time() - t0, n_passes=rounds, levels=l_all[i])
