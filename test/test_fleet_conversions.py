@@ -83,6 +83,12 @@ def test_fleet_command_round_trip_and_rules() -> None:
     assert conv.traction_from_msg(got[0][1], "t", "train_02", 13, 3.25) is None
     with pytest.raises(Rejected):
         conv.traction_from_msg(got[0][1], "t", "train_02", 11, 2.75)
+    # the per-train echo of a fleet-driven train may arrive steps late: dropped, not counted
+    with pytest.raises(Rejected):
+        conv.traction_from_msg(got[0][1], "t", "train_02", 14, 3.5)
+    assert conv.traction_from_msg(got[0][1], "t", "train_02", 14, 3.5, late_echo=True) is None
+    with pytest.raises(Rejected):  # a future step is never an echo
+        conv.traction_from_msg(got[0][1], "t", "train_02", 10, 2.5, late_echo=True)
     with pytest.raises(Rejected):
         conv.traction_from_msg(got[0][1], "t", "train_02", 12, 3.5)
 

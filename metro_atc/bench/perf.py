@@ -36,8 +36,8 @@ from metro_atc.core.line.scenario import load_scenario
 
 TARGET_CORE_RTF = 5000.0
 """Issue 3 target for the core-only real-time factor."""
-TARGET_GRAPH_RTF = 30.0
-"""Issue 3 target for the ROS graph real-time factor (measured elsewhere)."""
+TARGET_GRAPH_RTF = 100.0
+"""Issue 13 target for the ROS graph real-time factor (whole Blue line peak, 2 cores)."""
 
 
 def energy_balance_error(sim: LineSim) -> float:
@@ -187,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
         ("    (CPU time)", "", f"{result['core_rtf_with_sensors_cpu']:.0f}"),
         ("wall time per lockstep step [us]", "", f"{result['core_us_per_step']:.0f}"),
         ("  of which reference driver", "", f"{100 * result['core_driver_share']:.0f} %"),
-        ("graph real-time factor", f">= {TARGET_GRAPH_RTF:.0f}",
+        ("graph real-time factor (issue 13)", f">= {TARGET_GRAPH_RTF:.0f}",
          f"{result['graph_rtf']:.1f}" if result["graph_rtf"] is not None else "skipped"),
         ("trains", ">= 25", f"{result['trains']}"),
         ("simulated time [s]", "", f"{result['sim_time_s']:.0f}"),

@@ -73,19 +73,22 @@ def train_index(train_id: str, index: Mapping[str, int], topic: str) -> int:
 
 
 def traction_from_msg(msg: TractionCommand, topic: str, train_id: str, step: int,
-                      t_s: float) -> float | None:
+                      t_s: float, late_echo: bool = False) -> float | None:
     """Validate the command of ``train_id`` for lockstep step ``step`` at time ``t_s``.
 
     Returns the effort in [-1, 1], or None for the previous step (a stale duplicate,
     ignored without counting).  Rejected: another train, another step, a stamp that is not
     the state's (``t_s``), a non-finite or out-of-range effort, an undefined mode.
+    ``late_echo``: any earlier step is a stale duplicate too (the per-train copy of a
+    command the simulator already took from the fleet command: another writer, so it may
+    arrive steps late).
     """
     _train(msg, topic, train_id)
     effort = check_finite(f"{topic}.effort", msg.effort)
     effort = check_range(f"{topic}.effort", effort, -1.0 - 1e-9, 1.0 + 1e-9, "effort")
     check_index(f"{topic}.mode", msg.mode, 0, len(MODES) - 1, "mode")
     k = int(msg.step)
-    if k == step - 1:
+    if k == step - 1 or (late_echo and k < step):
         return None
     if k != step:
         raise Rejected("step", f"{topic}.step={k} is not the lockstep step {step}")
