@@ -12,7 +12,7 @@ setup:
 	@bash scripts/install.sh
 
 demo: setup
-	@source env.sh && python -m metro_atc run --scenario $(SCENARIO) --regulator $(REGULATOR) --out out/demo
+	@source env.sh && python -m metro_atc run --scenario $(SCENARIO) --regulator $(REGULATOR) --out out/demo --progress always
 
 test: setup
 	@source env.sh && python -m pytest test -q $(PYTEST_ARGS)

@@ -34,6 +34,7 @@ import json
 import math
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -80,8 +81,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.add_argument("--single-process", action="store_true",
                    help="run all nodes in this process on one SingleThreadedExecutor")
-    p.add_argument("--ato-per-process", type=int, default=8,
-                   help="ATO nodes composed per OS process (default 8)")
+    p.add_argument("--ato-per-process", type=int, default=15,
+                   help="ATO nodes composed per OS process (default 15: 2 processes for the "
+                        "Blue line's 30 trains on a 2-core machine)")
     p.add_argument("--free-run", action="store_true",
                    help="free-running at --rtf instead of the deterministic lockstep")
     p.add_argument("--rtf", type=float, default=10.0,
@@ -143,16 +145,19 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
 def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "none",
                     seed: int = 0, lockstep: bool = True, rtf: float = 10.0,
                     duration_s: float = 0.0, out_dir: str = "", plots: bool = True,
-                    ato_per_process: int = 8, record_dir: str | None = None,
+                    ato_per_process: int = 15, record_dir: str | None = None,
                     wait_for: Sequence[str] = (), cfg: Path | None = None,
                     weights_file: str = "", checkpoint_dir: str = "",
                     checkpoint_period_s: float = 60.0,
-                    step_timeout_s: float = 0.0) -> list[ProcessSpec]:
+                    step_timeout_s: float = 0.0,
+                    plan_store_dir: str = "") -> list[ProcessSpec]:
     """The processes of a run, as ``run`` starts them and the launch file declares them.
 
     ``weights_file``: the aoc/dhp weights the ATS loads ('' : it looks them up itself).
     ``checkpoint_dir`` ('' : none): where the simulator checkpoints every
     ``checkpoint_period_s`` simulated seconds and the ATOs keep their state journals.
+    ``plan_store_dir``: a directory the ATO processes share their finished plans in
+    (:mod:`metro_atc.core.ato.plan_store`; '' : none).
     """
     cfg = cfg or config_dir()
     base: dict[str, Any] = {"use_sim_time": True, "scenario": scenario}
@@ -167,6 +172,8 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
         sim.update(resume, checkpoint_period_s=float(checkpoint_period_s))
     if step_timeout_s > 0:
         sim["step_timeout_s"] = float(step_timeout_s)
+    if record_dir is not None:
+        sim["train_state_period_s"] = 0.0  # a recording has every train's state every step
     procs = [ProcessSpec("line_simulator", "line_simulator", str(cfg / "line_simulator.yaml"),
                          sim),
              ProcessSpec("ats_regulator", "ats_regulator", str(cfg / "ats_regulator.yaml"),
@@ -177,9 +184,11 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
     n = max(1, int(ato_per_process))
     for g in range(0, len(train_ids), n):
         group = list(train_ids[g:g + n])
+        ato = dict(base, train_ids=group)
+        if plan_store_dir:
+            ato["plan_store_dir"] = str(plan_store_dir)
         procs.append(ProcessSpec(f"ato_{group[0]}", "ato_controller",
-                                 str(cfg / "ato_controller.yaml"),
-                                 dict(base, train_ids=group, **resume)))
+                                 str(cfg / "ato_controller.yaml"), dict(ato, **resume)))
     if record_dir is not None:
         procs.append(ProcessSpec("bag_recorder", "bag_recorder", None,
                                  dict(base, output=str(record_dir))))
@@ -194,7 +203,7 @@ def record_dir(a: argparse.Namespace, out_dir: Path) -> str | None:
 
 
 def processes_for(a: argparse.Namespace, train_ids: Sequence[str],
-                  out_dir: Path) -> list[ProcessSpec]:
+                  out_dir: Path, plan_store_dir: str = "") -> list[ProcessSpec]:
     """:func:`graph_processes` for the parsed ``run`` options."""
     return graph_processes(
         a.scenario, train_ids, regulator=a.regulator, seed=a.seed, lockstep=not a.free_run,
@@ -203,7 +212,7 @@ def processes_for(a: argparse.Namespace, train_ids: Sequence[str],
         wait_for=[x for x in a.wait_for_subscribers.split(",") if x],
         weights_file=getattr(a, "weights_file", ""),
         checkpoint_dir=str(checkpoint_dir(out_dir)), checkpoint_period_s=a.checkpoint_period,
-        step_timeout_s=a.step_timeout)
+        step_timeout_s=a.step_timeout, plan_store_dir=plan_store_dir)
 
 
 def checkpoint_dir(out_dir: Path) -> Path:
@@ -243,11 +252,11 @@ def ros_param_value(v: Any) -> str:
 
 
 def build_commands(a: argparse.Namespace, train_ids: Sequence[str],
-                   out_dir: Path) -> list[tuple[str, list[str]]]:
+                   out_dir: Path, plan_store_dir: str = "") -> list[tuple[str, list[str]]]:
     """The process list of a run: (label, argv)."""
     return [(p.label, executable(p.executable)
              + _ros_args(p.params, Path(p.params_file) if p.params_file else None))
-            for p in processes_for(a, train_ids, out_dir)]
+            for p in processes_for(a, train_ids, out_dir, plan_store_dir)]
 
 
 def _stop(procs: list[tuple[str, subprocess.Popen[bytes]]], grace_s: float = 15.0) -> None:
@@ -325,13 +334,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"metro_atc run: error: {problem}", file=sys.stderr)
         return 2
     t0 = time.monotonic()
+    memory: dict[str, float | None] = {}
+    cpu: dict[str, float | None] = {}
     if a.single_process:
         from metro_atc.nodes.graph import run_single_process
         code = run_single_process(a, train_ids, out_dir)
+        memory["graph"] = own_peak_rss_mb()
+        cpu["graph"] = round(time.process_time(), 2)
     else:
         horizon_s = a.duration if a.duration > 0 else float(scn.sim.duration_s)
         show = a.progress == "always" or (a.progress == "auto" and sys.stderr.isatty())
-        code = _run_processes(a, train_ids, out_dir, horizon_s if show else None)
+        code = _run_processes(a, train_ids, out_dir, horizon_s if show else None, memory,
+                              cpu)
     wall = time.monotonic() - t0
     kpi_file = out_dir / "kpis.json"
     if code != 0:
@@ -350,6 +364,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     kpis["planner"] = ",".join(kpis.get("planners_seen") or []) or "none"
     kpis["mode"] = "single_process" if a.single_process else "multi_process"
     kpis["out_dir"] = str(out_dir)
+    kpis["node_peak_rss_mb"] = memory
+    kpis["node_cpu_s"] = cpu
     if a.record is not None:
         kpis["bag"] = record_dir(a, out_dir)
     if a.json:
@@ -466,8 +482,46 @@ class ProgressTail:
         return n
 
 
+def peak_rss_mb(pid: int) -> float | None:
+    """Peak resident memory of a live process so far (``VmHWM``) [MiB]; None if unknown."""
+    try:
+        with open(f"/proc/{pid}/status", encoding="ascii", errors="replace") as fh:
+            for ln in fh:
+                if ln.startswith("VmHWM:"):
+                    return round(int(ln.split()[1]) / 1024.0, 1)
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def cpu_seconds(pid: int) -> float | None:
+    """CPU time (user + system) a live process has used so far [s]; None if unknown."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii", errors="replace") as fh:
+            fields = fh.read().rsplit(")", 1)[1].split()
+        return round((int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK"), 2)
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def own_peak_rss_mb() -> float | None:
+    """Peak resident memory of this process [MiB] (``ru_maxrss``, KiB on Linux)."""
+    try:
+        import resource
+        return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
+    except (ImportError, OSError):
+        return None
+
+
 def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Path,
-                   progress_horizon_s: float | None = None) -> int:
+                   progress_horizon_s: float | None = None,
+                   memory: dict[str, float | None] | None = None,
+                   cpu: dict[str, float | None] | None = None) -> int:
+    """Start the graph's processes, watch them, stop them; return an exit code.
+
+    ``memory`` / ``cpu`` (filled if given): each process's peak resident memory [MiB] and
+    CPU time [s], sampled once per second while it runs (the last sample before it exits).
+    """
     log_dir = Path(a.log_dir) if a.log_dir else out_dir / "logs"
     log_dir.mkdir(parents=True, exist_ok=True)
     procs: list[tuple[str, subprocess.Popen[bytes]]] = []
@@ -480,7 +534,9 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
 
     old = signal.signal(signal.SIGTERM, on_term)
     env = dict(os.environ, RCUTILS_LOGGING_BUFFERED_STREAM="0", PYTHONUNBUFFERED="1")
-    commands = dict(build_commands(a, train_ids, out_dir))
+    # the ATO processes plan each run and target once between them (deleted at the end)
+    plans = tempfile.mkdtemp(prefix="metro_atc_plans_")
+    commands = dict(build_commands(a, train_ids, out_dir, plans))
     respawns = {label: 0 for label in commands}
 
     def start(label: str, mode: str = "wb") -> subprocess.Popen[bytes]:
@@ -525,8 +581,18 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
                       f"(logs: {log_dir})", file=sys.stderr)
                 code = EXIT_TIMEOUT
             else:
-                if tail is not None and time.monotonic() >= next_poll:
-                    tail.poll()
+                if time.monotonic() >= next_poll:
+                    if tail is not None:
+                        tail.poll()
+                    if memory is not None:
+                        for label, p in procs:
+                            rss = peak_rss_mb(p.pid)
+                            if rss is not None:
+                                memory[label] = rss
+                            if cpu is not None:
+                                c = cpu_seconds(p.pid)
+                                if c is not None:
+                                    cpu[label] = c
                     next_poll = time.monotonic() + 1.0
                 time.sleep(0.1)
     except KeyboardInterrupt:
@@ -534,6 +600,7 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
     finally:
         _stop(procs)
         signal.signal(signal.SIGTERM, old)
+        shutil.rmtree(plans, ignore_errors=True)
     if code == 0:
         # the rest of the graph was stopped by SIGTERM: a node that then fails (or a recorder
         # that could not close its bag) still fails the run

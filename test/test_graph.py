@@ -146,6 +146,26 @@ def test_states_are_consistent(two_runs: dict[str, Any]) -> None:
     assert any(s.mode == 1 for s in states) and any(s.mode == 2 for s in states)
 
 
+def test_per_train_states_are_decimated_unless_recording(two_runs: dict[str, Any]) -> None:
+    """/train_01/state: every step in the recorded run, every ``train_state_period_s``
+    (1 s: 4 steps of 0.25 s) in the other, where the fleet state carries the lockstep; the
+    values are the simulator's either way (the same steps carry the same states)."""
+    rec, dec = two_runs["states"]
+    dt = two_runs["clock"][0][1] - two_runs["clock"][0][0]
+    every = round(1.0 / dt)
+    assert every >= 2
+    s_rec = [s.step for s in rec]
+    s_dec = [s.step for s in dec]
+    assert s_rec == list(range(s_rec[0], s_rec[-1] + 1))
+    gaps = [b - a for a, b in zip(s_dec, s_dec[1:])]
+    assert gaps and max(gaps) == every and sorted(gaps)[len(gaps) // 2] == every, gaps[:20]
+    assert all(k % every == 0 for k in s_dec[2:]), s_dec[:10]
+    by_step = {s.step: s for s in rec}
+    for s in dec:
+        r = by_step[s.step]
+        assert (s.position_m, s.speed_mps, s.mode) == (r.position_m, r.speed_mps, r.mode)
+
+
 def test_sensor_data_at_the_configured_rate(two_runs: dict[str, Any]) -> None:
     """/train_01/brake_sensors: 20 Hz (mini) while braking, a 1 s heartbeat otherwise."""
     samples = two_runs["sensors"][0]
@@ -171,7 +191,7 @@ def test_clock_is_monotonic(two_runs: dict[str, Any]) -> None:
 def test_lockstep_is_deterministic(two_runs: dict[str, Any]) -> None:
     """Two lockstep runs of the same scenario give identical events and KPIs."""
     a, b = two_runs["kpis"]
-    skip = {"wall_time_s", "real_time_factor", "out_dir", "bag"}
+    skip = {"wall_time_s", "real_time_factor", "out_dir", "bag", "node_peak_rss_mb", "node_cpu_s"}
     assert {k: v for k, v in a.items() if k not in skip} == \
         {k: v for k, v in b.items() if k not in skip}
     assert two_runs["events"][0] == two_runs["events"][1]
@@ -294,7 +314,8 @@ def test_single_process_matches(two_runs: dict[str, Any], ros_env: dict[str, str
                                 tmp_path: Path) -> None:
     """``--single-process`` runs the same nodes and gives the same KPIs as the graph."""
     k = _run_graph(ros_env, tmp_path, "--single-process")
-    skip = {"wall_time_s", "real_time_factor", "out_dir", "mode", "bag"}
+    skip = {"wall_time_s", "real_time_factor", "out_dir", "mode", "bag", "node_peak_rss_mb",
+            "node_cpu_s"}
     assert {x: v for x, v in k.items() if x not in skip} == \
         {x: v for x, v in two_runs["kpis"][0].items() if x not in skip}
 
@@ -432,12 +453,20 @@ def _fuzz_value(rng: Any, kind: str, train: str) -> Any:
         return int(_pick(rng, [0, 1, 2 ** 32 - 1, int(rng.integers(0, 2 ** 32))]))
     if kind == "u8":
         return int(rng.choice([0, 1, 2, 255, int(rng.integers(0, 256))]))
+    if kind == "bool":
+        return bool(rng.integers(0, 2))
     if kind == "train":
         return str(rng.choice([train, train, "", "train_99", "x" * 1000,
                                "\u00e9\u4e2d\U0001f600"]))
     if kind == "f64[]":
         n = int(rng.choice([0, 1, 3, 4, 4, 4, 5, 100]))
         return [_fuzz_value(rng, "f64", train) for _ in range(n)]
+    if kind.endswith("[2]"):  # fleet arrays: mostly two trains (the mini line), some not
+        n = int(rng.choice([0, 1, 2, 2, 2, 2, 3]))
+        if kind == "train[2]":
+            return [str(rng.choice(["train_01", "train_02", "train_01", "train_99", ""]))
+                    for _ in range(n)]
+        return [_fuzz_value(rng, kind[:-3], train) for _ in range(n)]
     raise AssertionError(kind)
 
 
@@ -460,7 +489,9 @@ def test_fuzz_every_subscribed_topic(two_runs: dict[str, Any], ros_env: dict[str
     During a lockstep run of the graph, a probe publishes ``_FUZZ_MESSAGES`` messages with
     random field values (NaN, +-inf, +-1.7e308, integer extremes, empty and 1000-character
     train ids, arrays of wrong lengths, random stamps) on the command, departure command,
-    state, brake sensor and event topics of both trains (the scenario given by a path
+    brake sensor and event topics of both trains and on the fleet state and fleet command
+    topics (the per-train state topics have no subscriber in the graph: the ATOs take their
+    states from the fleet state) (the scenario given by a path
     containing ``": "`` and ``#``).  No node dies, the run completes,
     its KPIs and events are those of the unfuzzed run, and the rejections are counted (KPIs
     of the simulator, each node's log).
@@ -469,8 +500,8 @@ def test_fuzz_every_subscribed_topic(two_runs: dict[str, Any], ros_env: dict[str
     import time
 
     import numpy as np
-    from metro_atc_msgs.msg import (BrakeSensorData, DepartureCommand, TractionCommand,
-                                    TrainEvent, TrainState)
+    from metro_atc_msgs.msg import (BrakeSensorData, DepartureCommand, FleetCommand,
+                                    FleetState, TractionCommand, TrainEvent)
 
     from metro_atc.nodes.common import (QOS_EVENTS, QOS_LATCHED, QOS_RELIABLE, QOS_SENSOR)
 
@@ -483,13 +514,6 @@ def test_fuzz_every_subscribed_topic(two_runs: dict[str, Any], ros_env: dict[str
              {"train_id": "train", "station_index": "i32", "departure_time_s": "f64",
               "target_running_time_s": "f64", "dwell_limit_s": "f64", "regulator": "u8",
               "sequence": "u64"}, t),
-            (TrainState, f"/{t}/state", QOS_RELIABLE,
-             {"train_id": "train", "step": "u64", "position_m": "f64", "speed_mps": "f64",
-              "acceleration_mps2": "f64", "current_station": "i32", "next_station": "i32",
-              "mode": "u8", "departure_time_s": "f64", "target_running_time_s": "f64",
-              "supervision_speed_mps": "f64", "movement_authority_m": "f64",
-              "atp_interventions": "u32", "traction_energy_j": "f64",
-              "regenerated_energy_j": "f64"}, t),
             (BrakeSensorData, f"/{t}/brake_sensors", QOS_SENSOR,
              {"train_id": "train", "wheel_angular_speed_radps": "f64[]",
               "clamp_force_n": "f64[]", "longitudinal_acceleration_mps2": "f64",
@@ -498,6 +522,15 @@ def test_fuzz_every_subscribed_topic(two_runs: dict[str, Any], ros_env: dict[str
              {"train_id": "train", "kind": "u8", "station_index": "i32",
               "actual_time_s": "f64", "scheduled_time_s": "f64", "passengers_boarded": "u32",
               "passengers_alighted": "u32", "dwell_s": "f64", "sequence": "u64"}, t)]
+    specs += [
+        (FleetState, "/line/fleet_state", QOS_RELIABLE,
+         {"train_id": "train[2]", "step": "u64", "position_m": "f64[2]", "speed_mps": "f64[2]",
+          "acceleration_mps2": "f64[2]", "current_station": "i32[2]", "next_station": "i32[2]",
+          "mode": "u8[2]", "departure_time_s": "f64[2]", "target_running_time_s": "f64[2]",
+          "supervision_speed_mps": "f64[2]", "movement_authority_m": "f64[2]",
+          "echo": "bool[2]"}, ""),
+        (FleetCommand, "/line/fleet_command", QOS_RELIABLE,
+         {"train_id": "train[2]", "step": "u64", "effort": "f64[2]", "mode": "u8[2]"}, "")]
     probe = TopicProbe(int(ros_env["ROS_DOMAIN_ID"]), name="fuzzer")
     pubs = [probe.publisher(s[0], s[1], s[2]) for s in specs]
     rng = np.random.default_rng(15)
@@ -546,8 +579,8 @@ def test_fuzz_every_subscribed_topic(two_runs: dict[str, Any], ros_env: dict[str
     assert sum(sent) >= 1000 and min(sent) >= 50, f"fuzz messages per topic: {sent}"
     fuzzed = json.loads(r.stdout.strip().splitlines()[-1])
     clean = two_runs["kpis"][0]
-    skip = {"wall_time_s", "real_time_factor", "out_dir", "rejected_messages",
-            "rejected_by_kind", "scenario", "bag"}
+    skip = {"wall_time_s", "real_time_factor", "out_dir", "rejected_messages", "node_peak_rss_mb",
+            "node_cpu_s", "rejected_by_kind", "scenario", "bag"}
     assert fuzzed["scenario"] == str(scn_path)
     assert {k: v for k, v in fuzzed.items() if k not in skip} == \
         {k: v for k, v in clean.items() if k not in skip}

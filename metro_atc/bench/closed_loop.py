@@ -28,6 +28,7 @@ from typing import Any, Dict, List, Optional
 
 import numpy as np
 
+from metro_atc.bench.progress import progress_each
 from metro_atc.bench.regulation import PAPER
 from metro_atc.jsonsafe import json_safe
 from metro_atc.launcher import REGULATORS
@@ -54,9 +55,12 @@ KPIS = {
 
 
 def run_graph(scenario: str, regulator: str, seed: int, duration_s: float, domain_id: int,
-              out_dir: Optional[Path] = None, timeout_s: float = 3600.0
-              ) -> Optional[Dict[str, Any]]:
-    """One ``python -m metro_atc run --json`` on ``domain_id``; its KPIs or None (stderr)."""
+              out_dir: Optional[Path] = None, timeout_s: float = 3600.0,
+              progress: bool = False) -> Optional[Dict[str, Any]]:
+    """One ``python -m metro_atc run --json`` on ``domain_id``; its KPIs or None (stderr).
+
+    ``progress``: the run's progress rows go to this process's stderr.
+    """
     env = dict(os.environ)
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env["ROS_DOMAIN_ID"] = str(domain_id)
@@ -65,15 +69,22 @@ def run_graph(scenario: str, regulator: str, seed: int, duration_s: float, domai
         cmd = [sys.executable, "-m", "metro_atc", "run", "--scenario", scenario,
                "--regulator", regulator, "--seed", str(seed), "--duration", str(duration_s),
                "--json", "--no-plots" if out_dir is None else "--plots", "--out", str(out)]
+        # progress: the run's own rows (simulated time, trains, real-time factor, ETA) go
+        # straight to this process's stderr
+        show = bool(progress)
+        if show:
+            cmd += ["--progress", "always"]
         try:
-            r = subprocess.run(cmd, env=env, cwd=tmp, capture_output=True, text=True,
+            r = subprocess.run(cmd, env=env, cwd=tmp, stdout=subprocess.PIPE,
+                               stderr=None if show else subprocess.PIPE, text=True,
                                timeout=timeout_s)
         except subprocess.TimeoutExpired:
             print(f"closed-loop: {regulator} seed {seed} timed out", file=sys.stderr)
             return None
     if r.returncode != 0 or not r.stdout.strip():
-        print(f"closed-loop: {regulator} seed {seed} failed ({r.returncode}): "
-              f"{r.stderr.strip()[-300:]}", file=sys.stderr)
+        why = "see above" if show else (r.stderr or "").strip()[-300:]
+        print(f"closed-loop: {regulator} seed {seed} failed ({r.returncode}): {why}",
+              file=sys.stderr)
         return None
     return dict(json.loads(r.stdout.strip().splitlines()[-1]))
 
@@ -128,7 +139,8 @@ def main(argv: Optional[List[str]] = None) -> int:
                          a.domain_base + idx % a.parallel, out)
 
     with ThreadPoolExecutor(max_workers=a.parallel) as pool:
-        results = list(pool.map(one, range(len(jobs))))
+        results = list(progress_each("bench closed_loop", pool.map(one, range(len(jobs))),
+                                     "runs", total=len(jobs)))
     runs: Dict[str, List[Dict[str, Any]]] = {r: [] for r in regs}
     for (reg, _), k in zip(jobs, results):
         if k is not None:

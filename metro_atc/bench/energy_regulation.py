@@ -35,6 +35,7 @@ from typing import Any, Dict, List, Optional
 
 import numpy as np
 
+from metro_atc.bench.progress import progress_each
 from metro_atc.core.atr.blue_line import LineData
 from metro_atc.core.atr.cost import CostWeights, terminal_matrix
 from metro_atc.core.atr.energy import (
@@ -163,7 +164,8 @@ def run(seeds: List[int], w_list: List[float], source: str = "dp",
         regs[f"elqr_w{w:g}"] = reg
         elqr[f"elqr_w{w:g}"] = reg
     methods: Dict[str, Any] = {}
-    for name, regulator in regs.items():
+    for name, regulator in progress_each("bench energy_regulation", regs.items(),
+                                         "regulators"):
         row: Dict[str, Any] = {"w_energy": getattr(regulator, "w_energy", 0.0), "cases": {}}
         for case in CASES:
             case_seeds = seeds if case in ("incident", "disturbed") else seeds[:1]

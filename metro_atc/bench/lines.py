@@ -24,6 +24,7 @@ from typing import Any, List, Optional
 
 import numpy as np
 
+from metro_atc.bench.progress import progress_each
 from metro_atc.core.closed_loop import STOP_WINDOW_M, run_closed_loop
 from metro_atc.core.linegen import load_generated
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
@@ -78,7 +79,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     failed: List[str] = []
     jobs: List[Any] = [("gen", a.seed + k) for k in range(a.count)] + \
         [("file", f) for f in a.scenario]
-    for kind, what in jobs:
+    for kind, what in progress_each("bench lines", jobs, "lines"):
         try:
             scn = load_generated(what, incidents=a.incidents) if kind == "gen" \
                 else load_scenario(what)

@@ -28,6 +28,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from metro_atc.bench.progress import progress_each
 from metro_atc.jsonsafe import json_safe as _json_safe
 from metro_atc.core.ato import coasting
 from metro_atc.core.ato.dp import build_dp_tables, solve_dp
@@ -168,7 +169,7 @@ def main(argv: Optional[list[str]] = None) -> int:
         MmasParams(seed=args.seed, n_ants=20, n_iterations=30)
     cases = {}
     plots = []
-    for case in (1, 2):
+    for case in progress_each("bench mmas", (1, 2), "cases"):
         r = run_case(case, params)
         prof = r.pop("_profiles")
         cases[f"case{case}"] = r

@@ -26,6 +26,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from metro_atc.bench.progress import progress_each
 from metro_atc.jsonsafe import json_safe as _json_safe
 from metro_atc.core.ato.dp import solve_dp
 from metro_atc.core.ato.envelope import RunModel
@@ -72,7 +73,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     profiles: dict[str, tuple[np.ndarray, np.ndarray]] = {"DP": (dp.s_grid, dp.v_profile)}
     refs = []
     names = []
-    for name in SYSTEMS:
+    for name in progress_each("bench profiles", SYSTEMS, "planners"):
         extra: dict[str, Any] = {"seed": args.seed}
         if args.quick:
             extra.update({"iterations": 150, "n_iterations": 30, "n_ants": 20})

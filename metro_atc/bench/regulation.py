@@ -26,6 +26,7 @@ from typing import Any, Dict, List, Optional
 import numpy as np
 import torch
 
+from metro_atc.bench.progress import progress_each
 from metro_atc.core.atr.blue_line import LineData, taipei_blue
 from metro_atc.core.atr.lines import get_line
 from metro_atc.core.atr.cost import CostWeights
@@ -109,7 +110,7 @@ def run(seeds: List[int], epochs: int, n_realisations: int, verbose: bool = Fals
     train_s: Dict[str, List[float]] = {"dhp": [], "aoc": []}
     trajectories: Dict[str, Any] = {}
     timing: Dict[str, float] = {}
-    for s in seeds:
+    for s in progress_each("bench regulation", seeds, "seeds"):
         regs: Dict[str, Regulator] = dict(fixed)
         for m in ("dhp", "aoc"):
             res = train(m, problem, atr_train_config(s, epochs))

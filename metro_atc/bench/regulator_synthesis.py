@@ -22,6 +22,7 @@ from typing import Any, Dict, List, Optional
 import numpy as np
 import torch
 
+from metro_atc.bench.progress import progress_each
 from metro_atc.core.atr.problems import NarendraProblem
 from metro_atc.core.atr.training import TrainConfig, TrainResult, rollout, train
 
@@ -80,7 +81,7 @@ def run(epochs: int, seed: int, methods: List[str], critic_jacobian: str = "mode
     torch.set_num_threads(1)
     out: Dict[str, Any] = {}
     plots: Dict[str, Any] = {}
-    for m in methods:
+    for m in progress_each("bench regulator_synthesis", methods, "methods"):
         name, meth = m, m
         cj = critic_jacobian
         if m == "aoc_plant":

@@ -31,6 +31,7 @@ from typing import Any, Callable, Optional
 import numpy as np
 from numpy.typing import NDArray
 
+from metro_atc.bench.progress import progress_each
 from metro_atc.core.ato import coasting
 from metro_atc.core.ato.dp import solve_dp
 from metro_atc.core.ato.envelope import RunModel, profile_energy_time
@@ -204,7 +205,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     plot_i, plot_f = a.plot_run.split(":")
     results: list[dict[str, Any]] = []
     plots: list[str] = []
-    for i in idx:
+    for i in progress_each("bench ttobench", idx, "runs"):
         run = RunModel(train, track, pos[i], pos[i + 1], limits)
         tab = build_section_tables(run)
         for f in factors:

@@ -1,10 +1,10 @@
 """ato_controller node(s): one ATO per train, namespaced ``/<train_id>/``.
 
-Per train: subscribes to ``state`` (every lockstep step) and ``departure_command``
-(transient-local); on each departure command it plans the inter-station speed profile
-(:class:`metro_atc.core.ato.controller.AtoCore`: MMAS, coasting control FOTP/FCTP/ECTP/ACTP
-or the DP reference; seed 001/002) for the ATS's target running time and publishes it on
-``speed_profile`` (transient-local); on each state it publishes ``command``, the
+Per train: its state every lockstep step (from the process's fleet state, below) and
+``departure_command`` (transient-local); on each departure command it plans the
+inter-station speed profile (:class:`metro_atc.core.ato.controller.AtoCore`: MMAS, coasting
+control FOTP/FCTP/ECTP/ACTP or the DP reference; seed 001/002) for the ATS's target running
+time and publishes it on ``speed_profile`` (transient-local); on each state it answers the
 traction/brake effort of the tracker (fuzzy, seed 004, or PI) for that lockstep step.
 
 The tracker follows the plan; two guards only ever *lower* its command: braking to the end
@@ -22,6 +22,15 @@ holds, field for field, the ATO rebuilds itself from the journal up to that step
 One process may host several trains (parameter ``train_ids``), each its own node on one
 SingleThreadedExecutor: rclpy shares one DDS participant per process, and the trains of a
 process share their planners' pre-work tables and finished plans (same line, same train).
+
+Fleet lockstep (issue 13): the simulator publishes the states of all active trains in one
+``/line/fleet_state`` message per step; a :class:`FleetLink` per process answers the trains
+it hosts with one ``/line/fleet_command`` message. Each entry is validated and answered
+exactly as a per-train state was (same rules, step window and tracker). The ATO takes its
+states from the fleet topic only (two carriers of one step would race); where the entry's
+``echo`` is set (the simulator published ``/<train>/state`` for that step too, every
+``train_state_period_s`` and every step while recording) it also publishes its command on
+``/<train>/command``, so outside tools see matching per-train states and commands.
 """
 
 from __future__ import annotations
@@ -35,13 +44,15 @@ from typing import Any, Sequence
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
-from metro_atc_msgs.msg import DepartureCommand, SpeedProfile, TractionCommand, TrainState
+from metro_atc_msgs.msg import (DepartureCommand, FleetCommand, FleetState, SpeedProfile,
+                                TractionCommand)
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from metro_atc.core.ato.controller import TRACKERS
 from metro_atc.core.ato.onboard import (OnboardAto, PlanEvent, atp_model_for, envelope_limits,
                                         tsr_zones)
+from metro_atc.core.ato.plan_store import PlanStore
 from metro_atc.core.ato.planner import PLANNERS, Profile
 from metro_atc.core.bridge import timetable_for, track_for, train_for
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
@@ -73,6 +84,9 @@ class AtoController(Node):
         mmas_iter = static(self, "mmas_iterations", 100, "MMAS: iterations (seed 001)", 1, 10000)
         mmas_sections = static(self, "mmas_sections", 50, "MMAS: sections per run (seed 001)",
                                2, 500)
+        plan_dir = static(self, "plan_store_dir", "",
+                          "directory shared by the ATO processes of a run: finished plans "
+                          "are planned once per run and target ('': per process only)")
         self.planner, self.tracker = planner, tracker
         self.plans = 0
         self.infeasible = 0
@@ -102,6 +116,12 @@ class AtoController(Node):
         if planner == "mmas":
             extra = {"n_ants": mmas_ants, "n_iterations": mmas_iter, "n_sections": mmas_sections}
         train = train_for(scenario)
+        if plan_dir and shared is not None and "plan_store" not in shared:
+            try:
+                shared["plan_store"] = PlanStore(plan_dir, context=f"{self.scenario_name}|"
+                                                 f"{planner}|{train!r}")
+            except OSError as exc:
+                raise NodeConfigError(f"plan_store_dir '{plan_dir}': {exc}") from None
         limits = envelope_limits(scenario, train)  # planning limits inside the ATP envelope
         self.stations = self.tt.station_positions_m
         # the ATP model (one plant grid per process, shared by its trains)
@@ -138,7 +158,6 @@ class AtoController(Node):
         self.cmd_pub = bulk_publisher(self, TractionCommand, "command", QOS_RELIABLE)
         self.profile_pub = bulk_publisher(self, SpeedProfile, "speed_profile", QOS_LATCHED)
         self.fast_subs = [
-            bulk_subscription(self, TrainState, "state", self._on_state, QOS_RELIABLE),
             bulk_subscription(self, DepartureCommand, "departure_command", self._on_departure,
                               QOS_LATCHED_IN)]
         if self.journal_path is not None:
@@ -186,7 +205,7 @@ class AtoController(Node):
         self.last_step = int(s["step"])
         self._last_cmd = conv.traction_msg(self.train_id, s["step"], s["t_s"], effort, mode)
 
-    def _rewind(self, msg: TrainState, topic: str) -> bool:
+    def _rewind(self, msg: Any, topic: str) -> bool:
         """A state of an earlier step the journal holds identically: the simulator resumed.
 
         Rebuild the ATO from the journal's states before that step; True when done.
@@ -291,14 +310,13 @@ class AtoController(Node):
         return p
 
     # ------------------------------------------------------------------ tracking
-    def _on_state(self, msg: TrainState) -> None:
-        """Answer a validated state with the command for its step.
+    def answer(self, msg: Any, topic: str) -> TractionCommand | None:
+        """The command for a state (a fleet entry, TrainState fields); None if rejected.
 
         A rejected state gets no answer (the plan and the tracker are left as they are:
         the simulator keeps waiting for this train's genuine state of the step); a re-sent
         state gets the same command again without running the tracker twice.
         """
-        topic = f"/{self.train_id}/state"
         try:
             try:
                 s = conv.state_from_msg(msg, topic, self.train_id, self.bounds, self.steps)
@@ -308,17 +326,16 @@ class AtoController(Node):
                 s = conv.state_from_msg(msg, topic, self.train_id, self.bounds, self.steps)
             last = self._last_cmd
             if s["again"] and last is not None and int(last.step) == s["step"]:
-                self.cmd_pub.publish(last)
-                return
+                return last
             effort, mode = conv.guarded(topic, self.control, s)
         except conv.MessageRejected as exc:
             self._reject("state", exc)
-            return
+            return None
         self._remember(s, effort, mode)
         if self._journal is not None:
             self._journal.write(json.dumps(s) + "\n")
             self._journal.flush()  # in the OS before the command leaves: survives a SIGKILL
-        self.cmd_pub.publish(self._last_cmd)
+        return self._last_cmd
 
     def control(self, s: dict[str, Any]) -> tuple[float, int]:
         """Effort in [-1, 1] and intended mode for one state (:class:`OnboardAto`)."""
@@ -350,6 +367,52 @@ def _read_states(path: Path) -> list[dict[str, Any]]:
             break
         out.append(s)
     return out
+
+
+class FleetLink:
+    """The fleet lockstep of one ATO process: one FleetState in, one FleetCommand out.
+
+    The subscription and the publisher live on the first hosted node; each entry for a
+    hosted train goes through that train's :meth:`AtoController.answer` (validation, step
+    window, tracker), in the order of the message.
+    """
+
+    TOPIC_STATE = "/line/fleet_state"
+    TOPIC_COMMAND = "/line/fleet_command"
+
+    def __init__(self, nodes: Sequence[AtoController]) -> None:
+        """Create the fleet subscription and publisher on ``nodes[0]``."""
+        self.nodes = {n.train_id: n for n in nodes}
+        host = nodes[0]
+        self.pub = bulk_publisher(host, FleetCommand, self.TOPIC_COMMAND, QOS_RELIABLE)
+        self.sub = bulk_subscription(host, FleetState, self.TOPIC_STATE, self.on_fleet_state,
+                                     QOS_RELIABLE)
+
+    def on_fleet_state(self, msg: FleetState) -> None:
+        """Answer the hosted trains of a fleet state (a malformed message: counted, dropped)."""
+        topic = self.TOPIC_STATE
+        try:
+            entries = conv.fleet_state_entries(msg, topic, self.nodes)
+        except conv.MessageRejected as exc:
+            next(iter(self.nodes.values()))._reject("fleet state", exc)
+            return
+        ids: list[str] = []
+        efforts: list[float] = []
+        modes: list[int] = []
+        step, stamp = None, None
+        for tid, e in entries:
+            node = self.nodes[tid]
+            cmd = node.answer(e, topic)
+            if cmd is None or (step is not None and int(cmd.step) != step):
+                continue
+            if e.echo:
+                node.cmd_pub.publish(cmd)
+            step, stamp = int(cmd.step), conv.from_time(cmd.header.stamp)
+            ids.append(tid)
+            efforts.append(float(cmd.effort))
+            modes.append(int(cmd.mode))
+        if ids and step is not None and stamp is not None:
+            self.pub.publish(conv.fleet_command_msg(step, stamp, ids, efforts, modes))
 
 
 PLANNED_POINTS = 200
@@ -396,7 +459,10 @@ def build_nodes() -> list[Node]:
 def main(args: Sequence[str] | None = None) -> int:
     """Entry point of the ``ato_controller`` executable."""
     def loop(executor: SingleThreadedExecutor, nodes: Sequence[Node]) -> None:
-        subs = [s for n in nodes if isinstance(n, AtoController) for s in n.fast_subs]
+        atos = [n for n in nodes if isinstance(n, AtoController)]
+        subs = [s for n in atos for s in n.fast_subs]
+        if atos:
+            subs.insert(0, FleetLink(atos).sub)
         spin_fast(executor, nodes, subs)
 
     return run_nodes(build_nodes, loop, args)

@@ -22,8 +22,9 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureCommand, LineStatus,
-                                SpeedProfile, TractionCommand, TrainEvent, TrainState)
+from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureCommand,
+                                FleetCommand, FleetState, LineStatus, SpeedProfile,
+                                TractionCommand, TrainEvent, TrainState)
 from rcl_interfaces.msg import Log, ParameterEvent
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import SingleThreadedExecutor
@@ -55,7 +56,9 @@ def graph_topics(train_ids: Sequence[str]) -> list[tuple[str, Any, QoSProfile]]:
         ("/clock", ClockMsg, QOS_CLOCK), ("/line/events", TrainEvent, QOS_EVENTS),
         ("/line/status", LineStatus, QOS_LATCHED),
         ("/diagnostics", DiagnosticArray, QOS_DIAGNOSTICS),
-        ("/rosout", Log, QOS_LOG), ("/parameter_events", ParameterEvent, QOS_LOG)]
+        ("/rosout", Log, QOS_LOG), ("/parameter_events", ParameterEvent, QOS_LOG),
+        ("/line/fleet_state", FleetState, QOS_RELIABLE),
+        ("/line/fleet_command", FleetCommand, QOS_RELIABLE)]
     for t in train_ids:
         out += [(f"/{t}/state", TrainState, QOS_RELIABLE),
                 (f"/{t}/command", TractionCommand, QOS_RELIABLE),

@@ -16,8 +16,9 @@ import signal
 import sys
 import threading
 import time
-from contextlib import ExitStack
-from typing import Any, Callable, Iterable, Sequence
+from contextlib import ExitStack, contextmanager
+from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator, Sequence
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -390,10 +391,11 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
         executor = SingleThreadedExecutor()
         for n in nodes:
             executor.add_node(n)
-        if loop is not None:
-            loop(executor, nodes)
-        else:
-            spin_until_stopped(executor)
+        with _profiled(name):
+            if loop is not None:
+                loop(executor, nodes)
+            else:
+                spin_until_stopped(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         code = 0
     finally:
@@ -410,6 +412,32 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
             n.destroy_node()
         rclpy.try_shutdown()
     return code
+
+
+PROFILE_ENV = "METRO_ATC_PROFILE_DIR"
+"""Environment variable: a directory where each node process writes the cProfile statistics
+of its loop (``<executable>_<pid>.prof``; read with ``python -m pstats``)."""
+
+
+@contextmanager
+def _profiled(name: str) -> Iterator[None]:
+    """cProfile the block when :data:`PROFILE_ENV` names a directory (else nothing)."""
+    out = os.environ.get(PROFILE_ENV, "")
+    if not out:
+        yield
+        return
+    import cProfile
+    prof = cProfile.Profile()
+    prof.enable()
+    try:
+        yield
+    finally:
+        prof.disable()
+        try:
+            Path(out).mkdir(parents=True, exist_ok=True)
+            prof.dump_stats(str(Path(out) / f"{name}_{os.getpid()}.prof"))
+        except OSError as exc:
+            print(f"{name}: profile not written: {exc}", file=sys.stderr)
 
 
 def check_overrides(nodes: Sequence[Node], argv: Sequence[str]) -> None:

@@ -16,8 +16,9 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureCommand, LineStatus,
-                                TractionCommand, TrainEvent, TrainState)
+from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureCommand,
+                                FleetCommand, FleetState, LineStatus, TractionCommand,
+                                TrainEvent, TrainState)
 from rosgraph_msgs.msg import Clock
 
 from metro_atc.core.validate import (Bounds, Rejected, StepWindow, check_finite, check_index,
@@ -72,19 +73,22 @@ def train_index(train_id: str, index: Mapping[str, int], topic: str) -> int:
 
 
 def traction_from_msg(msg: TractionCommand, topic: str, train_id: str, step: int,
-                      t_s: float) -> float | None:
+                      t_s: float, late_echo: bool = False) -> float | None:
     """Validate the command of ``train_id`` for lockstep step ``step`` at time ``t_s``.
 
     Returns the effort in [-1, 1], or None for the previous step (a stale duplicate,
     ignored without counting).  Rejected: another train, another step, a stamp that is not
     the state's (``t_s``), a non-finite or out-of-range effort, an undefined mode.
+    ``late_echo``: any earlier step is a stale duplicate too (the per-train copy of a
+    command the simulator already took from the fleet command: another writer, so it may
+    arrive steps late).
     """
     _train(msg, topic, train_id)
     effort = check_finite(f"{topic}.effort", msg.effort)
     effort = check_range(f"{topic}.effort", effort, -1.0 - 1e-9, 1.0 + 1e-9, "effort")
     check_index(f"{topic}.mode", msg.mode, 0, len(MODES) - 1, "mode")
     k = int(msg.step)
-    if k == step - 1:
+    if k == step - 1 or (late_echo and k < step):
         return None
     if k != step:
         raise Rejected("step", f"{topic}.step={k} is not the lockstep step {step}")
@@ -400,3 +404,117 @@ def _float(v: Any, missing: float) -> float:
         return missing
     f = float(v)
     return f if math.isfinite(f) else missing
+
+
+# ------------------------------------------------------------------ fleet lockstep (issue 13)
+FLEET_STATE_FIELDS = ("position_m", "speed_mps", "acceleration_mps2", "current_station",
+                      "next_station", "mode", "departure_time_s", "target_running_time_s",
+                      "supervision_speed_mps", "movement_authority_m")
+"""Per-train arrays of a FleetState (TrainState fields of the same names)."""
+
+_FLEET_STATE_KEYS = ("x_m", "v_mps", "a_mps2", "current_station", "next_station", "mode",
+                     "departure_time_s", "target_running_time_s", "atp_limit_mps",
+                     "movement_authority_m")
+"""Core state keys of :data:`FLEET_STATE_FIELDS`, in order."""
+
+
+def fleet_state_msg(train_ids: Sequence[str], idx: "Sequence[int] | np.ndarray",
+                    states: Mapping[str, np.ndarray], step: int, t_s: float,
+                    echo: "Sequence[bool] | np.ndarray | None" = None) -> FleetState:
+    """One FleetState of the trains ``idx`` (same values as :func:`state_msgs`).
+
+    ``echo`` (per entry of ``idx``): the per-train state was published too this step.
+    """
+    m = FleetState()
+    m.header.stamp = to_time(t_s)
+    m.header.frame_id = "line"
+    m.step = int(step)
+    ix = np.asarray(idx, dtype=np.intp)
+    m.train_id = [train_ids[i] for i in ix]
+    n = ix.size
+    for field, key in zip(FLEET_STATE_FIELDS, _FLEET_STATE_KEYS):
+        a = states.get(key)
+        if field in ("current_station", "next_station"):
+            setattr(m, field, np.asarray(a, dtype=np.int32)[ix].tolist())
+        elif field == "mode":
+            setattr(m, field, np.asarray(a, dtype=np.uint8)[ix].tolist())
+        else:
+            setattr(m, field, [math.nan] * n if a is None
+                    else np.asarray(a, dtype=np.float64)[ix].tolist())
+    m.echo = [False] * n if echo is None else [bool(x) for x in echo]
+    return m
+
+
+class _Entry:
+    """One train of a fleet message seen as a per-train message (for the per-train rules)."""
+
+    def __init__(self, header: Any, step: int, train_id: str, **fields: Any) -> None:
+        self.header = header
+        self.step = step
+        self.train_id = train_id
+        self.__dict__.update(fields)
+
+
+def _fleet_arrays(msg: Any, topic: str, fields: Sequence[str]) -> list[Any]:
+    """The per-train arrays of a fleet message, all as long as ``train_id`` (kind ``shape``)."""
+    n = len(msg.train_id)
+    out = []
+    for f in fields:
+        a = getattr(msg, f)
+        if len(a) != n:
+            raise Rejected("shape", f"{topic}.{f} has {len(a)} values for {n} trains")
+        out.append(list(a))
+    if len(set(msg.train_id)) != n:
+        raise Rejected("train_id", f"{topic}: a train is listed more than once")
+    return out
+
+
+def fleet_state_entries(msg: FleetState, topic: str,
+                        hosted: Mapping[str, Any]) -> list[tuple[str, Any]]:
+    """The entries of a FleetState for the ``hosted`` trains, as TrainState-like views.
+
+    The message's shape is checked here (every array as long as ``train_id``, no train
+    twice: kind ``shape`` / ``train_id``); each entry is then validated by the receiver with
+    :func:`state_from_msg`, exactly as a ``/<train>/state`` message (``echo``: a bool).
+    """
+    arrays = _fleet_arrays(msg, topic, FLEET_STATE_FIELDS + ("echo",))
+    out = []
+    for j, tid in enumerate(msg.train_id):
+        if tid in hosted:
+            vals = {f: a[j] for f, a in zip(FLEET_STATE_FIELDS + ("echo",), arrays)}
+            vals["echo"] = bool(vals["echo"])
+            mode = vals["mode"]
+            vals["mode"] = mode[0] if isinstance(mode, bytes) else int(mode)
+            out.append((tid, _Entry(msg.header, msg.step, tid, **vals)))
+    return out
+
+
+def fleet_command_msg(step: int, t_s: float, train_ids: Sequence[str], efforts: Sequence[float],
+                      modes: Sequence[int]) -> FleetCommand:
+    """One FleetCommand (the commands of one ATO process for step ``step``)."""
+    m = FleetCommand()
+    m.header.stamp = to_time(t_s)
+    m.header.frame_id = "line"
+    m.step = int(step)
+    m.train_id = list(train_ids)
+    m.effort = [float(u) for u in efforts]
+    m.mode = [int(x) for x in modes]
+    return m
+
+
+def fleet_command_entries(msg: FleetCommand, topic: str,
+                          index: Mapping[str, int]) -> list[tuple[int, Any]]:
+    """The entries of a FleetCommand as (train index, TractionCommand-like view).
+
+    Checked here: the shape (kind ``shape`` / ``train_id``) and that every train is one of
+    ``index`` (kind ``train_id``); each entry is then validated by the receiver with
+    :func:`traction_from_msg`, exactly as a ``/<train>/command`` message.
+    """
+    effort, mode = _fleet_arrays(msg, topic, ("effort", "mode"))
+    out = []
+    for j, tid in enumerate(msg.train_id):
+        i = train_index(tid, index, topic)
+        md = mode[j]
+        out.append((i, _Entry(msg.header, msg.step, tid, effort=effort[j],
+                              mode=md[0] if isinstance(md, bytes) else int(md))))
+    return out

@@ -21,7 +21,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from metro_atc.core.bridge import timetable_for
 from metro_atc.core.line.scenario import load_scenario
-from metro_atc.nodes.ato_controller import AtoController
+from metro_atc.nodes.ato_controller import AtoController, FleetLink
 from metro_atc.nodes.ats_regulator import AtsRegulator
 from metro_atc.nodes.brake_diagnostic import BrakeDiagnostic
 from metro_atc.nodes.common import NodeConfigError
@@ -56,9 +56,11 @@ def run_single_process(a: argparse.Namespace, train_ids: Sequence[str], out_dir:
         scn = load_scenario(a.scenario)
         tt = timetable_for(scn)
         shared: dict[str, Any] = {}
-        for tid in train_ids:
-            nodes.append(AtoController(tid, scenario=scn, timetable=tt, shared=shared,
-                                       parameter_overrides=_overrides(common)))
+        atos = [AtoController(tid, scenario=scn, timetable=tt, shared=shared,
+                              parameter_overrides=_overrides(common)) for tid in train_ids]
+        nodes.extend(atos)
+        if atos:
+            FleetLink(atos)  # kept alive by its subscription on atos[0]
     except (NodeConfigError, ParameterException, ValueError) as exc:
         print(f"metro_atc run: error: {stage} cannot start: {exc}", file=sys.stderr)
         for n in nodes:

@@ -80,7 +80,9 @@ class AtoCore:
 
         ``shared``: a dict shared by the cores of one process (same train and track): the
         pre-work tables, run models and finished plans are then computed once per run and
-        target instead of once per train.  ``feedforward``: add the effort that holds the
+        target instead of once per train (``shared["plan_store"]``, optional: a
+        :class:`~metro_atc.core.ato.plan_store.PlanStore` shares the finished plans with the
+        other processes of a run).  ``feedforward``: add the effort that holds the
         reference on the grade (:meth:`_feedforward`) to the tracker's output.
         """
         if planner.lower().replace("-", "_") not in PLANNERS:
@@ -136,9 +138,16 @@ class AtoCore:
                 if math.isfinite(float(target_running_time_s)) else None,
                 tuple(sorted((k, repr(v)) for k, v in params.items())))
         prof = self._plans.get(memo) if memo[2] is not None else None
+        store = self._shared.get("plan_store") if memo[2] is not None else None
+        if prof is None and store is not None:
+            prof = store.get(memo)  # planned by another process of the run (same result)
+            if prof is not None:
+                self._plans[memo] = prof
         if prof is None:
             prof = plan_profile(run, target_running_time_s, self.planner, self._cache, **params)
             self._plans[memo] = prof
+            if store is not None:
+                store.put(memo, prof)
         self.run = run
         self.profile = prof
         b = float(run.brake_decel(run.length_m))  # at the platform (grade-aware option)

@@ -1,0 +1,124 @@
+"""Fleet lockstep messages (issue 13 item 4): the same values and rules as the per-train ones."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+
+from metro_atc.core.line.scenario import load_scenario
+from metro_atc.core.plant.line import LineSim
+from metro_atc.core.plant.driver import simple_driver
+from metro_atc.core.validate import Rejected, StepWindow, bounds_for
+from metro_atc.nodes import conversions as conv
+
+
+def _states_along_a_run(steps: int = 1200, every: int = 37) -> list[tuple[int, float, Any]]:
+    """(step, t, states) of the mini line under the reference driver, every few steps."""
+    sim = LineSim(load_scenario("mini"), seed=3)
+    out = []
+    for k in range(steps):
+        if k % every == 0:
+            out.append((k, float(sim.t), {a: np.array(b, copy=True)
+                                          for a, b in sim.states().items()}))
+        sim.step(simple_driver(sim))
+    return out
+
+
+def test_fleet_entries_validate_to_the_per_train_states() -> None:
+    """Every entry of a FleetState, through state_from_msg, is the per-train TrainState's
+    result bit for bit (so the ATO decides the same from either)."""
+    scn = load_scenario("mini")
+    b = bounds_for(scn)
+    ids = list(scn.train_ids)
+    n_checked = 0
+    for k, t, st in _states_along_a_run():
+        idx = np.flatnonzero(np.ones(len(ids), dtype=bool))
+        echo = np.arange(idx.size) % 2 == 0
+        fleet = conv.fleet_state_msg(ids, idx, st, k, t, echo)
+        per = dict(conv.state_msgs(ids, idx, st, k, t))
+        entries = conv.fleet_state_entries(fleet, "/line/fleet_state", {i: None for i in ids})
+        assert [tid for tid, _ in entries] == [ids[i] for i in idx]
+        for j, (tid, e) in enumerate(entries):
+            i = ids.index(tid)
+            try:
+                a = conv.state_from_msg(per[i], "/x/state", tid, b, StepWindow())
+            except Rejected:
+                with pytest.raises(Rejected):
+                    conv.state_from_msg(e, "/line/fleet_state", tid, b, StepWindow())
+                continue
+            f = conv.state_from_msg(e, "/line/fleet_state", tid, b, StepWindow())
+            assert e.echo == bool(echo[j])
+            assert a.keys() == f.keys()
+            for key in a:
+                x, y = a[key], f[key]
+                assert type(x) is type(y) and (x == y or (math.isnan(x) and math.isnan(y))), \
+                    (key, x, y)
+            n_checked += 1
+    assert n_checked > 20
+
+
+def test_fleet_entries_of_other_trains_are_skipped() -> None:
+    """A process answers only its own trains (the others are another process's)."""
+    scn = load_scenario("mini")
+    ids = list(scn.train_ids)
+    _, t, st = _states_along_a_run(1, 1)[0]
+    fleet = conv.fleet_state_msg(ids, np.arange(len(ids)), st, 0, t)
+    got = conv.fleet_state_entries(fleet, "/line/fleet_state", {ids[-1]: None})
+    assert [tid for tid, _ in got] == [ids[-1]]
+
+
+def test_fleet_command_round_trip_and_rules() -> None:
+    """FleetCommand entries pass traction_from_msg like /<train>/command messages."""
+    index = {"train_01": 0, "train_02": 1}
+    m = conv.fleet_command_msg(12, 3.0, ["train_02", "train_01"], [0.25, -1.0], [2, 5])
+    got = conv.fleet_command_entries(m, "/line/fleet_command", index)
+    assert [i for i, _ in got] == [1, 0]
+    eff = [conv.traction_from_msg(e, "/line/fleet_command", e.train_id, 12, 3.0)
+           for _, e in got]
+    assert eff == [0.25, -1.0]
+    # previous step: a stale duplicate (None); another step or stamp: rejected
+    assert conv.traction_from_msg(got[0][1], "t", "train_02", 13, 3.25) is None
+    with pytest.raises(Rejected):
+        conv.traction_from_msg(got[0][1], "t", "train_02", 11, 2.75)
+    # the per-train echo of a fleet-driven train may arrive steps late: dropped, not counted
+    with pytest.raises(Rejected):
+        conv.traction_from_msg(got[0][1], "t", "train_02", 14, 3.5)
+    assert conv.traction_from_msg(got[0][1], "t", "train_02", 14, 3.5, late_echo=True) is None
+    with pytest.raises(Rejected):  # a future step is never an echo
+        conv.traction_from_msg(got[0][1], "t", "train_02", 10, 2.5, late_echo=True)
+    with pytest.raises(Rejected):
+        conv.traction_from_msg(got[0][1], "t", "train_02", 12, 3.5)
+
+
+@pytest.mark.parametrize("bad", ["length", "duplicate", "unknown"])
+def test_malformed_fleet_messages_are_rejected(bad: str) -> None:
+    """Arrays of different lengths, a train twice, an unknown train: the message is rejected
+    as a whole (kinds shape / train_id)."""
+    scn = load_scenario("mini")
+    ids = list(scn.train_ids)
+    _, t, st = _states_along_a_run(1, 1)[0]
+    fleet = conv.fleet_state_msg(ids, np.arange(len(ids)), st, 0, t)
+    cmd = conv.fleet_command_msg(0, 0.0, ids, [0.0] * len(ids), [2] * len(ids))
+    if bad == "length":
+        fleet.speed_mps = list(fleet.speed_mps)[:-1]
+        cmd.mode = [2] * (len(ids) + 1)
+        kind = "shape"
+    elif bad == "duplicate":
+        fleet.train_id = [ids[0]] * len(ids)
+        cmd.train_id = [ids[0]] * len(ids)
+        kind = "train_id"
+    else:
+        fleet.train_id = ["train_99"] + ids[1:]
+        cmd.train_id = ["train_99"] + ids[1:]
+        kind = "train_id"
+    index = {tid: i for i, tid in enumerate(ids)}
+    with pytest.raises(Rejected) as e:
+        conv.fleet_command_entries(cmd, "/line/fleet_command", index)
+    assert e.value.kind == kind
+    if bad != "unknown":  # an unknown train in a fleet state is another process's
+        with pytest.raises(Rejected) as e:
+            conv.fleet_state_entries(fleet, "/line/fleet_state", index)
+        assert e.value.kind == kind
