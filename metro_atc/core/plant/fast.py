@@ -10,9 +10,11 @@ reference the compiled one is tested against (golden traces, generated lines).
 
 from __future__ import annotations
 
+import copy
 import importlib.util
 import operator
 import os
+import time
 from typing import Any
 
 import numpy as np
@@ -64,6 +66,10 @@ class FastSensors(Sensors):
         sen = self.spec
         self.noise = np.array([sen.wheel_omega_noise_radps, sen.clamp_force_noise_n,
                                sen.accel_noise_mps2, sen.ref_speed_noise_mps], dtype=float)
+        i1, f1, f2, f3 = (np.zeros(1, dtype=np.int64), np.ones(1), np.ones((1, 4)),
+                          np.zeros((1, 1, 4)))
+        sensor_block(i1, f2, f2, f2, f2, f1, f1, f1, f1, 0.0, 1.0, np.zeros(10), self.noise,
+                     f3, f3.copy(), np.zeros((1, 1)), np.zeros((1, 1)))  # compile / load now
 
     def block(self, sn: SensorSnap) -> SensorBlock:
         """Samples with noise and injected sensor faults (same draws as the numpy path)."""
@@ -135,47 +141,70 @@ class NumbaStepper:
         self.zeros = np.zeros(fl.n)
         self.no_axles = np.zeros((3, 0, 4))
         self.key: tuple[Any, ...] = ()
+        self.key_groups: tuple[tuple[Any, ...], ...] = ()
         self.packs: tuple[Any, ...] = ()
         self.dc_key: tuple[float, float] | None = None
         self.dc = np.zeros(ks.N_DCONST)
         self.want_drv = False
         self.drv_state: tuple[Any, ...] = ()
-        self.drv_row: FloatArray | None = None
+        self.drv_blk = np.zeros((kn.N_OUT, fl.n))
+        self.step_all = ks.step_all
+        self.warm_s = self._warm(sim)
+
+    def _warm(self, sim: PlantParts) -> float:
+        """Compile (or load from the cache) every kernel now, on a copy of the plant.
+
+        Keeps the JIT / cache-load time out of the first step (benchmarks, lockstep
+        timeouts); returns the time it took [s].
+        """
+        t0 = time.perf_counter()
+        tmp = copy.deepcopy(sim)
+        n = tmp.fleet.n
+        self.advance(tmp, np.zeros(n), None, True)
+        self.driver(tmp, 1.5, 0.7, False)
+        fl, en = tmp.fleet, tmp.energy
+        masks, mp = self._packed(fl, tmp.atp, tmp.brakes)[:2]
+        z = np.zeros(n)
+        self.ks.motion(self.c, fl.x, fl.v, z, z, z, z, mp, self.geo, masks, fl.stop_x,
+                       en.e_trac, en.e_elec, en.e_fric, en.e_res, en.e_curve, en.e_grade,
+                       en.e_stop_corr, en.n_in_service, np.empty((self.kn.N_OUT, n)))
+        self.key, self.key_groups, self.packs = (), (), ()
+        self.drv_state, self.dc_key, self.want_drv = (), None, False
+        return time.perf_counter() - t0
 
     def _packed(self, fl: Any, atp: Any, br: Any) -> tuple[Any, ...]:
         """(masks, mass constants, grids, brake ratios, axle coefficients) stacked.
 
-        Re-stacked when a component rebound one of the source arrays (identity check).
+        A group is re-stacked when a component rebound one of its source arrays (identity
+        check; the components rebind, never edit in place, the arrays packed here).
         """
-        key = (fl.run, fl.hold, fl.broken, fl.auto, fl.cand, fl.mass, fl.meff, fl.inv_meff,
-               fl.davis_bc, atp.ebi_static, atp.sbi_static, atp.ceiling_phys, atp.limit_eff,
-               atp.drive_env, br.slide_ratio, br.fric_mult, br.ax_coef)
-        if len(key) != len(self.key) or not all(map(operator.is_, key, self.key)):
-            self.key = key
-            cb, cc = fl.davis_bc
-            self.packs = (
-                np.stack([fl.run, fl.hold, fl.broken, fl.auto, fl.cand]),
-                np.stack([fl.mass, fl.meff, fl.inv_meff, cb, cc]).astype(float),
-                np.stack([atp.ebi_static, atp.sbi_static, atp.ceiling_phys, atp.limit_eff,
-                          atp.drive_env]).astype(float),
-                np.stack([br.slide_ratio, br.fric_mult]).astype(float),
-                np.stack(br.ax_coef[1:4]).astype(float))
+        groups = ((fl.run, fl.hold, fl.broken, fl.auto, fl.cand),
+                  (fl.mass, fl.meff, fl.inv_meff) + fl.davis_bc,
+                  (atp.ebi_static, atp.sbi_static, atp.ceiling_phys, atp.limit_eff,
+                   atp.drive_env),
+                  (br.slide_ratio, br.fric_mult), br.ax_coef[1:4])
+        key = sum(groups, ())
+        if len(key) == len(self.key) and all(map(operator.is_, key, self.key)):
+            return self.packs
+        old = self.key_groups or ((),) * len(groups)
+        packs = list(self.packs) or [None] * len(groups)
+        for g, (new, prev) in enumerate(zip(groups, old)):
+            if len(new) != len(prev) or not all(map(operator.is_, new, prev)):
+                packs[g] = np.stack(new, dtype=bool if g == 0 else float)
+        self.key, self.key_groups, self.packs = key, groups, tuple(packs)
         return self.packs
 
-    def advance(self, sim: PlantParts, u: FloatArray,
-                auto_u: FloatArray | None) -> tuple[int, BoolArray | None, FloatArray]:
-        """See :func:`.physics.advance_numpy`."""
+    def advance(self, sim: PlantParts, u: FloatArray, auto_u: FloatArray | None,
+                axles: bool = False) -> tuple[int, BoolArray | None, FloatArray]:
+        """See :func:`.physics.advance_numpy` (``axles``: fill the axle arrays now)."""
         kn = self.kn
         fl, atp, br, en = sim.fleet, sim.atp, sim.brakes, sim.energy
         n = fl.n
         blk = np.empty((kn.N_OUT, n))
         masks, mp, grids, bk, axc = self._packed(fl, atp, br)
         coef = br.ax_coef
-        sen = getattr(sim, "sensors", None)
-        t_end = float(getattr(sim, "t", 0.0)) + sim.control_period_s
-        want_ax = sen is not None and sen.due(t_end)
-        ax_out = np.empty((3, n, axc.shape[2])) if want_ax else self.no_axles
-        r = self.ks.step_all(
+        ax_out = np.empty((3, n, axc.shape[2])) if axles else self.no_axles
+        r = self.step_all(
             self.c, fl.x, fl.v, fl.status, masks, u, fl.u_last,
             self.zeros if auto_u is None else auto_u, fl.a_dem, mp, fl.trac_level, atp.eb,
             atp.sb, atp.interventions, atp.violations, atp.in_violation, grids, self.tabs,
@@ -186,7 +215,7 @@ class NumbaStepper:
         if gmin < atp.min_sep:
             atp.min_sep = gmin
         atp.steps_above_civil += n_civil
-        x1, v1, acc, lim, eoa, a_d, f_fa, w_ax, u_clean, drv = blk[:kn.O_PHI]
+        x1, v1, acc, lim, eoa, a_d, f_fa, w_ax, u_clean = blk[:kn.O_DRV]
         atp.atp_limit, atp.eoa = lim, eoa
         fl.u_last, fl.a_dem = u_clean, a_d
         if n_hit < 0:  # an axle may slide: the numpy adhesion / WSP model, then the motion
@@ -198,14 +227,14 @@ class NumbaStepper:
                                    blk)
             self.drv_state = ()
         else:
-            arrays = (ax_out[0], ax_out[1], ax_out[2]) if want_ax else None
+            arrays = (ax_out[0], ax_out[1], ax_out[2]) if axles else None
             br.ax_prev, br.ax = br.ax, AxleState(f_fa, a_d, w_ax, coef, arrays)
             self.drv_state = (x1, v1, eoa, fl.stop_x) if self.want_drv and not n_hit else ()
-            self.drv_row = drv
+            self.drv_blk = blk
         fl.acc, fl.x, fl.v = acc, x1, v1
         d = blk[kn.O_D]
         hit = None
-        if n_hit:
+        if n_hit > 0:
             tol = sim.tol_stop
             hit = fl.cand & ((d > tol) | ((v1 <= 0.0) & (d >= -tol)))
         return n_int, hit, d
@@ -231,8 +260,8 @@ class NumbaStepper:
             self.want_drv = True
             st = self.drv_state
             if (st and st[0] is fl.x and st[1] is fl.v and st[2] is atp.eoa
-                    and st[3] is fl.stop_x and self.drv_row is not None):
-                return self.drv_row.copy()
+                    and st[3] is fl.stop_x):
+                return self.drv_blk[self.kn.O_DRV].copy()
         out = np.empty(fl.n)
         ks.driver(self.dc, fl.x, fl.v, fl.stop_x, atp.eoa, atp.speed_code, atp.drive_env,
                   atp.sbi_static, fl.status, atp.fixed_block, active_only, out)

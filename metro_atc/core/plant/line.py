@@ -9,7 +9,9 @@ snapshot (:mod:`.sensors`) -> arrivals and overruns (:mod:`.stations`).  The sta
 (geometry, rolling stock, timetable) is :mod:`metro_atc.core.line`; the KPIs are computed
 from :meth:`LineSim.run_log` (:mod:`.kpi`).  The effort is held constant over a control
 period and its rate is jerk limited (seed 001, 1.0 m/s^3; the emergency brake builds up at
-``emergency_jerk_mps3``).
+``emergency_jerk_mps3``).  The continuous part of a step (ATP to energy) runs with numpy
+(:mod:`.physics`, the reference) or as one compiled call (:mod:`.fast`; ``kernel`` /
+``METRO_ATC_PLANT_KERNEL``), bit-identical.
 """
 
 from __future__ import annotations
@@ -331,12 +333,14 @@ class LineSim:
             self._discrete(t)
         auto_u = driver_command(self) if fl.any_auto else None
         v = fl.v
-        if self.stepper is None:
-            n_int, hit, d = advance_numpy(self, ua, auto_u)
-        else:
-            n_int, hit, d = self.stepper.advance(self, ua, auto_u)
-        v1 = fl.v
         t_new = t + dt
+        sen = self.sensors
+        due = sen.due(t_new)
+        if self.stepper is None:
+            n_int, hit, d = advance_numpy(self, ua, auto_u, due)
+        else:
+            n_int, hit, d = self.stepper.advance(self, ua, auto_u, due)
+        v1 = fl.v
         self.t = t_new
         self.step_count += 1
         if self.trace_every and self.step_count % self.trace_every == 0:
@@ -348,8 +352,7 @@ class LineSim:
             tr["atp"].append(atp.atp_limit.copy())
         # sensors (snapshot now, samples generated on demand)
         snap = None
-        sen = self.sensors
-        if sen.due(t_new):
+        if due:
             br = self.brakes
             snap = sen.snapshot(t, t_new, br.ax_prev, br.ax, br.r_w, fl.acc, v, v1,
                                 fl.mass / p.cars)

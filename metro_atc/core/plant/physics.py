@@ -42,12 +42,14 @@ class PlantParts(Protocol):
     tol_stop: float
 
 
-def advance_numpy(sim: PlantParts, u: FloatArray,
-                  auto_u: FloatArray | None) -> tuple[int, BoolArray | None, FloatArray]:
+def advance_numpy(sim: PlantParts, u: FloatArray, auto_u: FloatArray | None,
+                  axles: bool = False) -> tuple[int, BoolArray | None, FloatArray]:
     """Advance the fleet one control period with the commands ``u`` [n] (validated shape).
 
     NaN keeps the last command, values are clipped to [-1, 1]; ``auto_u`` replaces the
-    command of the trains the plant drives itself (``fleet.auto``).  Updates the fleet
+    command of the trains the plant drives itself (``fleet.auto``); ``axles``: the
+    instrumented-axle arrays will be read this step (a hint; here they are derived lazily
+    by :meth:`.braking.AxleState.get` either way).  Updates the fleet
     (x, v, acc, a_dem, u_last), the ATP state, the brake axle state and the energy meter.
     Returns (new ATP interventions, arrival/overrun candidates (None if none), front -
     stop point [m]).
