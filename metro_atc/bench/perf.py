@@ -38,6 +38,8 @@ TARGET_CORE_RTF = 5000.0
 """Issue 3 target for the core-only real-time factor."""
 TARGET_GRAPH_RTF = 100.0
 """Issue 13 target for the ROS graph real-time factor (whole Blue line peak, 2 cores)."""
+TARGET_CORE_RTF_SENSORS = 6000.0
+"""Issue 13 target: core real-time factor with the sensor samples consumed (quiet machine)."""
 
 
 def energy_balance_error(sim: LineSim) -> float:
@@ -53,12 +55,15 @@ def energy_balance_error(sim: LineSim) -> float:
 
 
 def run_core(scenario: str, seed: int, sim_limit_s: float | None, sensors: bool,
-             profile: bool = False, label: str = "") -> dict[str, Any]:
+             profile: bool = False, label: str = "",
+             kernel: str | None = None) -> dict[str, Any]:
     """Run a scenario headless; returns timing, KPIs and (optionally) a profile.
 
     ``label``: progress rows on stderr (:mod:`metro_atc.bench.progress`) under this name.
+    ``kernel``: the plant step (``auto``/``numba``/``numpy``, :mod:`metro_atc.core.plant.fast`);
+    its compilation / cache load happens while the plant is built, before the timing.
     """
-    sim = LineSim(load_scenario(scenario), seed=seed)
+    sim = LineSim(load_scenario(scenario), seed=seed, kernel=kernel)
     limit = sim.duration_s if sim_limit_s is None else sim_limit_s
     prog = Progress(f"bench perf: {label}", limit, "s simulated", rate_name="rtf",
                     enabled=None if label else False)
@@ -90,6 +95,8 @@ def run_core(scenario: str, seed: int, sim_limit_s: float | None, sensors: bool,
         "us_per_step": wall / max(sim.step_count, 1) * 1e6,
         "driver_share": t_drv / wall, "trains": sim.n, "sensor_samples": n_samples,
         "kpis": sim.kpis(), "energy_balance_error": energy_balance_error(sim), "sim": sim,
+        "plant_kernel": sim.kernel,
+        "kernel_warmup_s": float(getattr(sim.stepper, "warm_s", 0.0)),
         "stop_correction_share": float(sim.e_stop_corr.sum()
                                        / max(float(sim.e_brake_rail.sum()), 1.0)),
     }
@@ -132,13 +139,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--graph-duration", type=float, default=1800.0,
                     help="simulated seconds of the ROS graph run (graph_rtf)")
     ap.add_argument("--no-graph", action="store_true", help="skip the ROS graph run")
+    ap.add_argument("--kernel", choices=("auto", "numba", "numpy"), default=None,
+                    help="plant step kernel (default: $METRO_ATC_PLANT_KERNEL, else auto)")
     a = ap.parse_args(argv)
     limit = 900.0 if a.quick else None
-    main_run = run_core(a.scenario, a.seed, limit, sensors=False, label="core 1/3")
+    main_run = run_core(a.scenario, a.seed, limit, sensors=False, label="core 1/3",
+                        kernel=a.kernel)
     sens_run = run_core(a.scenario, a.seed, limit, sensors=True,
-                        label="core 2/3 (sensors)")
+                        label="core 2/3 (sensors)", kernel=a.kernel)
     prof_run = run_core(a.scenario, a.seed, 600.0, sensors=False, profile=True,
-                        label="core 3/3 (cProfile)")
+                        label="core 3/3 (cProfile)", kernel=a.kernel)
     if progress_enabled() and not a.no_graph:
         print("bench perf: graph run (python -m metro_atc run)", file=sys.stderr, flush=True)
     k = main_run["kpis"]
@@ -146,6 +156,8 @@ def main(argv: list[str] | None = None) -> int:
                                               300.0 if a.quick else a.graph_duration)
     result: dict[str, Any] = {
         "scenario": a.scenario,
+        "plant_kernel": main_run["plant_kernel"],
+        "kernel_warmup_s": round(main_run["kernel_warmup_s"], 3),
         "core_rtf": round(main_run["rtf"], 1),
         "core_rtf_cpu": round(main_run["rtf_cpu"], 1),
         "core_us_per_step": round(main_run["us_per_step"], 1),
@@ -167,7 +179,8 @@ def main(argv: list[str] | None = None) -> int:
         "energy_balance_error": main_run["energy_balance_error"],
         "energy_stop_correction_share": main_run["stop_correction_share"],
         "max_delay_s": k["max_delay_s"],
-        "targets": {"core_rtf": TARGET_CORE_RTF, "graph_rtf": TARGET_GRAPH_RTF},
+        "targets": {"core_rtf": TARGET_CORE_RTF, "graph_rtf": TARGET_GRAPH_RTF,
+                    "core_rtf_with_sensors": TARGET_CORE_RTF_SENSORS},
         "profile_top": prof_run["profile_top"],
         "quick": a.quick,
         "seed": a.seed,
@@ -183,7 +196,10 @@ def main(argv: list[str] | None = None) -> int:
     rows = [
         ("core real-time factor (wall)", f">= {TARGET_CORE_RTF:.0f}", f"{result['core_rtf']:.0f}"),
         ("core real-time factor (CPU time)", "", f"{result['core_rtf_cpu']:.0f}"),
-        ("  with sensor samples consumed", "", f"{result['core_rtf_with_sensors']:.0f}"),
+        ("plant kernel (JIT / cache load [s])", "",
+         f"{result['plant_kernel']} ({result['kernel_warmup_s']:.1f})"),
+        ("  with sensor samples consumed", f">= {TARGET_CORE_RTF_SENSORS:.0f}",
+         f"{result['core_rtf_with_sensors']:.0f}"),
         ("    (CPU time)", "", f"{result['core_rtf_with_sensors_cpu']:.0f}"),
         ("wall time per lockstep step [us]", "", f"{result['core_us_per_step']:.0f}"),
         ("  of which reference driver", "", f"{100 * result['core_driver_share']:.0f} %"),

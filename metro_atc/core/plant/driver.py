@@ -48,6 +48,9 @@ def driver_command(sim: PlantView, gain: float = 1.5, lookahead_s: float = 0.7) 
     1 m/s.  Close to a stop the feed-forward ``-(v^2 / 2 d) / b_max`` of the constant
     deceleration that stops exactly there is added.  Stopped short: creep at 30 % traction.
     """
+    stepper = getattr(sim, "stepper", None)
+    if stepper is not None:  # compiled twin (plant kernel numba)
+        return np.asarray(stepper.driver(sim, gain, lookahead_s, False))
     fl, atp, g = sim.fleet, sim.atp, sim.geometry
     x, v = fl.x, fl.v
     la = v * lookahead_s
@@ -79,6 +82,9 @@ def driver_command(sim: PlantView, gain: float = 1.5, lookahead_s: float = 0.7) 
 
 def simple_driver(sim: PlantView) -> FloatArray:
     """Safe reference driver for the whole fleet (commands for inactive trains are 0)."""
+    stepper = getattr(sim, "stepper", None)
+    if stepper is not None:
+        return np.asarray(stepper.driver(sim, 1.5, 0.7, True))
     u = driver_command(sim)
     return np.asarray(np.where(sim.active_mask(), u, 0.0))
 

@@ -9,7 +9,9 @@ snapshot (:mod:`.sensors`) -> arrivals and overruns (:mod:`.stations`).  The sta
 (geometry, rolling stock, timetable) is :mod:`metro_atc.core.line`; the KPIs are computed
 from :meth:`LineSim.run_log` (:mod:`.kpi`).  The effort is held constant over a control
 period and its rate is jerk limited (seed 001, 1.0 m/s^3; the emergency brake builds up at
-``emergency_jerk_mps3``).
+``emergency_jerk_mps3``).  The continuous part of a step (ATP to energy) runs with numpy
+(:mod:`.physics`, the reference) or as one compiled call (:mod:`.fast`; ``kernel`` /
+``METRO_ATC_PLANT_KERNEL``), bit-identical.
 """
 
 from __future__ import annotations
@@ -29,12 +31,13 @@ from metro_atc.core.line.vehicle import TrainParams
 from .atp import AtpSupervisor
 from .braking import N_AXLES_SENSED, Brakes
 from .driver import driver_command
-from .dynamics import rk4_motion
 from .energy import EnergyMeter
+from .fast import FastSensors, NumbaStepper, resolve_kernel
 from .fleet import (DONE, MODE_ACCEL, MODE_ATP, MODE_BRAKE, MODE_COAST, MODE_CRUISE,
                     MODE_DWELL, MODE_OUT, RUN, WAIT, Fleet, Status)
 from .incidents import Incidents
 from .kpi import RunLog, compute_kpis
+from .physics import advance_numpy
 from .sensors import BrakeSensorSample, SensorBlock, Sensors, StepResult
 from .stations import Stations, TrainEvent
 from .tables import VehicleTables
@@ -46,8 +49,6 @@ BoolArray = NDArray[np.bool_]
 __all__ = ["KMH", "MODE_ACCEL", "MODE_ATP", "MODE_BRAKE", "MODE_COAST", "MODE_CRUISE",
            "MODE_DWELL", "MODE_OUT", "N_AXLES_SENSED", "PRESETS", "BrakeSensorSample",
            "LineSim", "SensorBlock", "Status", "StepResult", "TrainEvent", "train_params_for"]
-
-_cnz = np.count_nonzero
 
 
 class _Alias:
@@ -102,12 +103,15 @@ class LineSim:
     rng_sensors = _Alias("sensors", "rng")
 
     def __init__(self, scn: Scenario, seed: int = 0, params: TrainParams | None = None,
-                 trace_period_s: float = 1.0) -> None:
+                 trace_period_s: float = 1.0, kernel: str | None = None) -> None:
         """Build the line, timetable and fleet of ``scn``; ``seed`` drives all randomness.
 
         ``params`` replaces the scenario's rolling stock (tests); ``trace_period_s`` > 0
-        records positions/speeds every that many seconds for the plots (0 disables).
+        records positions/speeds every that many seconds for the plots (0 disables);
+        ``kernel``: ``auto`` / ``numba`` / ``numpy`` step (:mod:`.fast`; default from
+        ``METRO_ATC_PLANT_KERNEL``, else auto).
         """
+        self.kernel = resolve_kernel(kernel)
         self.scn = scn
         self.seed = int(seed)
         self.rng = np.random.default_rng(self.seed)
@@ -136,9 +140,8 @@ class LineSim:
         self.energy = EnergyMeter(n, p, scn.energy.regen_receptivity, dt)
         self.incidents = Incidents(scn, self.n_st)
         self.stations = Stations(scn, sv, g, self.fleet, self.incidents.extra_hold, self.rng)
-        self.sensors = Sensors(scn, self.seed, self.incidents.sensor_faults)
-        self._jerk_dt = p.max_jerk_mps3 * dt
-        self._jerk_eb_dt = p.emergency_jerk_mps3 * dt
+        sensors_cls = FastSensors if self.kernel == "numba" else Sensors
+        self.sensors = sensors_cls(scn, self.seed, self.incidents.sensor_faults)
         self._t_next = 0.0
         self._refresh_tsr(force=True)
         self._masks()
@@ -146,6 +149,7 @@ class LineSim:
                             if trace_period_s > 0 else 0)
         self.trace: dict[str, list[Any]] = {"t": [], "x": [], "v": [], "run": [],
                                             "atp": []}
+        self.stepper = NumbaStepper(self) if self.kernel == "numba" else None
 
     # ------------------------------------------------------------------ public API
 
@@ -321,67 +325,39 @@ class LineSim:
         ua = np.asarray(u, dtype=float)
         if ua.shape != (self.n,):
             raise ValueError(f"u must have shape ({self.n},), got {ua.shape}")
-        nan = np.isnan(ua)
-        if _cnz(nan):
-            ua = np.where(nan, fl.u_last, ua)
-        ua = np.minimum(np.maximum(ua, -1.0), 1.0)
-        fl.u_last = ua
         events: list[TrainEvent] = []
         self.stations.events_out = events
         t = self.t
         dt = self.control_period_s
         if t >= self._t_next - 1e-9:
             self._discrete(t)
-        if fl.any_auto:
-            ua = np.where(fl.auto, driver_command(self), ua)
-        x, v, run = fl.x, fl.v, fl.run
-        # ATP supervision (independent of the command) + safety monitors
-        phi, _, cells, n_int = atp.supervise(fl)
-        # demanded acceleration (jerk limited)
-        mass = fl.mass
-        meff = fl.meff
-        f_trac_max = phi * mass * fl.trac_level
-        bs = p.max_service_brake_mps2
-        a_tgt = np.where(ua >= 0.0, ua * f_trac_max / meff, ua * bs)
-        a_tgt = np.where(fl.hold, -bs, a_tgt)
-        a_tgt, jmax, eb_mask = atp.brake_demand(a_tgt, fl.broken, fl.any_broken, bs,
-                                                p.emergency_brake_actual_mps2, self._jerk_dt,
-                                                self._jerk_eb_dt)
-        a_prev = fl.a_dem
-        a_d = np.minimum(np.maximum(a_tgt, a_prev - jmax), a_prev + jmax)
-        fl.a_dem = a_d
-        # forces: traction, blended electric/friction brake, adhesion
-        f_trac, f_bdem, f_e, f_brake = self.brakes.blend(a_d, v, mass, meff, f_trac_max,
-                                                         eb_mask)
-        # RK4 (seed 004) with energy quadrature
-        mo = rk4_motion(x, v, f_trac - f_brake - p.davis_a_n, mass, meff, p, self.geometry,
-                        dt, self.substeps, cells, (fl.inv_meff,) + fl.davis_bc)
-        x1, v1 = mo.x1, mo.v1
-        self.energy.meter(mo, v, x1 - x, meff, f_trac, f_brake, f_e, f_bdem, run)
-        fl.acc = (v1 - v) * (1.0 / dt)
-        fl.x, fl.v = x1, v1
+        auto_u = driver_command(self) if fl.any_auto else None
+        v = fl.v
         t_new = t + dt
+        sen = self.sensors
+        due = sen.due(t_new)
+        if self.stepper is None:
+            n_int, hit, d = advance_numpy(self, ua, auto_u, due)
+        else:
+            n_int, hit, d = self.stepper.advance(self, ua, auto_u, due)
+        v1 = fl.v
         self.t = t_new
         self.step_count += 1
         if self.trace_every and self.step_count % self.trace_every == 0:
             tr = self.trace
             tr["t"].append(t_new)
-            tr["x"].append(x1)
-            tr["v"].append(v1)
-            tr["run"].append(run)
-            tr["atp"].append(atp.atp_limit)
+            tr["x"].append(fl.x.copy())
+            tr["v"].append(v1.copy())
+            tr["run"].append(fl.run)
+            tr["atp"].append(atp.atp_limit.copy())
         # sensors (snapshot now, samples generated on demand)
         snap = None
-        sen = self.sensors
-        if sen.due(t_new):
+        if due:
             br = self.brakes
             snap = sen.snapshot(t, t_new, br.ax_prev, br.ax, br.r_w, fl.acc, v, v1,
-                                mass / p.cars)
+                                fl.mass / p.cars)
         # stations
-        d = x1 - fl.stop_x
-        tol = self.tol_stop
-        hit = fl.cand & ((d > tol) | ((v1 <= 0.0) & (d >= -tol)))
-        if _cnz(hit):
+        if hit is not None:
             self.stations.station_logic(t_new, hit, d)
             self._masks()
         return StepResult(events, snap, n_int, sen)

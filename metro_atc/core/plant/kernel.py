@@ -1,0 +1,271 @@
+"""Compiled step kernel of the plant (numba): the numpy step of :mod:`.physics` fused per train.
+
+Every function here reproduces a numpy expression of :mod:`.atp`, :mod:`.braking`,
+:mod:`.dynamics`, :mod:`.energy`, :mod:`.driver` and :mod:`.sensors` element by element, in
+the same operation order (no fast-math, no fused multiply-add), so both paths agree to
+round-off (``test_plant_golden.py`` runs the golden traces with both; the property test
+compares them on generated lines).  The kernels read and write the components' own arrays
+(no state of their own); the numpy path stays the reference.
+
+Constants of a run are packed in one float array (indices ``C_*``, built by
+:mod:`.fast`); per-step outputs are the rows of one fresh ``[N_OUT, n]`` block (``O_*``).
+Compiled on first use and cached on disk (``cache=True``; numba falls back to the user
+cache directory when the package directory is read-only).
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+# packed constants (float64 vector)
+(C_X0, C_INV_DX, C_LEN, C_X_SWITCH, C_BLOCK, C_MARGIN, C_EOA_END, C_G_DOWN, C_C0A, C_C0B,
+ C_C1, C_C2A, C_TR, C_TSBI, C_SBI_OFF, C_CEIL_TOL, C_BS, C_EB_DECEL, C_JERK, C_JERK_EB,
+ C_CIVIL_TOL, C_G_AXLE, C_TRAC_ADH, C_MU_PK, C_INV_NAX, C_INV_NMOT, C_DAVIS_A, C_DAVIS_B,
+ C_DAVIS_C, C_DT, C_TOL, C_CODE_STEP, C_FIXED, C_N_SID, C_SUBSTEPS, C_FC_PER_N, C_JW,
+ N_CONST) = range(38)
+# rows of the per-step output block
+(O_X1, O_V1, O_ACC, O_LIM, O_EOA, O_AD, O_FFA, O_WAX, O_U, O_DRV, O_PHI, O_FTRAC, O_FBDEM,
+ O_FE, O_FF, O_FBRK, O_D, O_VSBI, O_OBST, N_OUT) = range(20)
+# rows of the packed fleet masks / mass constants / supervision grids
+M_RUN, M_HOLD, M_BROKEN, M_AUTO, M_CAND = range(5)
+P_MASS, P_MEFF, P_INV_M, P_CB, P_CC = range(5)
+G_EBI, G_SBI, G_CEIL, G_LIM, G_ENV = range(5)
+
+_TURNBACK = 2
+
+
+@njit(cache=True, inline="always")
+def _mx(a: float, b: float) -> float:
+    """``np.maximum`` of two floats (NaN propagates, ties keep ``a``)."""
+    if a >= b or a != a:
+        return a
+    return b
+
+
+@njit(cache=True, inline="always")
+def _mn(a: float, b: float) -> float:
+    """``np.minimum`` of two floats (NaN propagates, ties keep ``a``)."""
+    if a <= b or a != a:
+        return a
+    return b
+
+
+@njit(cache=True)
+def interp1(x: float, xp, fp) -> float:  # type: ignore[no-untyped-def]
+    """``np.interp(x, xp, fp)`` for one value (numpy's algorithm and special cases)."""
+    n = xp.shape[0]
+    if x != x:
+        return x
+    if x < xp[0]:
+        return fp[0]
+    if x > xp[n - 1]:
+        return fp[n - 1]
+    lo, hi = 0, n
+    while lo < hi:  # last j with xp[j] <= x
+        mid = (lo + hi) >> 1
+        if x >= xp[mid]:
+            lo = mid + 1
+        else:
+            hi = mid
+    j = lo - 1
+    if j == n - 1 or xp[j] == x:
+        return fp[j]
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+    r = slope * (x - xp[j]) + fp[j]
+    if r != r:
+        r = slope * (x - xp[j + 1]) + fp[j + 1]
+        if r != r and fp[j] == fp[j + 1]:
+            r = fp[j]
+    return r
+
+
+@njit(cache=True, inline="always")
+def _cell(x: float, x0: float, inv_dx: float, n_cells: int) -> int:
+    """Grid cell of ``x`` (``int((x - x0) / dx)``; clamped to the grid)."""
+    k = int((x - x0) * inv_dx)
+    return min(max(k, 0), n_cells - 1)
+
+
+@njit(cache=True)
+def obstacles(c, x, status, run, n_sid: int, blocks: bool, out) -> None:  # type: ignore
+    """:meth:`.atp.AtpSupervisor.obstacle_rear` into ``out`` [m]."""
+    n = x.shape[0]
+    x0, blen, ln, xsw = c[C_X0], c[C_BLOCK], c[C_LEN], c[C_X_SWITCH]
+    out[0] = math.inf
+    for i in range(1, n):
+        j = i - 1
+        rear = x[j] - ln
+        if run[j] and not (status[j] == _TURNBACK and rear > xsw):
+            if blocks:
+                rear = x0 + math.floor((rear - x0) / blen) * blen
+            out[i] = rear
+        else:
+            out[i] = math.inf
+    for i in range(n_sid, n):
+        j = i - n_sid
+        rear = x[j] - ln
+        if status[j] == _TURNBACK and rear > xsw and run[j]:
+            out[i] = _mn(out[i], rear)
+
+
+@njit(cache=True)
+def front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb, sb,
+          interventions, violations, in_violation, grids, tabs, speed_code, bk,
+          any_slide: bool, any_wsp: bool, blk):  # type: ignore[no-untyped-def]
+    """ATP supervision + monitors, jerk-limited demand, blend (fast path) of one step.
+
+    ``masks`` = fleet (run, hold, broken, auto, cand); ``mp`` = (mass, meff, 1/meff,
+    Davis B/meff, C/meff); ``grids`` = (ebi_static, sbi_static, ceiling_phys, limit_eff,
+    drive_env); ``tabs`` = (v, phi, ebrake); ``bk`` = brakes (slide_ratio, fric_mult).
+    Returns (new interventions, any_atp, any_violation, smallest gap [m], train-steps above
+    the civil limit, rail force done) -- the rail force is left to the numpy slide model
+    when an axle may reach the peak adhesion.
+    """
+    n = x.shape[0]
+    fixed = c[C_FIXED] != 0.0
+    n_cells = grids.shape[1]
+    run, hold, broken, auto = masks[M_RUN], masks[M_HOLD], masks[M_BROKEN], masks[M_AUTO]
+    mass, meff = mp[P_MASS], mp[P_MEFF]
+    ebi_s, sbi_s, ceil_p, lim_eff = grids[G_EBI], grids[G_SBI], grids[G_CEIL], grids[G_LIM]
+    tv, tphi, tebr = tabs[0], tabs[1], tabs[2]
+    x0, inv_dx = c[C_X0], c[C_INV_DX]
+    obst, eoa, lim, vsbi, phi = blk[O_OBST], blk[O_EOA], blk[O_LIM], blk[O_VSBI], blk[O_PHI]
+    any_atp = False
+    any_viol = False
+    any_broken = False
+    for i in range(n):  # commands: NaN keeps the last one, clip to [-1, 1]
+        ui = u[i]
+        if ui != ui:
+            ui = u_last[i]
+        blk[O_U, i] = _mn(_mx(ui, -1.0), 1.0)
+        any_atp = any_atp or eb[i] or sb[i]
+        any_viol = any_viol or in_violation[i]
+        any_broken = any_broken or broken[i]
+    n_sid = int(c[C_N_SID])
+    if fixed:
+        obstacles(c, x, status, run, n_sid, True, obst)
+        for i in range(n):
+            eoa[i] = _mn(obst[i] - c[C_MARGIN], c[C_EOA_END])
+    obstacles(c, x, status, run, n_sid, False, obst)
+    if not fixed:
+        for i in range(n):
+            eoa[i] = _mn(obst[i] - c[C_MARGIN], c[C_EOA_END])
+    n_over = 0
+    for i in range(n):
+        k = _cell(x[i], x0, inv_dx, n_cells)
+        dist = eoa[i] - x[i]
+        ph = interp1(v[i], tv, tphi)
+        phi[i] = ph
+        a_w = ph + c[C_G_DOWN]
+        c0 = c[C_C0A] + c[C_C0B] * a_w
+        c2 = c[C_C2A] + c[C_TR] * a_w
+        v_ma = math.sqrt(_mx(c0 + c[C_C1] * dist, 0.0)) - c2
+        lim[i] = _mn(ebi_s[k], v_ma)
+        v_sb_ma = math.sqrt(_mx(c0 + c[C_C1] * (dist - c[C_TSBI] * v[i]), 0.0)) - c2
+        vs = _mn(sbi_s[k], v_sb_ma) - c[C_SBI_OFF]
+        if fixed:
+            start = x0 + math.floor((x[i] - x0) / c[C_BLOCK]) * c[C_BLOCK]
+            code = math.sqrt(2.0 * c[C_BS] * _mx(eoa[i] - start, 0.0))
+            code = math.floor(code / c[C_CODE_STEP]) * c[C_CODE_STEP]
+            speed_code[i] = _mn(code, lim_eff[k])
+            vs = _mn(vs, speed_code[i] + 0.5 * c[C_CEIL_TOL])
+        vsbi[i] = vs
+        if run[i] and v[i] > vs:
+            n_over += 1
+    n_int = 0
+    if any_atp or n_over:
+        any_atp = False
+        for i in range(n):
+            moving = v[i] > 0.0
+            e0, s0 = eb[i], sb[i]
+            e1 = run[i] and ((e0 and moving) or v[i] > lim[i])
+            over = run[i] and v[i] > vsbi[i]
+            s1 = (not e1) and (over or (s0 and moving and run[i] and v[i] > vsbi[i] - 0.5))
+            if moving and ((e1 and not e0) or (s1 and not s0 and not e0)):
+                n_int += 1
+                interventions[i] += 1
+            eb[i], sb[i] = e1, s1
+            any_atp = any_atp or e1 or s1
+    # safety monitors (state at the start of the step)
+    n_civil = 0
+    gmin = math.inf
+    n_bad = 0
+    for i in range(n):
+        k = _cell(x[i], x0, inv_dx, n_cells)
+        if run[i]:
+            if v[i] > (ceil_p[k] - c[C_CEIL_TOL]) + c[C_CIVIL_TOL]:
+                n_civil += 1
+            gap = obst[i] - x[i]
+            gmin = _mn(gmin, gap)
+            if gap < c[C_MARGIN] - 1e-6 or v[i] > ceil_p[k] + 1e-6:
+                n_bad += 1
+    if any_viol or n_bad:
+        for i in range(n):
+            k = _cell(x[i], x0, inv_dx, n_cells)
+            bad = run[i] and (obst[i] - x[i] < c[C_MARGIN] - 1e-6
+                              or v[i] > ceil_p[k] + 1e-6)
+            if bad and not in_violation[i]:
+                violations[i] += 1
+            in_violation[i] = bad
+        any_viol = n_bad > 0
+    # demand, jerk limit, blend
+    override = any_atp or any_broken
+    bs = c[C_BS]
+    fast = not (any_slide or any_wsp)
+    slide_ratio, fric_mult = bk[0], bk[1]
+    for i in range(n):
+        ui = auto_u[i] if auto[i] else blk[O_U, i]
+        f_max = phi[i] * mass[i] * trac_level[i]
+        a_t = ui * f_max / meff[i] if ui >= 0.0 else ui * bs
+        if hold[i]:
+            a_t = -bs
+        jmax = c[C_JERK]
+        ebm = False
+        if override:
+            ebm = eb[i] or broken[i]
+            if sb[i]:
+                a_t = _mn(a_t, -bs)
+            if ebm:
+                a_t = -c[C_EB_DECEL]
+                jmax = c[C_JERK_EB]
+        a_d = _mn(_mx(a_t, a_prev[i] - jmax), a_prev[i] + jmax)
+        blk[O_AD, i] = a_d
+        w_ax = mass[i] * c[C_G_AXLE]
+        blk[O_WAX, i] = w_ax
+        blk[O_FTRAC, i] = _mn(_mn(_mx(a_d, 0.0) * meff[i], f_max), w_ax * c[C_TRAC_ADH])
+        f_bdem = _mx(-a_d, 0.0) * meff[i]
+        blk[O_FBDEM, i] = f_bdem
+        f_e = _mn(f_bdem, interp1(v[i], tv, tebr))
+        if ebm:
+            f_e = 0.0
+        blk[O_FE, i] = f_e
+        f_f = f_bdem - f_e
+        blk[O_FF, i] = f_f
+        f_fa = f_f * c[C_INV_NAX]
+        blk[O_FFA, i] = f_fa
+        if f_e * c[C_INV_NMOT] + f_fa > c[C_MU_PK] * w_ax or f_fa * slide_ratio[i] > w_ax:
+            fast = False
+        blk[O_FBRK, i] = f_e + f_fa * fric_mult[i]
+    return n_int, any_atp, any_viol, gmin, n_civil, fast
+
+
+@njit(cache=True)
+def axle_fill(c, f_fa, a_d, w_axle, axc, stab, out):  # type: ignore[no-untyped-def]
+    """(F_x, clamp force, slip) of the instrumented axles into ``out`` [3, n, 4].
+
+    :meth:`.braking.AxleState.get` (quasi-static rolling); ``axc`` = (F_x per clamp N,
+    1 / r_w^2, adhesion factor) [3, n, 4]; ``stab`` = adhesion table (mu, slip).
+    """
+    n, m = axc.shape[1], axc.shape[2]
+    fc_per_n, jw = c[C_FC_PER_N], c[C_JW]
+    tab_mu, tab_slip = stab[0], stab[1]
+    for i in range(n):
+        fci = f_fa[i] * fc_per_n
+        ja = jw * _mn(a_d[i], 0.0)
+        for a in range(m):
+            out[1, i, a] = fci
+            f = fci * axc[0, i, a] + ja * axc[1, i, a]
+            out[0, i, a] = f
+            out[2, i, a] = interp1(f / (w_axle[i] * axc[2, i, a]), tab_mu, tab_slip)

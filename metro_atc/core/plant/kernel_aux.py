@@ -1,0 +1,37 @@
+"""Compiled (numba) sensor samples: :meth:`.sensors.Sensors.block` element by element.
+
+Same operation order as the numpy path (see :mod:`.kernel`); the normal draws are made by
+the caller with the sensors' own generator, so the streams are identical.
+"""
+
+from __future__ import annotations
+
+from numba import njit
+
+from .kernel import _mx
+
+
+@njit(cache=True)
+def sensor_block(idx, rw, slip0, slip1, clamp1, v0, v1, acc, ts, t0: float, t1: float, z,
+                 noise, omega, clamp, accel, vref):  # type: ignore[no-untyped-def]
+    """Noisy samples into omega, clamp [s, train, 4], accel, vref [s, train] from the truth.
+
+    ``z`` is the step's standard-normal draw (omega, clamp, accel, vref blocks in that
+    order); ``noise`` = (omega, clamp, accel, ref speed) standard deviations.
+    """
+    ns, m = ts.shape[0], idx.shape[0]
+    na = rw.shape[1]
+    k = ns * m * na
+    for s in range(ns):
+        frac = (ts[s] - t0) / (t1 - t0)
+        for c in range(m):
+            i = idx[c]
+            for a in range(na):
+                om0 = (v0[i] * (1.0 - slip0[i, a])) / rw[i, a]
+                om1 = (v1[i] * (1.0 - slip1[i, a])) / rw[i, a]
+                j = (s * m + c) * na + a
+                omega[s, c, a] = (om0 + frac * (om1 - om0)) + noise[0] * z[j]
+                clamp[s, c, a] = _mx(clamp1[i, a] + noise[1] * z[k + j], 0.0)
+            accel[s, c] = acc[i] + noise[2] * z[2 * k + s * m + c]
+            zv = z[2 * k + ns * m + s * m + c]
+            vref[s, c] = (v0[i] + frac * (v1[i] - v0[i])) + noise[3] * zv

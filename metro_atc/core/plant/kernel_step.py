@@ -1,0 +1,195 @@
+"""Compiled (numba) motion, energy and reference driver; :func:`step_all` fuses a step.
+
+Twins of :func:`.dynamics.rk4_motion`, :meth:`.energy.EnergyMeter.meter` and
+:func:`.driver.driver_command` in the same operation order (see :mod:`.kernel`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .kernel import (C_DAVIS_A, C_DAVIS_B, C_DAVIS_C, C_DT, C_FIXED, C_INV_DX, C_SUBSTEPS,
+                     C_TOL, C_X0, G_ENV, G_SBI, M_CAND, M_RUN, O_ACC, O_D, O_DRV, O_EOA,
+                     O_FBDEM, O_FBRK, O_FE, O_FFA, O_FTRAC, O_AD, O_V1, O_WAX, O_X1, P_CB,
+                     P_CC, P_INV_M, P_MASS, P_MEFF, _cell, _mn, _mx, axle_fill, front)
+
+# packed driver constants
+(D_X0, D_INV_DX, D_B_DRIVE, D_T_SBI, D_C0, D_C2, D_C1, D_BS, D_TOL, D_GAIN, D_LA,
+ N_DCONST) = range(12)
+
+
+@njit(cache=True)
+def motion(c, x, v, f_trac, f_brake, f_e, f_bdem, mp, geo, masks, stop_x, e_trac, e_elec,
+           e_fric, e_res, e_curve, e_grade, e_stop_corr, n_in_service,
+           blk):  # type: ignore[no-untyped-def]
+    """RK4 with energy quadrature, energy meter, arrival candidates of one step.
+
+    Writes x1, v1, acc and the distance to the stop point into ``blk``; returns the number
+    of trains at or past their stop point (arrival / overrun candidates).
+    """
+    n = x.shape[0]
+    n_cells = geo.shape[1]
+    mass, meff, inv_m, cb, cc = mp[P_MASS], mp[P_MEFF], mp[P_INV_M], mp[P_CB], mp[P_CC]
+    x0, inv_dx = c[C_X0], c[C_INV_DX]
+    da, db, dc = c[C_DAVIS_A], c[C_DAVIS_B], c[C_DAVIS_C]
+    dt = c[C_DT]
+    substeps = int(c[C_SUBSTEPS])
+    h = dt / substeps
+    h2, h6 = 0.5 * h, h / 6.0
+    xs = x.copy()
+    vs = v.copy()
+    w_res = np.zeros(n)
+    w_grade = np.zeros(n)
+    w_curve = np.zeros(n)
+    clamped = np.zeros(n, dtype=np.bool_)
+    vn = np.empty(n)
+    dxs = np.empty(n)
+    pr = np.empty(n)
+    k1s = np.empty(n)
+    fg = np.empty(n)
+    fcv = np.empty(n)
+    for _ in range(substeps):
+        n_stop = 0
+        n_stop_moving = 0
+        for i in range(n):
+            kk = _cell(xs[i], x0, inv_dx, n_cells)
+            f_g = mass[i] * geo[0, kk]
+            f_c = mass[i] * geo[1, kk]
+            fg[i], fcv[i] = f_g, f_c
+            f_const = f_trac[i] - f_brake[i] - da
+            q = (f_const - f_g - f_c) * inv_m[i]
+            v1_ = vs[i]
+            k1 = q - v1_ * (cb[i] + cc[i] * v1_)
+            v2 = v1_ + h2 * k1
+            k2 = q - v2 * (cb[i] + cc[i] * v2)
+            v3 = v1_ + h2 * k2
+            k3 = q - v3 * (cb[i] + cc[i] * v3)
+            v4 = v1_ + h * k3
+            k4 = q - v4 * (cb[i] + cc[i] * v4)
+            vn[i] = v1_ + h6 * (k1 + 2.0 * (k2 + k3) + k4)
+            dxs[i] = h6 * (v1_ + 2.0 * (v2 + v3) + v4)
+            pr[i] = ((q * dxs[i] - h6 * (k1 * v1_ + 2.0 * (k2 * v2 + k3 * v3) + k4 * v4))
+                     * meff[i] + da * dxs[i])
+            k1s[i] = k1
+            if vn[i] <= 0.0:
+                n_stop += 1
+                if v1_ != 0.0:
+                    n_stop_moving += 1
+        for i in range(n):
+            if n_stop and vn[i] <= 0.0:
+                vi = vs[i]
+                vn[i] = 0.0
+                if n_stop_moving == 0:  # only trains already at rest: exactly at rest
+                    dxs[i] = 0.0
+                    pr[i] = 0.0
+                else:  # uniform deceleration to rest (see rk4_motion)
+                    d_stop = _mn(vi * vi / (-2.0 * _mn(k1s[i], -1e-9)), h * vi)
+                    dxs[i] = d_stop
+                    pr[i] = (da + vi * (db + dc * vi)) * d_stop
+                    clamped[i] = True
+            w_res[i] = w_res[i] + pr[i]
+            w_grade[i] = w_grade[i] + fg[i] * dxs[i]
+            w_curve[i] = w_curve[i] + fcv[i] * dxs[i]
+            xs[i] = xs[i] + dxs[i]
+            vs[i] = vn[i]
+    inv_dt = 1.0 / dt
+    n_hit = 0
+    tol = c[C_TOL]
+    run, cand = masks[M_RUN], masks[M_CAND]
+    for i in range(n):
+        x1, v1, v0 = xs[i], vs[i], v[i]
+        dxt = x1 - x[i]
+        w_trac = f_trac[i] * dxt
+        w_brk = f_brake[i] * dxt
+        if clamped[i]:  # the friction brake absorbs what is left (energy.py)
+            resid = (w_trac - w_grade[i] - w_curve[i] - w_res[i]
+                     - 0.5 * meff[i] * (v1 * v1 - v0 * v0))
+            w_new = _mx(resid, 0.0)
+            e_stop_corr[i] += abs(w_new - w_brk)
+            w_brk = w_new
+        w_e = w_brk * (f_e[i] / _mx(f_bdem[i], 1e-9))
+        e_trac[i] += w_trac
+        e_elec[i] += w_e
+        e_fric[i] += w_brk - w_e
+        e_res[i] += w_res[i]
+        e_curve[i] += w_curve[i]
+        e_grade[i] += w_grade[i]
+        if run[i]:
+            n_in_service[i] += 1
+        blk[O_X1, i] = x1
+        blk[O_V1, i] = v1
+        blk[O_ACC, i] = (v1 - v0) * inv_dt
+        d = x1 - stop_x[i]
+        blk[O_D, i] = d
+        if cand[i] and (d > tol or (v1 <= 0.0 and d >= -tol)):
+            n_hit += 1
+    return n_hit
+
+
+@njit(cache=True)
+def driver(dc, x, v, stop_x, eoa, speed_code, drive_env, sbi_static, status,
+           fixed: bool, active_only: bool, out):  # type: ignore[no-untyped-def]
+    """Reference driver command per train into ``out`` (0 for trains not RUN if asked)."""
+    n = x.shape[0]
+    n_cells = drive_env.shape[0]
+    b_drive = dc[D_B_DRIVE]
+    b2 = 2.0 * b_drive
+    c0, c1, c2 = dc[D_C0], dc[D_C1], dc[D_C2] + 1.0
+    tol = 0.5 * dc[D_TOL]
+    for i in range(n):
+        xi, vi = x[i], v[i]
+        la = vi * dc[D_LA]
+        kl = _cell(xi + la, dc[D_X0], dc[D_INV_DX], n_cells)
+        d_stop = stop_x[i] - xi
+        d_ma = eoa[i] - xi - 3.0
+        d_eff = _mn(d_stop, d_ma)
+        v_curve = math.sqrt(b2 * _mx(d_eff - la, 0.0))
+        lead = vi * (dc[D_T_SBI] + 2.0)
+        v_atp = math.sqrt(_mx(c0 + c1 * (d_ma - lead), 0.0)) - c2
+        v_ref = _mn(_mn(drive_env[kl], v_curve), _mn(v_atp, sbi_static[kl] - 1.0))
+        if fixed:
+            v_ref = _mn(v_ref, speed_code[i] - 0.5)
+        err = dc[D_GAIN] * (v_ref - vi)
+        u = err
+        if d_eff < (0.65 / b_drive) * vi * vi + 1.0:
+            ff = (vi * vi) / (-2.0 * dc[D_BS] * _mx(d_eff, 0.05))
+            u = _mn(err, ff + err)
+        if vi < 0.3 and d_stop > tol and v_ref > 1.0:
+            u = _mx(u, 0.3)
+        if d_stop <= tol and vi < 0.5:
+            u = -1.0
+        u = _mn(_mx(u, -1.0), 1.0)
+        if active_only and status[i] != 1:
+            u = 0.0
+        out[i] = u
+
+
+@njit(cache=True)
+def step_all(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb, sb,
+             interventions, violations, in_violation, grids, tabs, speed_code, bk,
+             any_slide: bool, any_wsp: bool, blk, geo, stop_x, e_trac, e_elec, e_fric, e_res,
+             e_curve, e_grade, e_stop_corr, n_in_service, axc, stab, ax_out, dc,
+             want_drv: bool):  # type: ignore[no-untyped-def]
+    """One step: :func:`.kernel.front`, then (rail force done) :func:`motion`.
+
+    Also fills ``ax_out`` (instrumented axles, when it has rows) and, with ``want_drv`` and
+    no arrival candidate, the reference driver's next command (row ``O_DRV``).  Returns
+    front's figures and the number of arrival candidates (-1: rail force left to numpy).
+    """
+    r = front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb, sb,
+              interventions, violations, in_violation, grids, tabs, speed_code, bk,
+              any_slide, any_wsp, blk)
+    if not r[5]:
+        return r[0], r[1], r[2], r[3], r[4], -1
+    n_hit = motion(c, x, v, blk[O_FTRAC], blk[O_FBRK], blk[O_FE], blk[O_FBDEM], mp, geo,
+                   masks, stop_x, e_trac, e_elec, e_fric, e_res, e_curve, e_grade,
+                   e_stop_corr, n_in_service, blk)
+    if ax_out.shape[1]:
+        axle_fill(c, blk[O_FFA], blk[O_AD], blk[O_WAX], axc, stab, ax_out)
+    if want_drv and n_hit == 0:
+        driver(dc, blk[O_X1], blk[O_V1], stop_x, blk[O_EOA], speed_code, grids[G_ENV],
+               grids[G_SBI], status, c[C_FIXED] != 0.0, True, blk[O_DRV])
+    return r[0], r[1], r[2], r[3], r[4], n_hit
