@@ -33,6 +33,7 @@ import hashlib
 import importlib
 import json
 import os
+import types
 from collections import deque
 from pathlib import Path
 from typing import Any, Mapping
@@ -69,13 +70,53 @@ def _resolve(name: str) -> type:
     return obj
 
 
+def _function_name(v: Any) -> str | None:
+    """``module:qualname`` of a module-level function of this package (a compiled kernel's
+    dispatcher by its Python function), else None: code is stored by name, never as data."""
+    fn = getattr(v, "py_func", v)
+    mod, qual = getattr(fn, "__module__", None), getattr(fn, "__qualname__", None)
+    if not (callable(v) and isinstance(mod, str) and isinstance(qual, str)) \
+            or not (mod + ".").startswith(_PACKAGE) or "<" in qual:
+        return None
+    try:
+        same = _lookup(mod, qual) is v
+    except (ImportError, AttributeError):
+        return None
+    return f"{mod}:{qual}" if same else None
+
+
+def _lookup(mod: str, qual: str) -> Any:
+    obj: Any = importlib.import_module(mod)
+    for part in qual.split("."):
+        obj = getattr(obj, part)
+    return obj
+
+
+def _resolve_function(name: str) -> Any:
+    """The module-level function ``module:qualname`` of this package (see
+    :func:`_function_name`)."""
+    mod, _, qual = str(name).partition(":")
+    if not (mod + ".").startswith(_PACKAGE) or not qual or "<" in qual:
+        raise CheckpointError(f"checkpoint names function {name!r} outside {_PACKAGE[:-1]}")
+    try:
+        obj = _lookup(mod, qual)
+    except (ImportError, AttributeError):
+        raise CheckpointError(f"checkpoint names function {name!r}, not found") from None
+    if isinstance(obj, type) or not callable(obj):
+        raise CheckpointError(f"checkpoint names {name!r}, which is not a function")
+    return obj
+
+
 def _fields(obj: Any) -> dict[str, Any]:
-    """The instance attributes of ``obj`` (``__dict__`` and slots)."""
+    """The instance attributes of ``obj`` (``__dict__`` and slots), less the names its class
+    lists in ``checkpoint_transient`` (measurements of this process, e.g. a compile time)."""
     out = dict(getattr(obj, "__dict__", {}))
     for cls in type(obj).__mro__:
         for s in getattr(cls, "__slots__", ()):
             if s not in ("__dict__", "__weakref__") and hasattr(obj, s):
                 out[s] = getattr(obj, s)
+    for name in getattr(type(obj), "checkpoint_transient", ()):
+        out.pop(name, None)
     return out
 
 
@@ -162,6 +203,11 @@ class _Capture:
         if type(v) is dict:
             return {"id": ref, "d": [[self.enc(k, path + ".key"), self.enc(x, f"{path}[{k!r}]")]
                                      for k, x in v.items()]}
+        if isinstance(v, types.ModuleType) and (v.__name__ + ".").startswith(_PACKAGE):
+            return {"id": ref, "mod": v.__name__}
+        fname = _function_name(v)
+        if fname is not None:
+            return {"id": ref, "fn": fname}
         cls = type(v)
         if not cls.__module__.startswith(_PACKAGE) or callable(v):
             raise CheckpointError(f"{path}: cannot checkpoint a {cls.__module__}."
@@ -216,6 +262,13 @@ class _Restore:
                 for k, x in e["f"].items():
                     object.__setattr__(out, k, self.dec(x, cur.get(k)))
                 return out
+        elif "fn" in e:
+            out = _resolve_function(e["fn"])
+        elif "mod" in e:
+            if not (str(e["mod"]) + ".").startswith(_PACKAGE):
+                raise CheckpointError(f"checkpoint names module {e['mod']!r} outside "
+                                      f"{_PACKAGE[:-1]}")
+            out = importlib.import_module(str(e["mod"]))
         elif "stack" in e:
             rows = self.arrays[f"a{int(e['stack'])}"]
             out = [np.array(r, copy=True) for r in rows]

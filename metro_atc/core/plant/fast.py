@@ -107,6 +107,9 @@ class NumbaStepper:
     command is recomputed).
     """
 
+    checkpoint_transient = ("warm_s",)
+    """Not plant state: the compile / cache-load time of this process [s] (checkpoints)."""
+
     def __init__(self, sim: PlantParts) -> None:
         """Pack the run's constants and static tables (compiles / loads the kernel)."""
         from . import kernel as kn
