@@ -9,8 +9,11 @@ scenario names (e.g. the TTOBench line once imported, or ``taipei_blue``) throug
 ROS-free closed loop :func:`metro_atc.core.closed_loop.run_closed_loop` (real ATO and ATS
 cores, the plant, lockstep) and prints one row per line plus totals: ATP violations, missed
 stops, ATP interventions per 100 stops, stop error p50/p95/max [m], stops outside +-0.30 m,
-time above the civil limit [s], speed minima per TSR approach (hunting) and energy per
-train-km [kWh].  Exit code 1 when a line fails to run.
+time above the civil limit [s], speed minima per TSR approach (hunting), energy per
+train-km [kWh] and the brake diagnosis of every train (issue 11 item 8,
+:class:`metro_atc.core.brake.line_monitor.LineBrakeMonitor`: false alarms = level rises of
+trains without a brake fault; injected pad/wheel faults detected; ``--no-brake`` skips it).
+Exit code 1 when a line fails to run.
 """
 
 from __future__ import annotations
@@ -53,7 +56,19 @@ def totals(rows: List[dict[str, Any]], errors: List[float]) -> dict[str, Any]:
         "tsr_speed_minima_max": int(max([r["tsr_speed_minima_max"] for r in rows] or [0])),
         "energy_kwh_per_train_km": e / max(km, 1e-9), "train_km": km,
         "unfinished": int(sum(not r["finished"] for r in rows)),
+        **_brake_totals(rows),
     }
+
+
+def _brake_totals(rows: List[dict[str, Any]]) -> dict[str, Any]:
+    """Brake-diagnosis totals (empty when the diagnosis did not run)."""
+    if not rows or "brake_false_alarms" not in rows[0]:
+        return {}
+    delays = [d for r in rows for d in r["brake_detect_after_brake_s"]]
+    return {k: int(sum(r[k] for r in rows))
+            for k in ("brake_false_alarms", "brake_false_errors", "brake_faults",
+                      "brake_faults_detected")} | {
+        "brake_detect_after_brake_max_s": max(delays) if delays else math.nan}
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -70,6 +85,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--tracker", default="fuzzy")
     ap.add_argument("--sim-seed", type=int, default=0, help="plant random seed")
     ap.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    ap.add_argument("--no-brake", action="store_true", help="skip the brake diagnosis")
     a = ap.parse_args(argv)
     if a.count < 0:
         ap.error("--count must be >= 0")
@@ -84,7 +100,7 @@ def main(argv: Optional[List[str]] = None) -> int:
             scn = load_generated(what, incidents=a.incidents) if kind == "gen" \
                 else load_scenario(what)
             res = run_closed_loop(scn, regulator=a.regulator, planner=a.planner,
-                                  tracker=a.tracker, seed=a.sim_seed)
+                                  tracker=a.tracker, seed=a.sim_seed, brake=not a.no_brake)
         except (ScenarioError, ValueError) as exc:
             failed.append(f"{what}: {exc}")
             print(f"bench lines: {what}: {exc}", file=sys.stderr)
@@ -107,6 +123,7 @@ def main(argv: Optional[List[str]] = None) -> int:
                   f"above {row['time_above_civil_limit_s']:6.1f} s "
                   f"tsr-min {row['tsr_speed_minima_max']} "
                   f"{row['energy_kwh_per_train_km']:.2f} kWh/train-km "
+                  f"brake-fa {row.get('brake_false_alarms', '-')} "
                   f"({row['wall_s']:.1f} s)", flush=True)
     tot = totals(rows, errors)
     result = {"bench": "lines", "incidents": a.incidents, "regulator": a.regulator,

@@ -39,6 +39,7 @@ import numpy as np
 
 from metro_atc.core.ato.onboard import OnboardAto, atp_model_for, envelope_limits, tsr_zones
 from metro_atc.core.atr.dispatch import Dispatch, make_dispatcher
+from metro_atc.core.brake.line_monitor import LineBrakeMonitor
 from metro_atc.core.bridge import timetable_for, track_for, train_for
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.line.scenario import Scenario
@@ -83,6 +84,8 @@ class ClosedLoopResult:
     wall_s: float
     finished: bool
     kpis: dict[str, Any] = field(default_factory=dict)
+    brake: dict[str, Any] = field(default_factory=dict)
+    """Brake-diagnosis figures (:meth:`LineBrakeMonitor.summary`) when it ran."""
 
     def row(self) -> dict[str, Any]:
         """One JSON-friendly row of the bench (``bench lines``)."""
@@ -104,14 +107,18 @@ class ClosedLoopResult:
             "energy_kwh": self.energy_kwh,
             "energy_kwh_per_train_km": self.energy_kwh / max(self.train_km, 1e-9),
             "train_km": self.train_km, "sim_time_s": self.sim_time_s,
-            "wall_s": self.wall_s, "finished": self.finished,
+            "wall_s": self.wall_s, "finished": self.finished, **self.brake,
         }
 
 
 def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp",
                     tracker: str = "fuzzy", seed: int = 0,
-                    duration_s: Optional[float] = None) -> ClosedLoopResult:
-    """Run ``scn`` to its end (or ``duration_s``) in the ROS-free lockstep; see module doc."""
+                    duration_s: Optional[float] = None, brake: bool = False) -> ClosedLoopResult:
+    """Run ``scn`` to its end (or ``duration_s``) in the ROS-free lockstep; see module doc.
+
+    With ``brake`` the brake sensor samples also go to the brake diagnosis
+    (:class:`metro_atc.core.brake.line_monitor.LineBrakeMonitor`).
+    """
     w0 = time.perf_counter()
     sim = LineSim(scn, seed=seed, trace_period_s=0.0)
     tt = timetable_for(scn)
@@ -125,6 +132,7 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
                        control_period_s=float(scn.sim.control_period_s), limits=limits,
                        shared=shared, tsrs=tsrs, atp=atp) for _ in tt.train_ids]
     ats = make_dispatcher(scn, regulator, tt=tt)
+    mon = LineBrakeMonitor(scn) if brake else None
     ids = list(tt.train_ids)
     n = len(ids)
 
@@ -163,6 +171,8 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
         run = sim.active_mask()
         res = sim.step(u.copy())
         step += 1
+        if mon is not None:
+            mon.on_step(res)
         # ---- measurements on the state after the step (public plant state)
         x, v = sim.x, sim.v
         k = np.clip(((x - sim.x0) * sim.inv_dx).astype(np.int64), 0, sim.ceiling_phys.size - 1)
@@ -189,7 +199,7 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
         atp_interventions=int(np.sum(sim.interventions)), time_above_civil_s=above,
         tsr_minima=minima, energy_kwh=float(kp["energy_kwh"]), train_km=dist / 1000.0,
         sim_time_s=float(sim.t), wall_s=time.perf_counter() - w0, finished=bool(sim.done),
-        kpis=kp)
+        kpis=kp, brake=mon.summary() if mon is not None else {})
 
 
 def _watch_tsrs(sim: LineSim, tsrs: list[Any], run: Any,

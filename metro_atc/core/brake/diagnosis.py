@@ -50,6 +50,9 @@ class DecisionConfig:
         gate_s: decisions ignored before this time [s].
         filter_tau_s: time constant of the first-order low-pass applied to the force
             residuals before thresholding [s] (smooths ABS / WSP cycling).
+        mu_b_sigmas: a pad violation (and a WARN) needs ``mu_b_hat + mu_b_sigmas * std``
+            below the limit: a one-sided test that the requirement is violated, not only
+            the estimate (0: the estimate alone, the paper's rule).
     """
 
     thresholds: FloatArray
@@ -59,6 +62,7 @@ class DecisionConfig:
     persistence_s: float = 0.3
     gate_s: float = 0.3
     filter_tau_s: float = 0.1
+    mu_b_sigmas: float = 0.0
 
 
 def residuals(estimate: FloatArray, target: FloatArray) -> FloatArray:
@@ -188,7 +192,8 @@ def decide(mu_b: FloatArray, mu_b_std: FloatArray, res: FloatArray, t: FloatArra
     dt = float(t[1] - t[0])
     n_win = persistence_samples(cfg.persistence_s, dt)
     gate = (t - t[0]) >= cfg.gate_s - 1e-9
-    pad_viol = ((mu_b < cfg.mu_b_min) & (mu_b_std < cfg.mu_b_std_max) & gate).astype(float)
+    mu_up = mu_b + cfg.mu_b_sigmas * mu_b_std
+    pad_viol = ((mu_up < cfg.mu_b_min) & (mu_b_std < cfg.mu_b_std_max) & gate).astype(float)
     pad_ok = window_min(pad_viol[..., None], n_win)[..., 0] > 0.5
     rf = lowpass(res, dt, cfg.filter_tau_s)
     ok = gate[:, None] if valid is None else (gate[:, None] & valid)
@@ -286,7 +291,8 @@ class OnlineDecision:
         res = self.res_f
         valid = np.ones(res.shape, dtype=bool) if res_valid is None else np.asarray(res_valid)
         eps = 1e-9
-        pad_v = gated and (mu_b < cfg.mu_b_min) and (mu_b_std < cfg.mu_b_std_max)
+        mu_up = mu_b + cfg.mu_b_sigmas * mu_b_std
+        pad_v = gated and (mu_up < cfg.mu_b_min) and (mu_b_std < cfg.mu_b_std_max)
         if pad_v:
             if self._pad_since is None:
                 self._pad_since = t
@@ -306,7 +312,7 @@ class OnlineDecision:
         self.force_flaw = (self.force_flaw | lasting) if self.latch else lasting
         if self.pad_flaw or bool(self.force_flaw.any()):
             return LEVEL_ERROR
-        if pad_v or bool(exc.any()) or (gated and mu_b < cfg.mu_b_warn
+        if pad_v or bool(exc.any()) or (gated and mu_up < cfg.mu_b_warn
                                         and mu_b_std < cfg.mu_b_std_max):
             return LEVEL_WARN
         return LEVEL_OK

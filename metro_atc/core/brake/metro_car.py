@@ -665,6 +665,9 @@ class MetroBrakeObserver:
         self.min_brake_clamp = float(min_brake_clamp)
         self.max_gap_s = float(max_gap_s)
         self.adhesion_fn = adhesion_fn
+        self.mu_b_std_floor: Optional[Callable[[MetroBrakeObserver, FloatArray], float]] = None
+        """Optional lower bound of the mu_b std the decision uses, ``f(observer, u)``
+        evaluated after each filter update (e.g. an information bound of the data)."""
         self.counters = _Counters()
         self.decision = dg.OnlineDecision(self.cfg, dt_first=self.dt)
         self.ukf: Optional[UKF] = None
@@ -793,6 +796,10 @@ class MetroBrakeObserver:
         target = (self.mass * (G / N_AX)) * mu_t
         res_force = forces - target
         mu_std = float(np.sqrt(max(pd[M_IMUB], 0.0)))
+        if self.mu_b_std_floor is not None:
+            floor = float(self.mu_b_std_floor(self, u))
+            if np.isfinite(floor):
+                mu_std = max(mu_std, floor)
         active = (u[:N_AX] > self.min_brake_clamp) & (abs(v) > 2.0 * p.v_min)
         level = self.decision.update(t, float(x[M_IMUB]), mu_std, res_force / cap, active)
         if level == dg.LEVEL_OK:
