@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -11,8 +12,10 @@ from metro_atc.core.ato.envelope import OperatingLimits, RunModel
 from metro_atc.core.ato.onboard import atp_model_for
 from metro_atc.core.bridge import train_for
 from metro_atc.core.closed_loop import STOP_WINDOW_M, run_closed_loop
-from metro_atc.core.linegen import STOCKS, elevation_m, generate_line, load_generated
+from metro_atc.core.linegen import (STOCKS, elevation_m, generate_line, load_generated,
+                                    scenario_yaml)
 from metro_atc.core.plant.line import LineSim
+from metro_atc.core.line.scenario import parse_scenario
 from metro_atc.core.line.vehicle import G_MPS2, TAIPEI_MRT_6CAR, Track
 
 
@@ -114,3 +117,39 @@ def test_closed_loop_on_generated_lines_stays_inside_the_envelope(
         assert row["tsr_speed_minima_max"] <= 1
     else:
         assert row["atp_interventions"] == 0
+
+
+def _descent_line(rng: np.random.Generator, n_trains: int) -> Any:
+    """Two platforms 2.2 km apart, a steep descent between them with a TSR on it."""
+    raw = generate_line(0, n_stations=2, n_trains=n_trains, stock="taipei_mrt_6car")
+    g = -float(rng.uniform(20.0, 40.0))
+    z0 = float(rng.uniform(500.0, 900.0))
+    z1 = z0 + float(rng.uniform(150.0, 400.0))
+    raw["line"]["stations"][1]["position_m"] = 2200.0
+    raw["line"]["speed_limits"] = [{"start_m": -2000.0, "limit_kmh": 80.0}]
+    raw["line"]["curves"] = []
+    raw["line"]["gradients"] = [{"start_m": -2000.0, "grade_permille": 0.0},
+                                {"start_m": 100.0, "grade_permille": g},
+                                {"start_m": 1800.0, "grade_permille": 0.0}]
+    raw["incidents"] = [{"kind": "tsr", "at_s": 0.0, "duration_s": 1e5, "start_m": round(z0, 1),
+                         "end_m": round(z1, 1),
+                         "limit_kmh": float(rng.choice([25.0, 30.0, 35.0, 40.0]))}]
+    raw["sim"]["duration_s"] = 60.0 + n_trains * raw["timetable"]["periods"][0]["headway_s"] \
+        + 400.0
+    return parse_scenario(scenario_yaml(raw), src="<descent line>")
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_tsr_on_a_steep_descent_inside_the_envelope(seed: int) -> None:
+    """Property: through a TSR on a steep descent and out of it again (the traction taken
+    off in time before the line speed), two trains never run above the civil limit, never
+    meet the ATP, berth within +-0.30 m and slow down once per TSR approach."""
+    scn = _descent_line(np.random.default_rng([seed, 11, 2]), n_trains=2)
+    row = run_closed_loop(scn).row()
+    assert row["atp_violations"] == 0
+    assert row["time_above_civil_limit_s"] == 0.0
+    assert row["atp_interventions"] == 0
+    assert row["missed_stops"] == 0
+    assert row["stop_error_max_m"] <= STOP_WINDOW_M
+    assert row["tsr_approaches"] >= 2
+    assert row["tsr_speed_minima_max"] == 1

@@ -4,8 +4,10 @@
 [--planner P] [--tracker T] [--scenario FILE ...] [--json]``
 
 Runs N lines of :func:`metro_atc.core.linegen.generate_line` (seeds S .. S+N-1, with a TSR
-and a breakdown each under ``--incidents``) plus any ``--scenario`` files or embedded
-scenario names (e.g. the TTOBench line once imported, or ``taipei_blue``) through the
+and a breakdown each under ``--incidents``), the TTOBench metro line (Songjiazhuang -
+Yizhuang with the Beijing Subway train, :func:`metro_atc.bench.ttobench.metro_scenario`;
+fault-free in both modes; ``--no-ttobench`` leaves it out) and any ``--scenario`` files or
+embedded scenario names (e.g. ``taipei_blue``) through the
 ROS-free closed loop :func:`metro_atc.core.closed_loop.run_closed_loop` (real ATO and ATS
 cores, the plant, lockstep) and prints one row per line plus totals: ATP violations, missed
 stops, ATP interventions per 100 stops, stop error p50/p95/max [m], stops outside +-0.30 m,
@@ -28,6 +30,7 @@ from typing import Any, List, Optional
 import numpy as np
 
 from metro_atc.bench.progress import progress_each
+from metro_atc.bench.ttobench import metro_scenario
 from metro_atc.core.closed_loop import STOP_WINDOW_M, run_closed_loop
 from metro_atc.core.linegen import load_generated
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
@@ -80,6 +83,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--incidents", action="store_true", help="a TSR and a breakdown per line")
     ap.add_argument("--scenario", nargs="*", default=[],
                     help="extra scenario files or embedded names run after the generated lines")
+    ap.add_argument("--no-ttobench", action="store_true",
+                    help="leave the TTOBench metro line out of the corpus")
     ap.add_argument("--regulator", default="none")
     ap.add_argument("--planner", default="ectp")
     ap.add_argument("--tracker", default="fuzzy")
@@ -94,11 +99,12 @@ def main(argv: Optional[List[str]] = None) -> int:
     errors: List[float] = []
     failed: List[str] = []
     jobs: List[Any] = [("gen", a.seed + k) for k in range(a.count)] + \
+        ([] if a.no_ttobench else [("ttobench", "ttobench")]) + \
         [("file", f) for f in a.scenario]
     for kind, what in progress_each("bench lines", jobs, "lines"):
         try:
             scn = load_generated(what, incidents=a.incidents) if kind == "gen" \
-                else load_scenario(what)
+                else metro_scenario() if kind == "ttobench" else load_scenario(what)
             res = run_closed_loop(scn, regulator=a.regulator, planner=a.planner,
                                   tracker=a.tracker, seed=a.sim_seed, brake=not a.no_brake)
         except (ScenarioError, ValueError) as exc:

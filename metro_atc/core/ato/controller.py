@@ -50,6 +50,11 @@ reference ahead is zero) [m/s]."""
 PREVIEW_PERIODS = 1.0
 """The tracker follows the reference this many control periods ahead of the train (the
 effort is held over the next period and the plant limits its rate) [-]."""
+APPROACH_JERK_SHARE = 0.8
+"""Share of the jerk limit the approach bound counts on to take the surplus acceleration
+off before the reference is reached (:meth:`AtoCore.approach_bound`) [-]."""
+APPROACH_MIN_SPEED_MPS = 1.0
+"""The approach bound applies above this speed (not in the creep to the stop point) [m/s]."""
 
 
 @dataclass(frozen=True)
@@ -117,6 +122,10 @@ class AtoCore:
         self.last_reason = "no plan"
         a_ref = max(train.a1_mps2, train.max_service_brake_mps2)
         self._du_max_per_s = self.limits.jerk_max_mps3 / max(a_ref, 1e-6)
+        # jerk [m/s^3] at which the surplus traction can be taken off: the ATO's rate limit
+        # in traction units and the plant's jerk limit, whichever is slower
+        self.approach_jerk = APPROACH_JERK_SHARE * min(
+            self._du_max_per_s * train.a1_mps2, train.max_jerk_mps3)
         self.swing_s = (self.limits.accel_max_mps2 + self.limits.brake_decel_mps2) \
             / max(self.limits.jerk_max_mps3, 1e-6)
         """Time of a jerk-limited swing from full traction to the planned braking [s]."""
@@ -191,6 +200,29 @@ class AtoCore:
             # final stop: no traction feedforward (the resistance at standstill is static
             # friction, and a creeping train would never come to rest at the platform)
             f = min(f, 0.0)
+        if f >= 0.0:
+            return min(f / max(float(max_traction_force(tr, v)), 1.0), 1.0)
+        return max(f / (tr.effective_mass_kg * tr.max_service_brake_mps2), -1.0)
+
+    def approach_bound(self, s: float, v: float, r_end: float) -> float:
+        """Highest effort [-1, 1] that still reaches ``r_end`` [m/s] from below without overshoot.
+
+        Accelerating toward a speed the train must then hold (a cap or a cruise level), the
+        surplus acceleration ``a`` over the holding effort (resistance and grade at s, seed
+        004 Newton's law) can only be taken off at the jerk ``J`` (:attr:`approach_jerk`),
+        one control period ``T`` after the decision; the speed still gained is
+        ``a T + a^2 / (2 J)``.  It must fit in the gap ``r_end - v``:
+        ``a = J (-T + sqrt(T^2 + 2 gap / J))``.  The bound is the force
+        ``F_hold + M_eff a`` as an effort (traction or service brake scale).
+        """
+        run = self.run
+        assert run is not None
+        tr = self.train
+        j, t = self.approach_jerk, self.period
+        gap = max(r_end - v, 0.0)
+        a_ex = j * (-t + math.sqrt(t * t + 2.0 * gap / j))
+        f = float(resistance_force(tr, v)) + float(run.mean_grade_force(s - tr.length_m, s)) \
+            + tr.effective_mass_kg * a_ex
         if f >= 0.0:
             return min(f / max(float(max_traction_force(tr, v)), 1.0), 1.0)
         return max(f / (tr.effective_mass_kg * tr.max_service_brake_mps2), -1.0)
@@ -270,6 +302,15 @@ class AtoCore:
             if self.feedforward else 0.0
         self._last_ff = u_ff
         u = float(self.tracker.step(r, v, dt, u_ff))
+        bounded = False
+        if u > 0.0 and v > APPROACH_MIN_SPEED_MPS:
+            # approaching the reference from below: take the traction off in time (the
+            # reference where a swing would end when the plan still rises)
+            r_end = r if capped else min(max(r, float(self._ref.speed(s_p + v * self.swing_s))),
+                                         r_cap_mps)
+            u_b = self.approach_bound(s, v, r_end)
+            if u_b < u:
+                u, bounded = u_b, True
         if r_plan <= 0.0 and s >= run.length_m - BERTH_WINDOW_M:
             u = min(u, HOLD_BRAKE)  # at the stopping point: brake to rest, never creep
         ceiling = float(np.sqrt(2.0 * run.ceiling_e(min(max(s, 0.0), run.length_m))))
@@ -281,7 +322,7 @@ class AtoCore:
             reason = "above the speed envelope"
         du = self._du_max_per_s * dt
         u_lim = min(max(u, self._last_u - du), self._last_u + du)
-        if u_lim != u and reason != "above the speed envelope":
+        if (u_lim != u or bounded) and reason != "above the speed envelope":
             self.tracker.set_output(u_lim, u_ff)
         u = u_lim
         if v <= 1e-6 and s > run.length_m - BERTH_WINDOW_M:

@@ -128,6 +128,9 @@ class OnboardAto:
         self.planned_from = -1
         self.cur_station = -1
         self.last_mode = -1
+        self._ma_prev: Optional[tuple[float, float]] = None
+        self.authority_speed_mps = 0.0
+        """Speed at which the end of movement authority moves ahead (the train ahead) [m/s]."""
 
     # ------------------------------------------------------------------ planning
     def on_departure(self, station: int, departure_s: float, running_s: float,
@@ -185,6 +188,13 @@ class OnboardAto:
         cap_h = self.speed_cap(s, xp + h)
         slope = (cap_h * cap_h - cap_p * cap_p) / (2.0 * h) \
             if math.isfinite(cap_p) and math.isfinite(cap_h) else 0.0
+        v_ma = self._authority_speed(float(s["t_s"]), float(s["movement_authority_m"]))
+        if slope < 0.0 and v_ma > 0.0 and v > 0.0 \
+                and cap_p < self.speed_cap(s, xp, authority=False) - 1e-9:
+            # the authority curve sets the cap and its end moves ahead at v_ma: along the
+            # train's path the cap falls at dcap/dx (v - v_ma), not dcap/dx v (a static
+            # curve's slope would brake a train following at the leader's speed: hunting)
+            slope *= min(max(1.0 - v_ma / v, 0.0), 1.0)
         u_trk = float(self.core.command(s["t_s"], s["x_m"], v, r_cap_mps=cap_p,
                                         cap_accel_mps2=slope))
         u = min(u_trk, self.guard(s))
@@ -192,6 +202,19 @@ class OnboardAto:
             self.core.applied(u)
         mode = MODE_ACCELERATE if u > 0.05 else (MODE_BRAKE if u < -0.05 else MODE_COAST)
         return u, mode, planned
+
+    def _authority_speed(self, t: float, ma: float) -> float:
+        """Speed [m/s] of the end of movement authority from the last two states.
+
+        0 when unknown, non-finite or shrinking (then the curve is treated as static).
+        """
+        prev = self._ma_prev
+        self._ma_prev = (t, ma)
+        if prev is None or not (math.isfinite(ma) and math.isfinite(prev[1])):
+            self.authority_speed_mps = 0.0
+        elif 0.0 < t - prev[0] <= 2.0:
+            self.authority_speed_mps = max((ma - prev[1]) / (t - prev[0]), 0.0)
+        return self.authority_speed_mps
 
     def _brake_capability(self, x_from: float, x_to: float) -> float:
         """Service deceleration [m/s^2] achievable on the steepest downhill of [x_from, x_to].
@@ -203,7 +226,8 @@ class OnboardAto:
         g = float(np.min(self.track.grade_at(xs)))
         return max(self.train.max_service_brake_mps2 + G_MPS2 * min(g, 0.0), 0.05)
 
-    def speed_cap(self, s: dict[str, Any], x_at: Optional[float] = None) -> float:
+    def speed_cap(self, s: dict[str, Any], x_at: Optional[float] = None,
+                  authority: bool = True) -> float:
         """Ceiling on the desired speed from the ATP data and known TSRs [m/s].
 
         - the ATP's service-brake intervention speed, estimated from the supervision (EBI)
@@ -216,7 +240,8 @@ class OnboardAto:
           the limit inside it.
 
         ``x_at``: evaluate at this chainage instead of the state's position [m] (the
-        supervision speed of the state still applies).
+        supervision speed of the state still applies); ``authority=False`` leaves the end of
+        movement authority out.
         """
         x, v, t = float(s["x_m"]), float(s["v_mps"]), float(s["t_s"])
         if x_at is not None:
@@ -230,7 +255,7 @@ class OnboardAto:
         cap = min(cap, atp.static_sbi(x, x + v * CAP_LOOKAHEAD_S + 1.0) - SPEED_MARGIN_MPS)
         b = self._plan_decel(x)
         ma = float(s["movement_authority_m"])
-        if math.isfinite(ma):
+        if authority and math.isfinite(ma):
             d = ma - x - AUTHORITY_MARGIN_M
             cap = min(cap, math.sqrt(2.0 * b * max(d, 0.0)),
                       atp.sbi_speed(d, v) - SPEED_MARGIN_MPS)
