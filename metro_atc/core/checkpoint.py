@@ -71,8 +71,11 @@ def _resolve(name: str) -> type:
 
 
 def _function_name(v: Any) -> str | None:
-    """``module:qualname`` of a module-level function of this package (a compiled kernel's
-    dispatcher by its Python function), else None: code is stored by name, never as data."""
+    """``module:qualname`` of a module-level function of this package, else None.
+
+    A compiled kernel's dispatcher is named by its Python function: code is stored by name,
+    never as data.
+    """
     fn = getattr(v, "py_func", v)
     mod, qual = getattr(fn, "__module__", None), getattr(fn, "__qualname__", None)
     if not (callable(v) and isinstance(mod, str) and isinstance(qual, str)) \
@@ -93,8 +96,10 @@ def _lookup(mod: str, qual: str) -> Any:
 
 
 def _resolve_function(name: str) -> Any:
-    """The module-level function ``module:qualname`` of this package (see
-    :func:`_function_name`)."""
+    """The module-level function ``module:qualname`` of this package.
+
+    See :func:`_function_name`.
+    """
     mod, _, qual = str(name).partition(":")
     if not (mod + ".").startswith(_PACKAGE) or not qual or "<" in qual:
         raise CheckpointError(f"checkpoint names function {name!r} outside {_PACKAGE[:-1]}")
@@ -108,8 +113,11 @@ def _resolve_function(name: str) -> Any:
 
 
 def _fields(obj: Any) -> dict[str, Any]:
-    """The instance attributes of ``obj`` (``__dict__`` and slots), less the names its class
-    lists in ``checkpoint_transient`` (measurements of this process, e.g. a compile time)."""
+    """The instance attributes of ``obj`` (``__dict__`` and slots).
+
+    Less the names its class lists in ``checkpoint_transient`` (measurements of this
+    process, e.g. a compile time).
+    """
     out = dict(getattr(obj, "__dict__", {}))
     for cls in type(obj).__mro__:
         for s in getattr(cls, "__slots__", ()):
