@@ -286,11 +286,13 @@ class LineSimulator(Node):
             except conv.MessageRejected as exc:
                 self._reject("fleet command", exc)
                 continue
+            # the train's ATO answers the fleet state, even when its per-train echo of the
+            # same command came first (a race): from now on its per-train state is thinned
+            self.fleet_driven[i] = True
             if effort is None:
                 continue
             self.cmd_step[i] = self.k
             self.cmd_effort[i] = effort
-            self.fleet_driven[i] = True
 
     def _on_departure(self, i: int, msg: DepartureCommand) -> None:
         """Validate an ATS departure command before it reaches the plant's table."""
