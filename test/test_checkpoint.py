@@ -135,3 +135,17 @@ def test_journal_survives_a_torn_line(tmp_path: Path) -> None:
     assert [e["step"] for e in read_entries(tmp_path / "j.jsonl")] == [0, 1, 2]
     j2.reset(j2.entries[:1])
     assert [e["step"] for e in read_entries(tmp_path / "j.jsonl")] == [0]
+
+
+def test_journal_reading_stops_at_the_first_refused_entry(tmp_path: Path) -> None:
+    """``read_entries(accept=...)``: the first entry refused (False or a KeyError) ends it."""
+    from metro_atc.core.journal import read_entries
+    p = tmp_path / "j.jsonl"
+    p.write_text("".join(json.dumps({"step": k}) + "\n" for k in (3, 4, 5, 7, 8)))
+
+    def consecutive(e: dict[str, Any], out: list[dict[str, Any]]) -> bool:
+        return not out or e["step"] == out[-1]["step"] + 1
+
+    assert [e["step"] for e in read_entries(p, consecutive)] == [3, 4, 5]
+    assert len(read_entries(p)) == 5
+    assert read_entries(p, lambda e, _: bool(e["missing"])) == []

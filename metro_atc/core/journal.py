@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, Callable, Optional, TextIO
 
 
 class Journal:
@@ -41,8 +41,16 @@ class Journal:
         self._fh = open(self.path, "a", encoding="utf-8")
 
 
-def read_entries(path: Path) -> list[dict[str, Any]]:
-    """The JSON objects of a journal file, up to the first bad line ([] if none)."""
+Accept = Callable[[dict[str, Any], list[dict[str, Any]]], bool]
+"""A further check of a journal entry, given the entries read before it."""
+
+
+def read_entries(path: Path, accept: Optional[Accept] = None) -> list[dict[str, Any]]:
+    """The JSON objects of a journal file, up to the first bad line ([] if none).
+
+    ``accept(entry, entries_so_far)``: a further check of each entry; the first entry it
+    refuses (False, or a KeyError / TypeError / ValueError) ends the reading like a torn line.
+    """
     out: list[dict[str, Any]] = []
     try:
         text = Path(path).read_text(encoding="utf-8", errors="replace")
@@ -51,9 +59,10 @@ def read_entries(path: Path) -> list[dict[str, Any]]:
     for line in text.splitlines():
         try:
             e = json.loads(line)
-        except ValueError:
-            break
-        if not isinstance(e, dict):
+            ok = isinstance(e, dict) and (accept is None or bool(accept(e, out)))
+        except (ValueError, KeyError, TypeError):
+            ok = False
+        if not ok:
             break
         out.append(e)
     return out

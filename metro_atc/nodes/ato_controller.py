@@ -55,6 +55,7 @@ from metro_atc.core.ato.onboard import (OnboardAto, PlanEvent, atp_model_for, en
 from metro_atc.core.ato.plan_store import PlanStore
 from metro_atc.core.ato.planner import PLANNERS, Profile
 from metro_atc.core.bridge import timetable_for, track_for, train_for
+from metro_atc.core.journal import read_entries
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, StepWindow, bounds_for
 from metro_atc.nodes import conversions as conv
@@ -352,21 +353,8 @@ def _state_key(s: dict[str, Any]) -> str:
 
 def _read_states(path: Path) -> list[dict[str, Any]]:
     """The journal's states, consecutive steps from the first (a torn line ends it)."""
-    out: list[dict[str, Any]] = []
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except OSError:
-        return out
-    for line in text.splitlines():
-        try:
-            s = json.loads(line)
-            ok = isinstance(s, dict) and (not out or int(s["step"]) == out[-1]["step"] + 1)
-        except (ValueError, KeyError, TypeError):
-            ok = False
-        if not ok:
-            break
-        out.append(s)
-    return out
+    return read_entries(path, lambda s, out: not out
+                        or int(s["step"]) == int(out[-1]["step"]) + 1)
 
 
 class FleetLink:

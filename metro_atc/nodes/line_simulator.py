@@ -48,6 +48,7 @@ from rosgraph_msgs.msg import Clock
 from metro_atc.core.ato_watchdog import AtoWatchdog
 from metro_atc.core.checkpoint import CheckpointError, capture, content_hash, read, restore, \
     save_tree
+from metro_atc.core.journal import read_entries
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.plant.snapshot import scenario_hash, static_parts
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
@@ -721,20 +722,7 @@ def _nan_key(key: tuple[Any, ...]) -> tuple[Any, ...]:
 
 def _read_journal(path: Path) -> list[dict[str, Any]]:
     """The departure journal's entries (a torn or foreign line ends it)."""
-    out: list[dict[str, Any]] = []
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except OSError:
-        return out
-    for line in text.splitlines():
-        try:
-            e = json.loads(line)
-            _journal_key(e)
-            int(e["k"])
-        except (ValueError, KeyError, TypeError):
-            break
-        out.append(e)
-    return out
+    return read_entries(path, lambda e, _: bool((_journal_key(e), int(e["k"]))))
 
 
 def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
