@@ -27,7 +27,8 @@ def _run(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, node: list[str],
          limit: int, capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
     """Run the stand-in graph; (exit code, stderr)."""
     monkeypatch.setattr(launcher, "build_commands",
-                        lambda a, ids, out: [("line_simulator", SIM), ("ats_regulator", node)])
+                        lambda a, ids, out, plans="": [("line_simulator", SIM),
+                                                       ("ats_regulator", node)])
     a = launcher._parser().parse_args(["--out", str(tmp_path), "--respawn-limit", str(limit),
                                        "--timeout", "60"])
     code = launcher._run_processes(a, ["train_01"], tmp_path)
@@ -84,7 +85,7 @@ def test_a_simulator_crash_is_respawned_too(monkeypatch: pytest.MonkeyPatch, tmp
                 f"if not m.exists():\n"
                 f"    m.write_text('x'); raise SystemExit(1)\n"
                 f"time.sleep(2.0)\n")
-    monkeypatch.setattr(launcher, "build_commands", lambda a, ids, out: [
+    monkeypatch.setattr(launcher, "build_commands", lambda a, ids, out, plans="": [
         ("line_simulator", sim), ("ats_regulator", _node("import time; time.sleep(30)"))])
     a = launcher._parser().parse_args(["--out", str(tmp_path), "--timeout", "60"])
     code = launcher._run_processes(a, ["train_01"], tmp_path)
