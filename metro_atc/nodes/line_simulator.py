@@ -282,8 +282,11 @@ class LineSimulator(Node):
             return
         for i, e in entries:
             try:
+                # an entry of an earlier step is a duplicate (an ATO's answer to a fleet
+                # state published again, e.g. for a late subscriber): the lockstep took that
+                # step already, so it is dropped without counting, like a per-train echo
                 effort = conv.traction_from_msg(e, topic, self.ids[i], self.k,
-                                                float(self.sim.t))
+                                                float(self.sim.t), late_echo=True)
             except conv.MessageRejected as exc:
                 self._reject("fleet command", exc)
                 continue
