@@ -349,7 +349,10 @@ def test_hostile_scenarios_bounded_memory(tmp_path: Path) -> None:
             "        print('LOADED', p)\n"
             "    except ScenarioError as e:\n"
             "        assert '\\n' not in str(e) and len(str(e)) < 300, str(e)[:400]\n"
-            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n")
+            # VmHWM: this process image's peak RSS [kB]; ru_maxrss keeps the parent's RSS
+            # at fork time across the exec (the pytest process, ~600 MB late in a full run)
+            "print([int(x.split()[1]) for x in open('/proc/self/status')\n"
+            "       if x.startswith('VmHWM:')][0])\n")
     r = subprocess.run([sys.executable, "-c", code, *paths], capture_output=True, text=True,
                        timeout=60)
     assert r.returncode == 0, r.stderr[-2000:]
