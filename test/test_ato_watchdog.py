@@ -131,3 +131,55 @@ def test_simulator_stops_a_train_whose_ato_goes_silent(installed: Any, ros_env: 
     j = int(np.argmax(tail))
     assert j <= 6, tail[:10]
     assert all(b <= a + 1e-6 for a, b in zip(tail[j:], tail[j + 1:])), tail
+
+
+@pytest.mark.integration
+def test_a_fleet_state_lost_on_its_way_is_sent_again(installed: Any, ros_env: Any,
+                                                     probe: Any, tmp_path: Any) -> None:
+    """Lockstep without a lost step: a fleet state the ATO never got (lost with a killed ATO
+    process whose successor matched unnoticed) is published again for the trains that did
+    not answer, well before the step timeout; the step completes without a lockstep miss.
+
+    A probe is the fleet ATO beside a real ATS: it ignores the first fleet state of step
+    ``drop`` (train_01 in service, dwelling) and answers every other one. With a step timeout
+    of 120 s, a simulator that only waited would show the miss in its log.
+    """
+    import threading
+
+    from metro_atc_msgs.msg import FleetCommand, FleetState
+
+    from harness import NodeProcess
+    from metro_atc.nodes import conversions as conv
+    from metro_atc.nodes.common import QOS_RELIABLE
+
+    drop = 110
+    seen: dict[int, int] = {}
+    lock = threading.Lock()
+    pub = probe.publisher(FleetCommand, "/line/fleet_command", QOS_RELIABLE)
+
+    def answer(m: Any) -> None:
+        k = int(m.step)
+        with lock:
+            seen[k] = seen.get(k, 0) + 1
+            if k == drop and seen[k] == 1:
+                return  # lost on its way
+        n = len(m.train_id)
+        pub.publish(conv.fleet_command_msg(k, conv.from_time(m.header.stamp),
+                                           list(m.train_id), [0.0] * n, [2] * n))
+
+    probe.node.create_subscription(FleetState, "/line/fleet_state", answer, QOS_RELIABLE)
+    ats = NodeProcess.installed("ats_regulator", ["-p", "scenario:=mini"], ros_env,
+                                tmp_path)
+    p = NodeProcess.installed("line_simulator", ["-p", "scenario:=mini",
+                                                 "-p", "startup_timeout_s:=3.0",
+                                                 "-p", "step_timeout_s:=120.0"],
+                              ros_env, tmp_path)
+    try:
+        assert probe.wait_for(lambda: max(seen, default=-1) >= drop + 3, timeout=100), \
+            (seen, p.log())
+    finally:
+        code = p.stop()
+        ats.stop()
+    assert code == 0 and "Traceback" not in p.log()
+    assert seen[drop] >= 2, seen  # sent again
+    assert "no command from" not in p.log(), p.log()

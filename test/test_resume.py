@@ -208,13 +208,7 @@ def test_simulator_resumed_and_ato_replayed(runs: dict[str, Any]) -> None:
     assert "restarted: replayed" in ato, ato
 
 
-SIM_ATO_FLEET = pytest.mark.xfail(
-    strict=False, reason="after the fleet-lockstep merge a respawned ATO sometimes stops "
-    "answering a resumed simulator (lockstep misses at 'no command from train_02'); open")
-
-
-@pytest.mark.parametrize("name", [pytest.param(n, marks=SIM_ATO_FLEET) if n == "sim_ato"
-                                  else n for n in sorted(KILLS)])
+@pytest.mark.parametrize("name", sorted(KILLS))
 def test_events_and_kpis_equal_the_uninterrupted_run(runs: dict[str, Any], name: str) -> None:
     """events.csv byte for byte, kpis.json field for field (wall-clock fields aside)."""
     ref, res = runs["results"]["reference"], runs["results"][name]

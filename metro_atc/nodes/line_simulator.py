@@ -74,6 +74,9 @@ RESEND_CHUNK = 8
 """Kept sensor samples re-sent back to back before a pause (the writer keeps 20)."""
 RESEND_PAUSE_S = 0.005
 """Pause between re-sent chunks [s] (wall; ~0.6 ms per sample re-sent)."""
+FLEET_RESEND_S = 2.0
+"""Lockstep: wall time without every command of the step before the fleet-state entries
+of the trains not answered are published again [s] (a state lost with a killed ATO)."""
 NODE_STATE = ("k", "cmd_step", "cmd_effort", "lockstep_misses", "rejected", "rejections",
               "event_seq", "sensor_last_t", "dep_received", "dep_given_up", "ats_misses",
               "_next_status_t", "_next_progress_t", "regulators", "planners", "planned",
@@ -209,6 +212,10 @@ class LineSimulator(Node):
         self.fleet_driven = np.zeros(n, dtype=bool)
         self._fleet_matched = 0
         self._fleet_msg: FleetState | None = None
+        self._echo_mask = np.zeros(n, dtype=bool)
+        self.fleet_resends = 0
+        """Fleet states published again for trains that did not answer in time."""
+        """Trains whose per-train state was published at step k too (fleet ``echo``)."""
         self._step_states: tuple[int, Any] = (-1, None)
         """(k, core states published at step k): the lockstep barrier reads them again."""
         """Trains whose ATO answered a fleet state (their per-train state is decimated)."""
@@ -442,6 +449,7 @@ class LineSimulator(Node):
             "real_time_factor": rtf,
             "step_time_ms": 1e3 * dw / steps if steps else float("nan"),
             "lockstep": self.lockstep, "lockstep_misses": self.lockstep_misses,
+            "fleet_state_resends": self.fleet_resends,
             "lockstep_misses_in_period": misses, "ats_timeouts": self.ats_misses,
             "rejected_messages": self.rejected,
             "rejected_by_kind": self.rejections.summary(),
@@ -518,6 +526,7 @@ class LineSimulator(Node):
         self._step_states = (self.k, states)
         per_train = active if self.k % self.state_every == 0 else active & ~self.fleet_driven
         idx = np.flatnonzero(active)
+        self._echo_mask = per_train
         self._fleet_msg = conv.fleet_state_msg(self.ids, idx, states, self.k, t,
                                                per_train[idx])
         self.fleet_pub.publish(self._fleet_msg)
@@ -532,10 +541,26 @@ class LineSimulator(Node):
         self._fleet_matched = n
         return changed
 
-    def publish_fleet_again(self) -> None:
-        """Publish the step-k fleet state again (an ATO process that matched late)."""
-        if self._fleet_msg is not None:
-            self.fleet_pub.publish(self._fleet_msg)
+    def publish_fleet_again(self, active: np.ndarray | None = None) -> None:
+        """Publish the step-k fleet state again.
+
+        Without ``active``: the whole message (an ATO process that matched late). With it:
+        the entries of the active trains whose command of step k has not arrived (a state
+        lost with a killed ATO process, its restarted successor never saw it). A re-sent
+        state is answered with the same command (the ATO does not track it twice).
+        """
+        if active is None:
+            if self._fleet_msg is not None:
+                self.fleet_pub.publish(self._fleet_msg)
+            return
+        k, states = self._step_states
+        missing = np.flatnonzero(active & (self.cmd_step < self.k))
+        if k != self.k or states is None or missing.size == 0:
+            return
+        self.fleet_resends += 1
+        self.fleet_pub.publish(conv.fleet_state_msg(self.ids, missing, states, self.k,
+                                                    float(self.sim.t),
+                                                    self._echo_mask[missing]))
 
     def commands_complete(self, active: np.ndarray) -> bool:
         """Check the lockstep barrier of step k.
@@ -780,6 +805,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
         if sim.lockstep:
             deadline = time.monotonic() + sim.step_timeout_s
             resend = time.monotonic() + 0.5
+            fleet_resend = time.monotonic() + FLEET_RESEND_S
             while not sim.commands_complete(active) and time.monotonic() < deadline:
                 if stop_requested():
                     return
@@ -793,6 +819,11 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
                         sim.publish_states(again)
                     if sim.new_fleet_subscribers():
                         sim.publish_fleet_again()
+                    elif time.monotonic() >= fleet_resend:
+                        # no answer for a while: the state may have been lost with a
+                        # killed ATO process whose successor matched between two checks
+                        fleet_resend = time.monotonic() + FLEET_RESEND_S
+                        sim.publish_fleet_again(active)
             sim.advance(active, timed_out=not sim.commands_complete(active))
         else:
             target = wall0 + (float(sim.sim.t) + sim.sim.control_period_s - sim0) / sim.rtf
