@@ -313,8 +313,10 @@ class LineSimulator(Node):
             key = (i, st, dep, run, dwell, int(msg.regulator))
             if _nan_key(key) in self.journaled:
                 return  # applied (or to be applied) from the journal at its original step
-            conv.guarded(topic, self._apply_departure, *key)
+            # journaled first: a kill between the two replays it at this step on resume
+            # (applied first, a kill in between would lose the step it was applied at)
             self._journal_write(key)
+            conv.guarded(topic, self._apply_departure, *key)
         except conv.MessageRejected as exc:
             self._reject("departure command", exc)
 
