@@ -155,6 +155,8 @@ class AtoController(Node):
         self.bounds = bounds_for(scenario)
         self.steps = StepWindow()
         self._last_cmd: TractionCommand | None = None
+        self.echoed_step = -1
+        """Step of the last command echoed on ``/<train>/command`` (fleet lockstep)."""
         self._last_warn: dict[str, float] = {}
         self.cmd_pub = bulk_publisher(self, TractionCommand, "command", QOS_RELIABLE)
         self.profile_pub = bulk_publisher(self, SpeedProfile, "speed_profile", QOS_LATCHED)
@@ -393,8 +395,9 @@ class FleetLink:
             cmd = node.answer(e, topic)
             if cmd is None or (step is not None and int(cmd.step) != step):
                 continue
-            if e.echo:
-                node.cmd_pub.publish(cmd)
+            if e.echo and node.echoed_step != int(cmd.step):
+                node.cmd_pub.publish(cmd)  # once per step: a re-sent state is not echoed again
+                node.echoed_step = int(cmd.step)
             step, stamp = int(cmd.step), conv.from_time(cmd.header.stamp)
             ids.append(tid)
             efforts.append(float(cmd.effort))
