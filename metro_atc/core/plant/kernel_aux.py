@@ -13,12 +13,13 @@ from .kernel import _mx
 
 @njit(cache=True)
 def sensor_block(idx, rw, slip0, slip1, clamp1, v0, v1, acc, ts, t0: float, t1: float, z,
-                 noise, omega, clamp, accel, vref):  # type: ignore[no-untyped-def]
-    """Noisy samples into omega, clamp [s, train, 4], accel, vref [s, train] from the truth.
+                 noise, o4, o2):  # type: ignore[no-untyped-def]
+    """Noisy samples into o4 = (omega, clamp) [2, s, train, 4], o2 = (accel, vref) [2, s, train].
 
     ``z`` is the step's standard-normal draw (omega, clamp, accel, vref blocks in that
     order); ``noise`` = (omega, clamp, accel, ref speed) standard deviations.
     """
+    omega, clamp, accel, vref = o4[0], o4[1], o2[0], o2[1]
     ns, m = ts.shape[0], idx.shape[0]
     na = rw.shape[1]
     k = ns * m * na
