@@ -32,6 +32,8 @@ BoolArray = NDArray[np.bool_]
 
 KERNELS = ("auto", "numba", "numpy")
 """Accepted values of ``plant_kernel``."""
+AUTO_GAIN, AUTO_LOOKAHEAD_S = 1.5, 0.7
+""":func:`.driver.driver_command` defaults: the plant's own driver of turning-back trains."""
 KERNEL_ENV = "METRO_ATC_PLANT_KERNEL"
 """Environment variable selecting the kernel when ``LineSim`` is not told."""
 
@@ -158,6 +160,8 @@ class NumbaStepper:
         self.no_sens = (np.zeros((2, 0, 0, 4)), np.zeros((2, 0, 0)), np.zeros(0, dtype=np.int64),
                         np.zeros((fl.n, 4)), np.zeros(0), 0)
         self.noise = getattr(sim.sensors, "noise", np.zeros(4))
+        self.dc_auto = _driver_consts(sim, AUTO_GAIN, AUTO_LOOKAHEAD_S)
+        self.auto_buf = np.zeros(fl.n)
         self.key: tuple[Any, ...] = ()
         self.key_groups: tuple[tuple[Any, ...], ...] = ()
         self.packs: tuple[Any, ...] = ()
@@ -215,6 +219,9 @@ class NumbaStepper:
                 ) -> tuple[int, BoolArray | None, FloatArray]:
         """See :func:`.physics.advance_numpy` (``axles``: fill the axle arrays now).
 
+        ``auto_u`` None: the kernel computes the turning-back trains' commands itself
+        (:func:`.driver.driver_command` with its default gains, at the start of the step).
+
         ``ts``: the step's sensor sample instants; once samples have been read
         (``sensors.want``) the kernel computes them with the step, from the next normals
         of the sensor stream without consuming them (``sensors.pre``; taken by
@@ -240,15 +247,19 @@ class NumbaStepper:
             slip0 = ax0.arrays[2] if ax0.arrays is not None else ax0.get()[2]
             o4, o2 = np.empty((2, ns, m, na)), np.empty((2, ns, m))
         t0 = sim.t
+        auto = auto_u is None and fl.any_auto  # the kernel drives the turning-back trains
+        if auto_u is None:
+            auto_u = self.auto_buf if auto else self.zeros
         r = self.step_all(
-            self.c, fl.x, fl.v, fl.status, masks, u, fl.u_last,
-            self.zeros if auto_u is None else auto_u, fl.a_dem, mp, fl.trac_level, atp.eb,
+            self.c, fl.x, fl.v, fl.status, masks, u, fl.u_last, auto_u, fl.a_dem, mp,
+            fl.trac_level, atp.eb,
             atp.sb, atp.interventions, atp.violations, atp.in_violation, grids, self.tabs,
             atp.speed_code, bk, br.any_slide, br.any_wsp, blk, self.geo, fl.stop_x,
             en.e_trac, en.e_elec, en.e_fric, en.e_res, en.e_curve, en.e_grade,
             en.e_stop_corr, en.n_in_service, axc, self.stab, ax_out, self.dc, self.want_drv,
             sidx, br.r_w, slip0, self.no_ts if ts is None else ts, t0,
-            t0 + sim.control_period_s, zbuf, zpos, self.noise, o4, o2)
+            t0 + sim.control_period_s, zbuf, zpos, self.noise, o4, o2, auto, atp.eoa,
+            self.dc_auto)
         n_int, atp.any_atp, atp.any_violation, gmin, n_civil, n_hit = r
         if gmin < atp.min_sep:
             atp.min_sep = gmin
@@ -283,18 +294,9 @@ class NumbaStepper:
                active_only: bool) -> FloatArray:
         """:func:`.driver.driver_command` (``active_only``: :func:`.driver.simple_driver`)."""
         ks = self.ks
-        atp, g, fl = sim.atp, sim.geometry, sim.fleet
+        atp, fl = sim.atp, sim.fleet
         if self.dc_key != (gain, lookahead_s):
-            c0, c2 = atp.curve.coef(atp.a_w)
-            dc = np.zeros(ks.N_DCONST)
-            for key, val in ((ks.D_X0, g.x0), (ks.D_INV_DX, g.inv_dx),
-                             (ks.D_B_DRIVE, atp.b_drive), (ks.D_T_SBI, atp.t_sbi),
-                             (ks.D_C0, c0), (ks.D_C2, c2), (ks.D_C1, atp.curve.c1),
-                             (ks.D_BS, sim.p.max_service_brake_mps2),
-                             (ks.D_TOL, g.tol_stop), (ks.D_GAIN, gain),
-                             (ks.D_LA, lookahead_s)):
-                dc[key] = float(val)
-            self.dc, self.dc_key = dc, (gain, lookahead_s)
+            self.dc, self.dc_key = _driver_consts(sim, gain, lookahead_s), (gain, lookahead_s)
             self.drv_state = ()
         if active_only:
             self.want_drv = True
@@ -306,6 +308,20 @@ class NumbaStepper:
         ks.driver(self.dc, fl.x, fl.v, fl.stop_x, atp.eoa, atp.speed_code, atp.drive_env,
                   atp.sbi_static, fl.status, atp.fixed_block, active_only, out)
         return out
+
+
+def _driver_consts(sim: PlantParts, gain: float, lookahead_s: float) -> FloatArray:
+    """Packed constants of the compiled reference driver (``kernel_step.D_*``)."""
+    from . import kernel_step as ks
+    atp, g = sim.atp, sim.geometry
+    c0, c2 = atp.curve.coef(atp.a_w)
+    dc = np.zeros(ks.N_DCONST)
+    for key, val in ((ks.D_X0, g.x0), (ks.D_INV_DX, g.inv_dx), (ks.D_B_DRIVE, atp.b_drive),
+                     (ks.D_T_SBI, atp.t_sbi), (ks.D_C0, c0), (ks.D_C2, c2),
+                     (ks.D_C1, atp.curve.c1), (ks.D_BS, sim.p.max_service_brake_mps2),
+                     (ks.D_TOL, g.tol_stop), (ks.D_GAIN, gain), (ks.D_LA, lookahead_s)):
+        dc[key] = float(val)
+    return dc
 
 
 def _sbi_offset() -> float:

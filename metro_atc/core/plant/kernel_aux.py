@@ -23,16 +23,20 @@ def sensor_block(idx, rw, slip0, slip1, clamp1, v0, v1, acc, ts, t0: float, t1: 
     ns, m = ts.shape[0], idx.shape[0]
     na = rw.shape[1]
     k = ns * m * na
-    for s in range(ns):
-        frac = (ts[s] - t0) / (t1 - t0)
-        for c in range(m):
-            i = idx[c]
-            for a in range(na):
-                om0 = (v0[i] * (1.0 - slip0[i, a])) / rw[i, a]
-                om1 = (v1[i] * (1.0 - slip1[i, a])) / rw[i, a]
+    for c in range(m):
+        i = idx[c]
+        for a in range(na):  # truth of the axle at both ends of the step, then the samples
+            om0 = (v0[i] * (1.0 - slip0[i, a])) / rw[i, a]
+            dom = (v1[i] * (1.0 - slip1[i, a])) / rw[i, a] - om0
+            cl = clamp1[i, a]
+            for s in range(ns):
+                frac = (ts[s] - t0) / (t1 - t0)
                 j = (s * m + c) * na + a
-                omega[s, c, a] = (om0 + frac * (om1 - om0)) + noise[0] * z[j]
-                clamp[s, c, a] = _mx(clamp1[i, a] + noise[1] * z[k + j], 0.0)
+                omega[s, c, a] = (om0 + frac * dom) + noise[0] * z[j]
+                clamp[s, c, a] = _mx(cl + noise[1] * z[k + j], 0.0)
+        dv = v1[i] - v0[i]
+        for s in range(ns):
+            frac = (ts[s] - t0) / (t1 - t0)
             accel[s, c] = acc[i] + noise[2] * z[2 * k + s * m + c]
             zv = z[2 * k + ns * m + s * m + c]
-            vref[s, c] = (v0[i] + frac * (v1[i] - v0[i])) + noise[3] * zv
+            vref[s, c] = (v0[i] + frac * dv) + noise[3] * zv

@@ -174,7 +174,7 @@ def step_all(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, 
              any_slide: bool, any_wsp: bool, blk, geo, stop_x, e_trac, e_elec, e_fric, e_res,
              e_curve, e_grade, e_stop_corr, n_in_service, axc, stab, ax_out, dc,
              want_drv: bool, sidx, r_w, slip0, ts, t0: float, t1: float, zbuf, zpos: int,
-             noise, o4, o2):  # type: ignore[no-untyped-def]
+             noise, o4, o2, auto: bool, eoa0, dc_auto):  # type: ignore[no-untyped-def]
     """One step: :func:`.kernel.front`, then (rail force done) :func:`motion`.
 
     Also fills ``ax_out`` (instrumented axles, when it has rows), the sensor samples of the
@@ -182,8 +182,13 @@ def step_all(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, 
     :func:`.kernel_aux.sensor_block` with the normals ``zbuf[zpos:]``, previous axle slips
     ``slip0``) and, with ``want_drv`` and no arrival candidate, the reference driver's next
     command (row ``O_DRV``).  Returns front's figures and the number of arrival candidates
-    (-1: rail force left to numpy).
+    (-1: rail force left to numpy).  With ``auto`` the commands of the plant-driven
+    trains are first computed into ``auto_u`` (:func:`driver`, constants ``dc_auto``,
+    movement authority ``eoa0`` of the previous step).
     """
+    if auto:
+        driver(dc_auto, x, v, stop_x, eoa0, speed_code, grids[G_ENV], grids[G_SBI], status,
+               c[C_FIXED] != 0.0, False, auto_u)
     r = front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb, sb,
               interventions, violations, in_violation, grids, tabs, speed_code, bk,
               any_slide, any_wsp, blk)

@@ -331,7 +331,8 @@ class LineSim:
         dt = self.control_period_s
         if t >= self._t_next - 1e-9:
             self._discrete(t)
-        auto_u = driver_command(self) if fl.any_auto else None
+        # the plant drives turning-back trains (the compiled step does it itself)
+        auto_u = driver_command(self) if fl.any_auto and self.stepper is None else None
         v = fl.v
         t_new = t + dt
         sen = self.sensors
