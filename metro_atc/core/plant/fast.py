@@ -32,6 +32,8 @@ BoolArray = NDArray[np.bool_]
 
 KERNELS = ("auto", "numba", "numpy")
 """Accepted values of ``plant_kernel``."""
+AUTO_GAIN, AUTO_LOOKAHEAD_S = 1.5, 0.7
+""":func:`.driver.driver_command` defaults: the plant's own driver of turning-back trains."""
 KERNEL_ENV = "METRO_ATC_PLANT_KERNEL"
 """Environment variable selecting the kernel when ``LineSim`` is not told."""
 
@@ -66,29 +68,40 @@ class FastSensors(Sensors):
         sen = self.spec
         self.noise = np.array([sen.wheel_omega_noise_radps, sen.clamp_force_noise_n,
                                sen.accel_noise_mps2, sen.ref_speed_noise_mps], dtype=float)
-        i1, f1, f2, f3 = (np.zeros(1, dtype=np.int64), np.ones(1), np.ones((1, 4)),
-                          np.zeros((1, 1, 4)))
+        i1, f1, f2 = np.zeros(1, dtype=np.int64), np.ones(1), np.ones((1, 4))
         sensor_block(i1, f2, f2, f2, f2, f1, f1, f1, f1, 0.0, 1.0, np.zeros(10), self.noise,
-                     f3, f3.copy(), np.zeros((1, 1)), np.zeros((1, 1)))  # compile / load now
+                     np.zeros((2, 1, 1, 4)), np.zeros((2, 1, 1)))  # compile / load now
 
     def block(self, sn: SensorSnap) -> SensorBlock:
-        """Samples with noise and injected sensor faults (same draws as the numpy path)."""
-        idx = sn.idx
-        _, clamp1, slip1 = sn.ax1.get()
-        slip0 = sn.ax0.get()[2]
-        if clamp1.shape != slip1.shape:  # [n, 1] clamp of the rolling model: one per axle
-            clamp1 = np.ascontiguousarray(np.broadcast_to(clamp1, slip1.shape))
-        ns, m = sn.ts.size, idx.size
-        k = ns * m * clamp1.shape[1]
-        z = self.rng.standard_normal(2 * k + 2 * ns * m)
-        na = clamp1.shape[1]
-        omega, clamp = np.empty((ns, m, na)), np.empty((ns, m, na))
-        accel, vref = np.empty((ns, m)), np.empty((ns, m))
-        self.kernel(idx, sn.r_w, slip0, slip1, clamp1, sn.v0, sn.v1, sn.acc, sn.ts, sn.t0,
-                    sn.t1, z, self.noise, omega, clamp, accel, vref)
+        """Samples with noise and injected sensor faults (same draws as the numpy path).
+
+        The compiled step computes them with the step (``sn.pre``, see
+        :meth:`NumbaStepper.advance`) once samples have been read (``want``); they are
+        used when the normals they took are still the next ones of the stream (samples
+        read in step order), else they are computed here.
+        """
+        self.want = True
+        idx, ts = sn.idx, sn.ts
+        pre = sn.pre
+        if pre is not None and pre[2] is self.zbuf and pre[3] == self.zpos:
+            self.zpos += pre[4]
+            o4, o2 = pre[0], pre[1]
+        else:
+            ax1 = sn.ax1
+            clamp1, slip1 = ax1.arrays[1:] if ax1.arrays is not None else ax1.get()[1:]
+            ax0 = sn.ax0
+            slip0 = ax0.arrays[2] if ax0.arrays is not None else ax0.get()[2]
+            if clamp1.shape != slip1.shape:  # [n, 1] clamp of the rolling model
+                clamp1 = np.ascontiguousarray(np.broadcast_to(clamp1, slip1.shape))
+            ns, m, na = ts.size, idx.size, slip1.shape[1]
+            z = self.normals((2 * na + 2) * ns * m)
+            o4, o2 = np.empty((2, ns, m, na)), np.empty((2, ns, m))
+            self.kernel(idx, sn.r_w, slip0, slip1, clamp1, sn.v0, sn.v1, sn.acc, ts, sn.t0,
+                        sn.t1, z, self.noise, o4, o2)
+        omega, clamp, accel, vref = o4[0], o4[1], o2[0], o2[1]
         if self.faults:
-            self.apply_faults(sn.ts, idx, omega, clamp, accel, vref)
-        return SensorBlock(sn.ts, idx, omega, clamp, accel, vref, sn.car_mass[idx])
+            self.apply_faults(ts, idx, omega, clamp, accel, vref)
+        return SensorBlock(ts, idx, omega, clamp, accel, vref, sn.car_mass[idx])
 
 
 class NumbaStepper:
@@ -143,6 +156,12 @@ class NumbaStepper:
         self.geo = np.ascontiguousarray(np.stack([g.gsin_avg, g.curve_avg]))
         self.zeros = np.zeros(fl.n)
         self.no_axles = np.zeros((3, 0, 4))
+        self.no_ts = np.zeros(0)
+        self.no_sens = (np.zeros((2, 0, 0, 4)), np.zeros((2, 0, 0)), np.zeros(0, dtype=np.int64),
+                        np.zeros((fl.n, 4)), np.zeros(0), 0)
+        self.noise = getattr(sim.sensors, "noise", np.zeros(4))
+        self.dc_auto = _driver_consts(sim, AUTO_GAIN, AUTO_LOOKAHEAD_S)
+        self.auto_buf = np.zeros(fl.n)
         self.key: tuple[Any, ...] = ()
         self.key_groups: tuple[tuple[Any, ...], ...] = ()
         self.packs: tuple[Any, ...] = ()
@@ -181,14 +200,12 @@ class NumbaStepper:
         A group is re-stacked when a component rebound one of its source arrays (identity
         check; the components rebind, never edit in place, the arrays packed here).
         """
-        groups = ((fl.run, fl.hold, fl.broken, fl.auto, fl.cand),
-                  (fl.mass, fl.meff, fl.inv_meff) + fl.davis_bc,
-                  (atp.ebi_static, atp.sbi_static, atp.ceiling_phys, atp.limit_eff,
-                   atp.drive_env),
-                  (br.slide_ratio, br.fric_mult), br.ax_coef[1:4])
-        key = sum(groups, ())
+        key = (fl.run, fl.hold, fl.broken, fl.auto, fl.cand, fl.mass, fl.meff, fl.inv_meff,
+               fl.davis_bc, atp.ebi_static, atp.sbi_static, atp.ceiling_phys, atp.limit_eff,
+               atp.drive_env, br.slide_ratio, br.fric_mult, br.ax_coef)
         if len(key) == len(self.key) and all(map(operator.is_, key, self.key)):
             return self.packs
+        groups = (key[:5], key[5:8] + fl.davis_bc, key[9:14], key[14:16], br.ax_coef[1:4])
         old = self.key_groups or ((),) * len(groups)
         packs = list(self.packs) or [None] * len(groups)
         for g, (new, prev) in enumerate(zip(groups, old)):
@@ -198,8 +215,18 @@ class NumbaStepper:
         return self.packs
 
     def advance(self, sim: PlantParts, u: FloatArray, auto_u: FloatArray | None,
-                axles: bool = False) -> tuple[int, BoolArray | None, FloatArray]:
-        """See :func:`.physics.advance_numpy` (``axles``: fill the axle arrays now)."""
+                axles: bool = False, ts: FloatArray | None = None
+                ) -> tuple[int, BoolArray | None, FloatArray]:
+        """See :func:`.physics.advance_numpy` (``axles``: fill the axle arrays now).
+
+        ``auto_u`` None: the kernel computes the turning-back trains' commands itself
+        (:func:`.driver.driver_command` with its default gains, at the start of the step).
+
+        ``ts``: the step's sensor sample instants; once samples have been read
+        (``sensors.want``) the kernel computes them with the step, from the next normals
+        of the sensor stream without consuming them (``sensors.pre``; taken by
+        :meth:`FastSensors.block` when they are read in order).
+        """
         kn = self.kn
         fl, atp, br, en = sim.fleet, sim.atp, sim.brakes, sim.energy
         n = fl.n
@@ -207,13 +234,32 @@ class NumbaStepper:
         masks, mp, grids, bk, axc = self._packed(fl, atp, br)
         coef = br.ax_coef
         ax_out = np.empty((3, n, axc.shape[2])) if axles else self.no_axles
+        sen = sim.sensors
+        o4, o2, sidx, slip0, zbuf, zpos = self.no_sens
+        k = 0
+        if axles and ts is not None and sen.want and isinstance(sen, FastSensors):
+            sidx = sen.idx
+            ns, m, na = ts.size, sidx.size, axc.shape[2]
+            k = (2 * na + 2) * ns * m
+            sen.reserve(k)
+            zbuf, zpos = sen.zbuf, sen.zpos
+            ax0 = br.ax
+            slip0 = ax0.arrays[2] if ax0.arrays is not None else ax0.get()[2]
+            o4, o2 = np.empty((2, ns, m, na)), np.empty((2, ns, m))
+        t0 = sim.t
+        auto = auto_u is None and fl.any_auto  # the kernel drives the turning-back trains
+        if auto_u is None:
+            auto_u = self.auto_buf if auto else self.zeros
         r = self.step_all(
-            self.c, fl.x, fl.v, fl.status, masks, u, fl.u_last,
-            self.zeros if auto_u is None else auto_u, fl.a_dem, mp, fl.trac_level, atp.eb,
+            self.c, fl.x, fl.v, fl.status, masks, u, fl.u_last, auto_u, fl.a_dem, mp,
+            fl.trac_level, atp.eb,
             atp.sb, atp.interventions, atp.violations, atp.in_violation, grids, self.tabs,
             atp.speed_code, bk, br.any_slide, br.any_wsp, blk, self.geo, fl.stop_x,
             en.e_trac, en.e_elec, en.e_fric, en.e_res, en.e_curve, en.e_grade,
-            en.e_stop_corr, en.n_in_service, axc, self.stab, ax_out, self.dc, self.want_drv)
+            en.e_stop_corr, en.n_in_service, axc, self.stab, ax_out, self.dc, self.want_drv,
+            sidx, br.r_w, slip0, self.no_ts if ts is None else ts, t0,
+            t0 + sim.control_period_s, zbuf, zpos, self.noise, o4, o2, auto, atp.eoa,
+            self.dc_auto)
         n_int, atp.any_atp, atp.any_violation, gmin, n_civil, n_hit = r
         if gmin < atp.min_sep:
             atp.min_sep = gmin
@@ -234,6 +280,8 @@ class NumbaStepper:
             br.ax_prev, br.ax = br.ax, AxleState(f_fa, a_d, w_ax, coef, arrays)
             self.drv_state = (x1, v1, eoa, fl.stop_x) if self.want_drv and not n_hit else ()
             self.drv_blk = blk
+            if k:
+                sen.pre = (o4, o2, zbuf, zpos, k)
         fl.acc, fl.x, fl.v = acc, x1, v1
         d = blk[kn.O_D]
         hit = None
@@ -246,18 +294,9 @@ class NumbaStepper:
                active_only: bool) -> FloatArray:
         """:func:`.driver.driver_command` (``active_only``: :func:`.driver.simple_driver`)."""
         ks = self.ks
-        atp, g, fl = sim.atp, sim.geometry, sim.fleet
+        atp, fl = sim.atp, sim.fleet
         if self.dc_key != (gain, lookahead_s):
-            c0, c2 = atp.curve.coef(atp.a_w)
-            dc = np.zeros(ks.N_DCONST)
-            for key, val in ((ks.D_X0, g.x0), (ks.D_INV_DX, g.inv_dx),
-                             (ks.D_B_DRIVE, atp.b_drive), (ks.D_T_SBI, atp.t_sbi),
-                             (ks.D_C0, c0), (ks.D_C2, c2), (ks.D_C1, atp.curve.c1),
-                             (ks.D_BS, sim.p.max_service_brake_mps2),
-                             (ks.D_TOL, g.tol_stop), (ks.D_GAIN, gain),
-                             (ks.D_LA, lookahead_s)):
-                dc[key] = float(val)
-            self.dc, self.dc_key = dc, (gain, lookahead_s)
+            self.dc, self.dc_key = _driver_consts(sim, gain, lookahead_s), (gain, lookahead_s)
             self.drv_state = ()
         if active_only:
             self.want_drv = True
@@ -269,6 +308,20 @@ class NumbaStepper:
         ks.driver(self.dc, fl.x, fl.v, fl.stop_x, atp.eoa, atp.speed_code, atp.drive_env,
                   atp.sbi_static, fl.status, atp.fixed_block, active_only, out)
         return out
+
+
+def _driver_consts(sim: PlantParts, gain: float, lookahead_s: float) -> FloatArray:
+    """Packed constants of the compiled reference driver (``kernel_step.D_*``)."""
+    from . import kernel_step as ks
+    atp, g = sim.atp, sim.geometry
+    c0, c2 = atp.curve.coef(atp.a_w)
+    dc = np.zeros(ks.N_DCONST)
+    for key, val in ((ks.D_X0, g.x0), (ks.D_INV_DX, g.inv_dx), (ks.D_B_DRIVE, atp.b_drive),
+                     (ks.D_T_SBI, atp.t_sbi), (ks.D_C0, c0), (ks.D_C2, c2),
+                     (ks.D_C1, atp.curve.c1), (ks.D_BS, sim.p.max_service_brake_mps2),
+                     (ks.D_TOL, g.tol_stop), (ks.D_GAIN, gain), (ks.D_LA, lookahead_s)):
+        dc[key] = float(val)
+    return dc
 
 
 def _sbi_offset() -> float:

@@ -27,7 +27,7 @@ from numba import njit
  N_CONST) = range(38)
 # rows of the per-step output block
 (O_X1, O_V1, O_ACC, O_LIM, O_EOA, O_AD, O_FFA, O_WAX, O_U, O_DRV, O_PHI, O_FTRAC, O_FBDEM,
- O_FE, O_FF, O_FBRK, O_D, O_VSBI, O_OBST, N_OUT) = range(20)
+ O_FE, O_FF, O_FBRK, O_D, O_VSBI, O_OBST, O_EBR, N_OUT) = range(21)
 # rows of the packed fleet masks / mass constants / supervision grids
 M_RUN, M_HOLD, M_BROKEN, M_AUTO, M_CAND = range(5)
 P_MASS, P_MEFF, P_INV_M, P_CB, P_CC = range(5)
@@ -52,16 +52,16 @@ def _mn(a: float, b: float) -> float:
     return b
 
 
-@njit(cache=True)
-def interp1(x: float, xp, fp) -> float:  # type: ignore[no-untyped-def]
-    """``np.interp(x, xp, fp)`` for one value (numpy's algorithm and special cases)."""
+@njit(cache=True, inline="always")
+def interp_j(x: float, xp) -> int:  # type: ignore[no-untyped-def]
+    """Interval of ``x`` in ``xp`` for :func:`interp_at` (-1 NaN, -2 below, n above)."""
     n = xp.shape[0]
     if x != x:
-        return x
+        return -1
     if x < xp[0]:
-        return fp[0]
+        return -2
     if x > xp[n - 1]:
-        return fp[n - 1]
+        return n
     lo, hi = 0, n
     while lo < hi:  # last j with xp[j] <= x
         mid = (lo + hi) >> 1
@@ -69,7 +69,19 @@ def interp1(x: float, xp, fp) -> float:  # type: ignore[no-untyped-def]
             lo = mid + 1
         else:
             hi = mid
-    j = lo - 1
+    return lo - 1
+
+
+@njit(cache=True, inline="always")
+def interp_at(x: float, xp, fp, j: int) -> float:  # type: ignore[no-untyped-def]
+    """``np.interp(x, xp, fp)`` with ``j = interp_j(x, xp)`` (numpy's special cases)."""
+    n = xp.shape[0]
+    if j == -1:
+        return x
+    if j == -2:
+        return fp[0]
+    if j == n:
+        return fp[n - 1]
     if j == n - 1 or xp[j] == x:
         return fp[j]
     slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
@@ -79,6 +91,12 @@ def interp1(x: float, xp, fp) -> float:  # type: ignore[no-untyped-def]
         if r != r and fp[j] == fp[j + 1]:
             r = fp[j]
     return r
+
+
+@njit(cache=True)
+def interp1(x: float, xp, fp) -> float:  # type: ignore[no-untyped-def]
+    """``np.interp(x, xp, fp)`` for one value (numpy's algorithm and special cases)."""
+    return interp_at(x, xp, fp, interp_j(x, xp))
 
 
 @njit(cache=True, inline="always")
@@ -156,8 +174,10 @@ def front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb,
     for i in range(n):
         k = _cell(x[i], x0, inv_dx, n_cells)
         dist = eoa[i] - x[i]
-        ph = interp1(v[i], tv, tphi)
+        jv = interp_j(v[i], tv)  # one look-up for the traction and e-brake tables
+        ph = interp_at(v[i], tv, tphi, jv)
         phi[i] = ph
+        blk[O_EBR, i] = interp_at(v[i], tv, tebr, jv)
         a_w = ph + c[C_G_DOWN]
         c0 = c[C_C0A] + c[C_C0B] * a_w
         c2 = c[C_C2A] + c[C_TR] * a_w
@@ -237,7 +257,7 @@ def front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb,
         blk[O_FTRAC, i] = _mn(_mn(_mx(a_d, 0.0) * meff[i], f_max), w_ax * c[C_TRAC_ADH])
         f_bdem = _mx(-a_d, 0.0) * meff[i]
         blk[O_FBDEM, i] = f_bdem
-        f_e = _mn(f_bdem, interp1(v[i], tv, tebr))
+        f_e = _mn(f_bdem, blk[O_EBR, i])
         if ebm:
             f_e = 0.0
         blk[O_FE, i] = f_e
@@ -264,8 +284,14 @@ def axle_fill(c, f_fa, a_d, w_axle, axc, stab, out):  # type: ignore[no-untyped-
     for i in range(n):
         fci = f_fa[i] * fc_per_n
         ja = jw * _mn(a_d[i], 0.0)
+        q_prev = math.nan
+        s_prev = 0.0
         for a in range(m):
             out[1, i, a] = fci
             f = fci * axc[0, i, a] + ja * axc[1, i, a]
             out[0, i, a] = f
-            out[2, i, a] = interp1(f / (w_axle[i] * axc[2, i, a]), tab_mu, tab_slip)
+            q = f / (w_axle[i] * axc[2, i, a])
+            if q != q_prev:  # healthy axles of a car share the argument: one look-up
+                s_prev = interp1(q, tab_mu, tab_slip)
+                q_prev = q
+            out[2, i, a] = s_prev

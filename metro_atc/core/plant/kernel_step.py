@@ -15,6 +15,7 @@ from .kernel import (C_DAVIS_A, C_DAVIS_B, C_DAVIS_C, C_DT, C_FIXED, C_INV_DX, C
                      C_TOL, C_X0, G_ENV, G_SBI, M_CAND, M_RUN, O_ACC, O_D, O_DRV, O_EOA,
                      O_FBDEM, O_FBRK, O_FE, O_FFA, O_FTRAC, O_AD, O_V1, O_WAX, O_X1, P_CB,
                      P_CC, P_INV_M, P_MASS, P_MEFF, _cell, _mn, _mx, axle_fill, front)
+from .kernel_aux import sensor_block
 
 # packed driver constants
 (D_X0, D_INV_DX, D_B_DRIVE, D_T_SBI, D_C0, D_C2, D_C1, D_BS, D_TOL, D_GAIN, D_LA,
@@ -172,13 +173,22 @@ def step_all(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, 
              interventions, violations, in_violation, grids, tabs, speed_code, bk,
              any_slide: bool, any_wsp: bool, blk, geo, stop_x, e_trac, e_elec, e_fric, e_res,
              e_curve, e_grade, e_stop_corr, n_in_service, axc, stab, ax_out, dc,
-             want_drv: bool):  # type: ignore[no-untyped-def]
+             want_drv: bool, sidx, r_w, slip0, ts, t0: float, t1: float, zbuf, zpos: int,
+             noise, o4, o2, auto: bool, eoa0, dc_auto):  # type: ignore[no-untyped-def]
     """One step: :func:`.kernel.front`, then (rail force done) :func:`motion`.
 
-    Also fills ``ax_out`` (instrumented axles, when it has rows) and, with ``want_drv`` and
-    no arrival candidate, the reference driver's next command (row ``O_DRV``).  Returns
-    front's figures and the number of arrival candidates (-1: rail force left to numpy).
+    Also fills ``ax_out`` (instrumented axles, when it has rows), the sensor samples of the
+    trains ``sidx`` at the instants ``ts`` (when ``o4`` has samples and ``ax_out`` rows:
+    :func:`.kernel_aux.sensor_block` with the normals ``zbuf[zpos:]``, previous axle slips
+    ``slip0``) and, with ``want_drv`` and no arrival candidate, the reference driver's next
+    command (row ``O_DRV``).  Returns front's figures and the number of arrival candidates
+    (-1: rail force left to numpy).  With ``auto`` the commands of the plant-driven
+    trains are first computed into ``auto_u`` (:func:`driver`, constants ``dc_auto``,
+    movement authority ``eoa0`` of the previous step).
     """
+    if auto:
+        driver(dc_auto, x, v, stop_x, eoa0, speed_code, grids[G_ENV], grids[G_SBI], status,
+               c[C_FIXED] != 0.0, False, auto_u)
     r = front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb, sb,
               interventions, violations, in_violation, grids, tabs, speed_code, bk,
               any_slide, any_wsp, blk)
@@ -189,6 +199,9 @@ def step_all(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, 
                    e_stop_corr, n_in_service, blk)
     if ax_out.shape[1]:
         axle_fill(c, blk[O_FFA], blk[O_AD], blk[O_WAX], axc, stab, ax_out)
+        if o4.shape[1]:
+            sensor_block(sidx, r_w, slip0, ax_out[2], ax_out[1], v, blk[O_V1], blk[O_ACC],
+                         ts, t0, t1, zbuf[zpos:], noise, o4, o2)
     if want_drv and n_hit == 0:
         driver(dc, blk[O_X1], blk[O_V1], stop_x, blk[O_EOA], speed_code, grids[G_ENV],
                grids[G_SBI], status, c[C_FIXED] != 0.0, True, blk[O_DRV])

@@ -331,15 +331,17 @@ class LineSim:
         dt = self.control_period_s
         if t >= self._t_next - 1e-9:
             self._discrete(t)
-        auto_u = driver_command(self) if fl.any_auto else None
+        # the plant drives turning-back trains (the compiled step does it itself)
+        auto_u = driver_command(self) if fl.any_auto and self.stepper is None else None
         v = fl.v
         t_new = t + dt
         sen = self.sensors
         due = sen.due(t_new)
+        ts = sen.sample_times(t_new) if due else None
         if self.stepper is None:
             n_int, hit, d = advance_numpy(self, ua, auto_u, due)
         else:
-            n_int, hit, d = self.stepper.advance(self, ua, auto_u, due)
+            n_int, hit, d = self.stepper.advance(self, ua, auto_u, due, ts)
         v1 = fl.v
         self.t = t_new
         self.step_count += 1
@@ -352,9 +354,9 @@ class LineSim:
             tr["atp"].append(atp.atp_limit.copy())
         # sensors (snapshot now, samples generated on demand)
         snap = None
-        if due:
+        if ts is not None:
             br = self.brakes
-            snap = sen.snapshot(t, t_new, br.ax_prev, br.ax, br.r_w, fl.acc, v, v1,
+            snap = sen.snapshot(ts, t, t_new, br.ax_prev, br.ax, br.r_w, fl.acc, v, v1,
                                 fl.mass / p.cars)
         # stations
         if hit is not None:

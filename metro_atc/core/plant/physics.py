@@ -21,6 +21,7 @@ from .braking import Brakes
 from .dynamics import rk4_motion
 from .energy import EnergyMeter
 from .fleet import Fleet
+from .sensors import Sensors
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -35,11 +36,13 @@ class PlantParts(Protocol):
     atp: AtpSupervisor
     brakes: Brakes
     energy: EnergyMeter
+    sensors: Sensors
     geometry: LineGeometry
     p: TrainParams
     control_period_s: float
     substeps: int
     tol_stop: float
+    t: float
 
 
 def advance_numpy(sim: PlantParts, u: FloatArray, auto_u: FloatArray | None,

@@ -24,6 +24,9 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
+NORMAL_BLOCK = 2048
+"""Standard normals drawn ahead at a time for the sensor noise (:meth:`Sensors.normals`)."""
+
 
 @dataclass(frozen=True)
 class BrakeSensorSample:
@@ -52,7 +55,7 @@ class SensorBlock:
     car_mass: FloatArray  # [n_trains_sensed] load-weigh signal [kg]
 
 
-@dataclass
+@dataclass(slots=True)
 class SensorSnap:
     """Noise-free truth of one step for the sensor samples (built lazily)."""
 
@@ -68,6 +71,8 @@ class SensorSnap:
     v0: FloatArray
     v1: FloatArray
     car_mass: FloatArray
+    pre: Any = None
+    """Samples computed with the step by the compiled kernel (:mod:`.fast`), or None."""
 
 
 class Sensors:
@@ -84,6 +89,10 @@ class Sensors:
         self.sensor_dt = 1.0 / scn.sensors.rate_hz
         self.next_sample_t = self.sensor_dt
         self.rng = np.random.default_rng([seed, 1])
+        self.zbuf = np.zeros(0)
+        self.zpos = 0
+        self.want = False
+        self.pre: Any = None  # this step's samples from the compiled step (see SensorSnap)
         self.faults = faults
         self.any_sensed = False
         self.mask = np.zeros(scn.trains.count, dtype=bool)
@@ -99,22 +108,53 @@ class Sensors:
         """A sample falls in the step ending at ``t1`` and an instrumented train runs."""
         return self.next_sample_t <= t1 + 1e-9 and self.any_sensed
 
-    def snapshot(self, t0: float, t1: float, ax0: AxleState, ax1: AxleState,
+    def normals(self, k: int) -> FloatArray:
+        """The next ``k`` standard normals of the sensor stream.
+
+        Drawn ahead in blocks of :data:`NORMAL_BLOCK` (``zbuf``, read from ``zpos``): a
+        ``Generator``'s standard normals do not depend on how the draws are split, so the
+        values are those of one ``rng.standard_normal(k)`` call per step (checkpoints keep
+        the buffer and its position with the generator).
+        """
+        pos = self.zpos
+        if pos + k > self.zbuf.size:
+            self.zbuf = np.concatenate((self.zbuf[pos:],
+                                        self.rng.standard_normal(max(NORMAL_BLOCK, k))))
+            pos = 0
+        self.zpos = pos + k
+        return self.zbuf[pos:pos + k]
+
+    def sample_times(self, t1: float) -> FloatArray:
+        """Sample instants up to ``t1`` [s] (advances the sample clock)."""
+        ts = []
+        nxt, dt, lim = self.next_sample_t, self.sensor_dt, t1 + 1e-9
+        while nxt <= lim:
+            ts.append(nxt)
+            nxt += dt
+        self.next_sample_t = nxt
+        return np.array(ts)
+
+    def reserve(self, k: int) -> None:
+        """Make the next ``k`` normals available in ``zbuf`` from ``zpos`` (draws ahead)."""
+        if self.zpos + k > self.zbuf.size:
+            self.normals(k)
+            self.zpos -= k
+
+    def snapshot(self, ts: FloatArray, t0: float, t1: float, ax0: AxleState, ax1: AxleState,
                  r_w: FloatArray, acc: FloatArray, v0: FloatArray, v1: FloatArray,
                  car_mass: FloatArray) -> SensorSnap:
-        """Noise-free truth needed for the samples in (t0, t1] (samples built on demand)."""
-        ts = []
-        while self.next_sample_t <= t1 + 1e-9:
-            ts.append(self.next_sample_t)
-            self.next_sample_t += self.sensor_dt
+        """Noise-free truth for the samples at ``ts`` in (t0, t1] (samples built on demand).
+
+        ``ts``: :meth:`sample_times` of the step.
+        """
+        pre, self.pre = self.pre, None
         # r_w and the speeds are never changed in place (faults and set_xv copy on write)
-        return SensorSnap(np.array(ts), t0, t1, self.mask, self.idx, ax0, ax1, r_w,
-                          acc, v0, v1, car_mass)
+        return SensorSnap(ts, t0, t1, self.mask, self.idx, ax0, ax1, r_w, acc, v0, v1,
+                          car_mass, pre)
 
     def block(self, sn: SensorSnap) -> SensorBlock:
         """Samples with noise and injected sensor faults from a snapshot."""
         sen = self.spec
-        rng = self.rng
         idx = sn.idx
         rw = sn.r_w[idx]
         _, clamp1, slip1 = sn.ax1.get()
@@ -127,7 +167,7 @@ class Sensors:
         # one standard-normal draw for the four channels, in the order (and with the
         # values) of separate rng.normal(0, sigma, shape) calls: normal = 0 + sigma * z
         k = ns * m * N_AXLES_SENSED
-        z = rng.standard_normal(2 * k + 2 * ns * m)
+        z = self.normals(2 * k + 2 * ns * m)
         shape3 = (ns, m, N_AXLES_SENSED)
         omega = om0[None] + frac[:, :, None] * (om1 - om0)[None]
         omega += sen.wheel_omega_noise_radps * z[:k].reshape(shape3)
