@@ -184,7 +184,10 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
     n = max(1, int(ato_per_process))
     for g in range(0, len(train_ids), n):
         group = list(train_ids[g:g + n])
-        ato = dict(base, train_ids=group)
+        # the ATOs take their time from the lockstep states, not from /clock: without
+        # use_sim_time their 2 x 15 nodes add no /clock readers (each reader costs the
+        # simulator a delivery per step, issue 13)
+        ato = dict(base, use_sim_time=False, train_ids=group)
         if plan_store_dir:
             ato["plan_store_dir"] = str(plan_store_dir)
         procs.append(ProcessSpec(f"ato_{group[0]}", "ato_controller",

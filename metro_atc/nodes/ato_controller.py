@@ -94,7 +94,9 @@ class AtoController(Node):
         self.last_step = -1
         self.planned_from = -1
         self._tick = (0, 0)
-        self.rt = RuntimeParams(self, self.health)
+        # /diagnostics stamped with the simulated time of the last state acted on (the
+        # launcher runs the ATOs without use_sim_time: they need no /clock)
+        self.rt = RuntimeParams(self, self.health, stamp=self.last_state_t)
         if planner not in PLANNERS:
             raise NodeConfigError(f"parameter planner='{planner}' is not one of "
                                   f"{', '.join(PLANNERS)}")
@@ -249,6 +251,10 @@ class AtoController(Node):
             "infeasible_plans": self.infeasible, "rejected_inputs": self.rejected,
             "last_step": self.last_step, "planned_from_station": self.planned_from})]
 
+    def last_state_t(self) -> float:
+        """Simulated time [s] of the last state acted on (0 before the first)."""
+        return float(self.history[-1]["t_s"]) if self.history else 0.0
+
     def _warn(self, key: str, text: str) -> None:
         now = time.monotonic()
         if now - self._last_warn.get(key, -math.inf) > 1.0:
@@ -313,12 +319,14 @@ class AtoController(Node):
         return p
 
     # ------------------------------------------------------------------ tracking
-    def answer(self, msg: Any, topic: str) -> TractionCommand | None:
+    def answer(self, msg: Any, topic: str, flush: bool = True) -> TractionCommand | None:
         """The command for a state (a fleet entry, TrainState fields); None if rejected.
 
         A rejected state gets no answer (the plan and the tracker are left as they are:
         the simulator keeps waiting for this train's genuine state of the step); a re-sent
-        state gets the same command again without running the tracker twice.
+        state gets the same command again without running the tracker twice.  ``flush``
+        False: the journal line is written but not flushed; the caller must call
+        :meth:`flush_journal` before the command leaves the process.
         """
         try:
             try:
@@ -337,8 +345,17 @@ class AtoController(Node):
         self._remember(s, effort, mode)
         if self._journal is not None:
             self._journal.write(json.dumps(s) + "\n")
-            self._journal.flush()  # in the OS before the command leaves: survives a SIGKILL
+            if flush:
+                self.flush_journal()
         return self._last_cmd
+
+    def flush_journal(self) -> None:
+        """Hand the journal's written lines to the OS (then they survive a SIGKILL).
+
+        Called before the command of the state leaves the process.
+        """
+        if self._journal is not None:
+            self._journal.flush()
 
     def control(self, s: dict[str, Any]) -> tuple[float, int]:
         """Effort in [-1, 1] and intended mode for one state (:class:`OnboardAto`)."""
@@ -390,18 +407,26 @@ class FleetLink:
         efforts: list[float] = []
         modes: list[int] = []
         step, stamp = None, None
+        echoes: list[tuple[AtoController, TractionCommand]] = []
+        answered: list[AtoController] = []
         for tid, e in entries:
             node = self.nodes[tid]
-            cmd = node.answer(e, topic)
+            cmd = node.answer(e, topic, flush=False)
+            answered.append(node)
             if cmd is None or (step is not None and int(cmd.step) != step):
                 continue
             if e.echo and node.echoed_step != int(cmd.step):
-                node.cmd_pub.publish(cmd)  # once per step: a re-sent state is not echoed again
+                echoes.append((node, cmd))  # once per step: a re-sent state is not echoed
                 node.echoed_step = int(cmd.step)
             step, stamp = int(cmd.step), conv.from_time(cmd.header.stamp)
             ids.append(tid)
             efforts.append(float(cmd.effort))
             modes.append(int(cmd.mode))
+        # one flush per journal for the whole message, all before any command leaves
+        for node in answered:
+            node.flush_journal()
+        for node, cmd in echoes:
+            node.cmd_pub.publish(cmd)
         if ids and step is not None and stamp is not None:
             self.pub.publish(conv.fleet_command_msg(step, stamp, ids, efforts, modes))
 

@@ -21,6 +21,7 @@ from typing import Any, Sequence
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from metro_atc_msgs.msg import DepartureCommand, TrainEvent
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from metro_atc.core.atr.cost import CostWeights
@@ -30,7 +31,7 @@ from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (OK, QOS_EVENTS, QOS_LATCHED, WARN, NodeConfigError,
                                     RuntimeParams, bulk_publisher, diag_status, run_nodes,
-                                    static)
+                                    spin_fast, static)
 
 
 REGULATORS = ("none", "lqr", "dhp", "aoc", "elqr")
@@ -89,7 +90,10 @@ class AtsRegulator(Node):
         self.rt = RuntimeParams(self, self.health)
         self.pubs = [bulk_publisher(self, DepartureCommand, f"/{t}/departure_command",
                                     QOS_LATCHED) for t in self.ids]
-        self.create_subscription(TrainEvent, "/line/events", self._on_event, QOS_EVENTS)
+        # the event subscription is served by spin_fast (a direct wait set): the executor
+        # would rebuild its wait set from every entity of the node on each /clock tick
+        self.event_sub = self.create_subscription(TrainEvent, "/line/events", self._on_event,
+                                                  QOS_EVENTS)
         for d in self.dispatcher.initial():  # idempotent if replayed after a restart
             self._publish(d)
         self.get_logger().info(f"regulator '{self.regulator}' on '{self.scenario_name}': "
@@ -147,7 +151,11 @@ class AtsRegulator(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Entry point of the ``ats_regulator`` executable."""
-    return run_nodes(lambda: [AtsRegulator()], None, args)
+    def loop(executor: SingleThreadedExecutor, nodes: Sequence[Node]) -> None:
+        subs = [n.event_sub for n in nodes if isinstance(n, AtsRegulator)]
+        spin_fast(executor, nodes, subs)
+
+    return run_nodes(lambda: [AtsRegulator()], loop, args)
 
 
 if __name__ == "__main__":

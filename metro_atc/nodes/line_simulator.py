@@ -766,11 +766,31 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
     executor spin.
     """
     log = sim.get_logger()
-    poller = SubscriptionPoller(sim.context, [sim.fleet_sub, *sim.cmd_subs, *sim.dep_subs])
+    pollers: dict[bytes, tuple[SubscriptionPoller, SubscriptionPoller]] = {}
+
+    def poller_pair() -> tuple[SubscriptionPoller, SubscriptionPoller]:
+        """(lockstep poller, echo poller) for the current set of fleet-driven trains.
+
+        The lockstep waits on the fleet commands, the departure commands and the per-train
+        commands of trains no fleet command answered yet; the per-train commands of
+        fleet-driven trains are echoes for outside tools (the fleet command carried them
+        already), drained every slow period: waiting on 30 more subscriptions, and waking
+        for every echo, cost more than the step (issue 13).
+        """
+        key = sim.fleet_driven.tobytes()
+        pair = pollers.get(key)
+        if pair is None:
+            pollers.clear()
+            own = [s for i, s in enumerate(sim.cmd_subs) if not sim.fleet_driven[i]]
+            echo = [s for i, s in enumerate(sim.cmd_subs) if sim.fleet_driven[i]]
+            pair = pollers[key] = (
+                SubscriptionPoller(sim.context, [sim.fleet_sub, *own, *sim.dep_subs]),
+                SubscriptionPoller(sim.context, echo))
+        return pair
 
     def wait(timeout_s: float) -> None:
         if fast_path:
-            poller.poll(timeout_s)
+            poller_pair()[0].poll(timeout_s)
             slow_path()
         else:
             executor.spin_once(timeout_sec=timeout_s)
@@ -797,6 +817,9 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
         now = time.monotonic()
         if force or now - last_slow >= 0.05:
             last_slow = now
+            echo = poller_pair()[1]
+            if echo.subs:
+                echo.poll(0.0)
             executor.spin_once(timeout_sec=0.0)
 
     while not sim.finished and not stop_requested():
