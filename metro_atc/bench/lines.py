@@ -10,9 +10,11 @@ fault-free in both modes; ``--no-ttobench`` leaves it out) and any ``--scenario`
 embedded scenario names (e.g. ``taipei_blue``) through the
 ROS-free closed loop :func:`metro_atc.core.closed_loop.run_closed_loop` (real ATO and ATS
 cores, the plant, lockstep) and prints one row per line plus totals: ATP violations, missed
-stops, ATP interventions per 100 stops, stop error p50/p95/max [m], stops outside +-0.30 m,
-time above the civil limit [s], speed minima per TSR approach (hunting), energy per
-train-km [kWh] and the brake diagnosis of every train (issue 11 item 8,
+stops, ATP interventions per 100 stops, stop error p50/p95/max [m] of the stops the ATO
+berthed, stops outside +-0.30 m, arrivals at a standstill forced by a breakdown or an ATP
+emergency brake (``forced_stops``, not in the stop-error figures), time above the civil
+limit [s], speed minima per TSR approach (hunting), energy per train-km [kWh] and the
+brake diagnosis of every train (issue 11 item 8,
 :class:`metro_atc.core.brake.line_monitor.LineBrakeMonitor`: false alarms = level rises of
 trains without a brake fault; injected pad/wheel faults detected; ``--no-brake`` skips it).
 Exit code 1 when a line fails to run.
@@ -54,6 +56,7 @@ def totals(rows: List[dict[str, Any]], errors: List[float]) -> dict[str, Any]:
         "stop_error_p95_m": float(np.percentile(err, 95)) if err.size else math.nan,
         "stop_error_max_m": float(err.max()) if err.size else math.nan,
         "stops_outside_0p30_m": int(np.count_nonzero(err > STOP_WINDOW_M)),
+        "forced_stops": int(sum(r.get("forced_stops", 0) for r in rows)),
         "time_above_civil_limit_s": float(sum(r["time_above_civil_limit_s"] for r in rows)),
         "tsr_approaches": int(sum(r["tsr_approaches"] for r in rows)),
         "tsr_speed_minima_max": int(max([r["tsr_speed_minima_max"] for r in rows] or [0])),

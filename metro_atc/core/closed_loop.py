@@ -17,7 +17,10 @@ with one :class:`metro_atc.core.ato.onboard.OnboardAto` per train (what every
 Besides the plant's KPIs it measures, from the plant's public state, what issue 11 asks of an
 ATO that drives inside the ATP envelope (all SI):
 
-- stop error of each arrival [m] (front position at the arrival minus the stop point);
+- stop error of each arrival [m] (front position at the arrival minus the stop point) the
+  ATO berthed; an arrival where the train came to rest under a breakdown or an ATP
+  emergency brake (the plant takes any standstill within its +-1 m tolerance as the
+  arrival) is no programmed station stop: its error is kept apart (``forced_stop_errors_m``);
 - ATP interventions (service or emergency brake onsets) per 100 stops;
 - time above the civil limit [s]: train-seconds of trains in service whose speed exceeds the
   permanent/temporary limit in force for the whole train (``LineSim.ceiling_phys`` minus
@@ -84,6 +87,10 @@ class ClosedLoopResult:
     wall_s: float
     finished: bool
     kpis: dict[str, Any] = field(default_factory=dict)
+    forced_stop_errors_m: list[float] = field(default_factory=list)
+    """Errors [m] of arrivals at a standstill forced by a breakdown or an ATP emergency brake."""
+    arrivals: list[tuple[int, int, float, float, bool]] = field(default_factory=list)
+    """Every arrival: (train index, station index, time [s], stop error [m], forced)."""
     brake: dict[str, Any] = field(default_factory=dict)
     """Brake-diagnosis figures (:meth:`LineBrakeMonitor.summary`) when it ran."""
 
@@ -101,6 +108,9 @@ class ClosedLoopResult:
             "stop_error_p50_m": q(50), "stop_error_p95_m": q(95),
             "stop_error_max_m": float(err.max()) if err.size else math.nan,
             "stops_outside_0p30_m": int(np.count_nonzero(err > STOP_WINDOW_M)),
+            "forced_stops": len(self.forced_stop_errors_m),
+            "forced_stop_error_max_m": max((abs(e) for e in self.forced_stop_errors_m),
+                                           default=0.0),
             "time_above_civil_limit_s": self.time_above_civil_s,
             "tsr_approaches": len(self.tsr_minima),
             "tsr_speed_minima_max": max(self.tsr_minima) if self.tsr_minima else 0,
@@ -147,6 +157,8 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
     dt = sim.control_period_s
     above = 0.0
     stop_err: list[float] = []
+    forced: list[float] = []
+    arrivals: list[tuple[int, int, float, float, bool]] = []
     x_prev = sim.x.copy()
     dist = 0.0
     approaches: dict[tuple[int, int], _Approach] = {}
@@ -184,8 +196,11 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
         _watch_tsrs(sim, tsrs, run, approaches, minima)
         for ev in res.events:
             if ev.kind == "arrival":
-                stop_err.append(float(sim.x[ev.train_idx]
-                                      - sim.station_positions_m[ev.station_idx]))
+                j = int(ev.train_idx)
+                err = float(sim.x[j] - sim.station_positions_m[ev.station_idx])
+                hit = bool(sim.broken[j] or sim.eb[j])
+                (forced if hit else stop_err).append(err)
+                arrivals.append((j, int(ev.station_idx), float(ev.t_s), err, hit))
             cmd = ats.on_event(ids[ev.train_idx], ev.station_idx, ev.kind, ev.t_s)
             if cmd is not None:
                 dispatch(cmd)
@@ -194,12 +209,14 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
     kp = sim.kpis()
     return ClosedLoopResult(
         scenario=scn.name, regulator=regulator, planner=planner, tracker=tracker,
-        stops=len(stop_err), stop_errors_m=stop_err, missed_stops=int(sim.skipped_stops),
+        stops=len(stop_err) + len(forced), stop_errors_m=stop_err,
+        missed_stops=int(sim.skipped_stops),
         atp_violations=int(kp["atp_violations"]),
         atp_interventions=int(np.sum(sim.interventions)), time_above_civil_s=above,
         tsr_minima=minima, energy_kwh=float(kp["energy_kwh"]), train_km=dist / 1000.0,
         sim_time_s=float(sim.t), wall_s=time.perf_counter() - w0, finished=bool(sim.done),
-        kpis=kp, brake=mon.summary() if mon is not None else {})
+        kpis=kp, forced_stop_errors_m=forced, arrivals=arrivals,
+        brake=mon.summary() if mon is not None else {})
 
 
 def _watch_tsrs(sim: LineSim, tsrs: list[Any], run: Any,

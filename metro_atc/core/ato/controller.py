@@ -55,6 +55,8 @@ APPROACH_JERK_SHARE = 0.8
 off before the reference is reached (:meth:`AtoCore.approach_bound`) [-]."""
 APPROACH_MIN_SPEED_MPS = 1.0
 """The approach bound applies above this speed (not in the creep to the stop point) [m/s]."""
+RESTART_MAX_SPEED_MPS = 3.0
+"""Below this speed the stop bound (:meth:`AtoCore.stop_bound`) limits the traction [m/s]."""
 
 
 @dataclass(frozen=True)
@@ -113,6 +115,7 @@ class AtoCore:
         self.profile: Optional[Profile] = None
         self.run: Optional[RunModel] = None
         self._ref: Optional[ProfileReference] = None
+        self._tail_brake = 0.4
         self._last_t: Optional[float] = None
         self._last_u = 0.0
         self._last_ff = 0.0
@@ -162,6 +165,7 @@ class AtoCore:
         b = float(run.brake_decel(run.length_m))  # at the platform (grade-aware option)
         self._ref = ProfileReference(prof.s_grid, prof.v_profile, run.length_m,
                                      tail_decel=b, creep_speed=0.5, tail_brake=0.5 * b)
+        self._tail_brake = 0.5 * b
         self.tracker.reset(0.0)
         self._last_t = None
         self._last_u = 0.0
@@ -226,6 +230,56 @@ class AtoCore:
         if f >= 0.0:
             return min(f / max(float(max_traction_force(tr, v)), 1.0), 1.0)
         return max(f / (tr.effective_mass_kg * tr.max_service_brake_mps2), -1.0)
+
+    def stop_distance(self, v: float, a: float) -> float:
+        """Distance [m] to rest from speed v [m/s] with the surplus acceleration a [m/s^2].
+
+        The effort is held one control period ``T``, then taken off at the jerk ``J``
+        (:attr:`approach_jerk`) down to the gentlest braking of the stop tail ``b``, which
+        then holds to rest: ``v T + a T^2/2`` + the jerk-limited ramp + ``v_1^2 / (2 b)``.
+        """
+        j, t, b = self.approach_jerk, self.period, max(self._tail_brake, 0.05)
+        v0 = v + a * t
+        x0 = v * t + 0.5 * a * t * t
+        tau = (a + b) / j
+        v1 = v0 + a * tau - 0.5 * j * tau * tau
+        if v1 <= 0.0:  # at rest inside the ramp: v0 + a t - J t^2 / 2 = 0
+            ts = (a + math.sqrt(a * a + 2.0 * j * v0)) / j
+            return x0 + v0 * ts + 0.5 * a * ts * ts - j * ts ** 3 / 6.0
+        return x0 + v0 * tau + 0.5 * a * tau * tau - j * tau ** 3 / 6.0 + v1 * v1 / (2.0 * b)
+
+    def stop_bound(self, s: float, v: float) -> float:
+        """Highest effort [-1, 1] from which the train can still stop at the stopping point.
+
+        Restarting close to the platform (after a breakdown or a hold short of it) the
+        tracker sees the stop tail ahead as a speed to reach; full traction there overruns
+        the stop (a train held 1.65 m short for 60 s ran 1.06 m past it).  The bound is the
+        largest surplus acceleration whose :meth:`stop_distance` fits in the distance left
+        (bisection), as an effort; 0 (no traction) when even coasting does not fit.  The
+        surplus of the last command counts as well (the plant takes it off at the jerk
+        limit whatever is commanded now).
+        """
+        run = self.run
+        assert run is not None
+        tr = self.train
+        d = run.length_m - s
+        f_hold = float(resistance_force(tr, v)) + float(run.mean_grade_force(s - tr.length_m, s))
+        f_max = max(float(max_traction_force(tr, v)), 1.0)
+        a_hi = max((f_max - f_hold) / tr.effective_mass_kg, 0.0)
+        a_last = max((self._last_u * f_max - f_hold) / tr.effective_mass_kg, 0.0) \
+            if self._last_u > 0.0 else 0.0
+        if self.stop_distance(v, a_last) >= d:
+            return 0.0
+        if self.stop_distance(v, a_hi) <= d:
+            return 1.0
+        lo, hi = 0.0, a_hi
+        for _ in range(30):
+            mid = 0.5 * (lo + hi)
+            if self.stop_distance(v, max(mid, a_last)) <= d:
+                lo = mid
+            else:
+                hi = mid
+        return min(max((f_hold + tr.effective_mass_kg * lo) / f_max, 0.0), 1.0)
 
     @property
     def last_effort(self) -> float:
@@ -309,6 +363,11 @@ class AtoCore:
             r_end = r if capped else min(max(r, float(self._ref.speed(s_p + v * self.swing_s))),
                                          r_cap_mps)
             u_b = self.approach_bound(s, v, r_end)
+            if u_b < u:
+                u, bounded = u_b, True
+        if u > 0.0 and v < RESTART_MAX_SPEED_MPS and s > 0.5 * run.length_m:
+            # (re)starting near the platform: only the traction the stop still absorbs
+            u_b = self.stop_bound(s, v)
             if u_b < u:
                 u, bounded = u_b, True
         if r_plan <= 0.0 and s >= run.length_m - BERTH_WINDOW_M:
