@@ -194,7 +194,7 @@ def state_weights(tab: DPTables, k: int, e: FloatArray) -> tuple[IntArray, Float
                     tab.e_grid.size)
 
 
-def _lerp(a: FloatArray, b: FloatArray, w: FloatArray) -> FloatArray:
+def lerp(a: FloatArray, b: FloatArray, w: FloatArray) -> FloatArray:
     """Linear interpolation (1-w) a + w b that keeps a where w == 0 (a, b may be inf)."""
     with np.errstate(invalid="ignore"):
         out = (1.0 - w) * a + w * b
@@ -215,7 +215,7 @@ def _backward(tab: DPTables, mus: ArrayLike) -> FloatArray:
         jn = j_all[:, k + 1]
         i0 = tab.idx0[k]
         q = tab.energy_j[k][None] + mu3 * tab.time_s[k][None] \
-            + _lerp(jn[:, i0], jn[:, i0 + 1], tab.w[k])
+            + lerp(jn[:, i0], jn[:, i0 + 1], tab.w[k])
         jk = np.min(q, axis=2)
         # states above the envelope are unreachable: flat extrapolation from the top state
         top = int(tab.top[k])
@@ -261,12 +261,12 @@ def _forward(tab: DPTables, mus: FloatArray, j_all: FloatArray, policy: IntArray
     for k in range(k0, n_st):
         i, a1 = state_weights(tab, k, e)
         a = a1[:, None]
-        en = _lerp(tab.energy_j[k, i], tab.energy_j[k, i + 1], a)
-        dt = _lerp(tab.time_s[k, i], tab.time_s[k, i + 1], a)
+        en = lerp(tab.energy_j[k, i], tab.energy_j[k, i + 1], a)
+        dt = lerp(tab.time_s[k, i], tab.time_s[k, i + 1], a)
         nx = tab.e_next[k, i] + a * (tab.e_next[k, i + 1] - tab.e_next[k, i])
         i1, w1 = state_weights(tab, k + 1, nx)
         p = policy[:, k][:, None]
-        q = en + mus[p] * dt + _lerp(j_all[p, k + 1, i1], j_all[p, k + 1, i1 + 1], w1)
+        q = en + mus[p] * dt + lerp(j_all[p, k + 1, i1], j_all[p, k + 1, i1 + 1], w1)
         q = np.where(np.isfinite(dt), q, np.inf)
         u = np.argmin(q, axis=1)
         alive &= np.isfinite(q[rows, u])
@@ -390,7 +390,7 @@ def _prefix_table(tab: DPTables, ctrl: IntArray, e_path: FloatArray, k: int) -> 
     i, w = _weights(e_path[:k], float(tab.e_grid[1] - tab.e_grid[0]), tab.e_grid.size)
     st = np.arange(k)
     u = ctrl[:k]
-    return float(np.sum(_lerp(tab.time_s[st, i, u], tab.time_s[st, i + 1, u], w)))
+    return float(np.sum(lerp(tab.time_s[st, i, u], tab.time_s[st, i + 1, u], w)))
 
 
 def _rollout(run: RunModel, tab: DPTables, target_time_s: float,
@@ -488,12 +488,12 @@ def _forward_multi(tab: DPTables, mus: FloatArray, j_all: FloatArray, pol: IntAr
             continue
         i, a1 = state_weights(tab, k, e[act])
         a = a1[:, None]
-        en = _lerp(tab.energy_j[k, i], tab.energy_j[k, i + 1], a)
-        dt = _lerp(tab.time_s[k, i], tab.time_s[k, i + 1], a)
+        en = lerp(tab.energy_j[k, i], tab.energy_j[k, i + 1], a)
+        dt = lerp(tab.time_s[k, i], tab.time_s[k, i + 1], a)
         nx = tab.e_next[k, i] + a * (tab.e_next[k, i + 1] - tab.e_next[k, i])
         i1, w1 = state_weights(tab, k + 1, nx)
         p = pol[act][:, None]
-        q = en + mus[p] * dt + _lerp(j_all[p, k + 1, i1], j_all[p, k + 1, i1 + 1], w1)
+        q = en + mus[p] * dt + lerp(j_all[p, k + 1, i1], j_all[p, k + 1, i1 + 1], w1)
         q = np.where(np.isfinite(dt), q, np.inf)
         u = np.argmin(q, axis=1)
         r = rows[:act.size]

@@ -128,7 +128,7 @@ from scipy.linalg import solve_discrete_are
 from scipy.optimize import minimize_scalar
 
 from metro_atc.core.ato.coasting import LEVEL_II, simulate_switching
-from metro_atc.core.ato.dp import DPTables, _lerp, build_dp_tables
+from metro_atc.core.ato.dp import DPTables, lerp, build_dp_tables
 from metro_atc.core.ato.envelope import RunModel
 from metro_atc.core.atr.blue_line import LineData
 from metro_atc.core.atr.cost import CostWeights, stage_cost
@@ -252,13 +252,13 @@ def dp_energy_time_points(tab: DPTables, mu: FloatArray | Sequence[float], forwa
     for k in range(n_st - 1, -1, -1):
         i0, w = tab.idx0[k], tab.w[k]
         q = tab.energy_j[k][None] + m[:, None, None] * tab.time_s[k][None] \
-            + _lerp(j_next[:, i0], j_next[:, i0 + 1], w)
+            + lerp(j_next[:, i0], j_next[:, i0 + 1], w)
         u = np.argmin(q, axis=2)[..., None]
         jk = np.take_along_axis(q, u, axis=2)[..., 0]
         top = int(tab.top[k])
         jk[:, top + 1:] = jk[:, top:top + 1]
         if not forward:
-            tq = tab.time_s[k][None] + _lerp(t_next[:, i0], t_next[:, i0 + 1], w)
+            tq = tab.time_s[k][None] + lerp(t_next[:, i0], t_next[:, i0 + 1], w)
             tk = np.take_along_axis(tq, u, axis=2)[..., 0]
             tk[:, top + 1:] = tk[:, top:top + 1]
             t_next = tk
@@ -279,14 +279,14 @@ def dp_energy_time_points(tab: DPTables, mu: FloatArray | Sequence[float], forwa
         f = np.clip(e / de, 0.0, top_f)
         i = f.astype(np.int64)
         a = (f - i)[:, None]
-        en = _lerp(tab.energy_j[k, i], tab.energy_j[k, i + 1], a)
-        dt = _lerp(tab.time_s[k, i], tab.time_s[k, i + 1], a)
+        en = lerp(tab.energy_j[k, i], tab.energy_j[k, i + 1], a)
+        dt = lerp(tab.time_s[k, i], tab.time_s[k, i + 1], a)
         e_n = tab.e_next[k, i] + a * (tab.e_next[k, i + 1] - tab.e_next[k, i])
         g = np.clip(e_n / de, 0.0, top_f)
         i1 = g.astype(np.int64)
         jn = j_all[k + 1]
-        q = en + m[:, None] * dt + _lerp(jn[rows[:, None], i1], jn[rows[:, None], i1 + 1],
-                                         g - i1)
+        q = en + m[:, None] * dt + lerp(jn[rows[:, None], i1], jn[rows[:, None], i1 + 1],
+                                        g - i1)
         q = np.where(np.isfinite(dt), q, np.inf)
         u = np.argmin(q, axis=1)
         alive &= np.isfinite(q[rows, u])
