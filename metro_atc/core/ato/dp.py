@@ -341,17 +341,24 @@ def simulate_controls(run: RunModel, tab: DPTables, controls: IntArray,
 def _stage_levels(run: RunModel, tab: DPTables, k: int, e: float, mode: int,
                   levels: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Exact simulation of stage k from e with (mode, each traction level): (e_next, J, s)."""
+    return _simulate_stages(run, tab, k, np.full(levels.size, float(e)), mode, levels)
+
+
+def _simulate_stages(run: RunModel, tab: DPTables, k: "int | IntArray", e0: FloatArray,
+                     mode: "int | IntArray", levels: FloatArray
+                     ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Exact simulation of stage(s) ``k`` from states e0 [m^2/s^2], holding at e0 when
+    cruising, with (mode, traction level) per element: (e_next, energy [J], time [s])."""
     h = run.length_m / tab.n_stages / tab.substeps
-    ea = np.full(levels.size, float(e))
-    hold = ea.copy()
-    energy = np.zeros(levels.size)
-    tm = np.zeros(levels.size)
+    e = np.array(e0, dtype=float)
+    energy = np.zeros(e.size)
+    tm = np.zeros(e.size)
     for q in range(tab.substeps):
-        ea, dt, dj, _ = strategy_step(run.train, run.limits, ea, h, tab.fg_sub[k, q],
-                                      tab.cap_sub[k, q], mode, np.inf, hold, levels)
+        e, dt, dj, _ = strategy_step(run.train, run.limits, e, h, tab.fg_sub[k, q],
+                                     tab.cap_sub[k, q], mode, np.inf, e0, levels)
         energy += dj
         tm += dt
-    return ea, energy, tm
+    return e, energy, tm
 
 
 def _blend(run: RunModel, tab: DPTables, target_time_s: float, mu_fast: float,
@@ -430,16 +437,8 @@ def _rollout(run: RunModel, tab: DPTables, target_time_s: float,
     mode_c = np.tile(m_st, n_k)
     u_c = np.tile(u_st, n_k)
     lev_c = np.tile(l_st, n_k)
-    h = run.length_m / n_st / tab.substeps
     e0 = e_b[0, k_c]
-    e = e0.copy()
-    dj = np.zeros(k_c.size)
-    dt = np.zeros(k_c.size)
-    for q in range(tab.substeps):
-        e, t_q, j_q, _ = strategy_step(run.train, run.limits, e, h, tab.fg_sub[k_c, q],
-                                       tab.cap_sub[k_c, q], mode_c, np.inf, e0, lev_c)
-        dj += j_q
-        dt += t_q
+    e, dj, dt = _simulate_stages(run, tab, k_c, e0, mode_c, lev_c)
     n_p = len(policies)
     mus = np.array([mu for mu, _ in policies])
     j_all = np.stack([j for _, j in policies])
