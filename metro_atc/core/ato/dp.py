@@ -347,8 +347,11 @@ def _stage_levels(run: RunModel, tab: DPTables, k: int, e: float, mode: int,
 def _simulate_stages(run: RunModel, tab: DPTables, k: "int | IntArray", e0: FloatArray,
                      mode: "int | IntArray", levels: FloatArray
                      ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Exact simulation of stage(s) ``k`` from states e0 [m^2/s^2], holding at e0 when
-    cruising, with (mode, traction level) per element: (e_next, energy [J], time [s])."""
+    """Exact simulation of stage(s) ``k`` per element: (e_next, energy [J], time [s]).
+
+    From states e0 [m^2/s^2] (held at e0 when cruising), with (mode, traction level) per
+    element.
+    """
     h = run.length_m / tab.n_stages / tab.substeps
     e = np.array(e0, dtype=float)
     energy = np.zeros(e.size)
