@@ -210,15 +210,15 @@ class LineSimulator(Node):
         if self.checkpoint_dir:
             self._open_checkpoints(Path(self.checkpoint_dir))
         self.fleet_driven = np.zeros(n, dtype=bool)
+        """Trains whose ATO answered a fleet state (their per-train state is decimated)."""
         self._fleet_matched = 0
         self._fleet_msg: FleetState | None = None
         self._echo_mask = np.zeros(n, dtype=bool)
+        """Trains whose per-train state was published at step k too (fleet ``echo``)."""
         self.fleet_resends = 0
         """Fleet states published again for trains that did not answer in time."""
-        """Trains whose per-train state was published at step k too (fleet ``echo``)."""
         self._step_states: tuple[int, Any] = (-1, None)
         """(k, core states published at step k): the lockstep barrier reads them again."""
-        """Trains whose ATO answered a fleet state (their per-train state is decimated)."""
         self.state_every = max(1, int(round(self.train_state_period_s
                                             / float(self.sim.control_period_s))))
         """Steps between per-train states of fleet-driven trains."""
