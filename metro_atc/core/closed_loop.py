@@ -87,12 +87,15 @@ class ClosedLoopResult:
     wall_s: float
     finished: bool
     kpis: dict[str, Any] = field(default_factory=dict)
-    forced_stop_errors_m: list[float] = field(default_factory=list)
-    """Errors [m] of arrivals at a standstill forced by a breakdown or an ATP emergency brake."""
     arrivals: list[tuple[int, int, float, float, bool]] = field(default_factory=list)
     """Every arrival: (train index, station index, time [s], stop error [m], forced)."""
     brake: dict[str, Any] = field(default_factory=dict)
     """Brake-diagnosis figures (:meth:`LineBrakeMonitor.summary`) when it ran."""
+
+    @property
+    def forced_stop_errors_m(self) -> list[float]:
+        """Errors [m] of arrivals at a standstill forced by a breakdown or an ATP EB."""
+        return [err for *_, err, forced in self.arrivals if forced]
 
     def row(self) -> dict[str, Any]:
         """One JSON-friendly row of the bench (``bench lines``)."""
@@ -157,7 +160,6 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
     dt = sim.control_period_s
     above = 0.0
     stop_err: list[float] = []
-    forced: list[float] = []
     arrivals: list[tuple[int, int, float, float, bool]] = []
     x_prev = sim.x.copy()
     dist = 0.0
@@ -199,7 +201,8 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
                 j = int(ev.train_idx)
                 err = float(sim.x[j] - sim.station_positions_m[ev.station_idx])
                 hit = bool(sim.broken[j] or sim.eb[j])
-                (forced if hit else stop_err).append(err)
+                if not hit:
+                    stop_err.append(err)
                 arrivals.append((j, int(ev.station_idx), float(ev.t_s), err, hit))
             cmd = ats.on_event(ids[ev.train_idx], ev.station_idx, ev.kind, ev.t_s)
             if cmd is not None:
@@ -209,13 +212,13 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
     kp = sim.kpis()
     return ClosedLoopResult(
         scenario=scn.name, regulator=regulator, planner=planner, tracker=tracker,
-        stops=len(stop_err) + len(forced), stop_errors_m=stop_err,
+        stops=len(arrivals), stop_errors_m=stop_err,
         missed_stops=int(sim.skipped_stops),
         atp_violations=int(kp["atp_violations"]),
         atp_interventions=int(np.sum(sim.interventions)), time_above_civil_s=above,
         tsr_minima=minima, energy_kwh=float(kp["energy_kwh"]), train_km=dist / 1000.0,
         sim_time_s=float(sim.t), wall_s=time.perf_counter() - w0, finished=bool(sim.done),
-        kpis=kp, forced_stop_errors_m=forced, arrivals=arrivals,
+        kpis=kp, arrivals=arrivals,
         brake=mon.summary() if mon is not None else {})
 
 
