@@ -40,7 +40,7 @@ import math
 import os
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -63,6 +63,20 @@ from metro_atc.nodes.common import (OK, QOS_LATCHED, QOS_LATCHED_IN, QOS_RELIABL
                                     NodeConfigError, RuntimeParams, bulk_publisher,
                                     bulk_subscription, declare, diag_status, run_nodes,
                                     spin_fast, static)
+
+
+class Cmd(NamedTuple):
+    """One traction command as the ATO decided it (step, stamp [s], effort [-1, 1], mode).
+
+    Plain fields: the fleet command carries them; a TractionCommand message is built only
+    for the per-train echo (a rosidl message per train and step cost more than the
+    tracker, issue 13).
+    """
+
+    step: int
+    t_s: float
+    effort: float
+    mode: int
 
 
 class AtoController(Node):
@@ -156,7 +170,7 @@ class AtoController(Node):
         """Rejected input messages per kind (:mod:`metro_atc.core.validate`)."""
         self.bounds = bounds_for(scenario)
         self.steps = StepWindow()
-        self._last_cmd: TractionCommand | None = None
+        self._last_cmd: Cmd | None = None
         self.echoed_step = -1
         """Step of the last command echoed on ``/<train>/command`` (fleet lockstep)."""
         self._last_warn: dict[str, float] = {}
@@ -208,7 +222,7 @@ class AtoController(Node):
         """Record a state acted on and its command."""
         self.history.append(s)
         self.last_step = int(s["step"])
-        self._last_cmd = conv.traction_msg(self.train_id, s["step"], s["t_s"], effort, mode)
+        self._last_cmd = Cmd(int(s["step"]), float(s["t_s"]), float(effort), int(mode))
 
     def _rewind(self, msg: Any, topic: str) -> bool:
         """A state of an earlier step the journal holds identically: the simulator resumed.
@@ -319,7 +333,7 @@ class AtoController(Node):
         return p
 
     # ------------------------------------------------------------------ tracking
-    def answer(self, msg: Any, topic: str, flush: bool = True) -> TractionCommand | None:
+    def answer(self, msg: Any, topic: str, flush: bool = True) -> Cmd | None:
         """The command for a state (a fleet entry, TrainState fields); None if rejected.
 
         A rejected state gets no answer (the plan and the tracker are left as they are:
@@ -336,7 +350,7 @@ class AtoController(Node):
                     raise
                 s = conv.state_from_msg(msg, topic, self.train_id, self.bounds, self.steps)
             last = self._last_cmd
-            if s["again"] and last is not None and int(last.step) == s["step"]:
+            if s["again"] and last is not None and last.step == s["step"]:
                 return last
             effort, mode = conv.guarded(topic, self.control, s)
         except conv.MessageRejected as exc:
@@ -407,27 +421,29 @@ class FleetLink:
         efforts: list[float] = []
         modes: list[int] = []
         step, stamp = None, None
-        echoes: list[tuple[AtoController, TractionCommand]] = []
+        echoes: list[tuple[AtoController, Cmd]] = []
         answered: list[AtoController] = []
         for tid, e in entries:
             node = self.nodes[tid]
             cmd = node.answer(e, topic, flush=False)
             answered.append(node)
-            if cmd is None or (step is not None and int(cmd.step) != step):
+            if cmd is None or (step is not None and cmd.step != step):
                 continue
-            if e.echo and node.echoed_step != int(cmd.step):
+            if e.echo and node.echoed_step != cmd.step:
                 echoes.append((node, cmd))  # once per step: a re-sent state is not echoed
-                node.echoed_step = int(cmd.step)
-            step, stamp = int(cmd.step), conv.from_time(cmd.header.stamp)
+                node.echoed_step = cmd.step
+            step, stamp = cmd.step, cmd.t_s
             ids.append(tid)
-            efforts.append(float(cmd.effort))
-            modes.append(int(cmd.mode))
+            efforts.append(cmd.effort)
+            modes.append(cmd.mode)
         # one flush per journal for the whole message, all before any command leaves
         for node in answered:
             node.flush_journal()
         for node, cmd in echoes:
-            node.cmd_pub.publish(cmd)
+            node.cmd_pub.publish(conv.traction_msg(node.train_id, cmd.step, cmd.t_s,
+                                                   cmd.effort, cmd.mode))
         if ids and step is not None and stamp is not None:
+            stamp = conv.from_time(conv.to_time(stamp))  # as a TractionCommand carried it
             self.pub.publish(conv.fleet_command_msg(step, stamp, ids, efforts, modes))
 
 

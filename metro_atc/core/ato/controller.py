@@ -19,15 +19,15 @@ import math
 from dataclasses import dataclass
 from typing import Any, Optional
 
-import numpy as np
 
 from metro_atc.core.ato.envelope import OperatingLimits, RunModel
 from metro_atc.core.ato.fuzzy import FuzzyController, FuzzyParams
 from metro_atc.core.ato.pi import PIController, PIParams
 from metro_atc.core.ato.planner import PLANNERS, Profile, plan_profile
 from metro_atc.core.ato.reference_curve import ProfileReference
-from metro_atc.core.line.vehicle import (Track, TrainParams, max_traction_force,
-                                         resistance_force)
+from metro_atc.core.line.vehicle import (Track, TrainParams, max_traction_force_at,
+                                         resistance_force_at)
+from metro_atc.core.scalar_math import sqrt_or_nan
 
 TRACKERS = ("fuzzy", "pi")
 """Tracker names accepted by :class:`AtoCore`."""
@@ -198,14 +198,14 @@ class AtoCore:
             h = max(v * self.period, 0.5)
             r1 = float(self._ref.speed(s + h))
             a_ref = (r1 * r1 - r * r) / (2.0 * h)
-        f_g = float(run.mean_grade_force(s - tr.length_m, s))
-        f = tr.effective_mass_kg * a_ref + float(resistance_force(tr, v)) + f_g
+        f_g = run.mean_grade_force_at(s - tr.length_m, s)
+        f = tr.effective_mass_kg * a_ref + resistance_force_at(tr, v) + f_g
         if r < STOP_FF_MPS:
             # final stop: no traction feedforward (the resistance at standstill is static
             # friction, and a creeping train would never come to rest at the platform)
             f = min(f, 0.0)
         if f >= 0.0:
-            return min(f / max(float(max_traction_force(tr, v)), 1.0), 1.0)
+            return min(f / max(max_traction_force_at(tr, v), 1.0), 1.0)
         return max(f / (tr.effective_mass_kg * tr.max_service_brake_mps2), -1.0)
 
     def approach_bound(self, s: float, v: float, r_end: float) -> float:
@@ -225,10 +225,10 @@ class AtoCore:
         j, t = self.approach_jerk, self.period
         gap = max(r_end - v, 0.0)
         a_ex = j * (-t + math.sqrt(t * t + 2.0 * gap / j))
-        f = float(resistance_force(tr, v)) + float(run.mean_grade_force(s - tr.length_m, s)) \
+        f = resistance_force_at(tr, v) + run.mean_grade_force_at(s - tr.length_m, s) \
             + tr.effective_mass_kg * a_ex
         if f >= 0.0:
-            return min(f / max(float(max_traction_force(tr, v)), 1.0), 1.0)
+            return min(f / max(max_traction_force_at(tr, v), 1.0), 1.0)
         return max(f / (tr.effective_mass_kg * tr.max_service_brake_mps2), -1.0)
 
     def stop_distance(self, v: float, a: float) -> float:
@@ -263,8 +263,8 @@ class AtoCore:
         assert run is not None
         tr = self.train
         d = run.length_m - s
-        f_hold = float(resistance_force(tr, v)) + float(run.mean_grade_force(s - tr.length_m, s))
-        f_max = max(float(max_traction_force(tr, v)), 1.0)
+        f_hold = resistance_force_at(tr, v) + run.mean_grade_force_at(s - tr.length_m, s)
+        f_max = max(max_traction_force_at(tr, v), 1.0)
         a_hi = max((f_max - f_hold) / tr.effective_mass_kg, 0.0)
         a_last = max((self._last_u * f_max - f_hold) / tr.effective_mass_kg, 0.0) \
             if self._last_u > 0.0 else 0.0
@@ -333,7 +333,7 @@ class AtoCore:
         dt = min(dt, 5.0 * self.period)
         self._last_t = t
         run = self.run
-        s = float(run.run_coordinate(x))
+        s = run.run_coordinate_at(x)
         if self._arrived:
             self.last_reason = "stopped at platform"
             self._last_u = HOLD_BRAKE
@@ -372,7 +372,7 @@ class AtoCore:
                 u, bounded = u_b, True
         if r_plan <= 0.0 and s >= run.length_m - BERTH_WINDOW_M:
             u = min(u, HOLD_BRAKE)  # at the stopping point: brake to rest, never creep
-        ceiling = float(np.sqrt(2.0 * run.ceiling_e(min(max(s, 0.0), run.length_m))))
+        ceiling = sqrt_or_nan(2.0 * run.ceiling_e_at(min(max(s, 0.0), run.length_m)))
         reason = "tracking"
         if s >= run.pss_start_s:
             reason = "programmed station stopping"  # seed 001: PSS from 350 m

@@ -24,6 +24,7 @@ scales; ours are documented defaults of :class:`FuzzyParams`.  Vectorised over t
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Optional
 
@@ -91,6 +92,43 @@ def flc_output(e_n: ArrayLike, d_n: ArrayLike) -> FloatArray:
     return np.asarray(num / np.maximum(den, 1e-12), dtype=float)
 
 
+_RULES_FLAT = tuple(float(x) for x in RULE_MATRIX.ravel())
+
+
+def _tri1(x: float, a: float, b: float, c: float) -> float:
+    """:func:`triangle` of one finite float."""
+    up = (x - a) / (b - a)
+    down = (c - x) / (c - b)
+    m = up if up <= down else down
+    return 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
+
+
+def _ramp1(m: float) -> float:
+    return 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
+
+
+def _sum15(a: "list[float]") -> float:
+    """numpy's pairwise sum of 15 contiguous doubles (8 partial sums, then the rest in order)."""
+    res = ((a[0] + a[1]) + (a[2] + a[3])) + ((a[4] + a[5]) + (a[6] + a[7]))
+    for k in range(8, 15):
+        res += a[k]
+    return res
+
+
+def flc_output_at(e_n: float, d_n: float) -> float:
+    """:func:`flc_output` for one finite (e, d) pair (plain floats, the same IEEE result).
+
+    The per-train tracker runs it once per control step (issue 13, graph speed).
+    """
+    me = (_ramp1((e_n - 0.5) / 0.5), _tri1(e_n, 0.0, 0.5, 1.0), _tri1(e_n, -0.5, 0.0, 0.5),
+          _tri1(e_n, -1.0, -0.5, 0.0), _ramp1((-0.5 - e_n) / 0.5))
+    md = (_ramp1((d_n - 0.0) / 1.0), _tri1(d_n, -1.0, 0.0, 1.0), _ramp1((0.0 - d_n) / 1.0))
+    w = [di * ej for di in md for ej in me]
+    den = _sum15(w)
+    num = _sum15([wk * rk for wk, rk in zip(w, _RULES_FLAT)])
+    return num / (den if den >= 1e-12 else 1e-12)
+
+
 @dataclass(frozen=True)
 class FuzzyParams:
     """Universe scales and output gain of the fuzzy controller.
@@ -136,6 +174,9 @@ class FuzzyController:
         and kept for the common tracker interface; ``u_ff`` is an optional feedforward
         effort added to the absolute form / to the increments' base (0: pure seed 004).
         """
+        if type(r_mps) is float and type(v_mps) is float and type(u_ff) is float \
+                and self.p.incremental:
+            return np.asarray(self._step_at(r_mps, v_mps, u_ff))
         e = np.asarray(r_mps, dtype=float) - np.asarray(v_mps, dtype=float)
         d = np.zeros_like(e) if self._e_prev is None else e - self._e_prev
         self._e_prev = e
@@ -149,3 +190,25 @@ class FuzzyController:
             out = np.clip(self.p.gain * y + np.asarray(u_ff, dtype=float), -1.0, 1.0)
             self._u = out
         return np.asarray(out, dtype=float)
+
+    def _step_at(self, r: float, v: float, ff: float) -> float:
+        """:meth:`step` (incremental form) for one train given plain floats; the same result."""
+        u_prev = self._u
+        e_prev = self._e_prev
+        if np.ndim(u_prev) != 0 or (e_prev is not None and np.ndim(e_prev) != 0):
+            raise ValueError("fuzzy tracker: scalar step on a vector state")
+        e = r - v
+        d = 0.0 if e_prev is None else e - float(e_prev)
+        self._e_prev = np.asarray(e)
+        e_n, d_n = e / self.p.e_scale_mps, d / self.p.d_scale_mps
+        if not (math.isfinite(e_n) and math.isfinite(d_n) and math.isfinite(ff)):
+            y = float(flc_output(e_n, d_n))
+        else:
+            y = flc_output_at(e_n, d_n)
+        u = float(u_prev) + self.p.gain * y
+        lo, hi = -1.0 - ff, 1.0 - ff
+        u = u if not u < lo else lo
+        u = u if not u > hi else hi
+        self._u = np.asarray(u)
+        out = u + ff
+        return -1.0 if out < -1.0 else (1.0 if out > 1.0 else out)

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from bisect import bisect_right
 from dataclasses import dataclass
 from typing import Any, Optional, Sequence
 
@@ -41,9 +42,10 @@ from metro_atc.core.ato.planner import Profile
 from metro_atc.core.bridge import ato_limits_for
 from metro_atc.core.line.atp_constants import SBI_OFFSET_MPS, atp_constants
 from metro_atc.core.line.geometry import build_geometry
-from metro_atc.core.line.track import (braking_envelope, ebi_speed, window_min_ahead,
+from metro_atc.core.line.track import (braking_envelope, ebi_speed_at, window_min_ahead,
                                        window_min_behind)
-from metro_atc.core.line.vehicle import G_MPS2, Track, TrainParams, max_traction_accel
+from metro_atc.core.line.vehicle import (G_MPS2, Track, TrainParams, max_traction_accel,
+                                         max_traction_accel_at)
 
 MODE_DWELL = 1
 """TrainState.MODE_DWELL (msg_defs/TrainState.msg)."""
@@ -123,6 +125,8 @@ class OnboardAto:
             b_g=0.5 * train.emergency_brake_mps2, t_r=1.0, t_sbi=2.0,
             g_down=0.0, sbi_offset_mps=SBI_OFFSET_MPS, train=train)
         self.commands: dict[int, tuple[float, float]] = {}
+        self._grade_lists = (np.asarray(track.grade_starts_m, dtype=float).tolist(),
+                             np.asarray(track.grades, dtype=float).tolist())
         self._b_run: Any = None
         self._b_tab = np.zeros(1)
         self.planned_from = -1
@@ -222,8 +226,18 @@ class OnboardAto:
         Full service brake minus the grade's pull (resistance neglected: conservative).
         """
         a, b = (x_from, x_to) if x_from <= x_to else (x_to, x_from)
-        xs = np.linspace(a - self.train.length_m, max(b, a) + 1.0, 64)
-        g = float(np.min(self.track.grade_at(xs)))
+        lo, hi = a - self.train.length_m, max(b, a) + 1.0
+        starts, grades = self._grade_lists
+        n = len(grades)
+        i0 = min(max(bisect_right(starts, lo) - 1, 0), n - 1)
+        i1 = min(max(bisect_right(starts, hi) - 1, 0), n - 1)
+        if math.isfinite(lo) and math.isfinite(hi) and i1 - i0 <= 1:
+            # the 64 samples run from lo to hi exactly: the grades of their first and last
+            # pieces are all they see (the same minimum, without the arrays; issue 13)
+            g = min(grades[i0], grades[i1])
+        else:
+            xs = np.linspace(lo, hi, 64)
+            g = float(np.min(self.track.grade_at(xs)))
         return max(self.train.max_service_brake_mps2 + G_MPS2 * min(g, 0.0), 0.05)
 
     def speed_cap(self, s: dict[str, Any], x_at: Optional[float] = None,
@@ -283,7 +297,7 @@ class OnboardAto:
             pad = np.concatenate((b, np.full(k, b[-1])))
             self._b_tab = np.lib.stride_tricks.sliding_window_view(pad, k + 1).min(axis=1)
             self._b_run = run
-        i = int((float(run.run_coordinate(x)) + 50.0) / 10.0)
+        i = int((run.run_coordinate_at(x) + 50.0) / 10.0)
         return float(self._b_tab[min(max(i, 0), self._b_tab.size - 1)])
 
     def guard(self, s: dict[str, Any]) -> float:
@@ -348,8 +362,8 @@ class AtpModel:
         """
         d = max(dist_m - self.resp_dist_m - self.sbi_dist_m, 0.0)
         e = math.sqrt((target_mps + self.tol_mps) ** 2 + 2.0 * self.b_g * d)
-        v = e - (float(max_traction_accel(self.train, e)) + self.g_down) * self.t_r
-        v = e - (float(max_traction_accel(self.train, max(v, 0.0))) + self.g_down) * self.t_r
+        v = e - (max_traction_accel_at(self.train, e) + self.g_down) * self.t_r
+        v = e - (max_traction_accel_at(self.train, max(v, 0.0)) + self.g_down) * self.t_r
         return v - self.sbi_offset_mps
 
     def static_sbi(self, x_from_m: float, x_to_m: float) -> float:
@@ -365,7 +379,7 @@ class AtpModel:
         k1 = int((x_to_m - self.grid_x0_m) / self.grid_dx_m) + 1
         k0 = min(max(k0, 0), tab.size - 1)
         k1 = min(max(k1, k0 + 1), tab.size)
-        return float(np.min(tab[k0:k1])) - self.sbi_offset_mps
+        return float(tab[k0:k1].min()) - self.sbi_offset_mps
 
     def sbi_speed(self, dist_m: float, v_mps: float) -> float:
         """ATP service-brake intervention speed [m/s] for a stop ``dist_m`` ahead at v.
@@ -373,8 +387,8 @@ class AtpModel:
         ``ebi_speed(dist - t_sbi v)`` with the worst-case response acceleration
         ``a_w = traction(v) + g_down`` (:func:`metro_atc.core.line.track.ebi_speed`).
         """
-        a_w = float(max_traction_accel(self.train, v_mps)) + self.g_down
-        return float(ebi_speed(dist_m - self.t_sbi * v_mps, 0.0, a_w, self.t_r, self.b_g)) \
+        a_w = max_traction_accel_at(self.train, v_mps) + self.g_down
+        return ebi_speed_at(dist_m - self.t_sbi * v_mps, 0.0, a_w, self.t_r, self.b_g) \
             - self.sbi_offset_mps
 
 

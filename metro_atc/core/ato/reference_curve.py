@@ -17,6 +17,7 @@ reference of the same interface, with the seed 004 creep/brake tail for platform
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Optional
 
@@ -25,6 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from metro_atc.core.ato.envelope import RunModel
 from metro_atc.core.line.vehicle import max_traction_force, resistance_force
+from metro_atc.core.scalar_math import interp1, maximum1, minimum1
 
 FloatArray = NDArray[np.float64]
 
@@ -80,6 +82,19 @@ def stop_tail(s: ArrayLike, length_m: float, decel: float, creep_v: float, creep
     dec = np.sqrt(creep_v * creep_v + 2.0 * decel * np.maximum(s_c - sa, 0.0))
     brk = np.sqrt(2.0 * brake_decel * np.maximum(length_m - sa, 0.0))
     return np.where(sa < s_c, dec, np.where(sa < s_b, creep_v, brk))
+
+
+def stop_tail_at(s: float, length_m: float, decel: float, creep_v: float, creep_len: float,
+                 brake_decel: float) -> float:
+    """:func:`stop_tail` at one run coordinate s [m] (plain floats, the same result) [m/s]."""
+    d_brake = creep_v * creep_v / (2.0 * brake_decel)
+    s_b = length_m - d_brake
+    s_c = s_b - creep_len
+    if s < s_c:
+        return math.sqrt(creep_v * creep_v + 2.0 * decel * maximum1(s_c - s, 0.0))
+    if s < s_b:
+        return creep_v
+    return math.sqrt(2.0 * brake_decel * maximum1(length_m - s, 0.0))
 
 
 class ReferenceCurve:
@@ -164,9 +179,29 @@ class ProfileReference:
         self.length_m = float(length_m)
         self.tail = (tail_decel, creep_speed, creep_len, tail_brake)
         self.departure_speed = float(departure_speed)
+        self._s_list: list[float] = self.s_grid.tolist()
+        self._e_list: list[float] = (self.v * self.v).tolist()
+
+    def speed_at(self, s: float) -> float:
+        """:meth:`speed` at one run coordinate s [m] (a float; the same IEEE result) [m/s].
+
+        The tracker asks for a few points per control step: plain floats, no 0-d arrays
+        (issue 13, graph speed).
+        """
+        if not s == s:
+            return float(self.speed(np.asarray(s)))
+        e = interp1(s, self._s_list, self._e_list)
+        plan = math.sqrt(e) if e >= 0.0 else math.nan  # np.sqrt: NaN below 0
+        if s < 0.5 * self.length_m:
+            plan = maximum1(plan, self.departure_speed)
+        d, cv, cl, b = self.tail
+        tail = stop_tail_at(s, self.length_m, d, cv, cl, b)
+        return 0.0 if s >= self.length_m else minimum1(plan, tail)
 
     def speed(self, s: ArrayLike) -> FloatArray:
         """Desired speed [m/s] at s [m]."""
+        if type(s) is float:
+            return np.asarray(self.speed_at(s))
         sa = np.asarray(s, dtype=float)
         # interpolate kinetic energy v^2/2 (exact for constant-acceleration pieces; linear
         # interpolation of v would make the final approach exponential, never arriving)

@@ -21,6 +21,7 @@ decelerates at least at ``b_g`` (guaranteed emergency decel minus the steepest d
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -77,6 +78,23 @@ def ebi_speed(dist_m: ArrayLike, target_mps: ArrayLike, a_w: float, t_r: float,
     results mean the train must already be stopped.
     """
     return BrakingCurve(b_g, t_r).speed(dist_m, a_w, target_mps)
+
+
+def ebi_speed_at(dist_m: float, target_mps: float, a_w: float, t_r: float,
+                 b_g: float) -> float:
+    """:func:`ebi_speed` for one distance (plain floats, the same IEEE result) [m/s].
+
+    The per-train ATO evaluates the curve a few times per control step (issue 13).
+    """
+    b, tr = float(b_g), float(t_r)
+    c0 = (b * tr) ** 2 + b * tr * tr * a_w
+    c2 = b * tr + tr * a_w
+    if target_mps != 0.0:
+        c0 = c0 + target_mps * target_mps
+    z = c0 + 2.0 * b * dist_m
+    if z < 0.0:  # np.maximum(z, 0): NaN and -0.0 pass
+        z = 0.0
+    return (math.sqrt(z) if z == z else z) - c2
 
 
 def stopping_distance(v_mps: ArrayLike, a_w: float, t_r: float, b_g: float) -> FloatArray:

@@ -142,6 +142,32 @@ def max_traction_accel(p: TrainParams, v: ArrayLike) -> FloatArray:
     return np.where(va <= p.v1_mps, phi1, np.where(va <= p.v2_mps, phi2, phi3))
 
 
+def resistance_force_at(p: TrainParams, v: float) -> float:
+    """:func:`resistance_force` for one speed [m/s] (plain floats, the same IEEE result) [N]."""
+    va = abs(v)
+    return p.davis_a_n + p.davis_b_n_per_mps * va + p.davis_c_n_per_mps2 * va * va
+
+
+def max_traction_accel_at(p: TrainParams, v: float) -> float:
+    """:func:`max_traction_accel` for one speed [m/s] (plain floats, the same IEEE result).
+
+    The per-train ATO evaluates it a few times per control step: without the numpy
+    overhead of a 0-d array (issue 13, graph speed).
+    """
+    va = abs(v)
+    if va <= p.v1_mps:
+        return p.a1_mps2
+    if va <= p.v2_mps:
+        return p.a2 / (va + p.b2_mps + 1e-12)
+    # ``** 2`` (C pow), as numpy computes it for one value (a float64 scalar, not an array)
+    return p.a3 / (va + p.b3_mps + 1e-12) ** 2
+
+
+def max_traction_force_at(p: TrainParams, v: float) -> float:
+    """:func:`max_traction_force` for one speed [m/s] (plain floats, the same result) [N]."""
+    return p.mass_kg * max_traction_accel_at(p, v)
+
+
 def max_traction_force(p: TrainParams, v: ArrayLike) -> FloatArray:
     """Maximum tractive force [N] at speed v [m/s] (seed 002 eq. 3-5 times mass)."""
     return p.mass_kg * max_traction_accel(p, v)
