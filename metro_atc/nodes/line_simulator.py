@@ -74,6 +74,11 @@ RESEND_CHUNK = 8
 """Kept sensor samples re-sent back to back before a pause (the writer keeps 20)."""
 RESEND_PAUSE_S = 0.005
 """Pause between re-sent chunks [s] (wall; ~0.6 ms per sample re-sent)."""
+RECORDER_SYNC_STEPS = 250
+"""While a recorder is waited for (``wait_for_subscribers``), every this many steps the
+lockstep waits until every reliable reader acknowledged what was published: half the
+500-state writer history, so a recorder slower than the graph loses no state (issue 13:
+with the fast tracker the graph outruns a recording node)."""
 FLEET_RESEND_S = 2.0
 """Lockstep: wall time without every command of the step before the fleet-state entries
 of the trains not answered are published again [s] (a state lost with a killed ATO)."""
@@ -490,8 +495,9 @@ class LineSimulator(Node):
         With ``wait_for_subscribers`` the lockstep calls this once after the last step, so
         the last messages reach the recorder before the process exits (a reliable writer
         that exits cannot resend). During the run the writers' histories (1 000 clock
-        ticks, 500 states) cover a recorder that falls behind; acknowledgements come with
-        the DDS heartbeat (~1 s), too slow to wait for during the run.
+        ticks, 500 states) cover a recorder that falls behind by less than that; the lockstep
+        waits here every ``RECORDER_SYNC_STEPS`` steps so it never falls further
+        (acknowledgements come with the DDS heartbeat, ~1 s: not every step).
         """
         end = time.monotonic() + timeout_s
         for p in (self.clock_pub, self.event_pub, self.status_pub, *self.state_pubs):
@@ -826,6 +832,8 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
         if time.monotonic() >= next_sensor_check:
             next_sensor_check = time.monotonic() + 1.0
             sim.resend_sensors()
+        if sim.wait_for_subscribers and sim.k > 0 and sim.k % RECORDER_SYNC_STEPS == 0:
+            sim.wait_acked(timeout_s=30.0)
         active = sim.publish_step()
         if sim.lockstep:
             deadline = time.monotonic() + sim.step_timeout_s

@@ -108,7 +108,7 @@ def _ramp1(m: float) -> float:
 
 
 def _sum15(a: "list[float]") -> float:
-    """numpy's pairwise sum of 15 contiguous doubles (8 partial sums, then the rest in order)."""
+    """Sum 15 contiguous doubles as numpy does (8 pairwise partial sums, then the rest)."""
     res = ((a[0] + a[1]) + (a[2] + a[3])) + ((a[4] + a[5]) + (a[6] + a[7]))
     for k in range(8, 15):
         res += a[k]
