@@ -8,13 +8,15 @@ on their steepest descent (grades to -40 per mille) and the brake diagnosis of e
 * fault free: no level rise at all (no OK -> WARN, no ERROR).  The previous decision rule
   (mu_b_hat judged alone once the filter's std < 0.012) gave 4 WARNs on seed 0;
 * a pad-friction fault (mu_b 0.10 on every axle of the instrumented car of the train that
-  breaks down, from 60 s): announced within ``PAD_DETECT_AFTER_EB_S`` of the breakdown's
-  emergency brake, not before it (the blended service brakes before it carry too little
-  information on mu_b for a verdict; measured on seed 0: 3.4 s after the brake onset).  The bound:
-  mu_b is only observable while the pads are applied (seed 000, 2nd paper, Case 2: the flaw
-  shows in the estimated mu_b once the brake acts); the violation must persist 1 s
-  (``PERSISTENCE_S``) and the one-sided 3-sigma test needs the information of ~1.5 s of an
-  emergency brake (about 2.6 s in all offline on mini_pad_fault).
+  breaks down, from 60 s), on the same lines: announced while in force and at the latest
+  ``PAD_DETECT_AFTER_EB_S`` into the breakdown's emergency brake.  The bound is the
+  requirement's test, not a measurement: seed 000 (2nd paper) Table II brakes for 5 s and
+  the abnormal-pad case (mu_b = 0.1 < 0.2) must be flagged within that brake application
+  (mu_b is only observable while the pads are applied).  Measured on seed 0: 3.4 s into the
+  emergency brake while the brake watch carried a model error for the plant's wheelset
+  inertia at the demanded deceleration (service brakes then carried too little
+  information); with the plant fixed and that term gone, 5.3 s into the first service
+  brake at speed (349 s after the onset, before the breakdown).
 
 The monitor's own plumbing (publication thinning, transition counting) is checked on
 synthetic data first.
@@ -36,8 +38,8 @@ from metro_atc.core.linegen import generate_line, scenario_yaml
 SEEDS = (0, 2)
 """Generated lines (3 trains each) with descents of 40 per mille and a TSR."""
 PAD_DETECT_AFTER_EB_S = 5.0
-"""Pad flaw announced at most this long after the emergency brake of the breakdown [s] (see
-module docstring)."""
+"""Pad flaw announced at most this long after the emergency brake of the breakdown [s]: the
+5 s braking test of seed 000 (2nd paper) Table II (see module docstring)."""
 
 
 def _scenario(seed: int, fault: bool = False) -> tuple[dict[str, Any], Scenario]:
@@ -71,14 +73,15 @@ def test_steep_tsr_lines_fault_free_no_alarm(seed: int) -> None:
     assert b["brake_false_alarms"] == 0, b
 
 
-def test_pad_fault_detected_on_steep_line() -> None:
+@pytest.mark.parametrize("seed", SEEDS)
+def test_pad_fault_detected_on_steep_line(seed: int) -> None:
     """A pad-friction fault is announced within the stated delay of the emergency brake."""
-    g, scn = _scenario(SEEDS[0], fault=True)
+    g, scn = _scenario(seed, fault=True)
     t_eb = [x["at_s"] for x in g["incidents"] if x["kind"] == "breakdown"][0]
     t_fault = g["faults"][0]["at_s"]
     b = run_closed_loop(scn, brake=True).brake
     assert b["brake_faults"] == 1
     assert b["brake_faults_detected"] == 1, b
     t_detect = t_fault + b["brake_detect_delays_s"][0]
-    assert t_eb <= t_detect <= t_eb + PAD_DETECT_AFTER_EB_S, b
+    assert t_fault < t_detect <= t_eb + PAD_DETECT_AFTER_EB_S, b
     assert b["brake_false_alarms"] == 0, b

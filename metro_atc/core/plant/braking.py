@@ -37,7 +37,8 @@ class AxleState:
 
     In the common case (no axle sliding, no WSP action) only the per-train friction share
     and demand are stored and the per-axle arrays are derived on first use (sensor samples,
-    tests); sliding steps store the integrated arrays directly.
+    tests); sliding steps store the integrated arrays directly.  ``a_d``: the acceleration
+    of the wheelset-inertia term, the step's actual one once :meth:`Brakes.follow` ran.
     """
 
     __slots__ = ("f_fa", "a_d", "w_axle", "coef", "arrays")
@@ -191,6 +192,22 @@ class Brakes:
         # axle contributes its tread effort T_b / r_w; F_x = tread + J_w a / r_w^2 is the rail
         # force of eq. 4 that the sensors/observer see.
         return np.asarray(tread.sum(axis=1))
+
+    def follow(self, acc: FloatArray) -> None:
+        """Wheelset inertia of the rolling axles at the step's *actual* acceleration ``acc``.
+
+        The wheels follow the train (``w_dot = a / r_w``), not the demand: on a grade the two
+        differ by the grade force, so :meth:`instrumented_axles` (called before the motion)
+        is corrected here once the step's acceleration [m/s^2] is known.
+        """
+        ax = self.ax
+        ax.a_d = acc
+        if ax.arrays is not None:
+            fx, fc, slip = ax.arrays
+            fx_r = fc * self.tb_coef + (self.jw * np.minimum(acc, 0.0))[:, None] * self.inv_rw2
+            s_r = np.interp(fx_r / (ax.w_axle[:, None] * self.adh_factor), self.tables.mu,
+                            self.tables.slip)
+            ax.arrays = (np.where(self.sliding, fx, fx_r), fc, np.where(self.sliding, slip, s_r))
 
     def slide_axles(self, fc_raw: FloatArray, fx_roll: FloatArray, cap: FloatArray,
                     nload: FloatArray, a_d: FloatArray, v_train: FloatArray) -> FloatArray:

@@ -274,10 +274,11 @@ class NumbaStepper:
                                    fl.stop_x, en.e_trac, en.e_elec, en.e_fric, en.e_res,
                                    en.e_curve, en.e_grade, en.e_stop_corr, en.n_in_service,
                                    blk)
+            br.follow(acc)
             self.drv_state = ()
         else:
             arrays = (ax_out[0], ax_out[1], ax_out[2]) if axles else None
-            br.ax_prev, br.ax = br.ax, AxleState(f_fa, a_d, w_ax, coef, arrays)
+            br.ax_prev, br.ax = br.ax, AxleState(f_fa, acc, w_ax, coef, arrays)
             self.drv_state = (x1, v1, eoa, fl.stop_x) if self.want_drv and not n_hit else ()
             self.drv_blk = blk
             if k:

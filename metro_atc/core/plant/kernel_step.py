@@ -13,7 +13,7 @@ from numba import njit
 
 from .kernel import (C_DAVIS_A, C_DAVIS_B, C_DAVIS_C, C_DT, C_FIXED, C_INV_DX, C_SUBSTEPS,
                      C_TOL, C_X0, G_ENV, G_SBI, M_CAND, M_RUN, O_ACC, O_D, O_DRV, O_EOA,
-                     O_FBDEM, O_FBRK, O_FE, O_FFA, O_FTRAC, O_AD, O_V1, O_WAX, O_X1, P_CB,
+                     O_FBDEM, O_FBRK, O_FE, O_FFA, O_FTRAC, O_V1, O_WAX, O_X1, P_CB,
                      P_CC, P_INV_M, P_MASS, P_MEFF, _cell, _mn, _mx, axle_fill, front)
 from .kernel_aux import sensor_block
 
@@ -198,7 +198,7 @@ def step_all(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, 
                    masks, stop_x, e_trac, e_elec, e_fric, e_res, e_curve, e_grade,
                    e_stop_corr, n_in_service, blk)
     if ax_out.shape[1]:
-        axle_fill(c, blk[O_FFA], blk[O_AD], blk[O_WAX], axc, stab, ax_out)
+        axle_fill(c, blk[O_FFA], blk[O_ACC], blk[O_WAX], axc, stab, ax_out)
         if o4.shape[1]:
             sensor_block(sidx, r_w, slip0, ax_out[2], ax_out[1], v, blk[O_V1], blk[O_ACC],
                          ts, t0, t1, zbuf[zpos:], noise, o4, o2)

@@ -90,6 +90,7 @@ def advance_numpy(sim: PlantParts, u: FloatArray, auto_u: FloatArray | None,
     x1, v1 = mo.x1, mo.v1
     sim.energy.meter(mo, v, x1 - x, meff, f_trac, f_brake, f_e, f_bdem, run)
     fl.acc = (v1 - v) * (1.0 / dt)
+    sim.brakes.follow(fl.acc)
     fl.x, fl.v = x1, v1
     d = x1 - fl.stop_x
     tol = sim.tol_stop
