@@ -133,8 +133,6 @@ def test_rollout_never_worse_and_meets_time(monkeypatch: pytest.MonkeyPatch) -> 
     assert e == pytest.approx(with_ro.energy_j) and t == pytest.approx(with_ro.time_s)
 
 
-@pytest.mark.xfail(strict=False, reason="issue 12 item 3 open: DP +0.55 % on seed 001 case 2 "
-                   "after the rollout polish (acceptance 0.5 %)")
 def test_dp_within_half_percent_of_optimum_seed001_case2() -> None:
     """Issue 12 acceptance on seed 001 case 2 (180 s): DP within 0.5 % of the LP optimum."""
     from metro_atc.core.ato.oracle import solve_oracle
