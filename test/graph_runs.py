@@ -22,9 +22,13 @@ from harness import DomainAllocator, TopicProbe
 
 SCENARIO = "mini"
 """The scenario of the shared runs."""
-STEP_TIMEOUT_S = 60.0
+STEP_TIMEOUT_S = 180.0
 """Lockstep step timeout of the shared runs [s] (default 10 s): the two run side by side,
-and a lockstep miss on a loaded machine would change their KPIs."""
+and a lockstep miss on a loaded machine would change their KPIs (a miss seen with 60 s at a
+load average of 27, three runs side by side)."""
+RUN_TIMEOUT_S = 900.0
+"""Wall-clock limit of each shared run [s] (~20-40 s each on a quiet 2-core machine; 282 s
+seen at a load average of 27)."""
 
 
 def graph_argv(out: Path, *extra: str) -> list[str]:
@@ -40,7 +44,8 @@ def start_graph(env: dict[str, str], out: Path, *extra: str) -> subprocess.Popen
                             stderr=subprocess.PIPE, text=True, cwd=out)
 
 
-def finish_graph(p: subprocess.Popen[str], timeout: float = 300.0) -> tuple[dict[str, Any], str]:
+def finish_graph(p: subprocess.Popen[str], timeout: float = RUN_TIMEOUT_S
+                 ) -> tuple[dict[str, Any], str]:
     """Wait for a run; assert exit 0 and exactly one stdout line; its KPIs and its stderr."""
     try:
         stdout, stderr = p.communicate(timeout=timeout)
