@@ -9,7 +9,7 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
 import pytest
 
@@ -18,6 +18,7 @@ sys.path.insert(0, str(ROOT / "test"))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("PYTHONDONTWRITEBYTECODE", "1")
 
+import graph_runs  # noqa: E402
 from harness import DomainAllocator, NodeProcess, TopicProbe  # noqa: E402
 
 _DOMAINS = DomainAllocator()
@@ -67,3 +68,14 @@ def installed() -> Path:
     if not (d / "line_simulator").exists():
         pytest.fail("metro_atc is not built: run `make test` (it builds first)")
     return d
+
+
+@pytest.fixture(scope="session")
+def mini_graph_runs(installed: Path, tmp_path_factory: pytest.TempPathFactory
+                    ) -> dict[str, Any]:
+    """Two clean runs of the mini graph, probed (:func:`graph_runs.mini_graph_runs`).
+
+    Session-wide: ``test_graph`` asserts on them and ``test_resume`` takes run 1 as the
+    uninterrupted reference of its runs with killed nodes.
+    """
+    return graph_runs.mini_graph_runs(tmp_path_factory)

@@ -35,8 +35,11 @@ from metro_atc.core.closed_loop import run_closed_loop
 from metro_atc.core.line.scenario import Scenario, parse_scenario
 from metro_atc.core.linegen import generate_line, scenario_yaml
 
-SEEDS = (0, 2)
-"""Generated lines (3 trains each) with descents of 40 per mille and a TSR."""
+SEEDS = (0,)
+"""Generated lines (3 trains each) with descents of 40 per mille, a TSR and a breakdown.
+Seed 0, the line the previous decision rule raised 4 WARNs on, run fault free and with the
+pad fault. (Seed 2 passed too and was cut: it takes the same code path, and a line run
+with the diagnosis costs ~30 s of a quiet core.)"""
 PAD_DETECT_AFTER_EB_S = 5.0
 """Pad flaw announced at most this long after the emergency brake of the breakdown [s]: the
 5 s braking test of seed 000 (2nd paper) Table II (see module docstring)."""

@@ -12,73 +12,17 @@ from typing import Any
 
 import pytest
 
-from harness import ROOT, DomainAllocator, NodeProcess, TopicProbe
+from graph_runs import SCENARIO, run_graph
+from harness import ROOT, NodeProcess, TopicProbe
 
 pytestmark = pytest.mark.integration
 
-SCENARIO = "mini"
-
-
-def _run_graph(env: dict[str, str], out: Path, *extra: str) -> dict[str, Any]:
-    """``python -m metro_atc run --json`` in a subprocess; return its KPIs.
-
-    Runs in ``out`` so the installed package (what the executables use) is imported.
-    """
-    r = subprocess.run([sys.executable, "-m", "metro_atc", "run", "--scenario", SCENARIO,
-                        "--json", "--no-plots", "--out", str(out), *extra],
-                       env=env, capture_output=True, text=True, timeout=300, cwd=out)
-    assert r.returncode == 0, r.stderr[-3000:]
-    lines = [ln for ln in r.stdout.splitlines() if ln.strip()]
-    assert len(lines) == 1, f"--json must print exactly one line, got {r.stdout!r}"
-    return json.loads(lines[0])
-
 
 @pytest.fixture(scope="module")
-def two_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """Run the mini scenario twice through the multi-process graph, probing its topics.
-
-    One ATO process per train (``--ato-per-process 1``): each train is followed by its own
-    ATO node in its own OS process.
-    """
-    from metro_atc_msgs.msg import BrakeSensorData, SpeedProfile, TrainEvent, TrainState
-    from rosgraph_msgs.msg import Clock
-
-    from metro_atc.nodes.common import (QOS_CLOCK, QOS_EVENTS, QOS_LATCHED, QOS_RELIABLE,
-                                        QOS_SENSOR)
-
-    results: dict[str, Any] = {"kpis": [], "events": [], "clock": [], "profiles": [],
-                               "states": [], "sensors": [], "out": []}
-    with DomainAllocator().allocate() as dom:
-        env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
-        for k in range(2):
-            probe = TopicProbe(dom, name=f"probe_{k}")
-            try:
-                events = probe.subscribe(TrainEvent, "/line/events", QOS_EVENTS)
-                clock = probe.subscribe(Clock, "/clock", QOS_CLOCK)
-                profiles = probe.subscribe(SpeedProfile, "/train_02/speed_profile",
-                                           QOS_LATCHED)
-                states = probe.subscribe(TrainState, "/train_01/state", QOS_RELIABLE)
-                sensors = probe.subscribe(BrakeSensorData, "/train_01/brake_sensors",
-                                          QOS_SENSOR)
-                out = tmp_path_factory.mktemp(f"run{k}")
-                # the first run is recorded (the recorder must not change the run)
-                kpis = _run_graph(env, out, "--ato-per-process", "1",
-                                  *(["--record"] if k == 0 else []))
-                results["out"].append(out)
-                n_ev = sum(int(t["departures"]) for t in kpis["per_train"])
-                probe.wait_for(lambda: len(events) >= n_ev, timeout=10.0)
-                results["kpis"].append(kpis)
-                results["events"].append([(e.train_id, e.kind, e.station_index,
-                                           round(e.actual_time_s, 6), e.sequence)
-                                          for e in list(events)])
-                results["clock"].append([c.clock.sec + 1e-9 * c.clock.nanosec
-                                         for c in list(clock)])
-                results["profiles"].append(list(profiles))
-                results["states"].append(list(states))
-                results["sensors"].append(list(sensors))
-            finally:
-                probe.close()
-    return results
+def two_runs(mini_graph_runs: dict[str, Any]) -> dict[str, Any]:
+    """The session's two clean runs of the mini graph (``graph_runs.mini_graph_runs``):
+    run 0 recorded, run 1 not, one ATO process per train, topics probed."""
+    return mini_graph_runs
 
 
 def test_every_train_completes(two_runs: dict[str, Any]) -> None:
@@ -313,7 +257,7 @@ def test_run_timeout_and_bad_out_dir_exit_nonzero(ros_env: dict[str, str],
 def test_single_process_matches(two_runs: dict[str, Any], ros_env: dict[str, str],
                                 tmp_path: Path) -> None:
     """``--single-process`` runs the same nodes and gives the same KPIs as the graph."""
-    k = _run_graph(ros_env, tmp_path, "--single-process")
+    k = run_graph(ros_env, tmp_path, "--single-process")
     skip = {"wall_time_s", "real_time_factor", "out_dir", "mode", "bag", "node_peak_rss_mb",
             "node_cpu_s"}
     assert {x: v for x, v in k.items() if x not in skip} == \

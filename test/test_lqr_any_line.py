@@ -29,7 +29,14 @@ def delayed_line(seed: int) -> Scenario:
     return parse_scenario(scenario_yaml(d), src=f"<{d['name']}>")
 
 
-@pytest.mark.parametrize("seed", [1, 2])
+SEEDS = (1,)
+"""Generated lines checked. One: every seed takes the same code path (a generated 6-station,
+5-train line, one hold incident, the closed loop with ``none`` then ``lqr``), and a seed costs
+two full closed-loop runs (~40 s of a quiet core); seed 2 passed too and was cut to keep the
+suite within its time budget."""
+
+
+@pytest.mark.parametrize("seed", SEEDS)
 def test_lqr_no_worse_than_timetable_after_a_180_s_delay(seed: int) -> None:
     """late_departures(lqr) <= late_departures(none); max delay(lqr) <= max delay(none)."""
     scn = delayed_line(seed)

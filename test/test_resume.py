@@ -1,19 +1,21 @@
 """Kill-and-restart of every node kind: ``run`` respawns it and the run ends as if uninterrupted.
 
-Four ``python -m metro_atc run --scenario mini`` graphs side by side, each on its own DDS
-domain: an uninterrupted reference, one where the **line_simulator** and then the
-**ato_controller** process are killed (SIGKILL), one where the **brake_diagnostic** and
-then the **ats_regulator** are killed, and one where the simulator is killed twice (before
-its first checkpoint, and later), each at a seeded random simulated time (printed).
-The launcher restarts each dead process (one line on stderr); the simulator resumes from
-its last checkpoint, the ATO replays its state journal (and follows the simulator back), the
-ATS replays the event history, the brake diagnosis replays its sample journal and catches up
-on the samples the simulator sends again. events.csv and kpis.json must equal the
-reference's exactly; the restarted brake diagnosis must end with a complete sample stream
-and the reference's per-train summary (verdict, mu_b, used/braked updates) where the
-reference's own best-effort stream was complete.
-Both kills of a run hit its graph while it runs; the second comes after the first restart
-was taken up (simulated time past the first kill again).
+Two ``python -m metro_atc run --scenario mini`` graphs side by side, each on its own DDS
+domain: one where the **line_simulator** is killed (SIGKILL) before its first checkpoint,
+then the **ato_controller** process, then the simulator again (later), and one where the
+**brake_diagnostic** and then the **ats_regulator** are killed, each at a seeded random
+simulated time (printed). The uninterrupted reference is the session's clean run of the
+mini graph (``conftest.mini_graph_runs``, run 1, shared with ``test_graph``).
+The launcher restarts each dead process (one line on stderr); the simulator starts again
+from step 0 (no checkpoint yet) and later resumes from its last checkpoint, the ATO replays
+its state journal (and follows the simulator back), the ATS replays the event history, the
+brake diagnosis replays its sample journal and catches up on the samples the simulator
+sends again. events.csv and kpis.json must equal the reference's exactly; the restarted
+brake diagnosis must end with a complete sample stream and the reference's per-train
+summary (verdict, mu_b, used/braked updates) where the reference's own best-effort stream
+was complete.
+Every kill of a run hits its graph while it runs; each comes after the previous restart was
+taken up (simulated time past the previous kill again).
 """
 
 from __future__ import annotations
@@ -44,17 +46,19 @@ Measured: 5-15 s on a lightly loaded 2-core machine, 61 s at a load average of 3
 with a 60 s timeout)."""
 RUN_TIMEOUT_S = 900.0
 """Wall-clock limit of a run [s]."""
-KILLS = {"sim_ato": ("line_simulator", "ato_train_01"),
-         "brake_ats": ("brake_diagnostic", "ats_regulator"),
-         "sim_twice": ("line_simulator", "line_simulator")}
-"""Runs with kills: the two processes killed, in order."""
-WINDOWS = {"sim_twice": ((15.0, 35.0), (280.0, 450.0))}
-"""Simulated-time windows of the two kills [s] (default: FIRST, SECOND). ``sim_twice``
-(checkpoints every 60 s): killed before its first checkpoint (it starts again from step 0
-and re-applies the departure journal), then again later (resumes from a checkpoint)."""
-FIRST, SECOND = (60.0, 250.0), (280.0, 450.0)
-"""Default kill windows [s]: the first while both trains run, the second before the last
-train's final run ends (~500 s), so the lockstep needs the restarted node."""
+KILLS = {"sim_ato_sim": ("line_simulator", "ato_train_01", "line_simulator"),
+         "brake_ats": ("brake_diagnostic", "ats_regulator")}
+"""Runs with kills: the processes killed, in order."""
+WINDOWS = {"sim_ato_sim": ((15.0, 35.0), (60.0, 250.0), (280.0, 450.0)),
+           "brake_ats": ((60.0, 250.0), (280.0, 450.0))}
+"""Simulated-time windows of the kills [s]. ``sim_ato_sim`` (checkpoints every 60 s): the
+simulator killed before its first checkpoint (it starts again from step 0 and re-applies
+the departure journal), the ATO of train_01 while both trains run, the simulator again
+later (it resumes from a checkpoint; the respawned ATO follows it back). Every last kill
+comes before the last train's final run ends (~500 s), so the lockstep needs the restarted
+node."""
+CHECKPOINT_PERIOD_S = {"sim_ato_sim": 60.0, "brake_ats": 30.0}
+"""``--checkpoint-period`` of each run [s]."""
 
 
 def _clock_s(probe_list: list[Any]) -> float:
@@ -113,25 +117,32 @@ class Graph:
         return res
 
 
+def _reference(clean: dict[str, Any]) -> dict[str, Any]:
+    """The session's clean run 1 in the form of :meth:`Graph.finish`."""
+    out = Path(clean["out"][1])
+    return {"code": 0, "log": clean["stderr"][1],
+            "kpis": json.loads((out / "kpis.json").read_text()),
+            "events": (out / "events.csv").read_text(),
+            "logs": {p.stem: p.read_text(errors="replace")
+                     for p in (out / "logs").glob("*.log")}}
+
+
 @pytest.fixture(scope="module")
-def runs(installed: Path, tmp_path_factory: pytest.TempPathFactory
-         ) -> Iterator[dict[str, Any]]:
-    """The reference run and the two runs with kills (kill times seeded, printed)."""
+def runs(installed: Path, mini_graph_runs: dict[str, Any],
+         tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    """The runs with kills (kill times seeded, printed) and the shared reference run."""
     rng = random.Random(SEED)
     tmp = tmp_path_factory.mktemp("resume")
     domains = DomainAllocator()
     graphs: dict[str, Graph] = {}
-    with domains.allocate() as d0, domains.allocate() as d1, domains.allocate() as d2, \
-            domains.allocate() as d3:
+    with domains.allocate() as d1, domains.allocate() as d2:
         try:
             t0 = time.monotonic()
-            for name, dom in (("reference", d0), ("sim_ato", d1), ("brake_ats", d2),
-                              ("sim_twice", d3)):
-                graphs[name] = Graph(name, tmp / name, dom,
-                                     60.0 if name == "sim_twice" else 30.0)
+            for name, dom in zip(KILLS, (d1, d2)):
+                graphs[name] = Graph(name, tmp / name, dom, CHECKPOINT_PERIOD_S[name])
             plan: dict[str, list[tuple[str, float, float]]] = {n: [] for n in KILLS}
-            todo = {n: [(labels[k], rng.uniform(*WINDOWS.get(n, (FIRST, SECOND))[k]))
-                        for k in (0, 1)] for n, labels in KILLS.items()}
+            todo = {n: [(label, rng.uniform(*WINDOWS[n][k])) for k, label in enumerate(labels)]
+                    for n, labels in KILLS.items()}
             deadline = time.monotonic() + RUN_TIMEOUT_S
             while any(todo.values()) and time.monotonic() < deadline:
                 for name, left in todo.items():
@@ -141,6 +152,7 @@ def runs(installed: Path, tmp_path_factory: pytest.TempPathFactory
                 time.sleep(0.02)
             assert not any(todo.values()), f"kills not done: {todo}"
             results = {name: g.finish() for name, g in graphs.items()}
+            results["reference"] = _reference(mini_graph_runs)
             for name, kills in plan.items():
                 print("\n" + "; ".join(f"{name}: {lab} killed at t={got:.2f} s (drawn "
                                        f"{at:.2f} s)" for lab, at, got in kills))
@@ -190,7 +202,7 @@ def test_killed_nodes_were_respawned(runs: dict[str, Any], name: str) -> None:
 def test_simulator_restarted_from_scratch_then_resumed(runs: dict[str, Any]) -> None:
     """Killed before its first checkpoint the simulator started again at step 0; killed
     again later, it resumed from a checkpoint (once); the ATOs followed it back."""
-    logs = runs["results"]["sim_twice"]["logs"]
+    logs = runs["results"]["sim_ato_sim"]["logs"]
     assert logs["line_simulator"].count("resuming from the checkpoint of step") == 1, \
         logs["line_simulator"]
     assert logs["line_simulator"].count("graph ready after") == 3, logs["line_simulator"]
@@ -199,8 +211,8 @@ def test_simulator_restarted_from_scratch_then_resumed(runs: dict[str, Any]) -> 
 
 def test_simulator_resumed_and_ato_replayed(runs: dict[str, Any]) -> None:
     """The respawned simulator resumed from a checkpoint; the respawned ATO replayed its
-    journal; the ATO that lived through the simulator's restart followed it back."""
-    logs = runs["results"]["sim_ato"]["logs"]
+    journal; the ATOs that lived through the simulator's restarts followed it back."""
+    logs = runs["results"]["sim_ato_sim"]["logs"]
     assert "resuming from the checkpoint of step" in logs["line_simulator"], \
         logs["line_simulator"]
     ato = logs["ato_train_01"]
