@@ -123,16 +123,20 @@ class BrakeDiagnostic(Node):
                         "node replays them, a simulator resumed behind is followed back")
         self.journals: dict[str, Journal] = {}
         self.down_since: dict[str, float] = {}
-        """Per train: stamp of the last journaled sample when this process started (a
-        restart): samples after it and before the live stream were missed while down."""
+        """Per train, after a restart and until its one catch-up: stamp of the last journaled
+        sample when this process started; samples after it and before the live stream were
+        missed while down."""
         if ck_dir:
             for t in self.ids:
                 j = self.journals[t] = Journal(Path(ck_dir) / f"brake_{t}.jsonl")
                 if j.entries:
                     self._replay(t, j.entries)
-                    self.down_since[t] = self.watch[t].t_last
                     self.get_logger().warning(f"restarted: replayed {len(j.entries)} journaled "
                                               f"samples of {t}")
+            if any(j.entries for j in self.journals.values()):
+                # a restart: every train catches up once, also one that had sent nothing
+                # before the kill (empty journal: its whole re-send was missed)
+                self.down_since = {t: self.watch[t].t_last for t in self.ids}
         self.fast_subs = [bulk_subscription(self, BrakeSensorData, f"/{t}/brake_sensors",
                                             partial(self._on_sample, t), QOS_SENSOR_DEEP)
                           for t in self.ids]
@@ -182,10 +186,11 @@ class BrakeDiagnostic(Node):
                     and json.dumps(j.entries[n], sort_keys=True) == text:
                 cut = n  # a sample the observer had: rebuild up to it
                 break
-        down = self.down_since.get(train_id, math.inf)
-        if cut < 0 and down < key["t_s"]:
-            # a sample published while this node was down (the simulator's re-send): rebuild
-            # up to the first later one (the live stream taken since the restart)
+        if cut < 0 and train_id in self.down_since:
+            # the first re-sent sample after a restart that the journal lacks: published
+            # while this node was down, or lost on the best-effort topic before the kill
+            # (the journal holds only what was received).  Either way the observer never
+            # had it: rebuild up to the first later entry, then take the re-sent stream
             cut = next((n for n, e in enumerate(j.entries)
                         if "t_s" in e and e["t_s"] > key["t_s"]), len(j.entries))
         if cut < 0:
