@@ -1,7 +1,7 @@
 """Benchmark: the ATO/ATS stack on a corpus of generated lines (issue 11 item 6).
 
 ``python -m metro_atc bench lines --count N [--seed S] [--incidents] [--regulator R]
-[--planner P] [--tracker T] [--scenario FILE ...] [--json]``
+[--planner P] [--tracker T] [--scenario FILE ...] [--jobs J] [--json]``
 
 Runs N lines of :func:`metro_atc.core.linegen.generate_line` (seeds S .. S+N-1, with a TSR
 and a breakdown each under ``--incidents``), the TTOBench metro line (Songjiazhuang -
@@ -17,6 +17,9 @@ limit [s], speed minima per TSR approach (hunting), energy per train-km [kWh] an
 brake diagnosis of every train (issue 11 item 8,
 :class:`metro_atc.core.brake.line_monitor.LineBrakeMonitor`: false alarms = level rises of
 trains without a brake fault; injected pad/wheel faults detected; ``--no-brake`` skips it).
+Each row has the CPU time of its line (``cpu_s``, the process time of the worker).
+``--jobs J`` runs the lines in J worker processes (the rows and totals are the same as
+with one: every line is an independent deterministic run; rows keep the corpus order).
 Exit code 1 when a line fails to run.
 """
 
@@ -27,7 +30,8 @@ import json
 import math
 import sys
 import time
-from typing import Any, List, Optional
+from concurrent.futures import ProcessPoolExecutor
+from typing import Any, Iterator, List, Optional, Tuple
 
 import numpy as np
 
@@ -77,6 +81,45 @@ def _brake_totals(rows: List[dict[str, Any]]) -> dict[str, Any]:
         "brake_detect_after_brake_max_s": max(delays) if delays else math.nan}
 
 
+Job = Tuple[str, Any]
+Outcome = Tuple[Optional[dict[str, Any]], List[float], str]
+
+
+def run_job(job: Job, a: argparse.Namespace) -> Outcome:
+    """Run one line of the corpus: (row or None, stop errors [m], failure text or '')."""
+    kind, what = job
+    c0 = time.process_time()
+    try:
+        scn = load_generated(what, incidents=a.incidents) if kind == "gen" \
+            else metro_scenario() if kind == "ttobench" else load_scenario(what)
+        res = run_closed_loop(scn, regulator=a.regulator, planner=a.planner,
+                              tracker=a.tracker, seed=a.sim_seed, brake=not a.no_brake)
+    except (ScenarioError, ValueError) as exc:
+        return None, [], f"{what}: {exc}"
+    row = res.row()
+    row["line_km"] = float(np.ptp([s.position_m for s in scn.line.stations])) / 1000.0
+    row["stations"] = len(scn.line.stations)
+    row["trains"] = scn.trains.count
+    row["stock"] = scn.trains.preset
+    row["cpu_s"] = time.process_time() - c0
+    return row, list(res.stop_errors_m), ""
+
+
+def _run_job_star(args: Tuple[Job, argparse.Namespace]) -> Outcome:
+    """:func:`run_job` of one (job, arguments) pair (a picklable pool task)."""
+    return run_job(*args)
+
+
+def run_jobs(jobs: List[Job], a: argparse.Namespace, n_workers: int) -> Iterator[Outcome]:
+    """Outcomes of ``jobs`` in their order, computed in ``n_workers`` processes (1: here)."""
+    if n_workers <= 1 or len(jobs) <= 1:
+        for job in jobs:
+            yield run_job(job, a)
+        return
+    with ProcessPoolExecutor(max_workers=min(n_workers, len(jobs))) as ex:
+        yield from ex.map(_run_job_star, [(job, a) for job in jobs])
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     """Command-line entry point (see the module docstring)."""
     ap = argparse.ArgumentParser(prog="python -m metro_atc bench lines",
@@ -94,9 +137,12 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--sim-seed", type=int, default=0, help="plant random seed")
     ap.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     ap.add_argument("--no-brake", action="store_true", help="skip the brake diagnosis")
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes (lines in parallel)")
     a = ap.parse_args(argv)
     if a.count < 0:
         ap.error("--count must be >= 0")
+    if a.jobs < 1:
+        ap.error("--jobs must be >= 1")
     t0 = time.perf_counter()
     rows: List[dict[str, Any]] = []
     errors: List[float] = []
@@ -104,23 +150,16 @@ def main(argv: Optional[List[str]] = None) -> int:
     jobs: List[Any] = [("gen", a.seed + k) for k in range(a.count)] + \
         ([] if a.no_ttobench else [("ttobench", "ttobench")]) + \
         [("file", f) for f in a.scenario]
-    for kind, what in progress_each("bench lines", jobs, "lines"):
-        try:
-            scn = load_generated(what, incidents=a.incidents) if kind == "gen" \
-                else metro_scenario() if kind == "ttobench" else load_scenario(what)
-            res = run_closed_loop(scn, regulator=a.regulator, planner=a.planner,
-                                  tracker=a.tracker, seed=a.sim_seed, brake=not a.no_brake)
-        except (ScenarioError, ValueError) as exc:
-            failed.append(f"{what}: {exc}")
-            print(f"bench lines: {what}: {exc}", file=sys.stderr)
+    outcomes = run_jobs(jobs, a, a.jobs)
+    for row_or_none, errs, failure in progress_each("bench lines", outcomes, "lines",
+                                                    total=len(jobs)):
+        if row_or_none is None:
+            failed.append(failure)
+            print(f"bench lines: {failure}", file=sys.stderr)
             continue
-        row = res.row()
-        row["line_km"] = float(np.ptp([s.position_m for s in scn.line.stations])) / 1000.0
-        row["stations"] = len(scn.line.stations)
-        row["trains"] = scn.trains.count
-        row["stock"] = scn.trains.preset
+        row = row_or_none
         rows.append(row)
-        errors.extend(res.stop_errors_m)
+        errors.extend(errs)
         if a.json:  # progress: one JSON row per line on stderr
             print(json.dumps(json_safe(row)), file=sys.stderr, flush=True)
         else:
@@ -133,11 +172,12 @@ def main(argv: Optional[List[str]] = None) -> int:
                   f"tsr-min {row['tsr_speed_minima_max']} "
                   f"{row['energy_kwh_per_train_km']:.2f} kWh/train-km "
                   f"brake-fa {row.get('brake_false_alarms', '-')} "
-                  f"({row['wall_s']:.1f} s)", flush=True)
+                  f"({row['wall_s']:.1f} s, {row['cpu_s']:.1f} CPU s)", flush=True)
     tot = totals(rows, errors)
     result = {"bench": "lines", "incidents": a.incidents, "regulator": a.regulator,
               "planner": a.planner, "tracker": a.tracker, "rows": rows, "totals": tot,
-              "failed": failed, "seconds": time.perf_counter() - t0}
+              "failed": failed, "seconds": time.perf_counter() - t0,
+              "cpu_s": float(sum(r["cpu_s"] for r in rows)), "jobs": a.jobs}
     if a.json:
         print(json.dumps(json_safe(result)))
     else:
