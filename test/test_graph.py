@@ -254,6 +254,25 @@ def test_run_timeout_and_bad_out_dir_exit_nonzero(ros_env: dict[str, str],
     assert not (tmp_path / "file" / "logs").exists()
 
 
+def test_two_graphs_on_one_domain_are_refused(ros_env: dict[str, str],
+                                              tmp_path: Path) -> None:
+    """Two ``run`` on one ROS domain would answer each other's lockstep (seen: ATOs following
+    the other simulator's steps, 63 534 rejected commands, exit 0): a simulator that finds
+    another one on its domain stops its graph with one line naming the domain; it stays on
+    the domain 2 s before it exits, so both runs refuse."""
+    run = [sys.executable, "-m", "metro_atc", "run", "--scenario", SCENARIO, "--no-plots",
+           "--duration", "600", "--timeout", "240"]
+    procs = [subprocess.Popen(run + ["--out", str(tmp_path / f"o{n}")], env=ros_env,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              cwd=tmp_path) for n in range(2)]
+    outs = [p.communicate(timeout=300) for p in procs]
+    codes = [p.returncode for p in procs]
+    refused = [n for n, (_, err) in enumerate(outs) if "another line_simulator" in err
+               and f"ROS_DOMAIN_ID={ros_env['ROS_DOMAIN_ID']}" in err]
+    print(f"\nexit codes {codes}; refused: {refused}")
+    assert refused == [0, 1] and codes == [3, 3], [err[-1500:] for _, err in outs]
+
+
 def test_single_process_matches(two_runs: dict[str, Any], ros_env: dict[str, str],
                                 tmp_path: Path) -> None:
     """``--single-process`` runs the same nodes and gives the same KPIs as the graph."""

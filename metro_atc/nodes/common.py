@@ -374,7 +374,8 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
               args: Iterable[str] | None = None) -> int:
     """Init rclpy, build nodes, spin a SingleThreadedExecutor, exit cleanly on SIGINT/SIGTERM.
 
-    Configuration errors (bad scenario, out-of-range parameter) print one line and return 2.
+    Configuration errors (bad scenario, out-of-range parameter, a :class:`NodeConfigError`
+    raised by ``loop``) print one line and return 2.
     """
     dds_defaults()
     argv = list(args) if args is not None else sys.argv
@@ -417,6 +418,10 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
                 spin_until_stopped(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         code = 0
+    except NodeConfigError as exc:
+        # found while running (another graph on the domain): one line, exit 2 (no respawn)
+        print(f"{name}: error: {_one_line(exc)}", file=sys.stderr)
+        code = 2
     finally:
         # a second signal during the clean-up must not leave a traceback either
         signal.signal(signal.SIGTERM, signal.SIG_IGN)

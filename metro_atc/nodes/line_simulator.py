@@ -68,6 +68,15 @@ _REGULATOR_NAMES = {code: name for name, code in conv.REGULATOR_CODES.items()}
 
 CHECKPOINT_FILE = "line_simulator.npz"
 """The simulator's checkpoint in ``checkpoint_dir`` (replaced atomically)."""
+STARTED_MARKER = "line_simulator.started"
+"""Written in ``checkpoint_dir`` at the first start: a process that finds it is a respawn."""
+ALONE_CHECK_S = 10.0
+"""Wall seconds after its first start in which the simulator looks for another
+``line_simulator`` publishing ``/line/fleet_state`` on its ROS domain (two graphs on one
+domain answer each other's lockstep: refused, not run).  A respawn skips the look: the killed
+process's endpoints stay in the discovery data until their lease expires."""
+ALONE_LINGER_S = 2.0
+"""Wall seconds a simulator that found another one stays on the domain before it exits."""
 DEPARTURE_JOURNAL = "line_simulator_departures.jsonl"
 """Departure commands applied, one JSON line each (step, train, station, values)."""
 RESEND_CHUNK = 8
@@ -212,6 +221,8 @@ class LineSimulator(Node):
         self._resend_due = np.zeros(n, dtype=bool)
         self._readers_known = False
         self._journal: Any = None
+        self.first_start = True
+        """No earlier process of this run (see :data:`STARTED_MARKER`)."""
         if self.checkpoint_dir:
             self._open_checkpoints(Path(self.checkpoint_dir))
         self.fleet_driven = np.zeros(n, dtype=bool)
@@ -338,6 +349,9 @@ class LineSimulator(Node):
     def _open_checkpoints(self, folder: Path) -> None:
         """Resume from ``folder``'s checkpoint if there is one; open the departure journal."""
         folder.mkdir(parents=True, exist_ok=True)
+        marker = folder / STARTED_MARKER
+        self.first_start = not marker.exists()
+        marker.touch()
         ck = folder / CHECKPOINT_FILE
         journal = folder / DEPARTURE_JOURNAL
         if ck.is_file():
@@ -465,6 +479,24 @@ class LineSimulator(Node):
             "trains_in_service": int(np.count_nonzero(self.sim.active_mask()))})]
 
     # ------------------------------------------------------------------ stepping
+    def check_alone(self) -> None:
+        """Raise :class:`NodeConfigError` when another simulator shares this ROS domain.
+
+        Another ``line_simulator`` publishing the fleet state is a second graph: its ATOs
+        would answer this lockstep.
+        """
+        infos = self.get_publishers_info_by_topic(self.fleet_pub.topic_name)
+        same = [i for i in infos if i.node_name == self.get_name()
+                and i.node_namespace == self.get_namespace()]
+        if len(same) > 1:
+            # stay visible a little longer: the other simulator (checking once a second)
+            # refuses too, instead of running on with this graph's ATOs having answered it
+            time.sleep(ALONE_LINGER_S)
+            raise NodeConfigError(
+                f"another {self.get_name()} publishes {self.fleet_pub.topic_name} on "
+                f"ROS_DOMAIN_ID={self.context.get_domain_id()}: a second graph on this domain; "
+                "give each run its own ROS_DOMAIN_ID")
+
     def graph_ready(self) -> bool:
         """Every train has an ATO, the ATS and the brake diagnosis connected.
 
@@ -802,10 +834,13 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
             executor.spin_once(timeout_sec=timeout_s)
 
     t0 = time.monotonic()
+    alone_until = t0 + ALONE_CHECK_S if sim.first_start else t0
     while not sim.graph_ready() and time.monotonic() - t0 < sim.startup_timeout_s:
         if stop_requested():
             return
         executor.spin_once(timeout_sec=0.05)
+        if time.monotonic() < alone_until:
+            sim.check_alone()
     if not sim.graph_ready():
         log.warning("startup: not every ATO/ATS endpoint was discovered; starting anyway")
     log.info(f"graph ready after {time.monotonic() - t0:.2f} s")
@@ -832,6 +867,8 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
         if time.monotonic() >= next_sensor_check:
             next_sensor_check = time.monotonic() + 1.0
             sim.resend_sensors()
+            if time.monotonic() < alone_until:
+                sim.check_alone()
         if sim.wait_for_subscribers and sim.k > 0 and sim.k % RECORDER_SYNC_STEPS == 0:
             sim.wait_acked(timeout_s=30.0)
         active = sim.publish_step()
