@@ -21,7 +21,7 @@ def mini(**kw: Any) -> Scenario:
 def test_pad_fault_changes_torque_per_clamp_force() -> None:
     """Degraded pad on axle 2: same commanded clamp force, 2 mu_b R_b F_c / r_w less force.
 
-    Eq. 4 (rolling, w_dot = a / r_w) inverted for mu_b recovers the injected value on the
+    Eq. 4 (rolling, w_dot = a / r_w, a the step's actual acceleration) inverted for mu_b recovers the injected value on the
     faulty axle and the nominal one elsewhere -- what the UKF observer has to estimate.
     """
     fl = FaultSpec(kind="pad_mu", train="train_01", axle=2, at_s=0.0, mu_b=0.1)
@@ -32,7 +32,7 @@ def test_pad_fault_changes_torque_per_clamp_force() -> None:
         sim.step(simple_driver(sim))
         fc = sim.clamp[0]
         if fc.min() > 3000.0:
-            acc = min(float(sim.a_dem[0]), 0.0)
+            acc = min(float(sim.fleet.acc[0]), 0.0)  # the wheels follow the train
             mu_b = (sim.fx[0] - p.wheel_inertia_kgm2 * acc / p.wheel_radius_m ** 2) \
                 * p.wheel_radius_m / (2.0 * p.brake_radius_m * fc)
             assert np.allclose(mu_b, [p.pad_mu_nominal, 0.1, p.pad_mu_nominal,
