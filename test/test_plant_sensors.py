@@ -21,8 +21,9 @@ def mini(**kw: Any) -> Scenario:
 def test_pad_fault_changes_torque_per_clamp_force() -> None:
     """Degraded pad on axle 2: same commanded clamp force, 2 mu_b R_b F_c / r_w less force.
 
-    Eq. 4 (rolling, w_dot = a / r_w, a the step's actual acceleration) inverted for mu_b recovers the injected value on the
-    faulty axle and the nominal one elsewhere -- what the UKF observer has to estimate.
+    Eq. 4 (rolling, w_dot = a / r_w, a the step's actual acceleration) inverted for mu_b
+    recovers the injected value on the faulty axle and the nominal one elsewhere -- what
+    the UKF observer has to estimate.
     """
     fl = FaultSpec(kind="pad_mu", train="train_01", axle=2, at_s=0.0, mu_b=0.1)
     sim = LineSim(mini(faults=[fl]), seed=0)
