@@ -45,6 +45,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from metro_atc.dds import config_dir, dds_defaults
+from metro_atc.process_watch import PARENT_PID_ENV
 
 NODE_EXECUTABLES = ("line_simulator", "ats_regulator", "ato_controller", "brake_diagnostic",
                     "bag_recorder")
@@ -536,7 +537,9 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
         raise KeyboardInterrupt
 
     old = signal.signal(signal.SIGTERM, on_term)
-    env = dict(os.environ, RCUTILS_LOGGING_BUFFERED_STREAM="0", PYTHONUNBUFFERED="1")
+    # PARENT_PID_ENV: the nodes stop themselves if this launcher dies (even by SIGKILL)
+    env = dict(os.environ, RCUTILS_LOGGING_BUFFERED_STREAM="0", PYTHONUNBUFFERED="1",
+               **{PARENT_PID_ENV: str(os.getpid())})
     # the ATO processes plan each run and target once between them (deleted at the end)
     plans = tempfile.mkdtemp(prefix="metro_atc_plans_")
     commands = dict(build_commands(a, train_ids, out_dir, plans))

@@ -122,10 +122,9 @@ class BrakeDiagnostic(Node):
                         "directory of the per-train sample journals ('' : none): a restarted "
                         "node replays them, a simulator resumed behind is followed back")
         self.journals: dict[str, Journal] = {}
-        self.down_since: dict[str, float] = {}
-        """Per train, after a restart and until its one catch-up: stamp of the last journaled
-        sample when this process started; samples after it and before the live stream were
-        missed while down."""
+        self.down_since: set[str] = set()
+        """Trains that, after a restart, have not caught up yet: their samples after the last
+        journaled one and before the live stream were missed while down (one catch-up each)."""
         if ck_dir:
             for t in self.ids:
                 j = self.journals[t] = Journal(Path(ck_dir) / f"brake_{t}.jsonl")
@@ -136,7 +135,7 @@ class BrakeDiagnostic(Node):
             if any(j.entries for j in self.journals.values()):
                 # a restart: every train catches up once, also one that had sent nothing
                 # before the kill (empty journal: its whole re-send was missed)
-                self.down_since = {t: self.watch[t].t_last for t in self.ids}
+                self.down_since = set(self.ids)
         self.fast_subs = [bulk_subscription(self, BrakeSensorData, f"/{t}/brake_sensors",
                                             partial(self._on_sample, t), QOS_SENSOR_DEEP)
                           for t in self.ids]
@@ -195,7 +194,7 @@ class BrakeDiagnostic(Node):
                         if "t_s" in e and e["t_s"] > key["t_s"]), len(j.entries))
         if cut < 0:
             return False
-        self.down_since.pop(train_id, None)  # one catch-up per restart
+        self.down_since.discard(train_id)  # one catch-up per restart
         self._replay(train_id, j.entries[:cut])
         j.entries = j.entries[:cut]
         j.reset(j.entries)

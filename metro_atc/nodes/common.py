@@ -38,6 +38,7 @@ from rclpy.subscription import Subscription
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
 from metro_atc.dds import dds_defaults
+from metro_atc.process_watch import watch_parent
 
 QOS_RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=500,
                           reliability=ReliabilityPolicy.RELIABLE,
@@ -378,6 +379,7 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
     raised by ``loop``) print one line and return 2.
     """
     dds_defaults()
+    watch_parent()
     argv = list(args) if args is not None else sys.argv
     name = os.path.basename(argv[0]) if argv else "node"
     problem = check_params_files(argv)

@@ -835,11 +835,14 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
 
     t0 = time.monotonic()
     alone_until = t0 + ALONE_CHECK_S if sim.first_start else t0
+    next_alone = t0  # the graph query costs: once a second, as in the stepping loop
     while not sim.graph_ready() and time.monotonic() - t0 < sim.startup_timeout_s:
         if stop_requested():
             return
         executor.spin_once(timeout_sec=0.05)
-        if time.monotonic() < alone_until:
+        now = time.monotonic()
+        if next_alone <= now < alone_until:
+            next_alone = now + 1.0
             sim.check_alone()
     if not sim.graph_ready():
         log.warning("startup: not every ATO/ATS endpoint was discovered; starting anyway")
