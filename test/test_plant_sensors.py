@@ -124,3 +124,35 @@ def test_sensor_subset_and_no_feedback_on_plant() -> None:
         sim_b.step(simple_driver(sim_b))
     assert np.array_equal(sim_a.x, sim_b.x) and np.array_equal(sim_a.v, sim_b.v)
     assert math.isclose(sim_a.t, sim_b.t)
+
+
+def _loop_times(nxt: float, dt: float, t1: float) -> tuple[list[float], float]:
+    """The plain sample clock: ``nxt += dt`` while ``nxt <= t1 + 1e-9``."""
+    ts = []
+    while nxt <= t1 + 1e-9:
+        ts.append(nxt)
+        nxt += dt
+    return ts, nxt
+
+
+def test_sample_clock_matches_the_plain_loop() -> None:
+    """The laid-out sample clock gives the loop's instants bit for bit, whatever the steps.
+
+    Random rates and step lengths (empty steps, steps longer than the layout), restarts
+    by setting ``next_sample_t`` (as a checkpoint restore does), over many layouts.
+    """
+    rng = np.random.default_rng(7)
+    sen = LineSim(mini(), seed=0).sensors
+    for _ in range(20):
+        dt = float(rng.uniform(0.001, 0.2))
+        sen.sensor_dt = dt
+        sen.next_sample_t = nxt = float(rng.uniform(0.0, 5.0))
+        t = nxt - dt
+        for k in range(2000):
+            t += float(rng.choice([0.0, 0.25 * dt, dt, 3.7 * dt, 5000.0 * dt]))
+            if k == 1000:  # restart the clock
+                sen.next_sample_t = nxt = nxt + 0.5 * dt
+            want, nxt = _loop_times(nxt, dt, t)
+            got = sen.sample_times(t)
+            assert got.tolist() == want
+            assert sen.next_sample_t == nxt

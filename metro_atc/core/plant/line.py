@@ -101,6 +101,9 @@ class LineSim:
     tsrs, sensor_faults = _Alias("incidents"), _Alias("incidents")
     sensed, sensed_mask, sensor_dt, next_sample_t = (_Alias("sensors") for _ in range(4))
     rng_sensors = _Alias("sensors", "rng")
+    checkpoint_transient = ("_car_mass",)
+    """A cache of the load-weigh signal (recomputed when the masses change)."""
+    _car_mass: tuple[Any, ...] = (None, None, None)
 
     def __init__(self, scn: Scenario, seed: int = 0, params: TrainParams | None = None,
                  trace_period_s: float = 1.0, kernel: str | None = None) -> None:
@@ -150,6 +153,7 @@ class LineSim:
         self.trace: dict[str, list[Any]] = {"t": [], "x": [], "v": [], "run": [],
                                             "atp": []}
         self.stepper = NumbaStepper(self) if self.kernel == "numba" else None
+        self._car_mass = (None, None, None)  # (mass, meff, mass / cars)
 
     # ------------------------------------------------------------------ public API
 
@@ -356,8 +360,11 @@ class LineSim:
         snap = None
         if ts is not None:
             br = self.brakes
+            cm = self._car_mass
+            if cm[0] is not fl.mass or cm[1] is not fl.meff:  # masses change at stations
+                cm = self._car_mass = (fl.mass, fl.meff, fl.mass / p.cars)
             snap = sen.snapshot(ts, t, t_new, br.ax_prev, br.ax, br.r_w, fl.acc, v, v1,
-                                fl.mass / p.cars)
+                                cm[2])
         # stations
         if hit is not None:
             self.stations.station_logic(t_new, hit, d)

@@ -24,8 +24,10 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
-NORMAL_BLOCK = 2048
+NORMAL_BLOCK = 16384
 """Standard normals drawn ahead at a time for the sensor noise (:meth:`Sensors.normals`)."""
+CLOCK_BLOCK = 4096
+"""Sample instants laid out ahead at a time by the sample clock (:meth:`Sensors.sample_times`)."""
 
 
 @dataclass(frozen=True)
@@ -78,6 +80,12 @@ class SensorSnap:
 class Sensors:
     """Sample clock, instrumented trains and sensor faults of a line."""
 
+    checkpoint_transient = ("clock", "clock_l", "cpos")
+    """A cache: the sample instants ahead, laid out again from ``next_sample_t``."""
+    clock: FloatArray = np.zeros(0)
+    clock_l: list[float] = []
+    cpos = 0
+
     def __init__(self, scn: Scenario, seed: int, faults: list[dict[str, Any]]) -> None:
         """Instrumented trains of ``scn`` (all if none listed); own random stream."""
         tid = {t: i for i, t in enumerate(scn.train_ids)}
@@ -88,6 +96,9 @@ class Sensors:
         self.sensed_mask[self.sensed] = True
         self.sensor_dt = 1.0 / scn.sensors.rate_hz
         self.next_sample_t = self.sensor_dt
+        self.clock = np.zeros(0)  # sample instants ahead, clock[cpos] == next_sample_t
+        self.clock_l = []  # the same as a list
+        self.cpos = 0
         self.rng = np.random.default_rng([seed, 1])
         self.zbuf = np.zeros(0)
         self.zpos = 0
@@ -125,14 +136,29 @@ class Sensors:
         return self.zbuf[pos:pos + k]
 
     def sample_times(self, t1: float) -> FloatArray:
-        """Sample instants up to ``t1`` [s] (advances the sample clock)."""
-        ts = []
-        nxt, dt, lim = self.next_sample_t, self.sensor_dt, t1 + 1e-9
-        while nxt <= lim:
-            ts.append(nxt)
-            nxt += dt
-        self.next_sample_t = nxt
-        return np.array(ts)
+        """Sample instants up to ``t1`` [s] (advances the sample clock).
+
+        The instants are those of the loop ``nxt += sensor_dt`` from ``next_sample_t``,
+        laid out :data:`CLOCK_BLOCK` at a time (``np.add.accumulate`` adds in that same
+        order, so the values are identical); setting ``next_sample_t`` restarts the layout.
+        """
+        lim = t1 + 1e-9
+        cl, pos = self.clock_l, self.cpos
+        last = len(cl) - 1
+        if pos >= last or cl[pos] != self.next_sample_t:
+            seq = np.full(CLOCK_BLOCK, self.sensor_dt)
+            seq[0] = self.next_sample_t
+            self.clock = np.add.accumulate(seq)
+            self.clock_l = cl = self.clock.tolist()  # Python floats: cheap to compare
+            pos, last = 0, CLOCK_BLOCK - 1
+        end = pos
+        while cl[end] <= lim:
+            end += 1
+            if end == last:  # a step longer than the layout: lay out more
+                self.cpos, self.next_sample_t = last, cl[last]
+                return np.concatenate((self.clock[pos:last], self.sample_times(t1)))
+        self.cpos, self.next_sample_t = end, cl[end]
+        return self.clock[pos:end]
 
     def reserve(self, k: int) -> None:
         """Make the next ``k`` normals available in ``zbuf`` from ``zpos`` (draws ahead)."""
