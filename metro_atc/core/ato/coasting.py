@@ -31,6 +31,10 @@ Profile systems (seed 002 Sec. 1):
 
 from __future__ import annotations
 
+import functools
+import importlib.util
+import os
+import weakref
 from dataclasses import dataclass, field
 from typing import Optional
 
@@ -62,20 +66,109 @@ class SwitchingRun:
     v: FloatArray
 
 
+PLAN_KERNELS = ("auto", "numba", "numpy")
+"""Accepted values of the planning kernel (argument or ``METRO_ATC_PLAN_KERNEL``)."""
+PLAN_KERNEL_ENV = "METRO_ATC_PLAN_KERNEL"
+"""Environment variable selecting the kernel of :func:`simulate_switching`."""
+
+
+@functools.lru_cache(maxsize=1)
+def _numba_installed() -> bool:
+    return importlib.util.find_spec("numba") is not None
+
+
+def resolve_plan_kernel(name: Optional[str] = None) -> str:
+    """``numba`` or ``numpy`` for the requested kernel (argument, else env, else auto).
+
+    ``auto``: the compiled loop of :mod:`metro_atc.core.ato.switching_kernel` when numba is
+    installed, else the numpy reference (:func:`simulate_switching_numpy`).
+    """
+    req = (name or os.environ.get(PLAN_KERNEL_ENV, "") or "auto").strip().lower()
+    if req not in PLAN_KERNELS:
+        raise ValueError(f"plan kernel must be one of {PLAN_KERNELS}, got {req!r}")
+    if req == "numpy":
+        return "numpy"
+    if not _numba_installed():
+        if req == "numba":
+            raise RuntimeError("plan kernel 'numba' requested but numba is not installed")
+        return "numpy"
+    return "numba"
+
+
+@dataclass(frozen=True)
+class StepTable:
+    """Distance grid of one run at step h and what the strategy simulation reads from it.
+
+    s (n+1,) [m]; h [m]; fg (n,) mean grade force of each step [N]; cap (n,) envelope as
+    e = v^2/2 at each step's end [m^2/s^2].
+    """
+
+    s: FloatArray
+    h: float
+    fg: FloatArray
+    cap: FloatArray
+
+
+_STEP_TABLES: "weakref.WeakKeyDictionary[RunModel, dict[float, StepTable]]" = \
+    weakref.WeakKeyDictionary()
+_CONSTANTS: "weakref.WeakKeyDictionary[RunModel, FloatArray]" = weakref.WeakKeyDictionary()
+
+
+def step_table(run: RunModel, h_m: float) -> StepTable:
+    """Return the :class:`StepTable` of ``run`` at step ``h_m`` [m] (once per run and step).
+
+    It depends only on the run (geometry, train, envelope), not on the strategies: ECTP's
+    passes and every re-plan of the same interstation for a new target reuse it.
+    """
+    per_run = _STEP_TABLES.get(run)
+    if per_run is None:
+        per_run = {}
+        _STEP_TABLES[run] = per_run
+    tab = per_run.get(h_m)
+    if tab is None:
+        n = max(1, int(np.ceil(run.length_m / h_m)))
+        s = np.linspace(0.0, run.length_m, n + 1)
+        tab = StepTable(s=s, h=run.length_m / n, fg=run.mean_grade_force(s[:-1], s[1:]),
+                        cap=run.ceiling_e(s[1:]))
+        per_run[h_m] = tab
+    return tab
+
+
 def simulate_switching(run: RunModel, coast_point_s: FloatArray, delta: FloatArray,
-                       h_m: float = 2.0, record: bool = False) -> SwitchingRun:
+                       h_m: float = 2.0, record: bool = False,
+                       kernel: Optional[str] = None) -> SwitchingRun:
     """Simulate "traction at level delta (cruise at the envelope) until y_c, then coast".
 
     Vectorised over the K strategies (arrays coast_point_s [m], delta [-] of shape (K,)).
     Coasting trajectories follow the envelope's braking curves (limits, station stop).
+    ``kernel`` (:func:`resolve_plan_kernel`): the compiled loop (``numba``, default when
+    installed) or the numpy reference (:func:`simulate_switching_numpy`); the same results
+    to round-off (``test/test_ato_switching_kernel.py``).
     """
+    if resolve_plan_kernel(kernel) == "numpy":
+        return simulate_switching_numpy(run, coast_point_s, delta, h_m, record)
+    from metro_atc.core.ato.switching_kernel import pack_constants, simulate_kernel
+    yc = np.ascontiguousarray(np.atleast_1d(np.asarray(coast_point_s, dtype=float)))
+    dl = np.ascontiguousarray(np.broadcast_to(np.asarray(delta, dtype=float), yc.shape))
+    tab = step_table(run, float(h_m))
+    c = _CONSTANTS.get(run)
+    if c is None:
+        c = pack_constants(run.train, run.limits)
+        _CONSTANTS[run] = c
+    t, en, stalled, hist = simulate_kernel(c, tab.s, tab.h, tab.fg, tab.cap, yc, dl,
+                                           bool(record))
+    v = np.sqrt(2.0 * hist) if record else np.zeros((0, 0))
+    return SwitchingRun(time_s=t, energy_j=en, stalled=stalled, s_grid=tab.s.copy(), v=v)
+
+
+def simulate_switching_numpy(run: RunModel, coast_point_s: FloatArray, delta: FloatArray,
+                             h_m: float = 2.0, record: bool = False) -> SwitchingRun:
+    """The numpy reference of :func:`simulate_switching` (one array step per distance step)."""
     yc = np.atleast_1d(np.asarray(coast_point_s, dtype=float))
     dl = np.broadcast_to(np.asarray(delta, dtype=float), yc.shape).copy()
-    n = max(1, int(np.ceil(run.length_m / h_m)))
-    s = np.linspace(0.0, run.length_m, n + 1)
-    h = run.length_m / n
-    fg = run.mean_grade_force(s[:-1], s[1:])
-    cap = run.ceiling_e(s[1:])
+    tab = step_table(run, float(h_m))
+    s, h, fg, cap = tab.s, tab.h, tab.fg, tab.cap
+    n = s.size - 1
     e = np.zeros(yc.shape)
     t = np.zeros(yc.shape)
     en = np.zeros(yc.shape)
@@ -105,7 +198,7 @@ def simulate_switching(run: RunModel, coast_point_s: FloatArray, delta: FloatArr
             hist.append(e.copy())
     t = np.where(stalled, np.inf, t)
     v = np.sqrt(2.0 * np.stack(hist, axis=1)) if record else np.zeros((0, 0))
-    return SwitchingRun(time_s=t, energy_j=en, stalled=stalled, s_grid=s, v=v)
+    return SwitchingRun(time_s=t, energy_j=en, stalled=stalled, s_grid=s.copy(), v=v)
 
 
 @dataclass
