@@ -126,3 +126,15 @@ def test_resolve_plan_kernel(monkeypatch: pytest.MonkeyPatch) -> None:
     assert coasting.resolve_plan_kernel() in ("numba", "numpy")
     with pytest.raises(ValueError):
         coasting.resolve_plan_kernel("fortran")
+
+
+@needs_numba
+def test_warm_up_loads_the_kernel_and_not_for_numpy() -> None:
+    """The node's start-up call runs the compiled kernel once; the numpy path has none."""
+    scn = load_generated(0)
+    train = train_for(scn)
+    limits = envelope_limits(scn, train)
+    assert coasting.warm_up_plan_kernel(train, limits, "numba")
+    assert not coasting.warm_up_plan_kernel(train, limits, "numpy")
+    from metro_atc.core.ato import switching_kernel
+    assert switching_kernel.simulate_kernel.signatures  # compiled (or loaded from the cache)

@@ -49,6 +49,7 @@ from metro_atc_msgs.msg import (DepartureCommand, FleetCommand, FleetState, Spee
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
+from metro_atc.core.ato.coasting import warm_up_plan_kernel
 from metro_atc.core.ato.controller import TRACKERS
 from metro_atc.core.ato.onboard import (OnboardAto, PlanEvent, atp_model_for, envelope_limits,
                                         tsr_zones)
@@ -140,6 +141,11 @@ class AtoController(Node):
             except OSError as exc:
                 raise NodeConfigError(f"plan_store_dir '{plan_dir}': {exc}") from None
         limits = envelope_limits(scenario, train)  # planning limits inside the ATP envelope
+        if shared is None or not shared.get("plan_kernel_loaded"):
+            # the first plan runs inside the lockstep callback: load the kernel before
+            warm_up_plan_kernel(train, limits)
+            if shared is not None:
+                shared["plan_kernel_loaded"] = True
         self.stations = self.tt.station_positions_m
         # the ATP model (one plant grid per process, shared by its trains)
         atp = shared.get("atp_model") if shared is not None else None

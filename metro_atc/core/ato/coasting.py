@@ -42,8 +42,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.interpolate import RectBivariateSpline
 
-from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, RunModel
+from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, OperatingLimits, RunModel
 from metro_atc.core.ato.strategy import strategy_step
+from metro_atc.core.line.vehicle import TrainParams
 
 FloatArray = NDArray[np.float64]
 
@@ -132,6 +133,23 @@ def step_table(run: RunModel, h_m: float) -> StepTable:
                         cap=run.ceiling_e(s[1:]))
         per_run[h_m] = tab
     return tab
+
+
+def warm_up_plan_kernel(train: TrainParams, limits: OperatingLimits,
+                        kernel: Optional[str] = None) -> bool:
+    """Load (on a fresh install: compile) the compiled plan kernel now; True if it ran.
+
+    A node calls it at start-up so that its first plan, computed inside the lockstep
+    callback, does not pay the ~0.6 s load (several seconds to compile) of numba's kernel.
+    Nothing to do for the numpy reference.
+    """
+    if resolve_plan_kernel(kernel) == "numpy":
+        return False
+    from metro_atc.core.ato.switching_kernel import pack_constants, simulate_kernel
+    one = np.ones(1)
+    simulate_kernel(pack_constants(train, limits), np.array([0.0, 1.0]), 1.0, np.zeros(1),
+                    np.full(1, 1e4), np.zeros(1), one, False)
+    return True
 
 
 def simulate_switching(run: RunModel, coast_point_s: FloatArray, delta: FloatArray,
