@@ -12,8 +12,9 @@ from typing import Any
 
 import pytest
 
+from background import job
 from graph_runs import SCENARIO, run_graph
-from harness import ROOT, NodeProcess, TopicProbe
+from harness import ROOT, DomainAllocator, NodeProcess, TopicProbe
 
 pytestmark = pytest.mark.integration
 
@@ -273,10 +274,23 @@ def test_two_graphs_on_one_domain_are_refused(ros_env: dict[str, str],
     assert refused == [0, 1] and codes == [3, 3], [err[-1500:] for _, err in outs]
 
 
-def test_single_process_matches(two_runs: dict[str, Any], ros_env: dict[str, str],
-                                tmp_path: Path) -> None:
+@job("single_process_kpis")
+def _single_process_run(tmp: Path) -> dict[str, Any]:
+    """KPIs of a ``--single-process`` run of the scenario (background job, own domain)."""
+    with DomainAllocator().allocate() as dom:
+        return run_graph(dict(os.environ, ROS_DOMAIN_ID=str(dom)), tmp, "--single-process")
+
+
+@pytest.fixture
+def single_process_kpis(installed: Path, background_jobs: Any) -> dict[str, Any]:
+    """The result of the job :func:`_single_process_run`."""
+    return dict(background_jobs.result("single_process_kpis"))
+
+
+def test_single_process_matches(two_runs: dict[str, Any], single_process_kpis: dict[str, Any]
+                                ) -> None:
     """``--single-process`` runs the same nodes and gives the same KPIs as the graph."""
-    k = run_graph(ros_env, tmp_path, "--single-process")
+    k = single_process_kpis
     skip = {"wall_time_s", "real_time_factor", "out_dir", "mode", "bag", "node_peak_rss_mb",
             "node_cpu_s"}
     assert {x: v for x, v in k.items() if x not in skip} == \
@@ -445,20 +459,22 @@ def _fuzz_msg(rng: Any, msg_type: Any, fields: dict[str, str], train: str) -> An
     return m
 
 
-def test_fuzz_every_subscribed_topic(two_runs: dict[str, Any], ros_env: dict[str, str],
-                                     tmp_path: Path) -> None:
-    """Random messages on every topic a node subscribes to: rejected, counted, harmless.
+@job("fuzzed_run")
+def _fuzzed_run(tmp_path: Path) -> dict[str, Any]:
+    """A run of the graph under fuzzing (background job, own domain): what
+    :func:`test_fuzz_every_subscribed_topic` asserts on."""
+    with DomainAllocator().allocate() as dom:
+        return _fuzz_graph(dict(os.environ, ROS_DOMAIN_ID=str(dom)), tmp_path)
 
-    During a lockstep run of the graph, a probe publishes ``_FUZZ_MESSAGES`` messages with
-    random field values (NaN, +-inf, +-1.7e308, integer extremes, empty and 1000-character
-    train ids, arrays of wrong lengths, random stamps) on the command, departure command,
-    brake sensor and event topics of both trains and on the fleet state and fleet command
-    topics (the per-train state topics have no subscriber in the graph: the ATOs take their
-    states from the fleet state) (the scenario given by a path
-    containing ``": "`` and ``#``).  No node dies, the run completes,
-    its KPIs and events are those of the unfuzzed run, and the rejections are counted (KPIs
-    of the simulator, each node's log).
-    """
+
+@pytest.fixture
+def fuzzed_run(installed: Path, background_jobs: Any) -> dict[str, Any]:
+    """The result of the job :func:`_fuzzed_run`."""
+    return dict(background_jobs.result("fuzzed_run"))
+
+
+def _fuzz_graph(ros_env: dict[str, str], tmp_path: Path) -> dict[str, Any]:
+    """Run the graph while a probe publishes fuzz messages (see the test below)."""
     import threading
     import time
 
@@ -536,6 +552,25 @@ def test_fuzz_every_subscribed_topic(two_runs: dict[str, Any], ros_env: dict[str
         stop.set()
         th.join(timeout=5.0)
         probe.close()
+    return {"r": r, "errors": errors, "sent": sent, "out": out, "scn_path": scn_path}
+
+
+def test_fuzz_every_subscribed_topic(two_runs: dict[str, Any], fuzzed_run: dict[str, Any]
+                                     ) -> None:
+    """Random messages on every topic a node subscribes to: rejected, counted, harmless.
+
+    During a lockstep run of the graph, a probe publishes ``_FUZZ_MESSAGES`` messages with
+    random field values (NaN, +-inf, +-1.7e308, integer extremes, empty and 1000-character
+    train ids, arrays of wrong lengths, random stamps) on the command, departure command,
+    brake sensor and event topics of both trains and on the fleet state and fleet command
+    topics (the per-train state topics have no subscriber in the graph: the ATOs take their
+    states from the fleet state) (the scenario given by a path
+    containing ``": "`` and ``#``).  No node dies, the run completes,
+    its KPIs and events are those of the unfuzzed run, and the rejections are counted (KPIs
+    of the simulator, each node's log).
+    """
+    r, errors, sent = fuzzed_run["r"], fuzzed_run["errors"], fuzzed_run["sent"]
+    out, scn_path = fuzzed_run["out"], fuzzed_run["scn_path"]
     assert r.returncode == 0, r.stderr[-3000:]
     assert "exited with" not in r.stderr, r.stderr[-3000:]
     assert not errors, errors
