@@ -18,10 +18,43 @@ sys.path.insert(0, str(ROOT / "test"))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("PYTHONDONTWRITEBYTECODE", "1")
 
-import graph_runs  # noqa: E402
+import background  # noqa: E402
+import graph_runs  # noqa: E402,F401 - registers its background jobs
 from harness import DomainAllocator, NodeProcess, TopicProbe  # noqa: E402
 
 _DOMAINS = DomainAllocator()
+_JOB_SUMMARIES: list[str] = []
+
+
+@pytest.fixture(scope="session", autouse=True)
+def background_jobs(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+                    ) -> Iterator[background.Scheduler]:
+    """The background jobs (:mod:`background`) the selected tests need, started at once.
+
+    A job feeds the fixture of its name; jobs run in the order of their first consumer.
+    """
+    names = background.registered()
+    first: dict[str, int] = {}
+    for i, item in enumerate(request.session.items):
+        for f in getattr(item, "fixturenames", ()):
+            if f in names and f not in first:
+                first[f] = i
+    jobs = [background.Job(n, tmp_path_factory.mktemp(f"job_{n}"))
+            for n in sorted(first, key=first.__getitem__)]
+    sched = background.Scheduler(jobs)
+    try:
+        yield sched
+    finally:
+        _JOB_SUMMARIES.extend(sched.close())
+
+
+def pytest_terminal_summary(terminalreporter: Any) -> None:
+    """With ``-v`` or ``--durations``: how each background job ran."""
+    cfg = terminalreporter.config
+    if _JOB_SUMMARIES and (cfg.option.verbose > 0 or cfg.option.durations is not None):
+        terminalreporter.write_sep("-", f"background jobs ({background.LANES} lane(s))")
+        for line in _JOB_SUMMARIES:
+            terminalreporter.write_line(line)
 
 
 @pytest.fixture
@@ -71,11 +104,11 @@ def installed() -> Path:
 
 
 @pytest.fixture(scope="session")
-def mini_graph_runs(installed: Path, tmp_path_factory: pytest.TempPathFactory
-                    ) -> dict[str, Any]:
-    """Two clean runs of the mini graph, probed (:func:`graph_runs.mini_graph_runs`).
+def mini_graph_runs(installed: Path, background_jobs: background.Scheduler) -> dict[str, Any]:
+    """Two clean runs of the mini graph, probed (:func:`graph_runs.mini_graph_runs`, a
+    background job started with the session).
 
     Session-wide: ``test_graph`` asserts on them and ``test_resume`` takes run 1 as the
     uninterrupted reference of its runs with killed nodes.
     """
-    return graph_runs.mini_graph_runs(tmp_path_factory)
+    return dict(background_jobs.result("mini_graph_runs"))

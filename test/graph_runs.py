@@ -18,6 +18,7 @@ from typing import Any
 
 import pytest
 
+from background import job
 from harness import DomainAllocator, TopicProbe
 
 SCENARIO = "mini"
@@ -64,7 +65,8 @@ def run_graph(env: dict[str, str], out: Path, *extra: str) -> dict[str, Any]:
     return finish_graph(start_graph(env, out, *extra))[0]
 
 
-def mini_graph_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+@job("mini_graph_runs")
+def mini_graph_runs(tmp: Path) -> dict[str, Any]:
     """Run the mini scenario twice through the multi-process graph, side by side on two
     domains, probing the topics of each.
 
@@ -99,7 +101,8 @@ def mini_graph_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
                     "states": probe.subscribe(TrainState, "/train_01/state", QOS_RELIABLE),
                     "sensors": probe.subscribe(BrakeSensorData, "/train_01/brake_sensors",
                                                QOS_SENSOR)})
-                out = tmp_path_factory.mktemp(f"run{k}")
+                out = tmp / f"run{k}"
+                out.mkdir()
                 results["out"].append(out)
                 env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
                 procs.append(start_graph(env, out, "--ato-per-process", "1",

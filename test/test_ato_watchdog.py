@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+
+from background import job
+from harness import DomainAllocator, TopicProbe
 
 from metro_atc.core.ato_watchdog import STOP_EFFORT, AtoWatchdog
 from metro_atc.core.plant.line import LineSim
@@ -75,12 +80,45 @@ def test_dead_ato_at_full_traction_is_braked_to_a_stop() -> None:
     assert speeds[False][0] > 1.0, speeds  # the contrast: without it the train runs on
 
 
+@job("silent_ato_run")
+def _silent_ato_run(tmp_path: Path) -> dict[str, Any]:
+    """The line_simulator with a probe as the ATOs that goes silent for train_01 (a
+    background job on its own domain; see the test): the speeds of train_01 by step, the
+    step the train stood at, the node's exit code and log."""
+    with DomainAllocator().allocate() as dom:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
+        probe = TopicProbe(dom)
+        try:
+            return _silent_ato(env, probe, tmp_path)
+        finally:
+            probe.close()
+
+
+@pytest.fixture
+def silent_ato_run(installed: Any, background_jobs: Any) -> dict[str, Any]:
+    """The result of the job :func:`_silent_ato_run`."""
+    return dict(background_jobs.result("silent_ato_run"))
+
+
 @pytest.mark.integration
-def test_simulator_stops_a_train_whose_ato_goes_silent(installed: Any, ros_env: Any,
-                                                       probe: Any, tmp_path: Any) -> None:
+def test_simulator_stops_a_train_whose_ato_goes_silent(silent_ato_run: dict[str, Any]
+                                                       ) -> None:
     """The line_simulator node with a probe as the ATOs: train_01's ATO commands full
     traction, then goes silent; the node logs the loss, brakes the train to a standstill,
     and hands it back when the ATO answers again."""
+    speeds, n0, k_stop = (silent_ato_run[k] for k in ("speeds", "n0", "k_stop"))
+    code, log = silent_ato_run["code"], silent_ato_run["log"]
+    assert code == 0 and "Traceback" not in log
+    # silent ATO: the last command (full traction) for at most the 4 missed steps (+1 in
+    # flight), then only deceleration until the train stands
+    tail = [v for k, v in speeds[n0:] if k <= k_stop]
+    j = int(np.argmax(tail))
+    assert j <= 6, tail[:10]
+    assert all(b <= a + 1e-6 for a, b in zip(tail[j:], tail[j + 1:])), tail
+
+
+def _silent_ato(ros_env: dict[str, str], probe: Any, tmp_path: Path) -> dict[str, Any]:
+    """Run the simulator with the probe as ATOs; train_01's goes silent, then back."""
     import threading
 
     from metro_atc_msgs.msg import TractionCommand, TrainState
@@ -124,18 +162,34 @@ def test_simulator_stops_a_train_whose_ato_goes_silent(installed: Any, ros_env: 
         assert probe.wait_for(lambda: speeds[-1][0] > k_stop + 20, timeout=30)
     finally:
         code = p.stop()
-    assert code == 0 and "Traceback" not in p.log()
-    # silent ATO: the last command (full traction) for at most the 4 missed steps (+1 in
-    # flight), then only deceleration until the train stands
-    tail = [v for k, v in speeds[n0:] if k <= k_stop]
-    j = int(np.argmax(tail))
-    assert j <= 6, tail[:10]
-    assert all(b <= a + 1e-6 for a, b in zip(tail[j:], tail[j + 1:])), tail
+    with probe.lock:
+        return {"speeds": list(speeds), "n0": n0, "k_stop": k_stop, "code": code,
+                "log": p.log()}
+
+
+@job("lost_fleet_state_run")
+def _lost_fleet_state_run(tmp_path: Path) -> dict[str, Any]:
+    """The simulator and an ATS with a probe as the fleet ATO that ignores one fleet state
+    (a background job on its own domain; see the test): fleet states seen per step, the
+    simulator's exit code and log."""
+    with DomainAllocator().allocate() as dom:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
+        probe = TopicProbe(dom)
+        try:
+            return _lost_fleet_state(env, probe, tmp_path)
+        finally:
+            probe.close()
+
+
+@pytest.fixture
+def lost_fleet_state_run(installed: Any, background_jobs: Any) -> dict[str, Any]:
+    """The result of the job :func:`_lost_fleet_state_run`."""
+    return dict(background_jobs.result("lost_fleet_state_run"))
 
 
 @pytest.mark.integration
-def test_a_fleet_state_lost_on_its_way_is_sent_again(installed: Any, ros_env: Any,
-                                                     probe: Any, tmp_path: Any) -> None:
+def test_a_fleet_state_lost_on_its_way_is_sent_again(lost_fleet_state_run: dict[str, Any]
+                                                     ) -> None:
     """Lockstep without a lost step: a fleet state the ATO never got (lost with a killed ATO
     process whose successor matched unnoticed) is published again for the trains that did
     not answer, well before the step timeout; the step completes without a lockstep miss.
@@ -144,6 +198,15 @@ def test_a_fleet_state_lost_on_its_way_is_sent_again(installed: Any, ros_env: An
     ``drop`` (train_01 in service, dwelling) and answers every other one. With a step timeout
     of 120 s, a simulator that only waited would show the miss in its log.
     """
+    seen, code, log = (lost_fleet_state_run[k] for k in ("seen", "code", "log"))
+    drop = lost_fleet_state_run["drop"]
+    assert code == 0 and "Traceback" not in log
+    assert seen[drop] >= 2, seen  # sent again
+    assert "no command from" not in log, log
+
+
+def _lost_fleet_state(ros_env: dict[str, str], probe: Any, tmp_path: Path) -> dict[str, Any]:
+    """Run the simulator and an ATS with the probe as a fleet ATO that drops a state."""
     import threading
 
     from metro_atc_msgs.msg import FleetCommand, FleetState
@@ -180,6 +243,5 @@ def test_a_fleet_state_lost_on_its_way_is_sent_again(installed: Any, ros_env: An
     finally:
         code = p.stop()
         ats.stop()
-    assert code == 0 and "Traceback" not in p.log()
-    assert seen[drop] >= 2, seen  # sent again
-    assert "no command from" not in p.log(), p.log()
+    with lock:
+        return {"seen": dict(seen), "drop": drop, "code": code, "log": p.log()}

@@ -27,10 +27,11 @@ import os
 import signal
 import time
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import pytest
 
+from background import job
 from harness import DomainAllocator, NodeProcess, TopicProbe
 
 pytestmark = pytest.mark.integration
@@ -146,15 +147,18 @@ class Run:
                     "events": [repr(e) for e in self.events]}
 
 
-@pytest.fixture(scope="module", params=["lqr"])  # stateful; "none" passes too (+25 s)
-def restart(request: pytest.FixtureRequest, installed: Path,
-            tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
-    """Run ``mini`` with an ATS kill and restart, and an uninterrupted reference run."""
+REGULATOR = "lqr"
+"""The regulator of both runs (stateful; "none" passes too, +25 s)."""
+
+
+@job("restart")
+def _restart_runs(tmp: Path) -> dict[str, Any]:
+    """Run ``mini`` with an ATS kill and restart, and an uninterrupted reference run (a
+    background job started with the session)."""
     from metro_atc.core.line.scenario import load_scenario
 
-    regulator = str(request.param)
+    regulator = REGULATOR
     n_st = len(load_scenario(SCENARIO).line.stations)
-    tmp = tmp_path_factory.mktemp(f"ats_restart_{regulator}")
     procs: list[NodeProcess] = []
     domains = DomainAllocator()
     with domains.allocate() as dom, domains.allocate() as ref_dom:
@@ -215,20 +219,29 @@ def restart(request: pytest.FixtureRequest, installed: Path,
             res.update(run.recorded())
             ref_res.update(ref.recorded())
             res["logs"]["ats_regulator_restarted"] = new_ats.log()
-            print(f"\n[{regulator}] ATS killed at t={t_kill:.2f} s, {killed_at - t0:.1f} s "
-                  f"after start; {stalled_train} waited at station {stalled_st} "
-                  f"(t={t_stall:.2f} s); new ATS started {restarted_at - killed_at:.1f} s "
-                  f"after the kill, answered after {answer_s:.2f} s; both runs done "
-                  f"after {wall:.1f} s")
-            yield {"regulator": regulator, "n_st": n_st, "train_ids": run.train_ids,
-                   "run": res, "ref": ref_res, "stalled": (stalled_train, stalled_st),
-                   "clock_frozen": clock_frozen, "before_restart": before_restart,
-                   "answered": answered, "entered_in_outage": entered_in_outage}
+            note = (f"[{regulator}] ATS killed at t={t_kill:.2f} s, {killed_at - t0:.1f} s "
+                    f"after start; {stalled_train} waited at station {stalled_st} "
+                    f"(t={t_stall:.2f} s); new ATS started {restarted_at - killed_at:.1f} s "
+                    f"after the kill, answered after {answer_s:.2f} s; both runs done "
+                    f"after {wall:.1f} s")
+            return {"note": note, "regulator": regulator, "n_st": n_st,
+                    "train_ids": run.train_ids, "run": res, "ref": ref_res,
+                    "stalled": (stalled_train, stalled_st), "clock_frozen": clock_frozen,
+                    "before_restart": before_restart, "answered": answered,
+                    "entered_in_outage": entered_in_outage}
         finally:
             for p in procs:
                 p.stop()
             probe.close()
             ref_probe.close()
+
+
+@pytest.fixture(scope="module")
+def restart(installed: Path, background_jobs: Any) -> dict[str, Any]:
+    """The result of the job :func:`_restart_runs` (its summary printed)."""
+    res = dict(background_jobs.result("restart"))
+    print("\n" + res["note"])
+    return res
 
 
 def test_lockstep_waits_for_the_restarted_ats(restart: dict[str, Any]) -> None:

@@ -12,8 +12,9 @@ from typing import Any
 
 import pytest
 
+from background import job
 from graph_runs import SCENARIO, run_graph
-from harness import ROOT, NodeProcess, TopicProbe
+from harness import ROOT, DomainAllocator, NodeProcess, TopicProbe
 
 pytestmark = pytest.mark.integration
 
@@ -205,36 +206,55 @@ def test_logs_of_normal_runs_are_clean(two_runs: dict[str, Any]) -> None:
             assert not hits, f"{log}: {hits}\n{text[-2000:]}"
 
 
-def test_run_fails_fast_when_a_node_cannot_start(ros_env: dict[str, str],
-                                                 tmp_path: Path) -> None:
-    """AOC without weights trained on the line: ``run`` refuses before any node (exit 2);
-    with that check bypassed the ATS itself refuses and ``run`` stops (exit 3), naming it."""
+@job("failing_starts")
+def _failing_starts(tmp_path: Path) -> dict[str, Any]:
+    """``run`` of AOC without weights, then the same with the launcher's pre-check skipped
+    (a background job on its own domain): both processes' results and wall times."""
     import time
 
-    env = dict(ros_env, METRO_ATC_ATR_CACHE=str(tmp_path / "empty_cache"))
-    args = ["--scenario", SCENARIO, "--regulator", "aoc", "--no-plots", "--out",
-            str(tmp_path / "o")]
-    t0 = time.monotonic()
-    r = subprocess.run([sys.executable, "-m", "metro_atc", "run", *args,
-                        "--train-regulator", "never"],
-                       env=env, capture_output=True, text=True, timeout=120, cwd=tmp_path)
-    wall = time.monotonic() - t0
+    with DomainAllocator().allocate() as dom:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(dom),
+                   METRO_ATC_ATR_CACHE=str(tmp_path / "empty_cache"))
+        args = ["--scenario", SCENARIO, "--regulator", "aoc", "--no-plots", "--out",
+                str(tmp_path / "o")]
+        t0 = time.monotonic()
+        pre = subprocess.run([sys.executable, "-m", "metro_atc", "run", *args,
+                              "--train-regulator", "never"],
+                             env=env, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+        pre_wall = time.monotonic() - t0
+        logs_after_pre = (tmp_path / "o" / "logs").exists()
+        # the ATS node's own refusal (defence in depth): skip the launcher's pre-check
+        code = ("import sys; import metro_atc.launcher as L; "
+                "L.prepare_regulator = lambda a, s: None; sys.exit(L.main(sys.argv[1:]))")
+        t0 = time.monotonic()
+        node = subprocess.run([sys.executable, "-c", code, *args], env=env,
+                              capture_output=True, text=True, timeout=120, cwd=tmp_path)
+        node_wall = time.monotonic() - t0
+    return {"pre": pre, "pre_wall": pre_wall, "logs_after_pre": logs_after_pre,
+            "node": node, "node_wall": node_wall}
+
+
+@pytest.fixture
+def failing_starts(installed: Path, background_jobs: Any) -> dict[str, Any]:
+    """The result of the job :func:`_failing_starts`."""
+    return dict(background_jobs.result("failing_starts"))
+
+
+def test_run_fails_fast_when_a_node_cannot_start(failing_starts: dict[str, Any]) -> None:
+    """AOC without weights trained on the line: ``run`` refuses before any node (exit 2);
+    with that check bypassed the ATS itself refuses and ``run`` stops (exit 3), naming it."""
+    r = failing_starts["pre"]
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 2, r.stderr
     assert len(lines) == 1 and "aoc" in lines[0] and "hash" in lines[0], lines
-    assert not (tmp_path / "o" / "logs").exists()
-    print(f"\nrun refused after {wall:.1f} s: {lines[0]}")
-    # the ATS node's own refusal (defence in depth): skip the launcher's pre-check
-    code = ("import sys; import metro_atc.launcher as L; "
-            "L.prepare_regulator = lambda a, s: None; sys.exit(L.main(sys.argv[1:]))")
-    t0 = time.monotonic()
-    r = subprocess.run([sys.executable, "-c", code, *args], env=env, capture_output=True,
-                       text=True, timeout=120, cwd=tmp_path)
-    wall = time.monotonic() - t0
+    assert not failing_starts["logs_after_pre"]
+    print(f"\nrun refused after {failing_starts['pre_wall']:.1f} s: {lines[0]}")
+    r = failing_starts["node"]
     assert r.returncode == 3, r.stderr
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "ats_regulator" in lines[0] and "weights" in lines[0], lines
-    print(f"run with a failing ATS exited {r.returncode} after {wall:.1f} s: {lines[0]}")
+    print(f"run with a failing ATS exited {r.returncode} after "
+          f"{failing_starts['node_wall']:.1f} s: {lines[0]}")
 
 
 def test_run_timeout_and_bad_out_dir_exit_nonzero(ros_env: dict[str, str],
@@ -254,29 +274,64 @@ def test_run_timeout_and_bad_out_dir_exit_nonzero(ros_env: dict[str, str],
     assert not (tmp_path / "file" / "logs").exists()
 
 
-def test_two_graphs_on_one_domain_are_refused(ros_env: dict[str, str],
-                                              tmp_path: Path) -> None:
+@job("two_graphs_one_domain")
+def _two_graphs_one_domain(tmp_path: Path) -> dict[str, Any]:
+    """Two ``run`` started together on one domain (a background job on its own domain):
+    the domain, each run's exit code and stderr."""
+    run = [sys.executable, "-m", "metro_atc", "run", "--scenario", SCENARIO, "--no-plots",
+           "--duration", "600", "--timeout", "240"]
+    with DomainAllocator().allocate() as dom:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
+        procs = [subprocess.Popen(run + ["--out", str(tmp_path / f"o{n}")], env=env,
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                  cwd=tmp_path) for n in range(2)]
+        try:
+            outs = [p.communicate(timeout=300) for p in procs]
+        finally:
+            for p in procs:
+                if p.poll() is None:
+                    p.kill()
+                    p.communicate()
+    return {"domain": dom, "codes": [p.returncode for p in procs],
+            "stderr": [err for _, err in outs]}
+
+
+@pytest.fixture
+def two_graphs_one_domain(installed: Path, background_jobs: Any) -> dict[str, Any]:
+    """The result of the job :func:`_two_graphs_one_domain`."""
+    return dict(background_jobs.result("two_graphs_one_domain"))
+
+
+def test_two_graphs_on_one_domain_are_refused(two_graphs_one_domain: dict[str, Any]) -> None:
     """Two ``run`` on one ROS domain would answer each other's lockstep (seen: ATOs following
     the other simulator's steps, 63 534 rejected commands, exit 0): a simulator that finds
     another one on its domain stops its graph with one line naming the domain; it stays on
     the domain 2 s before it exits, so both runs refuse."""
-    run = [sys.executable, "-m", "metro_atc", "run", "--scenario", SCENARIO, "--no-plots",
-           "--duration", "600", "--timeout", "240"]
-    procs = [subprocess.Popen(run + ["--out", str(tmp_path / f"o{n}")], env=ros_env,
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                              cwd=tmp_path) for n in range(2)]
-    outs = [p.communicate(timeout=300) for p in procs]
-    codes = [p.returncode for p in procs]
-    refused = [n for n, (_, err) in enumerate(outs) if "another line_simulator" in err
-               and f"ROS_DOMAIN_ID={ros_env['ROS_DOMAIN_ID']}" in err]
+    codes, errs = two_graphs_one_domain["codes"], two_graphs_one_domain["stderr"]
+    dom = two_graphs_one_domain["domain"]
+    refused = [n for n, err in enumerate(errs) if "another line_simulator" in err
+               and f"ROS_DOMAIN_ID={dom}" in err]
     print(f"\nexit codes {codes}; refused: {refused}")
-    assert refused == [0, 1] and codes == [3, 3], [err[-1500:] for _, err in outs]
+    assert refused == [0, 1] and codes == [3, 3], [err[-1500:] for err in errs]
 
 
-def test_single_process_matches(two_runs: dict[str, Any], ros_env: dict[str, str],
-                                tmp_path: Path) -> None:
+@job("single_process_kpis")
+def _single_process_run(tmp: Path) -> dict[str, Any]:
+    """KPIs of a ``--single-process`` run of the scenario (background job, own domain)."""
+    with DomainAllocator().allocate() as dom:
+        return run_graph(dict(os.environ, ROS_DOMAIN_ID=str(dom)), tmp, "--single-process")
+
+
+@pytest.fixture
+def single_process_kpis(installed: Path, background_jobs: Any) -> dict[str, Any]:
+    """The result of the job :func:`_single_process_run`."""
+    return dict(background_jobs.result("single_process_kpis"))
+
+
+def test_single_process_matches(two_runs: dict[str, Any], single_process_kpis: dict[str, Any]
+                                ) -> None:
     """``--single-process`` runs the same nodes and gives the same KPIs as the graph."""
-    k = run_graph(ros_env, tmp_path, "--single-process")
+    k = single_process_kpis
     skip = {"wall_time_s", "real_time_factor", "out_dir", "mode", "bag", "node_peak_rss_mb",
             "node_cpu_s"}
     assert {x: v for x, v in k.items() if x not in skip} == \
@@ -445,20 +500,22 @@ def _fuzz_msg(rng: Any, msg_type: Any, fields: dict[str, str], train: str) -> An
     return m
 
 
-def test_fuzz_every_subscribed_topic(two_runs: dict[str, Any], ros_env: dict[str, str],
-                                     tmp_path: Path) -> None:
-    """Random messages on every topic a node subscribes to: rejected, counted, harmless.
+@job("fuzzed_run")
+def _fuzzed_run(tmp_path: Path) -> dict[str, Any]:
+    """A run of the graph under fuzzing (background job, own domain): what
+    :func:`test_fuzz_every_subscribed_topic` asserts on."""
+    with DomainAllocator().allocate() as dom:
+        return _fuzz_graph(dict(os.environ, ROS_DOMAIN_ID=str(dom)), tmp_path)
 
-    During a lockstep run of the graph, a probe publishes ``_FUZZ_MESSAGES`` messages with
-    random field values (NaN, +-inf, +-1.7e308, integer extremes, empty and 1000-character
-    train ids, arrays of wrong lengths, random stamps) on the command, departure command,
-    brake sensor and event topics of both trains and on the fleet state and fleet command
-    topics (the per-train state topics have no subscriber in the graph: the ATOs take their
-    states from the fleet state) (the scenario given by a path
-    containing ``": "`` and ``#``).  No node dies, the run completes,
-    its KPIs and events are those of the unfuzzed run, and the rejections are counted (KPIs
-    of the simulator, each node's log).
-    """
+
+@pytest.fixture
+def fuzzed_run(installed: Path, background_jobs: Any) -> dict[str, Any]:
+    """The result of the job :func:`_fuzzed_run`."""
+    return dict(background_jobs.result("fuzzed_run"))
+
+
+def _fuzz_graph(ros_env: dict[str, str], tmp_path: Path) -> dict[str, Any]:
+    """Run the graph while a probe publishes fuzz messages (see the test below)."""
     import threading
     import time
 
@@ -536,6 +593,25 @@ def test_fuzz_every_subscribed_topic(two_runs: dict[str, Any], ros_env: dict[str
         stop.set()
         th.join(timeout=5.0)
         probe.close()
+    return {"r": r, "errors": errors, "sent": sent, "out": out, "scn_path": scn_path}
+
+
+def test_fuzz_every_subscribed_topic(two_runs: dict[str, Any], fuzzed_run: dict[str, Any]
+                                     ) -> None:
+    """Random messages on every topic a node subscribes to: rejected, counted, harmless.
+
+    During a lockstep run of the graph, a probe publishes ``_FUZZ_MESSAGES`` messages with
+    random field values (NaN, +-inf, +-1.7e308, integer extremes, empty and 1000-character
+    train ids, arrays of wrong lengths, random stamps) on the command, departure command,
+    brake sensor and event topics of both trains and on the fleet state and fleet command
+    topics (the per-train state topics have no subscriber in the graph: the ATOs take their
+    states from the fleet state) (the scenario given by a path
+    containing ``": "`` and ``#``).  No node dies, the run completes,
+    its KPIs and events are those of the unfuzzed run, and the rejections are counted (KPIs
+    of the simulator, each node's log).
+    """
+    r, errors, sent = fuzzed_run["r"], fuzzed_run["errors"], fuzzed_run["sent"]
+    out, scn_path = fuzzed_run["out"], fuzzed_run["scn_path"]
     assert r.returncode == 0, r.stderr[-3000:]
     assert "exited with" not in r.stderr, r.stderr[-3000:]
     assert not errors, errors

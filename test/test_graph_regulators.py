@@ -3,11 +3,16 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
+
+from background import job
+from harness import DomainAllocator
 
 pytestmark = pytest.mark.integration
 
@@ -17,30 +22,52 @@ have all left station 1 and the first has reached the terminus (was 900 s: the l
 asserted nothing more)."""
 
 
-def test_aoc_runs_on_a_generated_line_from_the_cache(ros_env: dict[str, str],
-                                                     installed: Path, tmp_path: Path) -> None:
+@job("aoc_generated_line_run")
+def _aoc_generated_line_run(tmp_path: Path) -> dict[str, Any]:
+    """Train AOC weights into a cache for a generated line, then ``run`` with them (a
+    background job on its own domain): both processes' results, the cached files, the
+    run's out directory."""
+    from metro_atc.core.linegen import generate_line, scenario_yaml
+    f = tmp_path / "gen.yaml"
+    f.write_text(scenario_yaml(generate_line(21, n_stations=4, n_trains=3,
+                                             stock="taipei_mrt_6car")))
+    with DomainAllocator().allocate() as dom:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(dom),
+                   METRO_ATC_ATR_CACHE=str(tmp_path / "cache"))
+        train = subprocess.run([sys.executable, "-m", "metro_atc", "train", "aoc", "--scenario",
+                                str(f), "--cache", "--epochs", "5"], env=env,
+                               capture_output=True, text=True, timeout=300, cwd=tmp_path)
+        cached = list((tmp_path / "cache").glob("*-aoc.pt"))
+        out = tmp_path / "o"
+        run = None
+        if train.returncode == 0:
+            run = subprocess.run([sys.executable, "-m", "metro_atc", "run", "--scenario",
+                                  str(f), "--regulator", "aoc", "--train-regulator", "never",
+                                  "--json", "--no-plots", "--duration", str(DURATION_S),
+                                  "--out", str(out)], env=env, capture_output=True, text=True,
+                                 timeout=600, cwd=tmp_path)
+    return {"train": train, "cached": cached, "run": run, "out": out}
+
+
+@pytest.fixture
+def aoc_generated_line_run(installed: Path, background_jobs: Any) -> dict[str, Any]:
+    """The result of the job :func:`_aoc_generated_line_run`."""
+    return dict(background_jobs.result("aoc_generated_line_run"))
+
+
+def test_aoc_runs_on_a_generated_line_from_the_cache(aoc_generated_line_run: dict[str, Any]
+                                                     ) -> None:
     """Weights trained into the cache for a generated 4-station line (a few epochs: this
     checks the plumbing, not the policy); ``run --train-regulator never`` finds them, the
     graph runs to the end with exit 0, no ATS timeout, and the KPIs name aoc as the
     regulator that sent the departure commands. The run is cut at ``DURATION_S``: by then
     every train has been dispatched by the ATS at an intermediate station."""
-    from metro_atc.core.linegen import generate_line, scenario_yaml
-    f = tmp_path / "gen.yaml"
-    f.write_text(scenario_yaml(generate_line(21, n_stations=4, n_trains=3,
-                                             stock="taipei_mrt_6car")))
-    env = dict(ros_env, METRO_ATC_ATR_CACHE=str(tmp_path / "cache"))
-    r = subprocess.run([sys.executable, "-m", "metro_atc", "train", "aoc", "--scenario",
-                        str(f), "--cache", "--epochs", "5"], env=env, capture_output=True,
-                       text=True, timeout=300, cwd=tmp_path)
+    r = aoc_generated_line_run["train"]
     assert r.returncode == 0, r.stderr[-2000:]
     assert "epoch 5/5" in r.stderr
-    cached = list((tmp_path / "cache").glob("*-aoc.pt"))
-    assert len(cached) == 1
-    out = tmp_path / "o"
-    r = subprocess.run([sys.executable, "-m", "metro_atc", "run", "--scenario", str(f),
-                        "--regulator", "aoc", "--train-regulator", "never", "--json",
-                        "--no-plots", "--duration", str(DURATION_S), "--out", str(out)],
-                       env=env, capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert len(aoc_generated_line_run["cached"]) == 1
+    out = aoc_generated_line_run["out"]
+    r = aoc_generated_line_run["run"]
     assert r.returncode == 0, r.stderr[-3000:]
     k = json.loads(r.stdout.strip().splitlines()[-1])
     assert k["regulator"] == "aoc" and set(k["regulators_seen"]) == {"aoc"}

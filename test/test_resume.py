@@ -28,10 +28,11 @@ import signal
 import sys
 import time
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import pytest
 
+from background import job
 from harness import DomainAllocator, NodeProcess, TopicProbe
 
 pytestmark = pytest.mark.integration
@@ -127,12 +128,11 @@ def _reference(clean: dict[str, Any]) -> dict[str, Any]:
                      for p in (out / "logs").glob("*.log")}}
 
 
-@pytest.fixture(scope="module")
-def runs(installed: Path, mini_graph_runs: dict[str, Any],
-         tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
-    """The runs with kills (kill times seeded, printed) and the shared reference run."""
+@job("resume_kill_runs")
+def _kill_runs(tmp: Path) -> dict[str, Any]:
+    """The runs with kills (kill times seeded), a background job started with the session:
+    their results, the kills done (label, drawn time, actual time) and lines to print."""
     rng = random.Random(SEED)
-    tmp = tmp_path_factory.mktemp("resume")
     domains = DomainAllocator()
     graphs: dict[str, Graph] = {}
     with domains.allocate() as d1, domains.allocate() as d2:
@@ -152,16 +152,30 @@ def runs(installed: Path, mini_graph_runs: dict[str, Any],
                 time.sleep(0.02)
             assert not any(todo.values()), f"kills not done: {todo}"
             results = {name: g.finish() for name, g in graphs.items()}
-            results["reference"] = _reference(mini_graph_runs)
-            for name, kills in plan.items():
-                print("\n" + "; ".join(f"{name}: {lab} killed at t={got:.2f} s (drawn "
-                                       f"{at:.2f} s)" for lab, at, got in kills))
-            print(f"{len(graphs)} runs done after {time.monotonic() - t0:.0f} s wall")
-            yield {"results": results, "plan": plan}
+            notes = ["; ".join(f"{name}: {lab} killed at t={got:.2f} s (drawn {at:.2f} s)"
+                               for lab, at, got in kills) for name, kills in plan.items()]
+            notes.append(f"{len(graphs)} runs done after {time.monotonic() - t0:.0f} s wall")
+            return {"results": results, "plan": plan, "notes": notes}
         finally:
             for g in graphs.values():
                 g.proc.stop(signal.SIGTERM)
                 g.probe.close()
+
+
+@pytest.fixture(scope="module")
+def resume_kill_runs(installed: Path, background_jobs: Any) -> dict[str, Any]:
+    """The result of the job :func:`_kill_runs`."""
+    return dict(background_jobs.result("resume_kill_runs"))
+
+
+@pytest.fixture(scope="module")
+def runs(resume_kill_runs: dict[str, Any], mini_graph_runs: dict[str, Any]
+         ) -> dict[str, Any]:
+    """The runs with kills (kill times seeded, printed) and the shared reference run."""
+    done = resume_kill_runs
+    print("\n" + "\n".join(done["notes"]))
+    results = dict(done["results"], reference=_reference(mini_graph_runs))
+    return {"results": results, "plan": done["plan"]}
 
 
 def _brake_summary(text: str) -> dict[str, str]:
