@@ -50,6 +50,13 @@ control and level) is kept and the positions of its boundaries are optimised con
 under the running-time bound by a projected-gradient search with exact simulation
 (:func:`metro_atc.core.ato.polish.polish_sequence`, ``POLISH_ITERATIONS``), from the rollout's
 winner and from the candidate before the rollout (their structures can differ).
+
+Speed.  The exact simulations (whole sequences and single stages) and the table backward /
+forward passes run on compiled loops (:mod:`metro_atc.core.ato.dp_kernel`, numba) when numba
+is installed (module setting ``kernel``: ``auto`` / ``numba`` / ``numpy``); the numpy
+functions here stay the reference and are tested equal to them.  In numpy each sub-step of a
+simulation is one interpreted call over a few dozen candidates, which made the polish 85 %
+of a 3-10 s solve; compiled, a solve takes about 0.1 s of CPU.
 """
 
 from __future__ import annotations
