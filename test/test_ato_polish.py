@@ -1,11 +1,13 @@
 """ATO core: continuous switch-position polish, and the DP against the independent optimum.
 
 Thresholds are the acceptance figures of issue 12 (DP within 0.5 % of the LP optimum, running
-time within 0.5 s), not today's measurements; cases not yet meeting them are xfail'd with
-the measured figure in the reason.
+time within 0.5 s), not today's measurements.  CPU time is not asserted (benchmarks only).
 """
 
 from __future__ import annotations
+
+import functools
+import json
 
 import numpy as np
 import pytest
@@ -95,25 +97,53 @@ def _generated(seed: int, i: int) -> RunModel:
     return RunModel(train, track_for(scn), pos[i], pos[i + 1], ato_limits_for(train))
 
 
-def _ttobench(i: int) -> RunModel:
+@functools.lru_cache(maxsize=1)
+def _ttobench_line() -> tuple[object, object, list[float]]:
     from metro_atc.bench.ttobench import metro_scenario
     scn = metro_scenario()
     train = train_for(scn)
-    pos = [st.position_m for st in scn.line.stations]
-    return RunModel(train, track_for(scn), pos[i], pos[i + 1], ato_limits_for(train))
+    return train, track_for(scn), [st.position_m for st in scn.line.stations]
 
 
-_CASES = [("gen", 4, 2, 1.05), ("gen", 4, 2, 1.10), ("gen", 4, 2, 1.20), ("gen", 4, 0, 1.10),
-          ("gen", 4, 3, 1.05), ("gen", 7, 1, 1.10), ("tto", 0, 2, 1.10), ("tto", 0, 1, 1.20)]
+def _ttobench(i: int) -> RunModel:
+    train, track, pos = _ttobench_line()
+    return RunModel(train, track, pos[i], pos[i + 1], ato_limits_for(train))  # type: ignore
 
 
-@pytest.mark.parametrize("kind,seed,i,factor", _CASES)
-def test_dp_within_half_percent_of_the_optimum(kind: str, seed: int, i: int,
-                                               factor: float) -> None:
-    """Issue 12 acceptance: DP energy <= 1.005 x the LP optimum, running time within 0.5 s."""
-    run = _generated(seed, i) if kind == "gen" else _ttobench(i)
+_CASES = [(4, 2, 1.05), (4, 2, 1.10), (4, 0, 1.10), (4, 3, 1.05), (7, 1, 1.10), (1, 1, 1.05)]
+"""Generated-line runs (seed, interstation, factor x flat-out) that were hardest for the DP."""
+
+
+@pytest.mark.parametrize("seed,i,factor", _CASES)
+def test_dp_within_half_percent_of_the_optimum(seed: int, i: int, factor: float) -> None:
+    """Issue 12 acceptance on generated lines: DP energy <= 1.005 x the LP optimum (2 m
+    grid), running time within 0.5 s.
+    """
+    run = _generated(seed, i)
     target = factor * coasting.fotp(run, np.inf).time_s
     opt = solve_oracle(run, target, 2.0)
     dp = solve_dp(run, target)
     assert abs(dp.time_s - target) <= 0.5
     assert dp.energy_j <= 1.005 * opt.energy_j
+
+
+def _reference() -> list[dict[str, float]]:
+    from metro_atc.bench import ttobench
+    ref = json.loads((ttobench.data_dir() / ttobench.REFERENCE_FILE).read_text())
+    return list(ref["values"])
+
+
+@pytest.mark.parametrize("i", range(13))
+def test_dp_within_half_percent_on_every_ttobench_interstation(i: int) -> None:
+    """Issue 12 acceptance on the TTOBench metro line, every interstation x 1.05 / 1.10 /
+    1.20 of flat-out: DP <= 1.005 x the shipped LP optimum (``reference_energies.json``,
+    which ``test_bench_ttobench`` ties to the oracle), running time within 0.5 s.
+    """
+    run = _ttobench(i)
+    rows = [r for r in _reference() if r["interstation"] == i]
+    assert len(rows) == 3 and rows[0]["to_m"] - rows[0]["from_m"] == pytest.approx(run.length_m)
+    for row in rows:
+        target = row["target_s"]          # factor x flat-out (test_bench_ttobench checks it)
+        dp = solve_dp(run, target)
+        assert abs(dp.time_s - target) <= 0.5
+        assert dp.energy_j / 3.6e6 <= 1.005 * row["energy_kwh"]
