@@ -12,9 +12,9 @@ companion of MMAS (Stuetzle & Hoos, "MAX-MIN ant system and local search", seed 
 *exact* simulation (:class:`metro_atc.core.ato.tour_kernel.TourSimulator`, no table
 interpolation).  Neighbourhood of a tour:
 
-- per section: its command shifted by ``+-span x {1/2, 1}``, its mode changed, its
+- per section: its command shifted by ``+-span x {1/4, 1/2, 1}``, its mode changed, its
   (mode, command) copied from the neighbour before or after it;
-- per section boundary: moved by 1, 3 or 8 sub-steps (2 m each) either way;
+- per section boundary: moved by 1, 2, 4 or 8 sub-steps (2 m each) either way;
 - the acceleration phase (while ``span`` is large): sections 0..i accelerate with one
   command (the highest accelerate command of the first half, shifted, or any lattice code),
   and "sections 0..i accelerate, section i + 1 coasts without ceiling" with the switch
@@ -71,7 +71,7 @@ def _moves(modes: IntArray, speeds: FloatArray, bounds: IntArray, span: float,
     structural: include the acceleration-phase moves (the costly part of the neighbourhood).
     """
     n_s = modes.size
-    offs = np.array([-1.0, -0.5, 0.5, 1.0]) * span
+    offs = np.array([-1.0, -0.5, -0.25, 0.25, 0.5, 1.0]) * span
     out_m: list[IntArray] = []
     out_v: list[FloatArray] = []
     out_b: list[IntArray] = []
@@ -134,7 +134,7 @@ def _moves(modes: IntArray, speeds: FloatArray, bounds: IntArray, span: float,
             np.zeros(sec.size, np.int64))
     # section boundaries moved by a few sub-steps (the switching points off the partition)
     if n_s > 1:
-        shifts = np.array([-8, -3, -1, 1, 3, 8])
+        shifts = np.array([-8, -4, -2, -1, 1, 2, 4, 8])
         sec = np.repeat(np.arange(1, n_s), shifts.size)
         nb = bounds[sec] + np.tile(shifts, n_s - 1)
         lo = bounds[sec - 1] + 1

@@ -329,3 +329,17 @@ class TourSimulator:
     def s_grid(self) -> FloatArray:
         """Positions [m] of the sub-step grid (n + 1,)."""
         return np.linspace(0.0, self.length_m, self.n_steps + 1)
+
+
+def warm_up() -> None:
+    """Compile (or load from the disk cache) the kernels once: 1-3 s on the first call."""
+    p = np.ones(N_PARAMS)
+    fg = np.zeros(2)
+    cap = np.full(2, 100.0)
+    m = np.zeros((1, 1), dtype=np.int64)
+    ec = np.full((1, 1), 50.0)
+    b = np.zeros((1, 1), dtype=np.int64)
+    z = np.zeros(1)
+    simulate_kernel(p, fg, cap, m, ec, b, np.zeros(1, dtype=np.int64), z.copy(), z.copy(),
+                    z.copy(), np.zeros(1, dtype=bool), np.zeros((1, 0)))
+    history_kernel(p, fg, cap, m[0], ec[0], b[0], np.zeros((3, 3)))
