@@ -168,15 +168,14 @@ def _reference_kwh(i: int, factor: float) -> tuple[float, float]:
     return float(row["target_s"]), float(row["energy_kwh"])
 
 
-_TTO_CASES = [(2, 1.05), (2, 1.10), (2, 1.20), (0, 1.05), (1, 1.20), (10, 1.05),
-              pytest.param(9, 1.10, marks=pytest.mark.xfail(
-                  strict=True, reason="MMAS +1.08 % on 15 757 -> 18 022 m (open, README)"))]
+_TTO_CASES = [(2, 1.05), (2, 1.10), (2, 1.20), (0, 1.05), (1, 1.20), (10, 1.05), (9, 1.10),
+              (9, 1.20)]
 
 
 @pytest.mark.parametrize("i,factor", _TTO_CASES)
 def test_mmas_within_one_percent_of_the_ttobench_optimum(i: int, factor: float) -> None:
     """Issue 12 acceptance: MMAS (paper parameters, seed 1) <= 1.01 x the shipped LP optimum
-    of the TTOBench metro run (downhill 3 906 -> 6 272 m, the first and worst runs), running
+    of the TTOBench metro run (downhill 3 906 -> 6 272 m, the first and the worst runs), running
     time within 0.5 s of the target.
     """
     run = _metro_run("tto", 0, i)

@@ -17,8 +17,8 @@ interpolation).  Neighbourhood of a tour:
 - per section boundary: moved by 1, 2, 4 or 8 sub-steps (2 m each) either way;
 - the acceleration phase (while ``span`` is large): sections 0..i accelerate with one
   command (the highest accelerate command of the first half, shifted, or any lattice code),
-  and "sections 0..i accelerate, section i + 1 coasts without ceiling" with the switch
-  moved by up to 12 sub-steps;
+  the same with coasting from section i + 1 to the stop, and "sections 0..i accelerate,
+  section i + 1 coasts without ceiling" with the switch moved by up to 12 sub-steps;
 - every move is simulated exactly from the first section it changes (the prefix is the
   current tour's).  The running-time bound is usually active, so an energy-saving move costs
   time: besides the feasible single moves, the pairs of moves on disjoint sections whose
@@ -114,6 +114,10 @@ def _moves(modes: IntArray, speeds: FloatArray, bounds: IntArray, span: float,
         upto = np.arange(n_s)[None, :] <= sec[:, None]
         add(sec, np.where(upto, MODE_ACCEL, modes[None, :]),
             np.where(upto, vv[:, None], speeds[None, :]), f=np.zeros(sec.size, np.int64))
+        # ... and coasting without ceiling from section i + 1 to the stop (the classic
+        # accelerate -- coast structure, a restart away from staircase local optima)
+        add(sec, np.where(upto, MODE_ACCEL, MODE_COAST),
+            np.where(upto, vv[:, None], v_hi), f=np.zeros(sec.size, np.int64))
         # ... then coasting without ceiling in section i + 1, the switch (the start of
         # section i + 1) anywhere near its boundary
         shifts = np.array([-12, -6, -3, -1, 1, 3, 6, 12])
