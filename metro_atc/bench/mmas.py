@@ -9,7 +9,9 @@ the flat-out energy, the independent optimum at the running-time bound (LP,
 :mod:`metro_atc.core.ato.oracle`; the gap column is against it), the DP at the same bound
 and at the MMAS running time (achievable profile and energy-time hull), average speed
 [km/h], running time [s], compute time [s] (CPU time of the online stage and of the
-pre-work stage; the paper's 42 s is MATLAB on a 2010 PC).
+pre-work stage; the paper's 42 s is MATLAB on a 2010 PC; the compiled tour kernel is
+loaded before the timings), and the MMAS energy for each of ``--seeds`` (default 1-5) with
+its spread (max - min) / min.
 
 Assumed data (the seed's Table 1 gradients, Table 3 restrictions and the train data are on
 pages missing from the extraction): see :data:`GRADIENTS`, :data:`RESTRICTIONS` and the
@@ -24,6 +26,7 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 from typing import Any, Optional
 
 import numpy as np
@@ -36,6 +39,7 @@ from metro_atc.core.ato.envelope import MODE_NAMES, RunModel
 from metro_atc.core.ato.mmas import MmasParams, solve_mmas
 from metro_atc.core.ato.oracle import solve_oracle
 from metro_atc.core.ato.sections import build_section_tables
+from metro_atc.core.ato.tour_kernel import warm_up
 from metro_atc.core.line.vehicle import TAIPEI_MRT_6CAR, Track
 
 LENGTH_M = 2000.0
@@ -77,8 +81,11 @@ def make_track(case: int) -> Track:
     return Track(g_starts, grades, np.array(starts), np.array(limits))
 
 
-def run_case(case: int, params: MmasParams) -> dict[str, Any]:
-    """Plan one case with MMAS, flat-out and DP; returns the figures (and profiles)."""
+def run_case(case: int, params: MmasParams, seeds: tuple[int, ...] = ()) -> dict[str, Any]:
+    """Plan one case with MMAS, flat-out and DP; returns the figures (and profiles).
+
+    seeds: further MMAS seeds (besides ``params.seed``) for the spread over seeds.
+    """
     run = RunModel(TAIPEI_MRT_6CAR, make_track(case), 0.0, LENGTH_M)
     t_max = LENGTH_M / (AV_SPEED_SPEC_KMH / 3.6) - DWELL_S
     c0, w0 = time.process_time(), time.perf_counter()
@@ -95,11 +102,25 @@ def run_case(case: int, params: MmasParams) -> dict[str, Any]:
     dp_bound = solve_dp(run, t_max, tables=dp_tab)
     opt = solve_oracle(run, t_max, ORACLE_GRID_M)
     kwh = 1.0 / 3.6e6
+    per_seed = {params.seed: (res.energy_j, res.time_s, on_cpu)}
+    for sd in seeds:
+        if sd not in per_seed:
+            c0 = time.process_time()
+            r_s = solve_mmas(tables, t_max, replace(params, seed=sd))
+            per_seed[sd] = (r_s.energy_j, r_s.time_s, time.process_time() - c0)
+    e_seeds = [v[0] for v in per_seed.values()]
     return {
         "optimum_energy_kwh": opt.energy_j * kwh,
         "optimum_running_time_s": opt.time_s,
         "optimum_grid_m": ORACLE_GRID_M,
         "energy_vs_optimum_pct": 100.0 * (res.energy_j / opt.energy_j - 1.0),
+        "seeds": list(per_seed),
+        "energy_kwh_per_seed": [v[0] * kwh for v in per_seed.values()],
+        "energy_vs_optimum_pct_per_seed": [100.0 * (v[0] / opt.energy_j - 1.0)
+                                           for v in per_seed.values()],
+        "running_time_s_per_seed": [v[1] for v in per_seed.values()],
+        "compute_online_s_per_seed": [v[2] for v in per_seed.values()],
+        "seed_spread_pct": 100.0 * (max(e_seeds) - min(e_seeds)) / min(e_seeds),
         "dp_vs_optimum_pct": 100.0 * (dp_bound.energy_j / opt.energy_j - 1.0),
         "energy_kwh": res.energy_j * kwh,
         "flat_out_energy_kwh": fo.energy_j * kwh,
@@ -163,14 +184,18 @@ def main(argv: Optional[list[str]] = None) -> int:
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument("--quick", action="store_true", help="20 ants x 30 iterations")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--seeds", default="1,2,3,4,5",
+                    help="MMAS seeds for the spread over seeds (comma list, '' for none)")
     ap.add_argument("--out", default=None, help="directory for PNG plots")
     args = ap.parse_args(argv)
     params = MmasParams(seed=args.seed) if not args.quick else \
         MmasParams(seed=args.seed, n_ants=20, n_iterations=30)
+    seeds = tuple(int(x) for x in args.seeds.split(",") if x.strip())
+    warm_up()  # numba compile / cache load (1-3 s once per process) outside the timings
     cases = {}
     plots = []
     for case in progress_each("bench mmas", (1, 2), "cases"):
-        r = run_case(case, params)
+        r = run_case(case, params, seeds)
         prof = r.pop("_profiles")
         cases[f"case{case}"] = r
         if args.out:
@@ -199,6 +224,9 @@ def main(argv: Optional[list[str]] = None) -> int:
               f"{r['flat_out_energy_kwh']:8.3f}")
         print(f"  optimum [kWh] (LP)    ours {r['optimum_energy_kwh']:.3f} at the bound; MMAS "
               f"{r['energy_vs_optimum_pct']:+.2f} %, DP {r['dp_vs_optimum_pct']:+.2f} %")
+        print(f"  MMAS over seeds {r['seeds']}: "
+              + " ".join(f"{g:+.2f} %" for g in r["energy_vs_optimum_pct_per_seed"])
+              + f" vs the optimum, spread {r['seed_spread_pct']:.2f} %")
         print(f"  DP [kWh]              ours {r['dp_energy_kwh']:.3f} at the MMAS time (hull "
               f"{r['dp_hull_energy_kwh']:.3f}); MMAS {r['energy_vs_dp_pct']:+.2f} % vs it")
         print(f"  avg speed [km/h]      paper {pp.get('avg_speed_kmh', float('nan')):8.2f} | "

@@ -29,9 +29,18 @@ Algorithm (seed 001 Sec. 2 and 4.2 items 3-8; Stuetzle & Hoos, refs [8, 9]):
   single-section moves on every new best-so-far tour (on by default; ``local_search=False``
   gives the plain ant system; ``ls_every_iteration=True`` applies it to every
   iteration-best ant, about 20x slower for little gain on the TTOBench metro line);
-- continuous polish (not in the seed): the speed commands of the best tour are refined off
-  the 5 km/h lattice, one section at a time, by exact vectorised simulation, so the tour
-  uses the running time the lattice leaves unused (:func:`continuous_code_polish`).
+- continuous local search on the exact simulation (not in the seed,
+  :mod:`metro_atc.core.ato.mmas_polish`): the speed commands of the best tour leave the
+  5 km/h lattice and its section boundaries leave the equal partition (sub-step
+  resolution), every candidate simulated exactly by the compiled kernel
+  (:mod:`metro_atc.core.ato.tour_kernel`).  Why: a section in accelerate mode holds its code
+  once reached (the code is a ceiling), so on a descent the optimal switch to coasting needs
+  a section boundary at the switch point; on the seed's lattice and partition MMAS stayed up
+  to 6-15 % above the LP optimum on the TTOBench downhill run.
+
+Deviations from seed 001: the local searches above; the heuristic floor 0.1; the deposit
+formula (reconstruction); the reported energy and time are the exact simulation of the
+planned tour, not the table estimate.
 
 All ants are evaluated together (vectorised over ants); one iteration costs N_s table
 look-ups on arrays of n_ants elements.
@@ -47,7 +56,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, MODE_CRUISE
-from metro_atc.core.ato.sections import SectionTables, simulate_tours
+from metro_atc.core.ato.mmas_polish import polish_tour
+from metro_atc.core.ato.sections import SectionTables
+from metro_atc.core.ato.tour_kernel import TourSimulator
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -72,6 +83,7 @@ class MmasParams:
     ls_max_passes: int = 60
     polish_rounds: int = 10
     continuous_polish: bool = True
+    exact_polish_rounds: int = 40
     ls_every_iteration: bool = False
     grade_scale: float = 0.02
     seed: int = 1
@@ -81,8 +93,11 @@ class MmasParams:
 class MmasResult:
     """Best tour found and its figures.
 
-    modes, codes: per-section mode ints and code indices; energy_j / time_s: exact
-    re-simulation of the tour (J, s); table_energy_j / table_time_s: online-stage estimate;
+    modes: per-section mode ints of the planned tour; codes: lattice code indices of the
+    colony's best tour (before the continuous search); code_speeds_mps / section_bounds_m:
+    the planned tour's speed commands [m/s] (N_s,) and section bounds [m] (N_s + 1,);
+    energy_j / time_s: exact simulation of the planned tour (J, s); table_energy_j /
+    table_time_s: online-stage (table) estimate of the colony's best tour;
     feasible: exact time within the bound; history: best-so-far energy per iteration [J];
     n_evaluations: tours evaluated; compute_s: online-stage wall time [s].
     """
@@ -100,6 +115,7 @@ class MmasResult:
     s_grid: FloatArray = field(default_factory=lambda: np.zeros(0))
     v_profile: FloatArray = field(default_factory=lambda: np.zeros(0))
     code_speeds_mps: FloatArray = field(default_factory=lambda: np.zeros(0))
+    section_bounds_m: FloatArray = field(default_factory=lambda: np.zeros(0))
 
 
 def heuristic(tables: SectionTables, grade_scale: float = 0.02) -> FloatArray:
@@ -306,57 +322,6 @@ def lagrangian_polish(tables: SectionTables, modes: IntArray, codes: IntArray, t
     return best[0], best[1], best[2], evals
 
 
-def continuous_code_polish(tables: SectionTables, modes: IntArray, speeds_mps: FloatArray,
-                           t_max: float, rounds: int = 3, n_offsets: int = 9,
-                           span_mps: float = 5.0 / 3.6
-                           ) -> tuple[FloatArray, float, float, int, IntArray]:
-    """Refine the speed commands of a tour continuously (exact simulation, vectorised).
-
-    The seed's codes are 5 km/h apart, so the best tour on the code lattice can leave up to
-    a second of the running-time bound unused (a lattice step of the peak speed).  Each
-    round tries, for every section, ``n_offsets`` command speeds within +-``span_mps`` of its
-    current one (all candidates simulated exactly at once) and keeps the single change with
-    the lowest energy meeting ``t_max``; the span halves every round.  Returns (speeds
-    [m/s] (N_s,), energy [J], time [s], simulated tours).
-    """
-    n_s = modes.size
-    cur = np.asarray(speeds_mps, dtype=float).copy()
-    t0, e0, _, st0, _, _ = simulate_tours(tables, modes[None, :], modes[None, :],
-                                          code_speeds_mps=cur[None, :])
-    best_e = float(e0[0]) if t0[0] <= t_max + 1e-9 and not st0[0] else np.inf
-    best_t = float(t0[0])
-    evals = 1
-    lo_v = 5.0 / 3.6
-    hi_v = float(tables.codes_mps[-1])
-    offsets = np.linspace(-1.0, 1.0, n_offsets)
-    span = span_mps
-    cur_m = modes.copy()
-    for _ in range(rounds):
-        n_sp = n_s * n_offsets
-        cand = np.repeat(cur[None, :], n_sp + 2 * n_s, axis=0)
-        cand_m = np.repeat(cur_m[None, :], n_sp + 2 * n_s, axis=0)
-        sec = np.repeat(np.arange(n_s), n_offsets)
-        off = np.tile(offsets, n_s) * span
-        cand[np.arange(n_sp), sec] = np.clip(cur[sec] + off, lo_v, hi_v)
-        # mode changes of one section at its current speed command
-        rows = n_sp + np.arange(2 * n_s)
-        sec2 = np.repeat(np.arange(n_s), 2)
-        cand_m[rows, sec2] = (cur_m[sec2] + np.tile([1, 2], n_s)) % 3
-        t, en, _, stl, _, _ = simulate_tours(tables, cand_m,
-                                             np.zeros_like(cand, dtype=np.int64),
-                                             code_speeds_mps=cand)
-        evals += cand.shape[0]
-        ok = (t <= t_max + 1e-9) & ~stl
-        if np.any(ok):
-            k = int(np.argmin(np.where(ok, en, np.inf)))
-            if en[k] < best_e:
-                best_e, best_t = float(en[k]), float(t[k])
-                cur = cand[k].copy()
-                cur_m = cand_m[k].copy()
-        span *= 0.5
-    return cur, best_e, best_t, evals, cur_m
-
-
 def solve_mmas(tables: SectionTables, t_max_s: float,
                params: Optional[MmasParams] = None) -> MmasResult:
     """Online optimisation stage (seed 001 Fig. 2): MMAS over the pre-work tables.
@@ -444,9 +409,10 @@ def solve_mmas(tables: SectionTables, t_max_s: float,
         best_m, best_c, best_score, n_ev = lagrangian_polish(tables, best_m, best_c, t_max_s,
                                                              p.polish_rounds, p.ls_max_passes)
         evals += n_ev
+    sim = TourSimulator(tables)
+    codes_mps = tables.codes_mps
     tt, te, _ = evaluate_tours(tables, best_m[None, :], best_c[None, :])
-    t_ex, e_ex, _, stalled, s_grid, e_hist = simulate_tours(tables, best_m[None, :],
-                                                            best_c[None, :], record=True)
+    t_ex, e_ex, _, stalled, _ = sim.run(best_m[None, :], codes_mps[best_c][None, :])
     # repair: the interpolated tables can underestimate the exact time slightly; tighten
     # the bound by the observed error and search again from the best tour
     for _ in range(3):
@@ -457,27 +423,26 @@ def solve_mmas(tables: SectionTables, t_max_s: float,
                                                              p.polish_rounds, p.ls_max_passes)
         evals += n_ev
         tt, te, _ = evaluate_tours(tables, best_m[None, :], best_c[None, :])
-        t_ex, e_ex, _, stalled, s_grid, e_hist = simulate_tours(
-            tables, best_m[None, :], best_c[None, :], record=True)
-    speeds = tables.codes_mps[best_c].astype(float)
+        t_ex, e_ex, _, stalled, _ = sim.run(best_m[None, :], codes_mps[best_c][None, :])
+    speeds = codes_mps[best_c].astype(float)
+    bounds_sub = sim.equal_bounds()
     if p.continuous_polish and p.local_search and np.isfinite(best_score):
-        sp, e_cp, t_cp, n_ev, m_cp = continuous_code_polish(tables, best_m, speeds, t_max_s)
-        evals += n_ev
-        if e_cp < float(e_ex[0]) or t_ex[0] > t_max_s + 1e-6:
-            speeds = sp
-            best_m = m_cp
-            t_ex, e_ex, _, stalled, s_grid, e_hist = simulate_tours(
-                tables, best_m[None, :], best_c[None, :], record=True,
-                code_speeds_mps=speeds[None, :])
+        # continuous local search on the exact simulation (mmas_polish; not in the seed)
+        pt = polish_tour(sim, best_m, speeds, t_max_s, max_rounds=p.exact_polish_rounds)
+        evals += pt.evaluations
+        if pt.energy_j < float(e_ex[0]) or t_ex[0] > t_max_s + 1e-6:
+            best_m, speeds, bounds_sub = pt.modes, pt.speeds_mps, pt.bounds
+    hist = sim.history(best_m, speeds, bounds_sub)
+    s_grid = sim.s_grid()
+    t_fin, e_fin = float(hist[1, -1]), float(hist[2, -1])
     compute = time.perf_counter() - t_start
-    assert s_grid is not None and e_hist is not None
-    return MmasResult(modes=best_m, codes=best_c, energy_j=float(e_ex[0]),
-                      time_s=float(t_ex[0]), table_energy_j=float(te[0]),
-                      table_time_s=float(tt[0]),
-                      feasible=bool(t_ex[0] <= t_max_s + 1e-6 and not stalled[0]),
+    return MmasResult(modes=best_m, codes=best_c, energy_j=e_fin, time_s=t_fin,
+                      table_energy_j=float(te[0]), table_time_s=float(tt[0]),
+                      feasible=bool(t_fin <= t_max_s + 1e-6),
                       history=history, n_evaluations=evals, compute_s=compute,
-                      s_grid=s_grid, v_profile=np.sqrt(2.0 * e_hist[0]),
-                      code_speeds_mps=speeds)
+                      s_grid=s_grid, v_profile=np.sqrt(2.0 * np.maximum(hist[0], 0.0)),
+                      code_speeds_mps=speeds,
+                      section_bounds_m=np.append(s_grid[bounds_sub], tables.run.length_m))
 
 
 __all__ = ["MmasParams", "MmasResult", "solve_mmas", "evaluate_tours", "local_search",

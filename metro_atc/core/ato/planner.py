@@ -182,7 +182,7 @@ def plan_profile(run: RunModel, target_running_time_s: float, planner: str = "ec
                         fast.energy_j, False,
                         f"MMAS found no profile within {target:.1f} s: flat-out profile", t0)
     coast_idx = np.nonzero(mres.modes == MODE_COAST)[0]
-    yc = float(tables.bounds_s[coast_idx[0]]) if coast_idx.size else math.nan
-    sections = (tables.bounds_s, mres.modes, tables.codes_mps[mres.codes], yc)
+    yc = float(mres.section_bounds_m[coast_idx[0]]) if coast_idx.size else math.nan
+    sections = (mres.section_bounds_m, mres.modes, mres.code_speeds_mps, yc)
     return _profile(run, name, target, mres.s_grid, mres.v_profile, mres.time_s,
                     mres.energy_j, True, "", t0, sections)

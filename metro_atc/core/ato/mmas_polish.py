@@ -1,0 +1,266 @@
+"""Continuous local search of a seed 001 tour on the exact simulator (MMAS + local search).
+
+Not in seed 001.  The paper's speed codes are 5 km/h apart and its sections of equal length;
+the best tour on that lattice can miss the optimum by several per cent.  TTOBench downhill
+3 906 -> 6 272 m at 1.10 x flat-out: the optimum is full traction to 47.4 km/h at 88 m, then
+coasting (the descent does the rest).  A section in accelerate mode brakes to hold its code
+once it is reached (the code is a ceiling), so cutting traction at 88 m needs a section
+boundary there; on 47 m sections the nearest tours hold the speed to the section end and
+reach 1.2 % to 9 % above the optimum.  Local search on the best tour is the standard
+companion of MMAS (Stuetzle & Hoos, "MAX-MIN ant system and local search", seed 001 ref.
+[8]); this one works on the *continuous* speed commands and *section boundaries* and on the
+*exact* simulation (:class:`metro_atc.core.ato.tour_kernel.TourSimulator`, no table
+interpolation).  Neighbourhood of a tour:
+
+- per section: its command shifted by ``+-span x {1/4, 1/2, 1}``, its mode changed, its
+  (mode, command) copied from the neighbour before or after it;
+- per section boundary: moved by 1, 2, 4 or 8 sub-steps (2 m each) either way;
+- the acceleration phase (while ``span`` is large): sections 0..i accelerate with one
+  command (the highest accelerate command of the first half, shifted, or any lattice code),
+  the same with coasting from section i + 1 to the stop, and "sections 0..i accelerate,
+  section i + 1 coasts without ceiling" with the switch moved by up to 12 sub-steps;
+- every move is simulated exactly from the first section it changes (the prefix is the
+  current tour's).  The running-time bound is usually active, so an energy-saving move costs
+  time: besides the feasible single moves, the pairs of moves on disjoint sections whose
+  summed time change fits the slack and whose summed energy change is the lowest (additive
+  prediction) are simulated exactly;
+- the best exactly simulated candidate meeting the bound replaces the tour (commands that
+  do not act are then set to equivalent canonical values, :func:`canonical`); ``span``
+  halves when nothing improves; stops below ``min_span_mps`` or after ``max_rounds``.
+
+Deterministic; never returns a tour worse than its input (or slower than the bound when the
+input met it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST
+from metro_atc.core.ato.tour_kernel import TourSimulator
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+@dataclass
+class PolishedTour:
+    """Polished tour: modes, commands [m/s], section starts [sub-steps] (N_s,) each.
+
+    energy_j / time_s: exact simulation [J] / [s]; evaluations: tours simulated; rounds:
+    search rounds.
+    """
+
+    modes: IntArray
+    speeds_mps: FloatArray
+    bounds: IntArray
+    energy_j: float
+    time_s: float
+    evaluations: int
+    rounds: int
+
+
+def _moves(modes: IntArray, speeds: FloatArray, bounds: IntArray, span: float,
+           v_lo: float, v_hi: float, codes: FloatArray, n_steps: int, structural: bool = True
+           ) -> tuple[IntArray, FloatArray, IntArray, IntArray]:
+    """Candidate tours (modes, speeds, bounds) and the first section each one changes.
+
+    structural: include the acceleration-phase moves (the costly part of the neighbourhood).
+    """
+    n_s = modes.size
+    offs = np.array([-1.0, -0.5, -0.25, 0.25, 0.5, 1.0]) * span
+    out_m: list[IntArray] = []
+    out_v: list[FloatArray] = []
+    out_b: list[IntArray] = []
+    out_f: list[IntArray] = []
+
+    def add(sec: IntArray, m: IntArray, v: FloatArray, b: "IntArray | None" = None,
+            f: "IntArray | None" = None) -> None:
+        out_m.append(m.astype(np.int64))
+        out_v.append(v)
+        out_b.append(np.repeat(bounds[None, :], sec.size, axis=0) if b is None else b)
+        out_f.append(sec.astype(np.int64) if f is None else f)
+
+    def base(n: int) -> tuple[IntArray, FloatArray]:
+        return np.repeat(modes[None, :], n, axis=0), np.repeat(speeds[None, :], n, axis=0)
+
+    sec = np.repeat(np.arange(n_s), offs.size)
+    m, v = base(sec.size)
+    v[np.arange(sec.size), sec] = np.clip(speeds[sec] + np.tile(offs, n_s), v_lo, v_hi)
+    add(sec, m, v)
+    # mode changes at the current command
+    sec = np.repeat(np.arange(n_s), 2)
+    m, v = base(sec.size)
+    m[np.arange(sec.size), sec] = (modes[sec] + np.tile([1, 2], n_s)) % 3
+    add(sec, m, v)
+    # copy the neighbour's (mode, command) into section i (merges two sections' settings)
+    for d in (-1, 1):
+        sec = np.arange(max(0, -d), n_s - max(0, d))
+        m, v = base(sec.size)
+        m[np.arange(sec.size), sec] = modes[sec + d]
+        v[np.arange(sec.size), sec] = speeds[sec + d]
+        add(sec, m, v)
+    # acceleration phase: sections 0..i accelerate with one command (the highest command of
+    # the accelerating sections in the first half, shifted, or a lattice code)
+    acc = np.nonzero(modes[: max(1, n_s // 2)] == MODE_ACCEL)[0]
+    if acc.size and structural:
+        v_acc = float(np.max(speeds[acc]))
+        cmds = np.unique(np.clip(np.concatenate(([v_acc], v_acc + offs, codes)), v_lo, v_hi))
+        ends = np.arange(max(1, n_s // 2))
+        sec, vv = (a.ravel() for a in np.meshgrid(ends, cmds, indexing="ij"))
+        upto = np.arange(n_s)[None, :] <= sec[:, None]
+        add(sec, np.where(upto, MODE_ACCEL, modes[None, :]),
+            np.where(upto, vv[:, None], speeds[None, :]), f=np.zeros(sec.size, np.int64))
+        # ... and coasting without ceiling from section i + 1 to the stop (the classic
+        # accelerate -- coast structure, a restart away from staircase local optima)
+        add(sec, np.where(upto, MODE_ACCEL, MODE_COAST),
+            np.where(upto, vv[:, None], v_hi), f=np.zeros(sec.size, np.int64))
+        # ... then coasting without ceiling in section i + 1, the switch (the start of
+        # section i + 1) anywhere near its boundary
+        shifts = np.array([-12, -6, -3, -1, 1, 3, 6, 12])
+        ends = np.arange(max(1, min(n_s - 1, n_s // 2)))
+        sec, vv, sh = (a.ravel() for a in np.meshgrid(ends, [v_acc, v_hi], shifts,
+                                                      indexing="ij"))
+        nb = bounds[sec + 1] + sh
+        lo = bounds[sec] + 1
+        hi = np.where(sec + 2 < n_s, bounds[np.minimum(sec + 2, n_s - 1)], n_steps) - 1
+        keep = (nb >= lo) & (nb <= hi)
+        sec, vv, nb = sec[keep], vv[keep], nb[keep]
+        upto = np.arange(n_s)[None, :] <= sec[:, None]
+        nxt = np.arange(n_s)[None, :] == sec[:, None] + 1
+        b = np.repeat(bounds[None, :], sec.size, axis=0)
+        b[np.arange(sec.size), sec + 1] = nb
+        add(sec, np.where(upto, MODE_ACCEL, np.where(nxt, MODE_COAST, modes[None, :])),
+            np.where(upto, vv[:, None], np.where(nxt, v_hi, speeds[None, :])), b,
+            np.zeros(sec.size, np.int64))
+    # section boundaries moved by a few sub-steps (the switching points off the partition)
+    if n_s > 1:
+        shifts = np.array([-8, -4, -2, -1, 1, 2, 4, 8])
+        sec = np.repeat(np.arange(1, n_s), shifts.size)
+        nb = bounds[sec] + np.tile(shifts, n_s - 1)
+        lo = bounds[sec - 1] + 1
+        hi = np.where(sec + 1 < n_s, bounds[np.minimum(sec + 1, n_s - 1)], n_steps) - 1
+        keep = (nb >= lo) & (nb <= hi)
+        sec, nb = sec[keep], nb[keep]
+        b = np.repeat(bounds[None, :], sec.size, axis=0)
+        b[np.arange(sec.size), sec] = nb
+        m, v = base(sec.size)
+        add(sec, m, v, b, sec - 1)
+    return (np.concatenate(out_m), np.concatenate(out_v), np.concatenate(out_b),
+            np.concatenate(out_f))
+
+
+def canonical(sim: TourSimulator, modes: IntArray, speeds: FloatArray, bounds: IntArray,
+              hist: FloatArray) -> FloatArray:
+    """Equivalent commands: accelerate sections never reaching theirs get their top speed.
+
+    An accelerate section whose command is above the speed it reaches drives full traction
+    whatever the command; with the command at the reached speed, the shifts of the search
+    move the traction end.  Coast sections whose command never caps get the top command.
+    """
+    v = np.sqrt(2.0 * np.maximum(hist[0], 0.0))
+    ends = np.append(bounds[1:], sim.n_steps)
+    top = np.maximum.reduceat(v[1:], bounds)
+    out = speeds.copy()
+    acc = (modes == MODE_ACCEL) & (speeds > top + 1e-9)
+    out[acc] = top[acc]
+    coast = (modes == MODE_COAST) & (speeds > top + 1e-6)
+    out[coast] = float(np.max(sim.codes_mps))
+    _ = ends
+    return out
+
+
+def _canonical_checked(sim: TourSimulator, modes: IntArray, speeds: FloatArray,
+                       bounds: IntArray, hist: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """:func:`canonical` if it leaves the exact energy and time unchanged, else the input."""
+    v2 = canonical(sim, modes, speeds, bounds, hist)
+    if np.array_equal(v2, speeds):
+        return speeds, hist
+    h2 = sim.history(modes, v2, bounds)
+    same = abs(h2[2, -1] - hist[2, -1]) <= 1e-9 * max(1.0, abs(hist[2, -1])) and \
+        abs(h2[1, -1] - hist[1, -1]) <= 1e-9 * max(1.0, abs(hist[1, -1]))
+    return (v2, h2) if same else (speeds, hist)
+
+
+def polish_tour(sim: TourSimulator, modes: IntArray, speeds_mps: FloatArray, t_max: float,
+                span_mps: float = 5.0 / 3.6, min_span_mps: float = 0.05 / 3.6,
+                max_rounds: int = 40, n_pairs: int = 24, n_keep: int = 100,
+                bounds: "IntArray | None" = None) -> PolishedTour:
+    """Continuous exact local search of one tour under the running-time bound ``t_max`` [s]."""
+    cur_m = np.asarray(modes, dtype=np.int64).copy()
+    cur_v = np.asarray(speeds_mps, dtype=float).copy()
+    cur_b = (sim.equal_bounds() if bounds is None else np.asarray(bounds, np.int64)).copy()
+    v_lo, v_hi = 1.0, float(np.max(sim.codes_mps))
+    hist = sim.history(cur_m, cur_v, cur_b)
+    cur_e, cur_t = float(hist[2, -1]), float(hist[1, -1])
+    evals = 1
+    cur_v, hist = _canonical_checked(sim, cur_m, cur_v, cur_b, hist)
+    span = span_mps
+    rounds = 0
+    structural = True
+    for rounds in range(1, max_rounds + 1):
+        cm, cv, cb, first = _moves(cur_m, cur_v, cur_b, span, v_lo, v_hi, sim.codes_mps,
+                                   sim.n_steps, structural)
+        t, en, _, stl, _ = sim.run(cm, cv, cb, first, hist)
+        evals += t.size
+        en = np.where(stl | ~np.isfinite(t), np.inf, en)
+        d_e = en - cur_e
+        d_t = t - cur_t
+        slack = t_max - cur_t
+        ok = np.isfinite(en) & (t <= t_max + 1e-9)
+        best_k = int(np.argmin(np.where(ok, en, np.inf))) if np.any(ok) else -1
+        best_e = float(en[best_k]) if best_k >= 0 else np.inf
+        best_tour = (cm[best_k], cv[best_k], cb[best_k]) if best_k >= 0 else None
+        # pairs of moves on different sections: additive prediction, then exact check
+        fin = np.isfinite(d_e) & np.isfinite(d_t) & (np.abs(d_t) < 1e3)
+        idx = np.nonzero(fin)[0]
+        if idx.size > 2 * n_keep:  # the most energy-saving and the most time-saving moves
+            idx = np.union1d(idx[np.argsort(d_e[idx])[:n_keep]],
+                             idx[np.argsort(d_t[idx])[:n_keep]])
+        if idx.size > 1 and n_pairs > 0:
+            bch = cb[idx] != cur_b[None, :]
+            bch_prev = np.concatenate((bch[:, 1:], np.zeros((idx.size, 1), bool)), axis=1)
+            changed = (cm[idx] != cur_m[None, :]) | (cv[idx] != cur_v[None, :]) | bch \
+                | bch_prev
+            pe = d_e[idx][:, None] + d_e[idx][None, :]
+            pt = d_t[idx][:, None] + d_t[idx][None, :]
+            ci = changed.astype(np.float64)
+            overlap = (ci @ ci.T) > 0
+            bad = overlap | (pt > slack) | (pe >= -1e-9 * max(cur_e, 1.0))
+            bad |= np.tril(np.ones_like(bad), 0)
+            score = np.where(bad, np.inf, pe)
+            flat = np.argsort(score, axis=None)[:n_pairs]
+            flat = flat[np.isfinite(score.ravel()[flat])]
+            if flat.size:
+                a, b = np.unravel_index(flat, score.shape)
+                ia, ib = idx[a], idx[b]
+                pm = np.where(changed[a], cm[ia], cm[ib])
+                pv = np.where(changed[a], cv[ia], cv[ib])
+                pb = np.where(bch[a], cb[ia], cb[ib])
+                pf = np.minimum(first[ia], first[ib])
+                t2, en2, _, st2, _ = sim.run(pm, pv, pb, pf, hist)
+                evals += t2.size
+                ok2 = ~st2 & np.isfinite(t2) & (t2 <= t_max + 1e-9)
+                if np.any(ok2):
+                    k2 = int(np.argmin(np.where(ok2, en2, np.inf)))
+                    if en2[k2] < best_e:
+                        best_e = float(en2[k2])
+                        best_tour = (pm[k2], pv[k2], pb[k2])
+        cur_score = cur_e if cur_t <= t_max + 1e-9 else np.inf
+        if best_tour is not None and best_e < cur_score - 1e-7 * max(cur_e, 1.0):
+            cur_m, cur_v, cur_b = (x.copy() for x in best_tour)
+            hist = sim.history(cur_m, cur_v, cur_b)
+            cur_e, cur_t = float(hist[2, -1]), float(hist[1, -1])
+            evals += 1
+            cur_v, hist = _canonical_checked(sim, cur_m, cur_v, cur_b, hist)
+        else:
+            span *= 0.5
+            # the structure is settled below a quarter of the initial span: refine with the
+            # cheap moves (the acceleration-phase moves are most of the cost)
+            structural = span > 0.2 * span_mps
+            if span < min_span_mps:
+                break
+    return PolishedTour(cur_m, cur_v, cur_b, cur_e, cur_t, evals, rounds)
