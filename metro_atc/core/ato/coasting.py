@@ -145,9 +145,10 @@ def warm_up_plan_kernel(train: TrainParams, limits: OperatingLimits,
     """
     if resolve_plan_kernel(kernel) == "numpy":
         return False
-    from metro_atc.core.ato.switching_kernel import pack_constants, simulate_kernel
+    from metro_atc.core.ato.step_kernel import pack_train
+    from metro_atc.core.ato.switching_kernel import simulate_kernel
     one = np.ones(1)
-    simulate_kernel(pack_constants(train, limits), np.array([0.0, 1.0]), 1.0, np.zeros(1),
+    simulate_kernel(pack_train(train, limits), np.array([0.0, 1.0]), 1.0, np.zeros(1),
                     np.full(1, 1e4), np.zeros(1), one, False)
     return True
 
@@ -165,13 +166,14 @@ def simulate_switching(run: RunModel, coast_point_s: FloatArray, delta: FloatArr
     """
     if resolve_plan_kernel(kernel) == "numpy":
         return simulate_switching_numpy(run, coast_point_s, delta, h_m, record)
-    from metro_atc.core.ato.switching_kernel import pack_constants, simulate_kernel
+    from metro_atc.core.ato.step_kernel import pack_train
+    from metro_atc.core.ato.switching_kernel import simulate_kernel
     yc = np.ascontiguousarray(np.atleast_1d(np.asarray(coast_point_s, dtype=float)))
     dl = np.ascontiguousarray(np.broadcast_to(np.asarray(delta, dtype=float), yc.shape))
     tab = step_table(run, float(h_m))
     c = _CONSTANTS.get(run)
     if c is None:
-        c = pack_constants(run.train, run.limits)
+        c = pack_train(run.train, run.limits)
         _CONSTANTS[run] = c
     t, en, stalled, hist = simulate_kernel(c, tab.s, tab.h, tab.fg, tab.cap, yc, dl,
                                            bool(record))
