@@ -204,7 +204,7 @@ def polish_tour(sim: TourSimulator, modes: IntArray, speeds_mps: FloatArray, t_m
     for rounds in range(1, max_rounds + 1):
         cm, cv, cb, first = _moves(cur_m, cur_v, cur_b, span, v_lo, v_hi, sim.codes_mps,
                                    sim.n_steps, structural)
-        t, en, _, stl, _ = sim.run(cm, cv, cb, first, hist)
+        t, en, _, stl, _ = sim.run(cm, cv, cb, first, hist, tour=(cur_m, cur_v, cur_b))
         evals += t.size
         en = np.where(stl | ~np.isfinite(t), np.inf, en)
         d_e = en - cur_e
@@ -241,7 +241,8 @@ def polish_tour(sim: TourSimulator, modes: IntArray, speeds_mps: FloatArray, t_m
                 pv = np.where(changed[a], cv[ia], cv[ib])
                 pb = np.where(bch[a], cb[ia], cb[ib])
                 pf = np.minimum(first[ia], first[ib])
-                t2, en2, _, st2, _ = sim.run(pm, pv, pb, pf, hist)
+                t2, en2, _, st2, _ = sim.run(pm, pv, pb, pf, hist,
+                                             tour=(cur_m, cur_v, cur_b))
                 evals += t2.size
                 ok2 = ~st2 & np.isfinite(t2) & (t2 <= t_max + 1e-9)
                 if np.any(ok2):
