@@ -337,6 +337,7 @@ class TourSimulator:
             first: "IntArray | None" = None, base: "FloatArray | None" = None,
             record: bool = False,
             tour: "tuple[IntArray, FloatArray, IntArray] | None" = None,
+            start: "tuple[FloatArray, FloatArray, FloatArray] | None" = None,
             ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_], FloatArray]:
         """(time [s], energy [J], e_end, stalled, e history or empty) of tours (K, N_s).
 
@@ -345,7 +346,9 @@ class TourSimulator:
         first / base: the section each tour starts at (K,) and the (3, n + 1) history of a
         tour it shares the sections before with (:meth:`history`); tour: that base tour
         (modes, speeds [m/s], bounds), to stop a candidate once it rejoins it (see
-        :func:`simulate_kernel`; e_end is then the base's).
+        :func:`simulate_kernel`; e_end is then the base's); start: the state (e, t [s],
+        energy [J]) of each tour at the start of section ``first`` (K,) each, given by the
+        caller (e.g. from another tour sharing that prefix) instead of read from ``base``.
         """
         m = np.ascontiguousarray(np.atleast_2d(modes), dtype=np.int64)
         sp = np.broadcast_to(np.asarray(speeds_mps, dtype=np.float64), m.shape)
@@ -377,7 +380,11 @@ class TourSimulator:
             sec_d = diff.copy()
             sec_d[:, :-1] |= diff[:, 1:] & (b != np.asarray(tb, np.int64)[None, :])[:, 1:]
             f_d = np.where(any_d, np.argmax(sec_d, axis=1), m.shape[1] - 1)
-            if first is not None:
+            if start is not None and first is not None:
+                e, t, en = (np.array(x, dtype=np.float64) for x in start)
+                f = np.ascontiguousarray(first, dtype=np.int64)
+                st = ~np.isfinite(t)
+            elif first is not None:
                 f1 = np.maximum(f, f_d)
                 j1 = b[np.arange(n_k), f1]
                 e, t, en = (np.array(base[i, j1], dtype=np.float64) for i in range(3))
