@@ -20,13 +20,18 @@ interpolation).  Neighbourhood of a tour:
   the same with coasting from section i + 1 to the stop, and "sections 0..i accelerate,
   section i + 1 coasts without ceiling" with the switch moved by up to 12 sub-steps;
 - every move is simulated exactly from the first section it changes (the prefix is the
-  current tour's).  The running-time bound is usually active, so an energy-saving move costs
-  time: besides the feasible single moves, the pairs of moves on disjoint sections whose
-  summed time change fits the slack and whose summed energy change is the lowest (additive
-  prediction) are simulated exactly;
+  current tour's, or for the acceleration-phase moves an "accelerate everywhere at c"
+  tour's) and stops where it rejoins the current tour bit for bit (the rest is then the
+  current tour's, :func:`metro_atc.core.ato.tour_kernel.simulate_kernel`).  The
+  running-time bound is usually active, so an energy-saving move costs time: besides the
+  feasible single moves, the pairs of moves on disjoint sections whose summed time change
+  fits the slack and whose summed energy change is the lowest (additive prediction) are
+  simulated exactly;
 - the best exactly simulated candidate meeting the bound replaces the tour (commands that
   do not act are then set to equivalent canonical values, :func:`canonical`); ``span``
-  halves when nothing improves; stops below ``min_span_mps`` or after ``max_rounds``.
+  halves when nothing improves; stops below ``min_span_mps`` or after ``max_rounds``;
+- the acceleration-phase moves (most of the cost) are in a round only while they win, in
+  the first round, or when the other moves found nothing (then with every lattice code).
 
 Deterministic; never returns a tour worse than its input (or slower than the bound when the
 input met it).
