@@ -262,15 +262,27 @@ def polish_tour(sim: TourSimulator, modes: IntArray, speeds_mps: FloatArray, t_m
     structural = True
     stuck = False  # the cheap moves found nothing at the current tour and span
     last_struct = True  # the last accepted move was an acceleration-phase move
+    prev: "tuple[FloatArray, FloatArray, NDArray[np.bool_]] | None" = None
     for rounds in range(1, max_rounds + 1):
         use_struct = structural and (last_struct or stuck)
         cm, cv, cb, first, is_st = _moves(cur_m, cur_v, cur_b, span, v_lo, v_hi,
                                           sim.codes_mps, sim.n_steps, use_struct,
                                           lattice=rounds == 1 or stuck)
-        f_run, start = _starts(sim, cm, cv, cb, (cur_m, cur_v, cur_b), hist)
-        t, en, _, stl, _ = sim.run(cm, cv, cb, f_run, hist, tour=(cur_m, cur_v, cur_b),
-                                   start=start)
-        evals += t.size
+        # a round after a failed cheap round at the same tour and span: its cheap moves are
+        # that round's (same order), only the acceleration-phase moves are simulated
+        reuse = stuck and prev is not None and prev[0].size == int(np.sum(~is_st))
+        sel = np.nonzero(is_st)[0] if reuse else np.arange(is_st.size)
+        f_run, start = _starts(sim, cm[sel], cv[sel], cb[sel], (cur_m, cur_v, cur_b), hist)
+        t_s, en_s, _, stl_s, _ = sim.run(cm[sel], cv[sel], cb[sel], f_run, hist,
+                                         tour=(cur_m, cur_v, cur_b), start=start)
+        evals += t_s.size
+        if reuse and prev is not None:
+            t, en, stl = np.empty(is_st.size), np.empty(is_st.size), np.empty(is_st.size, bool)
+            t[sel], en[sel], stl[sel] = t_s, en_s, stl_s
+            t[~is_st], en[~is_st], stl[~is_st] = prev
+        else:
+            t, en, stl = t_s, en_s, stl_s
+        prev = (t, en, stl)
         en = np.where(stl | ~np.isfinite(t), np.inf, en)
         d_e = en - cur_e
         d_t = t - cur_t
