@@ -68,6 +68,9 @@ class PolishedTour:
     rounds: int
 
 
+_OFFS = np.array([-1.0, -0.5, -0.25, 0.25, 0.5, 1.0])  # command shifts [x span], first rows
+
+
 def _moves(modes: IntArray, speeds: FloatArray, bounds: IntArray, span: float,
            v_lo: float, v_hi: float, codes: FloatArray, n_steps: int,
            structural: bool = True, lattice: bool = True
@@ -78,7 +81,7 @@ def _moves(modes: IntArray, speeds: FloatArray, bounds: IntArray, span: float,
     the last output flags them; lattice: their commands include every lattice code.
     """
     n_s = modes.size
-    offs = np.array([-1.0, -0.5, -0.25, 0.25, 0.5, 1.0]) * span
+    offs = _OFFS * span
     out_m: list[IntArray] = []
     out_v: list[FloatArray] = []
     out_b: list[IntArray] = []
@@ -262,16 +265,33 @@ def polish_tour(sim: TourSimulator, modes: IntArray, speeds_mps: FloatArray, t_m
     structural = True
     stuck = False  # the cheap moves found nothing at the current tour and span
     last_struct = True  # the last accepted move was an acceleration-phase move
-    prev: "tuple[FloatArray, FloatArray, NDArray[np.bool_]] | None" = None
+    # figures of the last round at the current tour: t, en, stalled, reusable rows, span
+    prev: "tuple[FloatArray, FloatArray, NDArray[np.bool_], NDArray[np.bool_], float] | None" \
+        = None
     for rounds in range(1, max_rounds + 1):
         use_struct = structural and (last_struct or stuck)
         cm, cv, cb, first, is_st = _moves(cur_m, cur_v, cur_b, span, v_lo, v_hi,
                                           sim.codes_mps, sim.n_steps, use_struct,
                                           lattice=rounds == 1 or stuck)
-        # a round after a failed cheap round at the same tour and span: its cheap moves are
-        # that round's (same order), only the acceleration-phase moves are simulated
-        reuse = stuck and prev is not None and prev[0].size == int(np.sum(~is_st))
-        sel = np.nonzero(is_st)[0] if reuse else np.arange(is_st.size)
+        # a round after a failed one (same tour): the moves not depending on the span (all
+        # but the command shifts, the first rows, and the acceleration-phase moves), and at
+        # the same span the shifts too, are that round's (same order): not simulated again
+        n_shift = _OFFS.size * cur_m.size
+
+        def reusable(st: NDArray[np.bool_], same_span: bool) -> NDArray[np.bool_]:
+            r = ~st
+            if not same_span:
+                r[:n_shift] = False
+            return r
+
+        mine = np.zeros(is_st.size, bool)
+        if prev is not None:
+            mine = reusable(is_st, prev[4] == span)
+            theirs = prev[3] & reusable(np.zeros(prev[3].size, bool), prev[4] == span)
+            if int(np.sum(mine)) != int(np.sum(theirs)):
+                mine[:] = False
+        reuse = bool(np.any(mine)) and prev is not None
+        sel = np.nonzero(~mine)[0]
         f_run, start = _starts(sim, cm[sel], cv[sel], cb[sel], (cur_m, cur_v, cur_b), hist)
         t_s, en_s, _, stl_s, _ = sim.run(cm[sel], cv[sel], cb[sel], f_run, hist,
                                          tour=(cur_m, cur_v, cur_b), start=start)
@@ -279,10 +299,10 @@ def polish_tour(sim: TourSimulator, modes: IntArray, speeds_mps: FloatArray, t_m
         if reuse and prev is not None:
             t, en, stl = np.empty(is_st.size), np.empty(is_st.size), np.empty(is_st.size, bool)
             t[sel], en[sel], stl[sel] = t_s, en_s, stl_s
-            t[~is_st], en[~is_st], stl[~is_st] = prev
+            t[mine], en[mine], stl[mine] = (x[theirs] for x in prev[:3])
         else:
             t, en, stl = t_s, en_s, stl_s
-        prev = (t, en, stl)
+        prev = (t, en, stl, ~is_st, span)
         en = np.where(stl | ~np.isfinite(t), np.inf, en)
         d_e = en - cur_e
         d_t = t - cur_t
@@ -338,6 +358,7 @@ def polish_tour(sim: TourSimulator, modes: IntArray, speeds_mps: FloatArray, t_m
             cur_v, hist = _canonical_checked(sim, cur_m, cur_v, cur_b, hist)
             stuck = False
             last_struct = win_struct
+            prev = None
         elif structural and not use_struct:
             stuck = True  # next round: the whole neighbourhood at the same span
         else:
