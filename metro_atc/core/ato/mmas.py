@@ -175,8 +175,8 @@ def evaluate_neighbours(tables: SectionTables, modes: IntArray, codes: IntArray,
                         ) -> tuple[FloatArray, FloatArray]:
     """(time [s], energy [J]) of every single-section move of a tour, vectorised.
 
-    A move changing section i shares the tour's prefix up to i, so the candidates become
-    active section by section (contiguous slices, candidates sorted by section).
+    A move changing section i shares the tour's prefix up to i: it starts at section i from
+    the tour's state there (compiled, :func:`metro_atc.core.ato.tour_kernel.table_kernel`).
     """
     sec, mode, code, _ = moves
     n_s = modes.size
