@@ -219,3 +219,65 @@ def test_seeds_give_different_colonies() -> None:
     assert np.array_equal(again.history, runs[1].history)
     for sd in (2, 3):
         assert not np.array_equal(runs[sd].history, runs[1].history)
+
+
+def test_tour_kernel_rejoin_and_first_changed_section() -> None:
+    """Candidates stopped where they rejoin the base tour equal their full simulation.
+
+    Single-section changes of a base tour (command, mode, moved bound) on a graded run:
+    many rejoin the base bit for bit at a later section (speed-code caps); the shortcut
+    (base's remaining time and energy) must agree with the full run to round-off.
+    """
+    run = _graded_run()
+    tab = build_section_tables(run, n_sections=12)
+    sim = TourSimulator(tab)
+    rng = np.random.default_rng(7)
+    modes = rng.integers(0, 3, 12)
+    modes[0] = MODE_ACCEL
+    speeds = rng.choice(tab.codes_mps, 12)
+    bounds = sim.equal_bounds()
+    h = sim.history(modes, speeds, bounds)
+    n = 60
+    cm = np.repeat(modes[None], n, axis=0)
+    cv = np.repeat(speeds[None], n, axis=0)
+    cb = np.repeat(bounds[None], n, axis=0)
+    sec = rng.integers(1, 11, n)
+    rows = np.arange(n)
+    kind = rows % 3
+    cv[rows[kind == 0], sec[kind == 0]] = rng.choice(tab.codes_mps, int(np.sum(kind == 0)))
+    cm[rows[kind == 1], sec[kind == 1]] = (modes[sec[kind == 1]] + 1) % 3
+    cb[rows[kind == 2], sec[kind == 2]] += rng.choice([-3, 2], int(np.sum(kind == 2)))
+    t_f, e_f, _, st_f, _ = sim.run(cm, cv, cb)
+    t_j, e_j, _, st_j, _ = sim.run(cm, cv, cb, np.zeros(n, np.int64), h,
+                                   tour=(modes, speeds, bounds))
+    assert np.array_equal(st_f, st_j)
+    ok = ~st_f
+    assert ok.sum() >= 40
+    np.testing.assert_allclose(t_j[ok], t_f[ok], rtol=1e-11)
+    np.testing.assert_allclose(e_j, e_f, rtol=1e-11, atol=1e-6)
+    assert np.any(e_j != e_f)  # the shortcut was taken (its round-off differs)
+    # the base itself and a tour identical to it
+    t_b, e_b, _, _, _ = sim.run(modes[None], speeds[None], bounds[None], np.zeros(1, np.int64),
+                                h, tour=(modes, speeds, bounds))
+    assert t_b[0] == pytest.approx(h[1, -1], rel=1e-12)
+    assert e_b[0] == pytest.approx(h[2, -1], rel=1e-12)
+
+
+def test_table_evaluation_equals_section_lookups() -> None:
+    """Compiled table evaluation = :meth:`SectionTables.lookup` section by section."""
+    run = _graded_run()
+    tab = build_section_tables(run, n_sections=12)
+    rng = np.random.default_rng(3)
+    modes = rng.integers(0, 3, (40, 12))
+    codes = rng.integers(0, tab.n_codes, (40, 12))
+    t, en, e_end = evaluate_tours(tab, modes, codes)
+    e = np.zeros(40)
+    t_ref = np.zeros(40)
+    en_ref = np.zeros(40)
+    for i in range(12):
+        e, dt, de = tab.lookup(i, modes[:, i], codes[:, i], e)
+        t_ref += dt
+        en_ref += de
+    np.testing.assert_allclose(t, t_ref, rtol=1e-13)
+    np.testing.assert_allclose(en, en_ref, rtol=1e-13)
+    np.testing.assert_allclose(e_end, e, rtol=1e-13)

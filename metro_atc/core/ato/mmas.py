@@ -58,7 +58,7 @@ from numpy.typing import NDArray
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, MODE_CRUISE
 from metro_atc.core.ato.mmas_polish import polish_tour
 from metro_atc.core.ato.sections import SectionTables
-from metro_atc.core.ato.tour_kernel import TourSimulator
+from metro_atc.core.ato.tour_kernel import TourSimulator, table_kernel
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -134,15 +134,17 @@ def heuristic(tables: SectionTables, grade_scale: float = 0.02) -> FloatArray:
 
 def evaluate_tours(tables: SectionTables, modes: IntArray, codes: IntArray
                    ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Table-based (online stage) evaluation of tours (K, N_s): (time [s], energy [J], e_end)."""
-    n_k, n_s = modes.shape
-    e = np.zeros(n_k)
-    t = np.zeros(n_k)
-    en = np.zeros(n_k)
-    for i in range(n_s):
-        e, dt, de = tables.lookup(i, modes[:, i], codes[:, i], e)
-        t += dt
-        en += de
+    """Table-based (online stage) evaluation of tours (K, N_s): (time [s], energy [J], e_end).
+
+    Compiled (:func:`metro_atc.core.ato.tour_kernel.table_kernel`, the arithmetic of
+    :meth:`SectionTables.lookup` section by section).
+    """
+    m = np.ascontiguousarray(modes, dtype=np.int64)
+    c = np.ascontiguousarray(codes, dtype=np.int64)
+    n_k = m.shape[0]
+    e, t, en = np.zeros(n_k), np.zeros(n_k), np.zeros(n_k)
+    table_kernel(tables.packed, tables.h_e, int(tables.e_grid.size), tables.n_codes, m, c,
+                 np.zeros(n_k, dtype=np.int64), e, t, en)
     return t, en, e
 
 
@@ -173,30 +175,31 @@ def evaluate_neighbours(tables: SectionTables, modes: IntArray, codes: IntArray,
                         ) -> tuple[FloatArray, FloatArray]:
     """(time [s], energy [J]) of every single-section move of a tour, vectorised.
 
-    A move changing section i shares the tour's prefix up to i, so the candidates become
-    active section by section (contiguous slices, candidates sorted by section).
+    A move changing section i shares the tour's prefix up to i: it starts at section i from
+    the tour's state there (compiled, :func:`metro_atc.core.ato.tour_kernel.table_kernel`).
     """
-    sec, mode, code, ends = moves
-    n = sec.size
-    e = np.zeros(n)
-    t = np.zeros(n)
-    en = np.zeros(n)
-    e_p, t_p, en_p = 0.0, 0.0, 0.0
-    begin = 0
-    for j in range(modes.size):
-        stop = int(ends[j])
-        e[begin:stop] = e_p
-        t[begin:stop] = t_p
-        en[begin:stop] = en_p
-        own = sec[:stop] == j
-        mj = np.where(own, mode[:stop], modes[j])
-        cj = np.where(own, code[:stop], codes[j])
-        e[:stop], dt, de = tables.lookup(j, mj, cj, e[:stop])
-        t[:stop] += dt
-        en[:stop] += de
-        e1, dt1, de1 = tables.lookup(j, modes[j:j + 1], codes[j:j + 1], np.array([e_p]))
-        e_p, t_p, en_p = float(e1[0]), t_p + float(dt1[0]), en_p + float(de1[0])
-        begin = stop
+    sec, mode, code, _ = moves
+    n_s = modes.size
+    # the tour's state at the start of each section (the candidates' common prefix)
+    e_p, t_p, en_p = np.zeros(n_s), np.zeros(n_s), np.zeros(n_s)
+    m1 = np.ascontiguousarray(modes[None, :], dtype=np.int64)
+    c1 = np.ascontiguousarray(codes[None, :], dtype=np.int64)
+    n_e = int(tables.e_grid.size)
+    for j in range(1, n_s):
+        e1, t1, en1 = e_p[j - 1:j].copy(), t_p[j - 1:j].copy(), en_p[j - 1:j].copy()
+        sub_m = np.ascontiguousarray(m1[:, :j])
+        sub_c = np.ascontiguousarray(c1[:, :j])
+        table_kernel(tables.packed, tables.h_e, n_e, tables.n_codes, sub_m, sub_c,
+                     np.array([j - 1], dtype=np.int64), e1, t1, en1)
+        e_p[j], t_p[j], en_p[j] = e1[0], t1[0], en1[0]
+    cm = np.repeat(m1, sec.size, axis=0)
+    cc = np.repeat(c1, sec.size, axis=0)
+    rows = np.arange(sec.size)
+    cm[rows, sec] = mode
+    cc[rows, sec] = code
+    e, t, en = e_p[sec].copy(), t_p[sec].copy(), en_p[sec].copy()
+    table_kernel(tables.packed, tables.h_e, n_e, tables.n_codes, cm, cc, sec.copy(), e, t,
+                 en)
     return t, en
 
 

@@ -20,13 +20,18 @@ interpolation).  Neighbourhood of a tour:
   the same with coasting from section i + 1 to the stop, and "sections 0..i accelerate,
   section i + 1 coasts without ceiling" with the switch moved by up to 12 sub-steps;
 - every move is simulated exactly from the first section it changes (the prefix is the
-  current tour's).  The running-time bound is usually active, so an energy-saving move costs
-  time: besides the feasible single moves, the pairs of moves on disjoint sections whose
-  summed time change fits the slack and whose summed energy change is the lowest (additive
-  prediction) are simulated exactly;
+  current tour's, or for the acceleration-phase moves an "accelerate everywhere at c"
+  tour's) and stops where it rejoins the current tour bit for bit (the rest is then the
+  current tour's, :func:`metro_atc.core.ato.tour_kernel.simulate_kernel`).  The
+  running-time bound is usually active, so an energy-saving move costs time: besides the
+  feasible single moves, the pairs of moves on disjoint sections whose summed time change
+  fits the slack and whose summed energy change is the lowest (additive prediction) are
+  simulated exactly;
 - the best exactly simulated candidate meeting the bound replaces the tour (commands that
   do not act are then set to equivalent canonical values, :func:`canonical`); ``span``
-  halves when nothing improves; stops below ``min_span_mps`` or after ``max_rounds``.
+  halves when nothing improves; stops below ``min_span_mps`` or after ``max_rounds``;
+- the acceleration-phase moves (most of the cost) are in a round only while they win, in
+  the first round, or when the other moves found nothing (then with every lattice code).
 
 Deterministic; never returns a tour worse than its input (or slower than the bound when the
 input met it).
@@ -63,19 +68,25 @@ class PolishedTour:
     rounds: int
 
 
-def _moves(modes: IntArray, speeds: FloatArray, bounds: IntArray, span: float,
-           v_lo: float, v_hi: float, codes: FloatArray, n_steps: int, structural: bool = True
-           ) -> tuple[IntArray, FloatArray, IntArray, IntArray]:
-    """Candidate tours (modes, speeds, bounds) and the first section each one changes.
+_OFFS = np.array([-1.0, -0.5, -0.25, 0.25, 0.5, 1.0])  # command shifts [x span], first rows
 
-    structural: include the acceleration-phase moves (the costly part of the neighbourhood).
+
+def _moves(modes: IntArray, speeds: FloatArray, bounds: IntArray, span: float,
+           v_lo: float, v_hi: float, codes: FloatArray, n_steps: int,
+           structural: bool = True, lattice: bool = True
+           ) -> tuple[IntArray, FloatArray, IntArray, IntArray, NDArray[np.bool_]]:
+    """Candidate tours (modes, speeds, bounds), the first section each one changes, structural.
+
+    structural: include the acceleration-phase moves (the costly part of the neighbourhood);
+    the last output flags them; lattice: their commands include every lattice code.
     """
     n_s = modes.size
-    offs = np.array([-1.0, -0.5, -0.25, 0.25, 0.5, 1.0]) * span
+    offs = _OFFS * span
     out_m: list[IntArray] = []
     out_v: list[FloatArray] = []
     out_b: list[IntArray] = []
     out_f: list[IntArray] = []
+    out_s: list[NDArray[np.bool_]] = []
 
     def add(sec: IntArray, m: IntArray, v: FloatArray, b: "IntArray | None" = None,
             f: "IntArray | None" = None) -> None:
@@ -83,6 +94,7 @@ def _moves(modes: IntArray, speeds: FloatArray, bounds: IntArray, span: float,
         out_v.append(v)
         out_b.append(np.repeat(bounds[None, :], sec.size, axis=0) if b is None else b)
         out_f.append(sec.astype(np.int64) if f is None else f)
+        out_s.append(np.full(sec.size, f is not None and not np.any(f)))
 
     def base(n: int) -> tuple[IntArray, FloatArray]:
         return np.repeat(modes[None, :], n, axis=0), np.repeat(speeds[None, :], n, axis=0)
@@ -108,7 +120,8 @@ def _moves(modes: IntArray, speeds: FloatArray, bounds: IntArray, span: float,
     acc = np.nonzero(modes[: max(1, n_s // 2)] == MODE_ACCEL)[0]
     if acc.size and structural:
         v_acc = float(np.max(speeds[acc]))
-        cmds = np.unique(np.clip(np.concatenate(([v_acc], v_acc + offs, codes)), v_lo, v_hi))
+        cmds = np.unique(np.clip(np.concatenate(([v_acc], v_acc + offs,
+                                                 codes if lattice else [])), v_lo, v_hi))
         ends = np.arange(max(1, n_s // 2))
         sec, vv = (a.ravel() for a in np.meshgrid(ends, cmds, indexing="ij"))
         upto = np.arange(n_s)[None, :] <= sec[:, None]
@@ -150,7 +163,7 @@ def _moves(modes: IntArray, speeds: FloatArray, bounds: IntArray, span: float,
         m, v = base(sec.size)
         add(sec, m, v, b, sec - 1)
     return (np.concatenate(out_m), np.concatenate(out_v), np.concatenate(out_b),
-            np.concatenate(out_f))
+            np.concatenate(out_f), np.concatenate(out_s))
 
 
 def canonical(sim: TourSimulator, modes: IntArray, speeds: FloatArray, bounds: IntArray,
@@ -185,6 +198,55 @@ def _canonical_checked(sim: TourSimulator, modes: IntArray, speeds: FloatArray,
     return (v2, h2) if same else (speeds, hist)
 
 
+def _starts(sim: TourSimulator, cm: IntArray, cv: FloatArray, cb: IntArray,
+            tour: tuple[IntArray, FloatArray, IntArray], hist: FloatArray
+            ) -> tuple[IntArray, tuple[FloatArray, FloatArray, FloatArray]]:
+    """First section to simulate and the state there, for candidate tours (K, N_s).
+
+    Each candidate starts after the longest prefix it shares (modes, commands, section
+    starts) with the current tour ``tour`` (history ``hist``) or with one of the
+    "accelerate everywhere at command c" tours (c: the candidates' first command; their
+    histories are simulated once here), the acceleration-phase moves' common prefixes.
+    The state at a candidate's own section start comes from that reference's history,
+    which is the same trajectory up to there (a moved bound i changes section i - 1).
+    """
+    tm, tv, tb = tour
+    n_k, n_s = cm.shape
+    rows = np.arange(n_k)
+
+    def shared(same: NDArray[np.bool_]) -> IntArray:
+        """First section to simulate given per-section equality (K, N_s) of all fields."""
+        lead = np.where(same.all(axis=1), n_s, np.argmin(same, axis=1))
+        s = np.minimum(lead, n_s - 1)
+        # the bound of section s may differ: the reference is then past it at b[k, s]
+        back = (s > 0) & (cb[rows, s] > tb[np.minimum(s, n_s - 1)])
+        return np.where(back, s - 1, s)
+
+    eq_b = cb == tb[None, :]
+    f_base = shared((cm == tm[None, :]) & (cv == tv[None, :]) & eq_b)
+    j = cb[rows, f_base]
+    e, t, en = hist[0, j].copy(), hist[1, j].copy(), hist[2, j].copy()
+    first = f_base
+    acc = (cm[:, 0] == MODE_ACCEL) & (n_s > 1)
+    if np.any(acc):
+        c_k = cv[:, 0]
+        f_acc = shared((cm == MODE_ACCEL) & (cv == c_k[:, None]) & eq_b)
+        use = acc & (f_acc > f_base + 1)
+        if np.any(use):
+            cmds, inv = np.unique(c_k[use], return_inverse=True)
+            mod = np.full(n_s, MODE_ACCEL, dtype=np.int64)
+            idx = np.nonzero(use)[0]
+            jj = cb[idx, f_acc[idx]]
+            for q, c in enumerate(cmds):
+                h = sim.history(mod, np.full(n_s, c), tb)
+                sel = inv == q
+                e[idx[sel]] = h[0, jj[sel]]
+                t[idx[sel]] = h[1, jj[sel]]
+                en[idx[sel]] = h[2, jj[sel]]
+            first = np.where(use, f_acc, f_base)
+    return first.astype(np.int64), (e, t, en)
+
+
 def polish_tour(sim: TourSimulator, modes: IntArray, speeds_mps: FloatArray, t_max: float,
                 span_mps: float = 5.0 / 3.6, min_span_mps: float = 0.05 / 3.6,
                 max_rounds: int = 40, n_pairs: int = 24, n_keep: int = 100,
@@ -201,11 +263,46 @@ def polish_tour(sim: TourSimulator, modes: IntArray, speeds_mps: FloatArray, t_m
     span = span_mps
     rounds = 0
     structural = True
+    stuck = False  # the cheap moves found nothing at the current tour and span
+    last_struct = True  # the last accepted move was an acceleration-phase move
+    # figures of the last round at the current tour: t, en, stalled, reusable rows, span
+    prev: "tuple[FloatArray, FloatArray, NDArray[np.bool_], NDArray[np.bool_], float] | None" \
+        = None
     for rounds in range(1, max_rounds + 1):
-        cm, cv, cb, first = _moves(cur_m, cur_v, cur_b, span, v_lo, v_hi, sim.codes_mps,
-                                   sim.n_steps, structural)
-        t, en, _, stl, _ = sim.run(cm, cv, cb, first, hist)
-        evals += t.size
+        use_struct = structural and (last_struct or stuck)
+        cm, cv, cb, first, is_st = _moves(cur_m, cur_v, cur_b, span, v_lo, v_hi,
+                                          sim.codes_mps, sim.n_steps, use_struct,
+                                          lattice=rounds == 1 or stuck)
+        # a round after a failed one (same tour): the moves not depending on the span (all
+        # but the command shifts, the first rows, and the acceleration-phase moves), and at
+        # the same span the shifts too, are that round's (same order): not simulated again
+        n_shift = _OFFS.size * cur_m.size
+
+        def reusable(st: NDArray[np.bool_], same_span: bool) -> NDArray[np.bool_]:
+            r = ~st
+            if not same_span:
+                r[:n_shift] = False
+            return r
+
+        mine = np.zeros(is_st.size, bool)
+        if prev is not None:
+            mine = reusable(is_st, prev[4] == span)
+            theirs = prev[3] & reusable(np.zeros(prev[3].size, bool), prev[4] == span)
+            if int(np.sum(mine)) != int(np.sum(theirs)):
+                mine[:] = False
+        reuse = bool(np.any(mine)) and prev is not None
+        sel = np.nonzero(~mine)[0]
+        f_run, start = _starts(sim, cm[sel], cv[sel], cb[sel], (cur_m, cur_v, cur_b), hist)
+        t_s, en_s, _, stl_s, _ = sim.run(cm[sel], cv[sel], cb[sel], f_run, hist,
+                                         tour=(cur_m, cur_v, cur_b), start=start)
+        evals += t_s.size
+        if reuse and prev is not None:
+            t, en, stl = np.empty(is_st.size), np.empty(is_st.size), np.empty(is_st.size, bool)
+            t[sel], en[sel], stl[sel] = t_s, en_s, stl_s
+            t[mine], en[mine], stl[mine] = (x[theirs] for x in prev[:3])
+        else:
+            t, en, stl = t_s, en_s, stl_s
+        prev = (t, en, stl, ~is_st, span)
         en = np.where(stl | ~np.isfinite(t), np.inf, en)
         d_e = en - cur_e
         d_t = t - cur_t
@@ -214,6 +311,7 @@ def polish_tour(sim: TourSimulator, modes: IntArray, speeds_mps: FloatArray, t_m
         best_k = int(np.argmin(np.where(ok, en, np.inf))) if np.any(ok) else -1
         best_e = float(en[best_k]) if best_k >= 0 else np.inf
         best_tour = (cm[best_k], cv[best_k], cb[best_k]) if best_k >= 0 else None
+        win_struct = bool(is_st[best_k]) if best_k >= 0 else False
         # pairs of moves on different sections: additive prediction, then exact check
         fin = np.isfinite(d_e) & np.isfinite(d_t) & (np.abs(d_t) < 1e3)
         idx = np.nonzero(fin)[0]
@@ -241,7 +339,8 @@ def polish_tour(sim: TourSimulator, modes: IntArray, speeds_mps: FloatArray, t_m
                 pv = np.where(changed[a], cv[ia], cv[ib])
                 pb = np.where(bch[a], cb[ia], cb[ib])
                 pf = np.minimum(first[ia], first[ib])
-                t2, en2, _, st2, _ = sim.run(pm, pv, pb, pf, hist)
+                t2, en2, _, st2, _ = sim.run(pm, pv, pb, pf, hist,
+                                             tour=(cur_m, cur_v, cur_b))
                 evals += t2.size
                 ok2 = ~st2 & np.isfinite(t2) & (t2 <= t_max + 1e-9)
                 if np.any(ok2):
@@ -249,6 +348,7 @@ def polish_tour(sim: TourSimulator, modes: IntArray, speeds_mps: FloatArray, t_m
                     if en2[k2] < best_e:
                         best_e = float(en2[k2])
                         best_tour = (pm[k2], pv[k2], pb[k2])
+                        win_struct = False
         cur_score = cur_e if cur_t <= t_max + 1e-9 else np.inf
         if best_tour is not None and best_e < cur_score - 1e-7 * max(cur_e, 1.0):
             cur_m, cur_v, cur_b = (x.copy() for x in best_tour)
@@ -256,7 +356,13 @@ def polish_tour(sim: TourSimulator, modes: IntArray, speeds_mps: FloatArray, t_m
             cur_e, cur_t = float(hist[2, -1]), float(hist[1, -1])
             evals += 1
             cur_v, hist = _canonical_checked(sim, cur_m, cur_v, cur_b, hist)
+            stuck = False
+            last_struct = win_struct
+            prev = None
+        elif structural and not use_struct:
+            stuck = True  # next round: the whole neighbourhood at the same span
         else:
+            stuck = False
             span *= 0.5
             # the structure is settled below a quarter of the initial span: refine with the
             # cheap moves (the acceleration-phase moves are most of the cost)

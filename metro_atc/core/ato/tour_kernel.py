@@ -186,6 +186,7 @@ def simulate_kernel(p: FloatArray, fg: FloatArray, cap: FloatArray, modes: IntAr
                     e_codes: FloatArray, bounds: IntArray, first: IntArray,
                     e_out: FloatArray, t_out: FloatArray, en_out: FloatArray,
                     st_out: NDArray[np.bool_], hist: FloatArray,
+                    last: IntArray, base: FloatArray,
                     ) -> None:  # pragma: no cover - compiled
     """Exact simulation of tours: mode, command e = v^2/2 and first sub-step per section.
 
@@ -194,10 +195,19 @@ def simulate_kernel(p: FloatArray, fg: FloatArray, cap: FloatArray, modes: IntAr
     sub-step, as :func:`sections.simulate_tours` does).  first (K,): section the simulation
     starts at; e_out, t_out, en_out, st_out hold the state at its start on entry and the
     final state on exit.  hist (K, n + 1) gets the e history when it has n + 1 columns.
+
+    Rejoining a base tour: last (K,) is the last section where tour k differs from the tour
+    whose (3, n + 1) history is ``base`` (sections after it are the base's, same bounds).
+    A section's run depends only on its entry state e (hold and latch are set from it), so
+    when tour k enters a section i > last[k] with the base's e *bit for bit*, the rest of
+    the run is the base's: the final time and energy are the base's final figures plus the
+    differences at that sub-step (round-off only), and the simulation stops there.  Off when
+    ``last[k] < 0``, the base is stalled or a history is recorded.
     """
     n_k, n_s = modes.shape
     n = fg.shape[0]
     rec = hist.shape[1] == n + 1
+    can_join = base.shape[1] == n + 1 and (not rec) and math.isfinite(base[1, n])
     for k in range(n_k):
         e = e_out[k]
         t = t_out[k]
@@ -206,6 +216,13 @@ def simulate_kernel(p: FloatArray, fg: FloatArray, cap: FloatArray, modes: IntAr
         if rec:
             hist[k, bounds[k, first[k]]] = e
         for i in range(first[k], n_s):
+            if can_join and 0 <= last[k] < i and (not stalled):
+                j0 = bounds[k, i]
+                if e == base[0, j0]:
+                    t += base[1, n] - base[1, j0]
+                    en += base[2, n] - base[2, j0]
+                    e = base[0, n]
+                    break
             m = modes[k, i]
             e_code = e_codes[k, i]
             hold = min(e, e_code)
@@ -253,6 +270,36 @@ def history_kernel(p: FloatArray, fg: FloatArray, cap: FloatArray, modes: IntArr
             out[2, j + 1] = en
 
 
+@njit(cache=True, error_model="numpy")
+def table_kernel(packed: FloatArray, h_e: float, n_e: int, n_c: int, modes: IntArray,
+                 codes: IntArray, first: IntArray, e_out: FloatArray, t_out: FloatArray,
+                 en_out: FloatArray) -> None:  # pragma: no cover - compiled
+    """Table evaluation of tours (:meth:`sections.SectionTables.lookup`, same arithmetic).
+
+    packed: the tables' (rows, 3) look-up array (e_out, time [s], energy [J]); modes, codes
+    (K, N_s); first (K,): section each tour starts at; e_out, t_out, en_out: the state at
+    that section on entry, the final state on exit.
+    """
+    n_k, n_s = modes.shape
+    hi = n_e - 1.000001
+    for k in range(n_k):
+        e = e_out[k]
+        t = t_out[k]
+        en = en_out[k]
+        for i in range(first[k], n_s):
+            f = e / h_e
+            f = min(max(f, 0.0), hi)
+            j0 = int(f)
+            w = f - j0
+            b = ((i * 3 + modes[k, i]) * n_c + codes[k, i]) * n_e + j0
+            e = packed[b, 0] * (1.0 - w) + packed[b + 1, 0] * w
+            t += packed[b, 1] * (1.0 - w) + packed[b + 1, 1] * w
+            en += packed[b, 2] * (1.0 - w) + packed[b + 1, 2] * w
+        e_out[k] = e
+        t_out[k] = t
+        en_out[k] = en
+
+
 class TourSimulator:
     """Exact tour simulation of one run (the physics of ``sections.simulate_tours``).
 
@@ -288,14 +335,20 @@ class TourSimulator:
 
     def run(self, modes: IntArray, speeds_mps: FloatArray, bounds: "IntArray | None" = None,
             first: "IntArray | None" = None, base: "FloatArray | None" = None,
-            record: bool = False
+            record: bool = False,
+            tour: "tuple[IntArray, FloatArray, IntArray] | None" = None,
+            start: "tuple[FloatArray, FloatArray, FloatArray] | None" = None,
             ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_], FloatArray]:
         """(time [s], energy [J], e_end, stalled, e history or empty) of tours (K, N_s).
 
         speeds_mps: speed command [m/s] of each section (continuous, not only the codes);
         bounds: first sub-step of each section (default: the tables' equal sections);
         first / base: the section each tour starts at (K,) and the (3, n + 1) history of a
-        tour it shares the sections before with (:meth:`history`).
+        tour it shares the sections before with (:meth:`history`); tour: that base tour
+        (modes, speeds [m/s], bounds), to stop a candidate once it rejoins it (see
+        :func:`simulate_kernel`; e_end is then the base's); start: the state (e, t [s],
+        energy [J]) of each tour at the start of section ``first`` (K,) each, given by the
+        caller (e.g. from another tour sharing that prefix) instead of read from ``base``.
         """
         m = np.ascontiguousarray(np.atleast_2d(modes), dtype=np.int64)
         sp = np.broadcast_to(np.asarray(speeds_mps, dtype=np.float64), m.shape)
@@ -313,7 +366,32 @@ class TourSimulator:
             e, t, en = (np.array(base[i, j0], dtype=np.float64) for i in range(3))
         st = ~np.isfinite(t)
         hist = np.zeros((n_k, self.n_steps + 1) if record else (1, 0))
-        simulate_kernel(self.params, self.fg, self.cap, m, ec, b, f, e, t, en, st, hist)
+        last = np.full(n_k, -1, dtype=np.int64)
+        ref = np.zeros((3, 0))
+        if base is not None and tour is not None and not record:
+            tm, tv, tb = tour
+            tv = np.asarray(tv, np.float64)
+            diff = (m != np.asarray(tm, np.int64)[None, :]) | (ec != (0.5 * tv * tv)[None, :]) \
+                | (b != np.asarray(tb, np.int64)[None, :])
+            any_d = diff.any(axis=1)
+            last = np.where(any_d, m.shape[1] - 1 - np.argmax(diff[:, ::-1], axis=1), 0)
+            ref = np.ascontiguousarray(base, dtype=np.float64)
+            # start at the first section that differs (a moved bound i changes section i - 1)
+            sec_d = diff.copy()
+            sec_d[:, :-1] |= diff[:, 1:] & (b != np.asarray(tb, np.int64)[None, :])[:, 1:]
+            f_d = np.where(any_d, np.argmax(sec_d, axis=1), m.shape[1] - 1)
+            if start is not None and first is not None:
+                e, t, en = (np.array(x, dtype=np.float64) for x in start)
+                f = np.ascontiguousarray(first, dtype=np.int64)
+                st = ~np.isfinite(t)
+            elif first is not None:
+                f1 = np.maximum(f, f_d)
+                j1 = b[np.arange(n_k), f1]
+                e, t, en = (np.array(base[i, j1], dtype=np.float64) for i in range(3))
+                f = np.ascontiguousarray(f1, dtype=np.int64)
+                st = ~np.isfinite(t)
+        simulate_kernel(self.params, self.fg, self.cap, m, ec, b, f, e, t, en, st, hist,
+                        last, ref)
         return t, en, e, st, hist
 
     def history(self, modes: IntArray, speeds_mps: FloatArray, bounds: IntArray
@@ -341,5 +419,8 @@ def warm_up() -> None:
     b = np.zeros((1, 1), dtype=np.int64)
     z = np.zeros(1)
     simulate_kernel(p, fg, cap, m, ec, b, np.zeros(1, dtype=np.int64), z.copy(), z.copy(),
-                    z.copy(), np.zeros(1, dtype=bool), np.zeros((1, 0)))
+                    z.copy(), np.zeros(1, dtype=bool), np.zeros((1, 0)),
+                    np.full(1, -1, dtype=np.int64), np.zeros((3, 0)))
     history_kernel(p, fg, cap, m[0], ec[0], b[0], np.zeros((3, 3)))
+    table_kernel(np.zeros((4, 3)), 1.0, 2, 1, m, b, np.zeros(1, dtype=np.int64), z.copy(),
+                 z.copy(), z.copy())
