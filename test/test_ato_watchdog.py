@@ -80,18 +80,22 @@ def test_dead_ato_at_full_traction_is_braked_to_a_stop() -> None:
     assert speeds[False][0] > 1.0, speeds  # the contrast: without it the train runs on
 
 
+def _on_own_domain(fn: Any, tmp_path: Path) -> dict[str, Any]:
+    """``fn(env, probe, tmp_path)`` on a DDS domain of its own, with a probe on it."""
+    with DomainAllocator().allocate() as dom:
+        probe = TopicProbe(dom)
+        try:
+            return dict(fn(dict(os.environ, ROS_DOMAIN_ID=str(dom)), probe, tmp_path))
+        finally:
+            probe.close()
+
+
 @job("silent_ato_run")
 def _silent_ato_run(tmp_path: Path) -> dict[str, Any]:
     """The line_simulator with a probe as the ATOs that goes silent for train_01 (a
     background job on its own domain; see the test): the speeds of train_01 by step, the
     step the train stood at, the node's exit code and log."""
-    with DomainAllocator().allocate() as dom:
-        env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
-        probe = TopicProbe(dom)
-        try:
-            return _silent_ato(env, probe, tmp_path)
-        finally:
-            probe.close()
+    return _on_own_domain(_silent_ato, tmp_path)
 
 
 @pytest.fixture
@@ -172,13 +176,7 @@ def _lost_fleet_state_run(tmp_path: Path) -> dict[str, Any]:
     """The simulator and an ATS with a probe as the fleet ATO that ignores one fleet state
     (a background job on its own domain; see the test): fleet states seen per step, the
     simulator's exit code and log."""
-    with DomainAllocator().allocate() as dom:
-        env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
-        probe = TopicProbe(dom)
-        try:
-            return _lost_fleet_state(env, probe, tmp_path)
-        finally:
-            probe.close()
+    return _on_own_domain(_lost_fleet_state, tmp_path)
 
 
 @pytest.fixture
