@@ -28,6 +28,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from metro_atc.bench.progress import Progress
 from metro_atc.jsonsafe import json_safe as _json_safe
 from metro_atc.core.ato.envelope import RunModel
 from metro_atc.core.ato.fuzzy import FuzzyController
@@ -68,6 +69,12 @@ def _step_time_us() -> float:
     return 1e6 * min(timeit.repeat(one, number=n, repeat=3)) / n
 
 
+def _expected_time_s(ref: ReferenceCurve) -> float:
+    """Trip time of the reference curve [s] (sum of ds / v, v floored at 1 m/s): ETA only."""
+    v = np.maximum(ref.speed(ref.s_tab), 1.0)
+    return float(np.sum(np.diff(ref.s_tab) / (0.5 * (v[1:] + v[:-1]))))
+
+
 def main(argv: Optional[list[str]] = None) -> int:
     """Run the benchmark; ``--json`` prints one JSON object, else a table."""
     ap = argparse.ArgumentParser(prog="python -m metro_atc.bench.thsr", description=__doc__,
@@ -85,10 +92,17 @@ def main(argv: Optional[list[str]] = None) -> int:
     runs = [RunModel(THSR_700T, track, 0.0, float(d)) for d in dist_m]
     refs = [ReferenceCurve(r) for r in runs]
     tracker = FuzzyController() if args.tracker == "fuzzy" else PIController()
+    prog = Progress("bench thsr", _expected_time_s(refs[-1]), "simulated s",
+                    rate_name="rtf")
+
+    def on_time(t_s: float, running: int) -> None:
+        prog.update(t_s, f"{running} of {n} runs running")
+
     c0 = time.process_time()
     res = simulate_tracking(runs, refs, tracker, dt_s=args.dt, record=bool(args.out),
-                            record_every=max(1, int(round(1.0 / args.dt))))
+                            record_every=max(1, int(round(1.0 / args.dt))), on_time=on_time)
     cpu = time.process_time() - c0
+    prog.update(max(r.trip_time_s for r in res), "done", force=True)
     out_runs: list[dict[str, Any]] = []
     for i, tr in enumerate(res):
         p = PAPER_TABLE5[i]

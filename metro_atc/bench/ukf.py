@@ -20,6 +20,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from metro_atc.bench.progress import Progress
 from metro_atc.core.brake import checks
 from metro_atc.core.brake import experiments as ex
 
@@ -46,13 +47,20 @@ def run(quick: bool, seed: int) -> dict[str, Any]:
     cfg = (ex.ExperimentConfig(n_normal=10, n_fault=3, n_cal=15, seed=seed) if quick
            else ex.ExperimentConfig(seed=seed))
     t0 = time.perf_counter()
+    prog = Progress("bench ukf", 5, "phases")
+    prog.update(0, "now: UKF verification problems", force=True)
     lin = [checks.linear_equivalence(s) for s in range(3)]
     pm = checks.polar_moments()
     fb = checks.falling_body(n_runs=3 if quick else 10, n_steps=40, seed=seed)
+    prog.update(1, "now: paper vehicle cases (Table II conditions)", force=True)
     paper = ex.paper_experiment(cfg)
+    prog.update(2, "now: metro car cases", force=True)
     metro = ex.metro_experiment(cfg)
+    prog.update(3, "now: metro observer speed", force=True)
     sp_m = ex.speed_metro(2000 if quick else 5000, seed)
+    prog.update(4, "now: paper observer speed", force=True)
     sp_p = ex.speed_paper(1000 if quick else 2000, seed)
+    prog.update(5, "done", force=True)
     out: dict[str, Any] = {
         "cases": paper["cases"] + metro["cases"],
         "false_alarms": paper["false_alarms"] + metro["false_alarms"],

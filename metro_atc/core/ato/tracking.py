@@ -15,7 +15,7 @@ trajectories.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol, Sequence
+from typing import Callable, Optional, Protocol, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -70,12 +70,16 @@ class TrackResult:
 def simulate_tracking(runs: Sequence[RunModel], refs: Sequence[SpeedReference],
                       tracker: Tracker, dt_s: float = 0.1, max_time_s: float = 1e5,
                       standstill_s: float = 2.0, record: bool = False,
-                      record_every: int = 10) -> list[TrackResult]:
+                      record_every: int = 10,
+                      on_time: Optional[Callable[[float, int], None]] = None
+                      ) -> list[TrackResult]:
     """Run every (run, reference) pair with one vectorised tracker until all have stopped.
 
     A run is finished when the train has been at standstill for ``standstill_s`` after
     passing half the run; the trip time is the instant the final standstill began.
-    All runs must use the same train (``runs[0].train``).
+    All runs must use the same train (``runs[0].train``).  ``on_time(t_s, n_running)``, if
+    given, is called after every step with the simulated time [s] and the runs not yet
+    finished (progress reporting; it must not change anything).
     """
     n = len(runs)
     train = runs[0].train
@@ -116,6 +120,8 @@ def simulate_tracking(runs: Sequence[RunModel], refs: Sequence[SpeedReference],
         still = np.where(stopped, still + dt_s, 0.0)
         done |= still >= standstill_s - 1e-9
         s, v = s1, v1
+        if on_time is not None:
+            on_time(t, int(n - np.count_nonzero(done)))
     out = []
     for i in range(n):
         tr = [np.array([a[i] for a in lst]) for lst in traces] if record else \
