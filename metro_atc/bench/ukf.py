@@ -185,15 +185,8 @@ def write_plots(res: dict[str, Any], out_dir: str) -> list[str]:
             ax.set_ylabel(f"{names[c]} [N]")
             ax.grid(alpha=0.3)
         axs.flat[0].legend(fontsize=7)
-        ax = axs.flat[6]
-        ax.plot(t, d["mu_b"], "b", label="mu_b estimate")
-        ax.fill_between(t, d["mu_b"] - 2 * d["mu_b_std"], d["mu_b"] + 2 * d["mu_b_std"],
-                        color="b", alpha=0.15)
-        ax.axhline(d["mu_b_true"], color="0.5", ls=":", label="true")
-        ax.axhline(0.2, color="r", ls="--", label="requirement 0.2")
-        ax.set_ylim(0, 0.6)
-        ax.set_ylabel("mu_b [-]")
-        ax.legend(fontsize=7)
+        _mu_b_panel(axs.flat[6], t, d)
+        axs.flat[6].legend(fontsize=7)
         ax = axs.flat[7]
         ax.plot(t, np.abs(d["res"]) / d["thr"][None, :])
         ax.axhline(1.0, color="r", ls="--")
@@ -218,14 +211,7 @@ def write_plots(res: dict[str, Any], out_dir: str) -> list[str]:
             ax.set_ylabel(f"F{j + 1} [kN]")
             ax.grid(alpha=0.3)
         axs.flat[0].legend(fontsize=7)
-        ax = axs.flat[4]
-        ax.plot(t, d["mu_b"], "b")
-        ax.fill_between(t, d["mu_b"] - 2 * d["mu_b_std"], d["mu_b"] + 2 * d["mu_b_std"],
-                        color="b", alpha=0.15)
-        ax.axhline(d["mu_b_true"], color="0.5", ls=":")
-        ax.axhline(0.2, color="r", ls="--")
-        ax.set_ylim(0, 0.6)
-        ax.set_ylabel("mu_b [-]")
+        _mu_b_panel(axs.flat[4], t, d)
         ax = axs.flat[5]
         ax.plot(t, np.abs(d["res"]))
         ax.axhline(d["thr"], color="r", ls="--")
@@ -239,6 +225,17 @@ def write_plots(res: dict[str, Any], out_dir: str) -> list[str]:
         plt.close(fig)
         files.append(f)
     return files
+
+
+def _mu_b_panel(ax: Any, t: np.ndarray, d: dict[str, Any]) -> None:
+    """Pad friction estimate with its 2-sigma band, the true value and the 0.2 requirement."""
+    ax.plot(t, d["mu_b"], "b", label="mu_b estimate")
+    ax.fill_between(t, d["mu_b"] - 2 * d["mu_b_std"], d["mu_b"] + 2 * d["mu_b_std"],
+                    color="b", alpha=0.15)
+    ax.axhline(d["mu_b_true"], color="0.5", ls=":", label="true")
+    ax.axhline(0.2, color="r", ls="--", label="requirement 0.2")
+    ax.set_ylim(0, 0.6)
+    ax.set_ylabel("mu_b [-]")
 
 
 def main(argv: list[str] | None = None) -> int:
