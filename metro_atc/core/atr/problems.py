@@ -190,7 +190,29 @@ class NarendraProblem(AdpProblem):
         return x - self._ref(ep, self.horizon)
 
 
-class AtrProblem(AdpProblem):
+class LinearModelMixin:
+    """Approximate model x^(k+1) = A x + B u (seed 000 eq. 5) and its costate products.
+
+    For problems that keep ``a`` (nx, nx) and ``b`` (nx, nu) as float64 tensors.
+    """
+
+    a: Tensor
+    b: Tensor
+
+    def model_step(self, x: Tensor, u: Tensor) -> Tensor:
+        """Linear model A x + B u."""
+        return x @ self.a.T + u @ self.b.T
+
+    def fx_t(self, x: Tensor, u: Tensor, lam: Tensor) -> Tensor:
+        """A^T lam."""
+        return lam @ self.a
+
+    def fu_t(self, x: Tensor, u: Tensor, lam: Tensor) -> Tensor:
+        """B^T lam."""
+        return lam @ self.b
+
+
+class AtrProblem(LinearModelMixin, AdpProblem):
     """Seed 000 Exp. 2: automatic train regulation on a line (state = scaled deviations).
 
     State x~ = (t - T) / x_s (staggered departure deviations), control u~ = u / x_s.
@@ -276,18 +298,6 @@ class AtrProblem(AdpProblem):
         nxt = self.truth_step_np(ep, k, x.numpy() * xs, u.numpy() * xs)
         return torch.from_numpy(nxt / xs)
 
-    def model_step(self, x: Tensor, u: Tensor) -> Tensor:
-        """Linear model A x + B u."""
-        return x @ self.a.T + u @ self.b.T
-
-    def fx_t(self, x: Tensor, u: Tensor, lam: Tensor) -> Tensor:
-        """A^T lam."""
-        return lam @ self.a
-
-    def fu_t(self, x: Tensor, u: Tensor, lam: Tensor) -> Tensor:
-        """B^T lam."""
-        return lam @ self.b
-
     def stage_cost(self, ep: Episodes, k: int, x: Tensor, u: Tensor) -> Tensor:
         """1/2 q |x~|^2 + 1/2 r |u~|^2."""
         return 0.5 * self.w.q * (x * x).sum(1) + 0.5 * self.w.r * (u * u).sum(1)
@@ -309,7 +319,7 @@ class AtrProblem(AdpProblem):
         return x @ self.p0
 
 
-class LinearProblem(AdpProblem):
+class LinearProblem(LinearModelMixin, AdpProblem):
     """Finite-horizon linear-quadratic problem whose truth equals the model (sanity case).
 
     x(k+1) = A x + B u, U = 1/2 q|x|^2 + 1/2 r|u|^2, Phi = 1/2 x^T P_f x; initial states
@@ -346,18 +356,6 @@ class LinearProblem(AdpProblem):
     def truth_step(self, ep: Episodes, k: int, x: Tensor, u: Tensor) -> Tensor:
         """A x + B u (truth = model)."""
         return self.model_step(x, u)
-
-    def model_step(self, x: Tensor, u: Tensor) -> Tensor:
-        """A x + B u."""
-        return x @ self.a.T + u @ self.b.T
-
-    def fx_t(self, x: Tensor, u: Tensor, lam: Tensor) -> Tensor:
-        """A^T lam."""
-        return lam @ self.a
-
-    def fu_t(self, x: Tensor, u: Tensor, lam: Tensor) -> Tensor:
-        """B^T lam."""
-        return lam @ self.b
 
     def stage_cost(self, ep: Episodes, k: int, x: Tensor, u: Tensor) -> Tensor:
         """1/2 q|x|^2 + 1/2 r|u|^2."""
