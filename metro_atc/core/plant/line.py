@@ -150,6 +150,9 @@ class LineSim:
         self.trace: dict[str, list[Any]] = {"t": [], "x": [], "v": [], "run": [],
                                             "atp": []}
         self.stepper = NumbaStepper(self) if self.kernel == "numba" else None
+        self.car_mass_key: FloatArray | None = None
+        """``fleet.meff`` when :attr:`car_mass` (load-weigh truth, mass / cars [kg]) was made."""
+        self.car_mass: FloatArray = self.fleet.mass / p.cars
 
     # ------------------------------------------------------------------ public API
 
@@ -356,8 +359,10 @@ class LineSim:
         snap = None
         if ts is not None:
             br = self.brakes
+            if fl.meff is not self.car_mass_key:  # rebound whenever a mass changes
+                self.car_mass, self.car_mass_key = fl.mass / p.cars, fl.meff
             snap = sen.snapshot(ts, t, t_new, br.ax_prev, br.ax, br.r_w, fl.acc, v, v1,
-                                fl.mass / p.cars)
+                                self.car_mass)
         # stations
         if hit is not None:
             self.stations.station_logic(t_new, hit, d)
