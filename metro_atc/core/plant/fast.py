@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import copy
 import importlib.util
-import operator
 import os
 import time
 from typing import Any
@@ -24,7 +23,7 @@ from metro_atc.core.line.rolling_stock import KMH
 
 from .atp import CIVIL_TOL_MPS
 from .braking import AxleState
-from .fast_state import Blocks
+from .fast_state import Blocks, same
 from .physics import PlantParts
 from .sensors import SensorBlock, Sensors, SensorSnap
 
@@ -221,7 +220,7 @@ class NumbaStepper:
         """The previous output block, holding the current x, v, u_last, a_dem and eoa."""
         kn = self.kn
         cur = (fl.x, fl.v, fl.u_last, fl.a_dem, atp.eoa)
-        if len(self.blk0_rows) == 5 and all(map(operator.is_, cur, self.blk0_rows)):
+        if same(cur, self.blk0_rows):
             return self.blk0
         blk0 = np.zeros((kn.N_OUT, fl.n))  # rebound elsewhere (set_xv, restore, copy)
         for row, arr in zip((kn.O_X1, kn.O_V1, kn.O_U, kn.O_AD, kn.O_EOA), cur):
