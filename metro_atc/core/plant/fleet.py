@@ -86,6 +86,16 @@ class Fleet:
         self.davis_bc = (p.davis_b_n_per_mps * self.inv_meff,
                          p.davis_c_n_per_mps2 * self.inv_meff)
 
+    @property
+    def davis_b(self) -> FloatArray:
+        """Davis B over ``meff`` [1/s] (first of ``davis_bc``)."""
+        return self.davis_bc[0]
+
+    @property
+    def davis_c(self) -> FloatArray:
+        """Davis C over ``meff`` [1/m] (second of ``davis_bc``)."""
+        return self.davis_bc[1]
+
     def set_xv(self, i: int, x: float, v: float) -> None:
         """Set one train's position/speed without mutating arrays shared with the trace."""
         self.x = self.x.copy()
