@@ -70,6 +70,26 @@ def test_blocks_follow_the_components() -> None:
     assert bl.sync(parts)[0] is blk  # nothing changed: the same block, no copy
 
 
+def test_blocks_resync_only_the_component_that_rebound() -> None:
+    """A rebinding re-packs its own component; the others keep their rows and views."""
+    parts = (_Part(4, 1.0), _Part(4, 2.0))
+    bl = _blocks()
+    (blk,) = bl.sync(parts)
+    a, b = parts
+    a_own, a_own2 = a.own, a.own2
+    blk[2, 0] = -5.0  # stale copy of a.cp: only a rebinding of ``a`` re-packs it
+    b.cp = b.cp + 1.0  # component b rebinds a copied array, b edits an owned one in place
+    b.own2[3] = 42.0
+    (blk,) = bl.sync(parts)
+    assert blk[2, 0] == -5.0  # a's copied rows were not copied again
+    assert a.own is a_own and a.own2 is a_own2  # nor its owned rows rebound
+    np.testing.assert_array_equal(blk[7], b.cp)
+    assert blk[6, 3] == 42.0
+    a.cp2 = a.cp2 * 2.0  # now a rebinds: all its copied rows again
+    (blk,) = bl.sync(parts)
+    _check(parts, blk)
+
+
 @pytest.mark.parametrize("how", ["deepcopy", "pickle"])
 def test_blocks_copied_with_their_components(how: str) -> None:
     """A copy of (components, blocks) is independent and re-syncs in full."""

@@ -8,11 +8,14 @@ arrays passed as single arguments, packed once and reused:
   stop points, ...) -- the component's attribute is rebound to the row view, so the
   component and the kernel share the memory and nothing is copied per step;
 * *copied* rows (arrays the components rebind at discrete events and never edit in place
-  except together with a rebinding of another array of the set: fleet masks, mass
-  constants, brake ratios, supervision grids) -- all copied again when any is rebound.
+  except together with a rebinding of another array of the same component: fleet masks,
+  mass constants, brake ratios, supervision grids) -- all the copied rows of a component
+  are copied again when any of its arrays is rebound (those of the other components are
+  not: the supervision grids are ~30 000 cells each, and the fleet's masks change at every
+  station event).
 
 Each :meth:`Blocks.sync` compares the components' current arrays with those of the last
-sync by identity (one ``attrgetter`` call and one ``is`` scan per component); an owned array
+sync by identity (one generated expression of ``is`` tests); an owned array
 that a component rebound (the numpy supervision, a checkpoint restore) is copied into its
 row and the attribute rebound to the row again.  A copy or pickle of a :class:`Blocks` syncs
 in full on its next use (its row views no longer look at its blocks).
@@ -84,7 +87,10 @@ class Blocks:
             self.views = tuple(tuple(blk) for blk in self.blocks)
         views = self.views
         ident = []
-        for part, where in zip(parts, self.where):
+        for part, where, getter, old in zip(parts, self.where, self.getters, self.ident):
+            if old and same(getter(part), old):  # this component rebound nothing
+                ident.append(old)
+                continue
             new = []
             for b, r, attr, owned in where:
                 arr = getattr(part, attr)

@@ -20,6 +20,7 @@ from metro_atc.core.line.vehicle import TrainParams
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
+_cnz = np.count_nonzero
 
 MODE_OUT, MODE_DWELL, MODE_ACCEL, MODE_CRUISE, MODE_COAST, MODE_BRAKE, MODE_ATP = range(7)
 """Operating modes (the TrainState.MODE_* values)."""
@@ -111,11 +112,11 @@ class Fleet:
         self.hold: BoolArray = self.dwelling | self.broken | ~self.run
         self.cand: BoolArray = self.run & ~self.dwelling
         self.auto: BoolArray = (st == TURNBACK) & ~self.dwelling
-        self.any_auto = bool(self.auto.any())
-        self.any_turnback = bool((st == TURNBACK).any())
+        self.any_auto = bool(_cnz(self.auto))
+        self.any_turnback = bool(_cnz(st == TURNBACK))
         self.lead_add: FloatArray = np.where(self.run[:-1], 0.0, math.inf)
-        self.any_broken = bool(self.broken.any())
-        self.n_done = int(np.count_nonzero(st == DONE))
+        self.any_broken = bool(_cnz(self.broken))
+        self.n_done = int(_cnz(st == DONE))
 
     def next_discrete_t(self) -> float:
         """Earliest departure, turnback end or breakdown end [s] (inf if none)."""
