@@ -243,12 +243,15 @@ class NumbaStepper:
         kn = self.kn
         fl, atp, br, en = sim.fleet, sim.atp, sim.brakes, sim.energy
         n = fl.n
-        fs, ints, bools, grids, axc = self._sync(fl, atp, br, en)
+        coef = br.ax_coef
+        if coef is not self.ax_key:
+            self._sync(fl, atp, br, en)
+        fs, ints, bools, grids = self.state.sync((fl, atp, en, br))
+        axc = self.axc
         r0 = self.blk0_rows  # the previous output block while its rows are still bound
         blk0 = (self.blk0 if r0 and r0[0] is fl.x and r0[1] is fl.v and r0[2] is fl.u_last
                 and r0[3] is fl.a_dem and r0[4] is atp.eoa else self._blk0(fl, atp))
         blk = np.empty((kn.N_OUT, n))
-        coef = br.ax_coef
         ax_out = np.empty((3, n, axc.shape[2])) if axles else self.no_axles
         sen = sim.sensors
         so, sidx, slip0, zbuf, zpos = self.no_sens

@@ -107,13 +107,14 @@ class Fleet:
     def update_masks(self, t: float) -> None:
         """Recompute the discrete-state masks at time ``t`` after any discrete change."""
         st = self.status
-        self.run: BoolArray = (st == RUN) | (st == TURNBACK)
+        tb = st == TURNBACK
+        self.run: BoolArray = (st == RUN) | tb
         self.broken: BoolArray = self.broken_until > t
         self.hold: BoolArray = self.dwelling | self.broken | ~self.run
         self.cand: BoolArray = self.run & ~self.dwelling
-        self.auto: BoolArray = (st == TURNBACK) & ~self.dwelling
+        self.auto: BoolArray = tb & ~self.dwelling
         self.any_auto = bool(_cnz(self.auto))
-        self.any_turnback = bool(_cnz(st == TURNBACK))
+        self.any_turnback = bool(_cnz(tb))
         self.lead_add: FloatArray = np.where(self.run[:-1], 0.0, math.inf)
         self.any_broken = bool(_cnz(self.broken))
         self.n_done = int(_cnz(st == DONE))
