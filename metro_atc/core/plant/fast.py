@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import copy
 import importlib.util
-import operator
 import os
 import time
 from typing import Any
@@ -24,6 +23,7 @@ from metro_atc.core.line.rolling_stock import KMH
 
 from .atp import CIVIL_TOL_MPS
 from .braking import AxleState
+from .fast_state import Blocks, same
 from .physics import PlantParts
 from .sensors import SensorBlock, Sensors, SensorSnap
 
@@ -107,11 +107,13 @@ class FastSensors(Sensors):
 class NumbaStepper:
     """:func:`.physics.advance_numpy` with the compiled kernel (same signature, same updates).
 
-    The kernel takes a few packed arrays: constants of the run, static tables, and stacked
-    copies of arrays that only change at discrete events (fleet masks, mass constants,
-    supervision grids, brake coefficients), re-stacked whenever a component rebinds one of
-    them (they are compared by identity every step).  The dynamic state is passed as the
-    components' own arrays and updated in place or rebound exactly as the numpy path does.
+    The kernel (:func:`.kernel_step.step_rows`) takes a few packed arrays: constants of
+    the run (with the sensor noise), static tables, the persistent blocks of
+    :mod:`.fast_state` (float / integer / boolean per-train state the kernel updates in
+    place, whose rows the components' attributes are; copies of the arrays that only change
+    at discrete events: fleet masks, mass constants, brake ratios, supervision grids) and
+    the previous step's output block, whose rows are the fleet's x, v, efforts and the
+    movement authority (a fresh block per step: arrays a caller kept are never overwritten).
 
     Reference driver: with ``want_drv`` (set by the first :meth:`driver` call of the
     reference driver) the kernel also computes the driver's command for the next step from
@@ -120,8 +122,9 @@ class NumbaStepper:
     command is recomputed).
     """
 
-    checkpoint_transient = ("warm_s",)
-    """Not plant state: the compile / cache-load time of this process [s] (checkpoints)."""
+    checkpoint_transient = ("warm_s", "state", "blk0", "blk0_rows", "ax_key", "axc")
+    """Not plant state: the compile / cache-load time of this process [s] and the packed
+    views of the components' arrays (re-packed from the restored components)."""
 
     def __init__(self, sim: PlantParts) -> None:
         """Pack the run's constants and static tables (compiles / loads the kernel)."""
@@ -154,23 +157,25 @@ class NumbaStepper:
         self.tabs = np.ascontiguousarray(np.stack([tb.v, tb.phi, tb.ebrake]))
         self.stab = np.ascontiguousarray(np.stack([tb.mu, tb.slip]))
         self.geo = np.ascontiguousarray(np.stack([g.gsin_avg, g.curve_avg]))
-        self.zeros = np.zeros(fl.n)
         self.no_axles = np.zeros((3, 0, 4))
         self.no_ts = np.zeros(0)
-        self.no_sens = (np.zeros((2, 0, 0, 4)), np.zeros((2, 0, 0)), np.zeros(0, dtype=np.int64),
-                        np.zeros((fl.n, 4)), np.zeros(0), 0)
+        self.no_sens = (np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros((fl.n, 4)),
+                        np.zeros(0), 0)
         self.noise = getattr(sim.sensors, "noise", np.zeros(4))
+        self.c = np.concatenate((c, self.noise))  # ks.C_NOISE
         self.dc_auto = _driver_consts(sim, AUTO_GAIN, AUTO_LOOKAHEAD_S)
-        self.auto_buf = np.zeros(fl.n)
-        self.key: tuple[Any, ...] = ()
-        self.key_groups: tuple[tuple[Any, ...], ...] = ()
-        self.packs: tuple[Any, ...] = ()
+        self.dcs = np.stack((np.zeros(ks.N_DCONST), self.dc_auto))
+        self.state = _blocks(fl.n, g.n_cells)
+        self.blk0 = np.zeros((kn.N_OUT, fl.n))
+        self.blk0_rows: tuple[Any, ...] = ()
+        self.ax_key: Any = None
+        self.axc = np.zeros((3, fl.n, 0))
         self.dc_key: tuple[float, float] | None = None
         self.dc = np.zeros(ks.N_DCONST)
         self.want_drv = False
         self.drv_state: tuple[Any, ...] = ()
         self.drv_blk = np.zeros((kn.N_OUT, fl.n))
-        self.step_all = ks.step_all
+        self.step_rows = ks.step_rows
         self.warm_s = self._warm(sim)
 
     def _warm(self, sim: PlantParts) -> float:
@@ -184,35 +189,43 @@ class NumbaStepper:
         n = tmp.fleet.n
         self.advance(tmp, np.zeros(n), None, True)
         self.driver(tmp, 1.5, 0.7, False)
-        fl, en = tmp.fleet, tmp.energy
-        masks, mp = self._packed(fl, tmp.atp, tmp.brakes)[:2]
-        z = np.zeros(n)
-        self.ks.motion(self.c, fl.x, fl.v, z, z, z, z, mp, self.geo, masks, fl.stop_x,
-                       en.e_trac, en.e_elec, en.e_fric, en.e_res, en.e_curve, en.e_grade,
-                       en.e_stop_corr, en.n_in_service, np.empty((self.kn.N_OUT, n)))
-        self.key, self.key_groups, self.packs = (), (), ()
+        self._motion(tmp, np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n),
+                     np.empty((self.kn.N_OUT, n)))
+        self.state.reset()
+        self.ax_key, self.blk0_rows = None, ()
         self.drv_state, self.dc_key, self.want_drv = (), None, False
         return time.perf_counter() - t0
 
-    def _packed(self, fl: Any, atp: Any, br: Any) -> tuple[Any, ...]:
-        """(masks, mass constants, grids, brake ratios, axle coefficients) stacked.
+    def _sync(self, fl: Any, atp: Any, br: Any, en: Any) -> tuple[Any, ...]:
+        """The persistent blocks (float, int, bool state; grids; axle coefficients)."""
+        parts = (fl, atp, en, br)
+        coef = br.ax_coef
+        if coef is not self.ax_key:
+            self.axc = np.ascontiguousarray(np.stack(coef[1:4]))
+            self.ax_key = coef
+        return self.state.sync(parts) + (self.axc,)
 
-        A group is re-stacked when a component rebound one of its source arrays (identity
-        check; the components rebind, never edit in place, the arrays packed here).
-        """
-        key = (fl.run, fl.hold, fl.broken, fl.auto, fl.cand, fl.mass, fl.meff, fl.inv_meff,
-               fl.davis_bc, atp.ebi_static, atp.sbi_static, atp.ceiling_phys, atp.limit_eff,
-               atp.drive_env, br.slide_ratio, br.fric_mult, br.ax_coef)
-        if len(key) == len(self.key) and all(map(operator.is_, key, self.key)):
-            return self.packs
-        groups = (key[:5], key[5:8] + fl.davis_bc, key[9:14], key[14:16], br.ax_coef[1:4])
-        old = self.key_groups or ((),) * len(groups)
-        packs = list(self.packs) or [None] * len(groups)
-        for g, (new, prev) in enumerate(zip(groups, old)):
-            if len(new) != len(prev) or not all(map(operator.is_, new, prev)):
-                packs[g] = np.stack(new, dtype=bool if g == 0 else float)
-        self.key, self.key_groups, self.packs = key, groups, tuple(packs)
-        return self.packs
+    def _motion(self, sim: PlantParts, f_trac: FloatArray, f_brake: FloatArray,
+                f_e: FloatArray, f_bdem: FloatArray, blk: FloatArray) -> int:
+        """:func:`.kernel_step.motion` of the fleet (after the numpy rail force)."""
+        fl, en = sim.fleet, sim.energy
+        fs, _, bs = self._sync(fl, sim.atp, sim.brakes, en)[:3]
+        ks = self.ks
+        return int(ks.motion(self.c, fl.x, fl.v, f_trac, f_brake, f_e, f_bdem,
+                             fs[ks.F_MP:ks.F_MP + 5], self.geo, bs[ks.B_MASKS:], fl.stop_x,
+                             en.e_trac, en.e_elec, en.e_fric, en.e_res, en.e_curve,
+                             en.e_grade, en.e_stop_corr, en.n_in_service, blk))
+
+    def _blk0(self, fl: Any, atp: Any) -> FloatArray:
+        """The previous output block, holding the current x, v, u_last, a_dem and eoa."""
+        kn = self.kn
+        cur = (fl.x, fl.v, fl.u_last, fl.a_dem, atp.eoa)
+        if same(cur, self.blk0_rows):
+            return self.blk0
+        blk0 = np.zeros((kn.N_OUT, fl.n))  # rebound elsewhere (set_xv, restore, copy)
+        for row, arr in zip((kn.O_X1, kn.O_V1, kn.O_U, kn.O_AD, kn.O_EOA), cur):
+            blk0[row] = arr
+        return blk0
 
     def advance(self, sim: PlantParts, u: FloatArray, auto_u: FloatArray | None,
                 axles: bool = False, ts: FloatArray | None = None
@@ -230,12 +243,18 @@ class NumbaStepper:
         kn = self.kn
         fl, atp, br, en = sim.fleet, sim.atp, sim.brakes, sim.energy
         n = fl.n
-        blk = np.empty((kn.N_OUT, n))
-        masks, mp, grids, bk, axc = self._packed(fl, atp, br)
         coef = br.ax_coef
+        if coef is not self.ax_key:
+            self._sync(fl, atp, br, en)
+        fs, ints, bools, grids = self.state.sync((fl, atp, en, br))
+        axc = self.axc
+        r0 = self.blk0_rows  # the previous output block while its rows are still bound
+        blk0 = (self.blk0 if r0 and r0[0] is fl.x and r0[1] is fl.v and r0[2] is fl.u_last
+                and r0[3] is fl.a_dem and r0[4] is atp.eoa else self._blk0(fl, atp))
+        blk = np.empty((kn.N_OUT, n))
         ax_out = np.empty((3, n, axc.shape[2])) if axles else self.no_axles
         sen = sim.sensors
-        o4, o2, sidx, slip0, zbuf, zpos = self.no_sens
+        so, sidx, slip0, zbuf, zpos = self.no_sens
         k = 0
         if axles and ts is not None and sen.want and isinstance(sen, FastSensors):
             sidx = sen.idx
@@ -245,21 +264,16 @@ class NumbaStepper:
             zbuf, zpos = sen.zbuf, sen.zpos
             ax0 = br.ax
             slip0 = ax0.arrays[2] if ax0.arrays is not None else ax0.get()[2]
-            o4, o2 = np.empty((2, ns, m, na)), np.empty((2, ns, m))
+            so = np.empty(k)
         t0 = sim.t
         auto = auto_u is None and fl.any_auto  # the kernel drives the turning-back trains
-        if auto_u is None:
-            auto_u = self.auto_buf if auto else self.zeros
-        r = self.step_all(
-            self.c, fl.x, fl.v, fl.status, masks, u, fl.u_last, auto_u, fl.a_dem, mp,
-            fl.trac_level, atp.eb,
-            atp.sb, atp.interventions, atp.violations, atp.in_violation, grids, self.tabs,
-            atp.speed_code, bk, br.any_slide, br.any_wsp, blk, self.geo, fl.stop_x,
-            en.e_trac, en.e_elec, en.e_fric, en.e_res, en.e_curve, en.e_grade,
-            en.e_stop_corr, en.n_in_service, axc, self.stab, ax_out, self.dc, self.want_drv,
-            sidx, br.r_w, slip0, self.no_ts if ts is None else ts, t0,
-            t0 + sim.control_period_s, zbuf, zpos, self.noise, o4, o2, auto, atp.eoa,
-            self.dc_auto)
+        if auto_u is not None:
+            fs[self.ks.F_AUTO] = auto_u
+        r = self.step_rows(
+            self.c, self.tabs, self.geo, self.stab, self.dcs, fs, ints, bools, grids, axc,
+            blk0, blk, u, ax_out, br.r_w, sidx, slip0, self.no_ts if ts is None else ts,
+            zbuf, zpos, so, br.any_slide, br.any_wsp, self.want_drv, auto, t0,
+            t0 + sim.control_period_s)
         n_int, atp.any_atp, atp.any_violation, gmin, n_civil, n_hit = r
         if gmin < atp.min_sep:
             atp.min_sep = gmin
@@ -269,11 +283,8 @@ class NumbaStepper:
         fl.u_last, fl.a_dem = u_clean, a_d
         if n_hit < 0:  # an axle may slide: the numpy adhesion / WSP model, then the motion
             f_brake = br.rail_force(blk[kn.O_FE], blk[kn.O_FF], w_ax, a_d, fl.v)
-            n_hit = self.ks.motion(self.c, fl.x, fl.v, blk[kn.O_FTRAC], f_brake,
-                                   blk[kn.O_FE], blk[kn.O_FBDEM], mp, self.geo, masks,
-                                   fl.stop_x, en.e_trac, en.e_elec, en.e_fric, en.e_res,
-                                   en.e_curve, en.e_grade, en.e_stop_corr, en.n_in_service,
-                                   blk)
+            n_hit = self._motion(sim, blk[kn.O_FTRAC], f_brake, blk[kn.O_FE],
+                                 blk[kn.O_FBDEM], blk)
             br.follow(acc)
             self.drv_state = ()
         else:
@@ -282,8 +293,11 @@ class NumbaStepper:
             self.drv_state = (x1, v1, eoa, fl.stop_x) if self.want_drv and not n_hit else ()
             self.drv_blk = blk
             if k:
-                sen.pre = (o4, o2, zbuf, zpos, k)
+                m4 = 2 * ns * m * na
+                sen.pre = (so[:m4].reshape(2, ns, m, na), so[m4:].reshape(2, ns, m), zbuf,
+                           zpos, k)
         fl.acc, fl.x, fl.v = acc, x1, v1
+        self.blk0, self.blk0_rows = blk, (x1, v1, u_clean, a_d, eoa)
         d = blk[kn.O_D]
         hit = None
         if n_hit > 0:
@@ -298,6 +312,7 @@ class NumbaStepper:
         atp, fl = sim.atp, sim.fleet
         if self.dc_key != (gain, lookahead_s):
             self.dc, self.dc_key = _driver_consts(sim, gain, lookahead_s), (gain, lookahead_s)
+            self.dcs[0] = self.dc
             self.drv_state = ()
         if active_only:
             self.want_drv = True
@@ -309,6 +324,29 @@ class NumbaStepper:
         ks.driver(self.dc, fl.x, fl.v, fl.stop_x, atp.eoa, atp.speed_code, atp.drive_env,
                   atp.sbi_static, fl.status, atp.fixed_block, active_only, out)
         return out
+
+
+def _blocks(n: int, n_cells: int) -> Blocks:
+    """The persistent blocks of :func:`.kernel_step.step_rows`.
+
+    ``F_*``, ``I_*``, ``B_*`` rows and the supervision grids ``G_*``, of the components
+    (fleet, atp, energy, brakes).
+    """
+    own_f = ((0, "trac_level"), (0, "stop_x"), (1, "speed_code"), (2, "e_trac"),
+             (2, "e_elec"), (2, "e_fric"), (2, "e_res"), (2, "e_curve"), (2, "e_grade"),
+             (2, "e_stop_corr"))
+    copy_f = ((0, "mass", False), (0, "meff", False), (0, "inv_meff", False),
+              (0, "davis_b", None), (0, "davis_c", None),  # rebound with meff
+              (3, "slide_ratio", False), (3, "fric_mult", False))
+    f = tuple((p, a, True) for p, a in own_f) + copy_f
+    i = ((0, "status", True), (1, "interventions", True), (1, "violations", True),
+         (2, "n_in_service", True))
+    b = ((1, "eb", True), (1, "sb", True), (1, "in_violation", True), (0, "run", False),
+         (0, "hold", False), (0, "broken", False), (0, "auto", False), (0, "cand", False))
+    grids = ("ebi_static", "sbi_static", "ceiling_phys", "limit_eff", "drive_env")
+    g = tuple((1, a, False) for a in grids)
+    return Blocks((((n,), float, 1, f), ((n,), np.int64, 0, i), ((n,), bool, 0, b),
+                   ((n_cells,), float, 0, g)), 4)
 
 
 def _driver_consts(sim: PlantParts, gain: float, lookahead_s: float) -> FloatArray:

@@ -20,6 +20,7 @@ from metro_atc.core.line.vehicle import TrainParams
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
+_cnz = np.count_nonzero
 
 MODE_OUT, MODE_DWELL, MODE_ACCEL, MODE_CRUISE, MODE_COAST, MODE_BRAKE, MODE_ATP = range(7)
 """Operating modes (the TrainState.MODE_* values)."""
@@ -86,6 +87,16 @@ class Fleet:
         self.davis_bc = (p.davis_b_n_per_mps * self.inv_meff,
                          p.davis_c_n_per_mps2 * self.inv_meff)
 
+    @property
+    def davis_b(self) -> FloatArray:
+        """Davis B over ``meff`` [1/s] (first of ``davis_bc``)."""
+        return self.davis_bc[0]
+
+    @property
+    def davis_c(self) -> FloatArray:
+        """Davis C over ``meff`` [1/m] (second of ``davis_bc``)."""
+        return self.davis_bc[1]
+
     def set_xv(self, i: int, x: float, v: float) -> None:
         """Set one train's position/speed without mutating arrays shared with the trace."""
         self.x = self.x.copy()
@@ -96,16 +107,17 @@ class Fleet:
     def update_masks(self, t: float) -> None:
         """Recompute the discrete-state masks at time ``t`` after any discrete change."""
         st = self.status
-        self.run: BoolArray = (st == RUN) | (st == TURNBACK)
+        tb = st == TURNBACK
+        self.run: BoolArray = (st == RUN) | tb
         self.broken: BoolArray = self.broken_until > t
         self.hold: BoolArray = self.dwelling | self.broken | ~self.run
         self.cand: BoolArray = self.run & ~self.dwelling
-        self.auto: BoolArray = (st == TURNBACK) & ~self.dwelling
-        self.any_auto = bool(self.auto.any())
-        self.any_turnback = bool((st == TURNBACK).any())
+        self.auto: BoolArray = tb & ~self.dwelling
+        self.any_auto = bool(_cnz(self.auto))
+        self.any_turnback = bool(_cnz(tb))
         self.lead_add: FloatArray = np.where(self.run[:-1], 0.0, math.inf)
-        self.any_broken = bool(self.broken.any())
-        self.n_done = int(np.count_nonzero(st == DONE))
+        self.any_broken = bool(_cnz(self.broken))
+        self.n_done = int(_cnz(st == DONE))
 
     def next_discrete_t(self) -> float:
         """Earliest departure, turnback end or breakdown end [s] (inf if none)."""

@@ -12,14 +12,24 @@ import numpy as np
 from numba import njit
 
 from .kernel import (C_DAVIS_A, C_DAVIS_B, C_DAVIS_C, C_DT, C_FIXED, C_INV_DX, C_SUBSTEPS,
-                     C_TOL, C_X0, G_ENV, G_SBI, M_CAND, M_RUN, O_ACC, O_D, O_DRV, O_EOA,
-                     O_FBDEM, O_FBRK, O_FE, O_FFA, O_FTRAC, O_V1, O_WAX, O_X1, P_CB,
-                     P_CC, P_INV_M, P_MASS, P_MEFF, _cell, _mn, _mx, axle_fill, front)
+                     C_TOL, C_X0, G_ENV, G_SBI, M_CAND, M_RUN, N_CONST, O_ACC, O_AD, O_D,
+                     O_DRV, O_EOA, O_FBDEM, O_FBRK, O_FE, O_FFA, O_FTRAC, O_U, O_V1, O_WAX,
+                     O_X1, P_CB, P_CC, P_INV_M, P_MASS, P_MEFF, _cell, _mn, _mx, axle_fill,
+                     front)
 from .kernel_aux import sensor_block
 
 # packed driver constants
 (D_X0, D_INV_DX, D_B_DRIVE, D_T_SBI, D_C0, D_C2, D_C1, D_BS, D_TOL, D_GAIN, D_LA,
  N_DCONST) = range(12)
+C_NOISE = N_CONST
+"""Sensor noise standard deviations (4) follow the run constants in ``c`` (:func:`step_rows`)."""
+# rows of the persistent blocks of :func:`step_rows` (:mod:`.fast_state`): float state
+# (owned), then mass constants (``P_*`` order) and brake ratios (copied), then the
+# plant driver's command (scratch); integer state; boolean state then masks (``M_*``)
+(F_TRAC, F_STOP_X, F_CODE, F_ETRAC, F_EELEC, F_EFRIC, F_ERES, F_ECURVE, F_EGRADE, F_ESTOP,
+ F_MP, F_BK, F_AUTO, N_F) = (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 15, 17, 18)
+I_STATUS, I_INTERV, I_VIOL, I_NSERV = range(4)
+B_EB, B_SB, B_INVIOL, B_MASKS = range(4)
 
 
 @njit(cache=True)
@@ -206,3 +216,28 @@ def step_all(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, 
         driver(dc, blk[O_X1], blk[O_V1], stop_x, blk[O_EOA], speed_code, grids[G_ENV],
                grids[G_SBI], status, c[C_FIXED] != 0.0, True, blk[O_DRV])
     return r[0], r[1], r[2], r[3], r[4], n_hit
+
+
+@njit(cache=True)
+def step_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blk, u, ax_out,
+              r_w, sidx, slip0, ts, zbuf, zpos: int, so, any_slide: bool, any_wsp: bool,
+              want_drv: bool, auto: bool, t0: float, t1: float):  # type: ignore
+    """:func:`step_all` on the persistent blocks (few arguments: cheap to call).
+
+    ``fs`` / ``ints`` / ``bools``: the ``F_*`` / ``I_*`` / ``B_*`` rows; ``blk0``: the
+    previous step's output block (x, v, commanded and demanded effort, movement authority
+    are its rows); ``dcs`` = (reference driver, plant driver) constants; ``so``: flat
+    buffer of the sensor samples, (omega, clamp) [2, s, m, 4] then (accel, vref) [2, s, m].
+    """
+    ns, m, na = ts.shape[0], sidx.shape[0], ax_out.shape[2]
+    k4 = 2 * ns * m * na
+    o4 = so[:k4].reshape((2, ns, m, na))
+    o2 = so[k4:k4 + 2 * ns * m].reshape((2, ns, m))
+    return step_all(
+        c, blk0[O_X1], blk0[O_V1], ints[I_STATUS], bools[B_MASKS:], u, blk0[O_U],
+        fs[F_AUTO], blk0[O_AD], fs[F_MP:F_MP + 5], fs[F_TRAC], bools[B_EB], bools[B_SB],
+        ints[I_INTERV], ints[I_VIOL], bools[B_INVIOL], grids, tabs, fs[F_CODE],
+        fs[F_BK:F_BK + 2], any_slide, any_wsp, blk, geo, fs[F_STOP_X], fs[F_ETRAC],
+        fs[F_EELEC], fs[F_EFRIC], fs[F_ERES], fs[F_ECURVE], fs[F_EGRADE], fs[F_ESTOP],
+        ints[I_NSERV], axc, stab, ax_out, dcs[0], want_drv, sidx, r_w, slip0, ts, t0, t1,
+        zbuf, zpos, c[C_NOISE:C_NOISE + 4], o4, o2, auto, blk0[O_EOA], dcs[1])
