@@ -848,31 +848,37 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
     every wait is an executor spin.
     """
     log = sim.get_logger()
-    pollers: dict[bytes, tuple[SubscriptionPoller, SubscriptionPoller]] = {}
+    pollers: dict[bytes, tuple[SubscriptionPoller, SubscriptionPoller, SubscriptionPoller]] = {}
 
-    def poller_pair() -> tuple[SubscriptionPoller, SubscriptionPoller]:
-        """(lockstep poller, echo poller) for the current set of fleet-driven trains.
+    def poller_set() -> tuple[SubscriptionPoller, SubscriptionPoller, SubscriptionPoller]:
+        """(lockstep poller, lockstep + departures poller, echo poller) for the current set
+        of fleet-driven trains.
 
-        The lockstep waits on the fleet commands, the departure commands and the per-train
-        commands of trains no fleet command answered yet; the per-train commands of
-        fleet-driven trains are echoes for outside tools (the fleet command carried them
-        already), drained every slow period: waiting on 30 more subscriptions, and waking
-        for every echo, cost more than the step (issue 13).
+        The lockstep waits on the fleet commands and the per-train commands of trains no
+        fleet command answered yet, and on the departure commands while a train dwells
+        without one (the barrier waits for it); the per-train commands of fleet-driven
+        trains are echoes for outside tools (the fleet command carried them already),
+        drained every slow period with the speed profiles and the departure commands of
+        trains not waited for (sent before the train reached the station): each waited-on
+        subscription costs every wait, and waking for every echo cost more than the step
+        (issue 13).
         """
         key = sim.fleet_driven.tobytes()
-        pair = pollers.get(key)
-        if pair is None:
+        got = pollers.get(key)
+        if got is None:
             pollers.clear()
             own = [s for i, s in enumerate(sim.cmd_subs) if not sim.fleet_driven[i]]
             echo = [s for i, s in enumerate(sim.cmd_subs) if sim.fleet_driven[i]]
-            pair = pollers[key] = (
+            got = pollers[key] = (
+                SubscriptionPoller(sim.context, [sim.fleet_sub, *own]),
                 SubscriptionPoller(sim.context, [sim.fleet_sub, *own, *sim.dep_subs]),
-                SubscriptionPoller(sim.context, [*echo, *sim.profile_subs]))
-        return pair
+                SubscriptionPoller(sim.context, [*echo, *sim.profile_subs, *sim.dep_subs]))
+        return got
 
     def wait(timeout_s: float) -> None:
         if fast_path:
-            poller_pair()[0].poll(timeout_s)
+            lockstep, with_departures, _ = poller_set()
+            (with_departures if sim.pending_departures() else lockstep).poll(timeout_s)
             slow_path()
         else:
             executor.spin_once(timeout_sec=timeout_s)
@@ -907,7 +913,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
         now = time.monotonic()
         if force or now - last_slow >= ECHO_PERIOD_S:
             last_slow = now
-            poller_pair()[1].poll(0.0)
+            poller_set()[2].poll(0.0)
             if force or now - last_executor >= EXECUTOR_PERIOD_S:
                 # parameter services and the /diagnostics timer: each spin rebuilds the
                 # executor's wait set from all ~100 entities of the node (~1 ms)
