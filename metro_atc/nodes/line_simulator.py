@@ -851,12 +851,12 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
     pollers: dict[bytes, tuple[SubscriptionPoller, SubscriptionPoller, SubscriptionPoller]] = {}
 
     def poller_set() -> tuple[SubscriptionPoller, SubscriptionPoller, SubscriptionPoller]:
-        """(lockstep poller, lockstep + departures poller, echo poller) for the current set
-        of fleet-driven trains.
+        """Return the (lockstep, lockstep + departures, echo) pollers of the fleet-driven set.
 
-        The lockstep waits on the fleet commands and the per-train commands of trains no
-        fleet command answered yet, and on the departure commands while a train dwells
-        without one (the barrier waits for it); the per-train commands of fleet-driven
+        Made again when the set of fleet-driven trains changes. The lockstep waits on the
+        fleet commands and the per-train commands of trains no fleet command answered yet,
+        and on the departure commands while a train dwells without one (the barrier waits
+        for it); the per-train commands of fleet-driven
         trains are echoes for outside tools (the fleet command carried them already),
         drained every slow period with the speed profiles and the departure commands of
         trains not waited for (sent before the train reached the station): each waited-on
