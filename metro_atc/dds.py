@@ -25,7 +25,9 @@ def dds_defaults() -> None:
     ``ROS_AUTOMATIC_DISCOVERY_RANGE`` set (a shell without ``env.sh``), the installed
     loopback profile ``config/fastdds_profile.xml`` is used with the discovery range
     ``SYSTEM_DEFAULT`` (the rmw's ``LOCALHOST`` mode adds sockets on every interface);
-    otherwise the range defaults to ``LOCALHOST``.  Must run before ``rclpy.init``.
+    otherwise the range defaults to ``LOCALHOST``.  ``SKIP_DEFAULT_XML_FILE=1`` unless the
+    current directory has a ``DEFAULT_FASTRTPS_PROFILES.xml`` (see below).  Must run
+    before ``rclpy.init``.
     """
     env = os.environ
     if "FASTRTPS_DEFAULT_PROFILES_FILE" not in env and \
@@ -36,3 +38,17 @@ def dds_defaults() -> None:
             env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(profile)
             env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SYSTEM_DEFAULT"
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    if not _default_xml_in_cwd():
+        # Fast DDS also loads DEFAULT_FASTRTPS_PROFILES.xml from the current directory; in a
+        # deleted directory (a removed temporary one) that look-up fails and Fast DDS logs
+        # "[XMLPARSER Error] getcwd failed" / "realpath failed ... loadDefaultXMLFile" on
+        # *stdout* (breaking ``--json``). With no such file there is nothing to load.
+        env.setdefault("SKIP_DEFAULT_XML_FILE", "1")
+
+
+def _default_xml_in_cwd() -> bool:
+    """The current directory exists and holds a ``DEFAULT_FASTRTPS_PROFILES.xml``."""
+    try:
+        return (Path.cwd() / "DEFAULT_FASTRTPS_PROFILES.xml").is_file()
+    except OSError:  # the current directory was deleted
+        return False

@@ -122,3 +122,114 @@ def test_malformed_fleet_messages_are_rejected(bad: str) -> None:
         with pytest.raises(Rejected) as e:
             conv.fleet_state_entries(fleet, "/line/fleet_state", index)
         assert e.value.kind == kind
+
+
+def _slow_fleet_command(msg: Any, index: dict[str, int], step: int, t: float
+                        ) -> tuple[list[int], list[float | None], int]:
+    """What the simulator took from a FleetCommand entry by entry: (trains, efforts or
+    None, rejected entries)."""
+    trains, efforts, rejected = [], [], 0
+    for i, e in conv.fleet_command_entries(msg, "/line/fleet_command", index):
+        try:
+            u = conv.traction_from_msg(e, "/line/fleet_command", e.train_id, step, t,
+                                       late_echo=True)
+        except Rejected:
+            rejected += 1
+            continue
+        trains.append(i)
+        efforts.append(u)
+    return trains, efforts, rejected
+
+
+def test_fleet_command_fast_path_equals_entry_by_entry() -> None:
+    """conv.fleet_command_efforts (the simulator's whole-message path) gives what the
+    entry-by-entry rules give whenever it answers, and declines (None) exactly when some
+    entry would be rejected: random valid and broken commands (efforts out of range or
+    NaN, undefined modes, other steps, wrong stamps)."""
+    rng = np.random.default_rng(7)
+    ids = [f"train_{j:02d}" for j in range(1, 16)]
+    index = {tid: i for i, tid in enumerate(ids)}
+    seen = {"fast": 0, "stale": 0, "declined": 0}
+    for trial in range(600):
+        step = int(rng.integers(2, 5000))
+        t = step * 0.25
+        n = int(rng.integers(1, len(ids) + 1))
+        chosen = list(rng.choice(ids, size=n, replace=False))
+        eff = rng.uniform(-1.0, 1.0, size=n)
+        modes = rng.integers(0, len(conv.MODES), size=n)
+        kind = trial % 6
+        if kind == 1:
+            eff[rng.integers(n)] = rng.choice([np.nan, np.inf, 1.5, -1.2, 1.0 + 1e-10])
+        elif kind == 2:
+            modes[rng.integers(n)] = len(conv.MODES) + int(rng.integers(0, 5))
+        msg_step, msg_t = step, t
+        if kind == 3:
+            msg_step = step - int(rng.integers(1, 4))  # an earlier step: stale
+            msg_t = msg_step * 0.25
+        elif kind == 4:
+            msg_step = step + 1
+            msg_t = msg_step * 0.25
+        elif kind == 5:
+            msg_t = t + 0.1  # the stamp is not the step's time
+        m = conv.fleet_command_msg(msg_step, msg_t, chosen, eff.tolist(), modes.tolist())
+        trains, efforts, rejected = _slow_fleet_command(m, index, step, t)
+        fast = conv.fleet_command_efforts(m, "/line/fleet_command", index, step, t)
+        if fast is None:
+            seen["declined"] += 1
+            assert rejected > 0
+            continue
+        assert rejected == 0
+        ix, u = fast
+        assert ix.tolist() == trains
+        if u is None:
+            seen["stale"] += 1
+            assert efforts == [None] * len(trains)
+        else:
+            seen["fast"] += 1
+            assert u.tolist() == efforts  # bit for bit
+    assert min(seen.values()) > 50, seen
+
+
+@pytest.mark.parametrize("bad", ["length", "duplicate", "unknown"])
+def test_fleet_command_fast_path_rejects_malformed_messages(bad: str) -> None:
+    """The whole-message path raises the same kinds as fleet_command_entries."""
+    ids = ["train_01", "train_02", "train_03"]
+    index = {tid: i for i, tid in enumerate(ids)}
+    cmd = conv.fleet_command_msg(4, 1.0, ids, [0.0] * 3, [2] * 3)
+    if bad == "length":
+        cmd.mode = [2] * 4
+    elif bad == "duplicate":
+        cmd.train_id = [ids[0]] * 3
+    else:
+        cmd.train_id = ["train_99"] + ids[1:]
+    with pytest.raises(Rejected) as fast:
+        conv.fleet_command_efforts(cmd, "/line/fleet_command", index, 4, 1.0)
+    with pytest.raises(Rejected) as slow:
+        conv.fleet_command_entries(cmd, "/line/fleet_command", index)
+    assert fast.value.kind == slow.value.kind and str(fast.value) == str(slow.value)
+
+
+def test_refilled_sensor_message_equals_a_fresh_one() -> None:
+    """The simulator refills one BrakeSensorData per train: after any sequence of samples
+    the message equals one built fresh from the last sample (NaN dropouts included)."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(11)
+    out = conv.sensor_sample_msg("train_03", 0.0, [], [], math.nan, math.nan, math.nan)
+    for _ in range(200):
+        t = float(rng.uniform(0.0, 7200.0))
+        w = rng.uniform(0.0, 120.0, size=4)
+        c = rng.uniform(0.0, 3e4, size=4)
+        if rng.random() < 0.3:
+            w[rng.integers(4)] = np.nan
+        acc, vref, mass = (float(x) for x in rng.uniform(-1.5, 30.0, size=3))
+        got = conv.fill_sensor_msg(out, t, conv.doubles(w), c, acc, vref, mass)
+        ref = conv.sensor_msg(SimpleNamespace(
+            train_idx=2, t_s=t, wheel_omega_radps=w, clamp_force_n=c, accel_x_mps2=acc,
+            ref_speed_mps=vref, car_mass_kg=mass), ["train_01", "train_02", "train_03"])
+        assert got.header == ref.header and got.train_id == ref.train_id
+        assert got.header.stamp == conv.to_time(t)
+        np.testing.assert_array_equal(np.asarray(got.wheel_angular_speed_radps), w)
+        np.testing.assert_array_equal(np.asarray(got.clamp_force_n), c)
+        assert (got.longitudinal_acceleration_mps2, got.reference_speed_mps,
+                got.car_mass_kg) == (acc, vref, mass)

@@ -105,6 +105,20 @@ def bulk_subscription(node: Node, msg_type: Any, topic: str, callback: Callable[
                                         use_default_callbacks=False))
 
 
+def subscriber_gids(node: Node, publisher: Publisher) -> set[bytes]:
+    """Endpoint GIDs of the subscriptions matching ``publisher``'s topic (graph query).
+
+    What ``node.get_subscriptions_info_by_topic`` gives, without building a
+    ``TopicEndpointInfo`` (and its QoS profile objects) per endpoint: the simulator asks
+    this for its 30 sensor topics every wall second (issue 13). ``publisher.topic_name``
+    is already expanded and remapped.
+    """
+    with node.handle:
+        infos = _rclpy.rclpy_get_subscriptions_info_by_topic(node.handle,
+                                                             publisher.topic_name, False)
+    return {bytes(bytearray(x["endpoint_gid"])) for x in infos}
+
+
 class SubscriptionPoller:
     """Wait on a fixed set of subscriptions and run their callbacks, bypassing the executor.
 

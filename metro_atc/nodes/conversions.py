@@ -11,6 +11,7 @@ dropping the message.  Nothing else in a callback may raise: see
 
 from __future__ import annotations
 
+import array
 import math
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -277,16 +278,53 @@ def event_from_msg(msg: TrainEvent, topic: str, index: Mapping[str, int], b: Bou
 
 def sensor_msg(s: Any, train_ids: Sequence[str]) -> BrakeSensorData:
     """BrakeSensorData from a core BrakeSensorSample (NaN channels pass through: dropouts)."""
+    return sensor_sample_msg(train_ids[s.train_idx], float(s.t_s), s.wheel_omega_radps,
+                             s.clamp_force_n, float(s.accel_x_mps2), float(s.ref_speed_mps),
+                             float(getattr(s, "car_mass_kg", math.nan)))
+
+
+def sensor_sample_msg(train_id: str, t_s: float, omega_radps: Any, clamp_n: Any,
+                      accel_mps2: float, ref_speed_mps: float, car_mass_kg: float
+                      ) -> BrakeSensorData:
+    """BrakeSensorData of one sample of the instrumented car.
+
+    Time [s], per-axle wheel speeds [rad/s] and clamp forces [N], acceleration [m/s^2],
+    reference speed [m/s], car mass [kg] (NaN: none).
+    The per-axle arrays go in as ``array('d')`` built from the float64 buffer (no per-value
+    Python loop: the simulator builds ~20 samples per simulated second per braking train).
+    """
     m = BrakeSensorData()
-    m.header.stamp = to_time(s.t_s)
     m.header.frame_id = "line"
-    m.train_id = train_ids[s.train_idx]
-    m.wheel_angular_speed_radps = [float(x) for x in s.wheel_omega_radps]
-    m.clamp_force_n = [float(x) for x in s.clamp_force_n]
-    m.longitudinal_acceleration_mps2 = float(s.accel_x_mps2)
-    m.reference_speed_mps = float(s.ref_speed_mps)
-    m.car_mass_kg = float(getattr(s, "car_mass_kg", math.nan))
+    m.train_id = train_id
+    return fill_sensor_msg(m, t_s, omega_radps, clamp_n, accel_mps2, ref_speed_mps,
+                           car_mass_kg)
+
+
+def fill_sensor_msg(m: BrakeSensorData, t_s: float, omega_radps: Any, clamp_n: Any,
+                    accel_mps2: float, ref_speed_mps: float, car_mass_kg: float
+                    ) -> BrakeSensorData:
+    """Set the sample fields of ``m`` (train id and frame kept); return ``m``.
+
+    Same values as :func:`sensor_sample_msg`; the simulator refills one message per train
+    (building a message with its header and stamp objects cost more than publishing it).
+    """
+    ns = int(round(max(0.0, float(t_s)) * 1e9))
+    stamp = m.header.stamp
+    stamp.sec = ns // 1_000_000_000
+    stamp.nanosec = ns % 1_000_000_000
+    m.wheel_angular_speed_radps = doubles(omega_radps)
+    m.clamp_force_n = doubles(clamp_n)
+    m.longitudinal_acceleration_mps2 = float(accel_mps2)
+    m.reference_speed_mps = float(ref_speed_mps)
+    m.car_mass_kg = float(car_mass_kg)
     return m
+
+
+def doubles(values: Any) -> "array.array[float]":
+    """A float64 ``array('d')`` of ``values`` (a numpy array is copied as one buffer)."""
+    if isinstance(values, array.array) and values.typecode == "d":
+        return values
+    return array.array("d", np.ascontiguousarray(values, dtype=np.float64).tobytes())
 
 
 SENSOR_RANGES = {"wheel_angular_speed_radps": (-50.0, 1000.0),
@@ -433,15 +471,18 @@ def fleet_state_msg(train_ids: Sequence[str], idx: "Sequence[int] | np.ndarray",
     ix = np.asarray(idx, dtype=np.intp)
     m.train_id = [train_ids[i] for i in ix]
     n = ix.size
+    # whole arrays as array('d'/'i'/'B') buffers: no per-value Python loop here, and the
+    # C conversion of the publish copies them as buffers (issue 13)
     for field, key in zip(FLEET_STATE_FIELDS, _FLEET_STATE_KEYS):
         a = states.get(key)
         if field in ("current_station", "next_station"):
-            setattr(m, field, np.asarray(a, dtype=np.int32)[ix].tolist())
+            setattr(m, field, array.array("i", np.asarray(a, dtype=np.int32)[ix].tobytes()))
         elif field == "mode":
-            setattr(m, field, np.asarray(a, dtype=np.uint8)[ix].tolist())
+            setattr(m, field, array.array("B", np.asarray(a, dtype=np.uint8)[ix].tobytes()))
+        elif a is None:
+            setattr(m, field, array.array("d", [math.nan]) * n)
         else:
-            setattr(m, field, [math.nan] * n if a is None
-                    else np.asarray(a, dtype=np.float64)[ix].tolist())
+            setattr(m, field, doubles(np.asarray(a, dtype=np.float64)[ix]))
     m.echo = [False] * n if echo is None else [bool(x) for x in echo]
     return m
 
@@ -519,3 +560,36 @@ def fleet_command_entries(msg: FleetCommand, topic: str,
         out.append((i, _Entry(msg.header, msg.step, tid, effort=effort[j],
                               mode=md[0] if isinstance(md, bytes) else int(md))))
     return out
+
+
+def fleet_command_efforts(msg: FleetCommand, topic: str, index: Mapping[str, int], step: int,
+                          t_s: float) -> tuple[np.ndarray, np.ndarray | None] | None:
+    """A FleetCommand validated as a whole, for lockstep step ``step`` at time ``t_s``.
+
+    The simulator's fast path (issue 13): ``(train indices, efforts)`` when every entry
+    passes :func:`traction_from_msg` (with ``late_echo``) as it would one by one, ``efforts``
+    None for a command of an earlier step (stale duplicates, dropped without counting);
+    None when some entry breaks a per-entry rule (effort, mode, step, stamp): the caller
+    then validates entry by entry (:func:`fleet_command_entries`), which counts every
+    rejected entry.  The message's shape and trains are checked here as there (kinds
+    ``shape`` / ``train_id``, raised for the whole message).
+    """
+    effort, mode = _fleet_arrays(msg, topic, ("effort", "mode"))
+    ix = np.fromiter((train_index(tid, index, topic) for tid in msg.train_id),
+                     dtype=np.intp, count=len(msg.train_id))
+    e = np.asarray(effort, dtype=np.float64)
+    md = np.asarray([x[0] if isinstance(x, bytes) else int(x) for x in mode], dtype=np.int64)
+    ok = bool(np.all(np.isfinite(e)) and np.all(np.abs(e) <= 1.0 + 1e-9)
+              and np.all((md >= 0) & (md <= len(MODES) - 1)))
+    if not ok:
+        return None
+    k = int(msg.step)
+    if k < step:
+        return ix, None
+    if k != step:
+        return None
+    try:
+        check_stamp(topic, from_time(msg.header.stamp), t_s)
+    except Rejected:
+        return None
+    return ix, np.clip(e, -1.0, 1.0)

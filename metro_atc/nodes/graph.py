@@ -9,8 +9,9 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import rclpy
 from rclpy.exceptions import ParameterException
@@ -32,8 +33,36 @@ def _overrides(values: dict[str, Any]) -> list[Parameter]:
     return [Parameter(k, value=v) for k, v in values.items()]
 
 
+@contextmanager
+def stdout_on_stderr() -> Iterator[None]:
+    """Point file descriptor 1 at stderr for the block (Python's and the C libraries').
+
+    DDS and rcl log from C++ straight to fd 1 (Fast DDS's ``[XMLPARSER Error] ...
+    loadDefaultXMLFile`` in a deleted current directory, for one): in this process that is
+    the launcher's stdout, where ``--json`` prints one line after the run.
+    """
+    sys.stdout.flush()
+    saved = os.dup(1)
+    os.dup2(2, 1)
+    try:
+        yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 def run_single_process(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Path) -> int:
-    """Run the scenario with every node in this process; return an exit code."""
+    """Run the scenario with every node in this process; return an exit code.
+
+    While the nodes exist, stdout goes to stderr (:func:`stdout_on_stderr`).
+    """
+    with stdout_on_stderr():
+        return _run_graph(a, train_ids, out_dir)
+
+
+def _run_graph(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Path) -> int:
+    """Build the nodes, run the lockstep, destroy them (see :func:`run_single_process`)."""
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     # SIGINT raises KeyboardInterrupt here; the context is shut down once, at the end
     rclpy.init(args=["metro_atc_graph"], signal_handler_options=SignalHandlerOptions.NO)

@@ -59,6 +59,7 @@ from metro_atc.nodes.common import (QOS_CLOCK, QOS_EVENTS, QOS_LATCHED, QOS_LATC
                                     QOS_RELIABLE, QOS_SENSOR, OK, WARN, NodeConfigError,
                                     RuntimeParams,
                                     SubscriptionPoller, bulk_publisher, bulk_subscription,
+                                    subscriber_gids,
                                     diag_status, run_nodes, spin_until_stopped, static,
                                     stop_requested)
 
@@ -88,6 +89,11 @@ RECORDER_SYNC_STEPS = 250
 lockstep waits until every reliable reader acknowledged what was published: half the
 500-state writer history, so a recorder slower than the graph loses no state (issue 13:
 with the fast tracker the graph outruns a recording node)."""
+ECHO_PERIOD_S = 0.05
+"""Wall period of the poll of the per-train command echoes and speed profiles [s]."""
+EXECUTOR_PERIOD_S = 0.25
+"""Wall period of the executor spin in the node's own process (parameter services, the
+/diagnostics timer) [s]."""
 FLEET_RESEND_S = 2.0
 """Lockstep: wall time without every command of the step before the fleet-state entries
 of the trains not answered are published again [s] (a state lost with a killed ATO)."""
@@ -215,8 +221,12 @@ class LineSimulator(Node):
         self.journaled: set[tuple[Any, ...]] = set()
         """Departure commands of the journal (a late copy from the ATS is not re-applied)."""
         self.resumed_from = -1
-        self.sensor_log: deque[tuple[float, int, BrakeSensorData]] = deque()
-        """Recent brake sensor samples (t, train, message) for a restarted reader."""
+        self.sensor_log: deque[tuple[float, int, tuple[Any, ...]]] = deque()
+        """Recent brake sensor samples (t, train, :func:`conv.sensor_sample_msg` arguments
+        after the train id) for a restarted reader."""
+        self._sensor_out = [conv.sensor_sample_msg(t, 0.0, [], [], math.nan, math.nan,
+                                                   math.nan) for t in self.ids]
+        """The BrakeSensorData of each train, refilled for every sample published."""
         self._sensor_readers: list[set[bytes]] = [set() for _ in range(n)]
         self._resend_due = np.zeros(n, dtype=bool)
         self._readers_known = False
@@ -234,6 +244,8 @@ class LineSimulator(Node):
         self.fleet_resends = 0
         """Fleet states published again for trains that did not answer in time."""
         self._step_states: tuple[int, Any] = (-1, None)
+        self._dwelling: tuple[int, list[tuple[int, int]]] = (-1, [])
+        """(k, (train, station) of the trains dwelling in service at step k)."""
         """(k, core states published at step k): the lockstep barrier reads them again."""
         self.state_every = max(1, int(round(self.train_state_period_s
                                             / float(self.sim.control_period_s))))
@@ -299,10 +311,21 @@ class LineSimulator(Node):
         """Take the commands of one ATO process for step k (each entry as a /<t>/command)."""
         topic = "/line/fleet_command"
         try:
+            fast = conv.fleet_command_efforts(msg, topic, self.index, self.k,
+                                              float(self.sim.t))
+            if fast is not None:
+                ix, efforts = fast
+                # the trains' ATO answers the fleet state (see below)
+                self.fleet_driven[ix] = True
+                if efforts is not None:
+                    self.cmd_step[ix] = self.k
+                    self.cmd_effort[ix] = efforts
+                return
             entries = conv.fleet_command_entries(msg, topic, self.index)
         except conv.MessageRejected as exc:
             self._reject("fleet command", exc)
             return
+        # some entry breaks a rule: entry by entry, each rejection counted
         for i, e in entries:
             try:
                 # an entry of an earlier step is a duplicate (an ATO's answer to a fleet
@@ -565,6 +588,11 @@ class LineSimulator(Node):
         states = self.sim.states()
         self._step_states = (self.k, states)
         per_train = active if self.k % self.state_every == 0 else active & ~self.fleet_driven
+        if per_train.any():
+            # a topic nobody reads is not published (outside tools that subscribe get it at
+            # the declared rate; the fleet state carries every step): no writes, and no
+            # per-train command echoes from the ATOs for them (issue 13)
+            per_train = per_train & self._state_read()
         idx = np.flatnonzero(active)
         self._echo_mask = per_train
         self._fleet_msg = conv.fleet_state_msg(self.ids, idx, states, self.k, t,
@@ -573,6 +601,11 @@ class LineSimulator(Node):
         for i, m in conv.state_msgs(self.ids, np.flatnonzero(per_train), states, self.k, t):
             self.state_pubs[i].publish(m)
         return active
+
+    def _state_read(self) -> np.ndarray:
+        """Trains whose ``/<train>/state`` has a subscriber (checked for every train)."""
+        return np.fromiter((p.get_subscription_count() > 0 for p in self.state_pubs),
+                           dtype=bool, count=len(self.state_pubs))
 
     def new_fleet_subscribers(self) -> bool:
         """The fleet state topic matched a new (or lost a) subscriber since the last check."""
@@ -612,15 +645,18 @@ class LineSimulator(Node):
 
     def pending_departures(self) -> list[tuple[int, int]]:
         """(train, station) pairs dwelling without an ATS departure command yet."""
-        k, st = self._step_states
-        if k != self.k or st is None:  # mode, service and station change only in a step
-            st = self.sim.states()
-        dwell = np.flatnonzero((st["mode"] == TrainState.MODE_DWELL)
-                               & np.asarray(st["in_service"], dtype=bool))
+        ck, dwell = self._dwelling
+        if ck != self.k:  # mode, service and station change only in a step
+            k, st = self._step_states
+            if k != self.k or st is None:
+                st = self.sim.states()
+            at = np.flatnonzero((st["mode"] == TrainState.MODE_DWELL)
+                                & np.asarray(st["in_service"], dtype=bool))
+            dwell = [(int(i), int(st["current_station"][i])) for i in at]
+            self._dwelling = (self.k, dwell)
         last = len(self.sim.station_names) - 1
         out = []
-        for i in dwell:
-            j = int(st["current_station"][i])
+        for i, j in dwell:
             if 0 <= j < last and not self.dep_received[i, j] and not self.dep_given_up[i, j]:
                 out.append((int(i), j))
         return out
@@ -684,25 +720,33 @@ class LineSimulator(Node):
         """
         if block is None:
             return
-        t = np.asarray(block.t, dtype=float)
-        trains = np.asarray(block.trains)
+        # plain Python floats and lists here: numpy scalar indexing per sample was most of
+        # the node's time with ~10 samples per step at the peak (issue 13)
+        t = np.asarray(block.t, dtype=float).tolist()
+        trains = [int(i) for i in np.asarray(block.trains)]
         # braked: some axle clamp force well above the sensor noise (50 N scale)
-        braking = np.nanmax(np.asarray(block.clamp, dtype=float), axis=2, initial=0.0) > 1000.0
+        braking = (np.nanmax(np.asarray(block.clamp, dtype=float), axis=2, initial=0.0)
+                   > 1000.0).tolist()
+        omega = np.asarray(block.omega, dtype=np.float64)
+        clamp = np.asarray(block.clamp, dtype=np.float64)
+        accel = np.asarray(block.accel, dtype=float).tolist()
+        vref = np.asarray(block.vref, dtype=float).tolist()
+        mass = np.asarray(block.car_mass, dtype=float).tolist()
+        idle = float(self.sensor_idle_period_s)
+        keep = self.sensor_resend_s > 0.0
+        last = self.sensor_last_t
         for a, ts in enumerate(t):
+            brk = braking[a]
             for b, i in enumerate(trains):
-                if not (braking[a, b] or self.sensor_idle_period_s <= 0.0
-                        or ts - self.sensor_last_t[i] >= self.sensor_idle_period_s - 1e-9):
+                if not (brk[b] or idle <= 0.0 or ts - last[i] >= idle - 1e-9):
                     continue
-                self.sensor_last_t[i] = ts
-                sample = SimpleNamespace(
-                    train_idx=int(i), t_s=float(ts), wheel_omega_radps=block.omega[a, b],
-                    clamp_force_n=block.clamp[a, b], accel_x_mps2=float(block.accel[a, b]),
-                    ref_speed_mps=float(block.vref[a, b]),
-                    car_mass_kg=float(block.car_mass[b]))
-                msg = conv.sensor_msg(sample, self.ids)
-                self.sensor_pubs[i].publish(msg)
-                if self.sensor_resend_s > 0.0:
-                    self.sensor_log.append((float(ts), int(i), msg))
+                last[i] = ts
+                sample = (ts, conv.doubles(omega[a, b]), conv.doubles(clamp[a, b]),
+                          accel[a][b], vref[a][b], mass[b])
+                # one message object per train, refilled (publish copies it out at once)
+                self.sensor_pubs[i].publish(conv.fill_sensor_msg(self._sensor_out[i], *sample))
+                if keep:
+                    self.sensor_log.append((ts, i, sample))
         horizon = float(self.sim.t) - self.sensor_resend_s
         while self.sensor_log and self.sensor_log[0][0] < horizon:
             self.sensor_log.popleft()
@@ -720,8 +764,7 @@ class LineSimulator(Node):
         due = self._resend_due
         self._resend_due = np.zeros(len(self.ids), dtype=bool)
         for i, pub in enumerate(self.sensor_pubs):
-            gids = {bytes(bytearray(x.endpoint_gid))
-                    for x in self.get_subscriptions_info_by_topic(pub.topic_name)}
+            gids = subscriber_gids(self, pub)
             if gids - self._sensor_readers[i] and self._readers_known:
                 self._resend_due[i] = True
             self._sensor_readers[i] |= gids
@@ -730,9 +773,9 @@ class LineSimulator(Node):
         if not gained.any():
             return 0
         sent = 0
-        for _, i, msg in self.sensor_log:
+        for _, i, sample in self.sensor_log:
             if gained[i]:
-                self.sensor_pubs[i].publish(msg)
+                self.sensor_pubs[i].publish(conv.sensor_sample_msg(self.ids[i], *sample))
                 sent += 1
                 if sent % RESEND_CHUNK == 0:
                     # best effort through a writer history of 20: paced, or a burst is lost
@@ -798,37 +841,44 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
     """Drive the simulator: lockstep on commands, or free-run paced at the real-time factor.
 
     With ``fast_path`` (the node's own process) commands and departure commands are taken by
-    a :class:`SubscriptionPoller`; everything else on ``executor`` (parameter services,
-    /clock) is spun every 50 ms of wall time and once per step. Without it (the
-    single-process graph, where other nodes' callbacks share the executor) every wait is an
-    executor spin.
+    a :class:`SubscriptionPoller`, the per-train command echoes and the speed profiles by
+    another every :data:`ECHO_PERIOD_S` of wall time; everything else on ``executor``
+    (parameter services, the /diagnostics timer) is spun every :data:`EXECUTOR_PERIOD_S`.
+    Without it (the single-process graph, where other nodes' callbacks share the executor)
+    every wait is an executor spin.
     """
     log = sim.get_logger()
-    pollers: dict[bytes, tuple[SubscriptionPoller, SubscriptionPoller]] = {}
+    pollers: dict[bytes, tuple[SubscriptionPoller, SubscriptionPoller, SubscriptionPoller]] = {}
 
-    def poller_pair() -> tuple[SubscriptionPoller, SubscriptionPoller]:
-        """(lockstep poller, echo poller) for the current set of fleet-driven trains.
+    def poller_set() -> tuple[SubscriptionPoller, SubscriptionPoller, SubscriptionPoller]:
+        """Return the (lockstep, lockstep + departures, echo) pollers of the fleet-driven set.
 
-        The lockstep waits on the fleet commands, the departure commands and the per-train
-        commands of trains no fleet command answered yet; the per-train commands of
-        fleet-driven trains are echoes for outside tools (the fleet command carried them
-        already), drained every slow period: waiting on 30 more subscriptions, and waking
-        for every echo, cost more than the step (issue 13).
+        Made again when the set of fleet-driven trains changes. The lockstep waits on the
+        fleet commands and the per-train commands of trains no fleet command answered yet,
+        and on the departure commands while a train dwells without one (the barrier waits
+        for it); the per-train commands of fleet-driven
+        trains are echoes for outside tools (the fleet command carried them already),
+        drained every slow period with the speed profiles and the departure commands of
+        trains not waited for (sent before the train reached the station): each waited-on
+        subscription costs every wait, and waking for every echo cost more than the step
+        (issue 13).
         """
         key = sim.fleet_driven.tobytes()
-        pair = pollers.get(key)
-        if pair is None:
+        got = pollers.get(key)
+        if got is None:
             pollers.clear()
             own = [s for i, s in enumerate(sim.cmd_subs) if not sim.fleet_driven[i]]
             echo = [s for i, s in enumerate(sim.cmd_subs) if sim.fleet_driven[i]]
-            pair = pollers[key] = (
+            got = pollers[key] = (
+                SubscriptionPoller(sim.context, [sim.fleet_sub, *own]),
                 SubscriptionPoller(sim.context, [sim.fleet_sub, *own, *sim.dep_subs]),
-                SubscriptionPoller(sim.context, echo))
-        return pair
+                SubscriptionPoller(sim.context, [*echo, *sim.profile_subs, *sim.dep_subs]))
+        return got
 
     def wait(timeout_s: float) -> None:
         if fast_path:
-            poller_pair()[0].poll(timeout_s)
+            lockstep, with_departures, _ = poller_set()
+            (with_departures if sim.pending_departures() else lockstep).poll(timeout_s)
             slow_path()
         else:
             executor.spin_once(timeout_sec=timeout_s)
@@ -856,15 +906,19 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
     sim._wall0 = wall0
     last_slow = time.monotonic()
 
+    last_executor = time.monotonic()
+
     def slow_path(force: bool = False) -> None:
-        nonlocal last_slow
+        nonlocal last_slow, last_executor
         now = time.monotonic()
-        if force or now - last_slow >= 0.05:
+        if force or now - last_slow >= ECHO_PERIOD_S:
             last_slow = now
-            echo = poller_pair()[1]
-            if echo.subs:
-                echo.poll(0.0)
-            executor.spin_once(timeout_sec=0.0)
+            poller_set()[2].poll(0.0)
+            if force or now - last_executor >= EXECUTOR_PERIOD_S:
+                # parameter services and the /diagnostics timer: each spin rebuilds the
+                # executor's wait set from all ~100 entities of the node (~1 ms)
+                last_executor = now
+                executor.spin_once(timeout_sec=0.0)
 
     while not sim.finished and not stop_requested():
         if time.monotonic() >= next_sensor_check:
