@@ -168,8 +168,10 @@ def simulate_switching(run: RunModel, coast_point_s: FloatArray, delta: FloatArr
         return simulate_switching_numpy(run, coast_point_s, delta, h_m, record)
     from metro_atc.core.ato.step_kernel import pack_train
     from metro_atc.core.ato.switching_kernel import simulate_kernel
-    yc = np.ascontiguousarray(np.atleast_1d(np.asarray(coast_point_s, dtype=float)))
-    dl = np.ascontiguousarray(np.broadcast_to(np.asarray(delta, dtype=float), yc.shape))
+    yc = np.array(np.atleast_1d(np.asarray(coast_point_s, dtype=float)), order="C")
+    # always a fresh writable C array: a read-only view (broadcast_to of a shaped delta) is
+    # another numba signature, compiled in the first plan although warmed up (issue 13)
+    dl = np.array(np.broadcast_to(np.asarray(delta, dtype=float), yc.shape), order="C")
     tab = step_table(run, float(h_m))
     c = _CONSTANTS.get(run)
     if c is None:
