@@ -40,7 +40,6 @@ from typing import Optional
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import RectBivariateSpline
 
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, OperatingLimits, RunModel
 from metro_atc.core.ato.strategy import strategy_step
@@ -414,6 +413,9 @@ def actp(run: RunModel, target_time_s: float, tune_traction: bool = True,
     x_e = e_tab / e_ref
     cn = coasts / run.length_m
     if tune_traction:
+        # imported here: scipy.interpolate is ~1 CPU s of every ATO process's start-up
+        # (issue 13) and only ACTP-TC needs it
+        from scipy.interpolate import RectBivariateSpline
         spl_t = RectBivariateSpline(deltas, cn, x_t, kx=3, ky=3)
         spl_e = RectBivariateSpline(deltas, cn, x_e, kx=3, ky=3)
     else:
