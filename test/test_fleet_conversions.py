@@ -233,3 +233,71 @@ def test_refilled_sensor_message_equals_a_fresh_one() -> None:
         np.testing.assert_array_equal(np.asarray(got.clamp_force_n), c)
         assert (got.longitudinal_acceleration_mps2, got.reference_speed_mps,
                 got.car_mass_kg) == (acc, vref, mass)
+
+
+def _per_entry(fleet: Any, hosted: dict[str, Any], b: Any) -> list[tuple[str, Any, bool]]:
+    """The slow path: fleet_state_entries + state_from_msg per entry (``again`` dropped)."""
+    out = []
+    for tid, e in conv.fleet_state_entries(fleet, "/line/fleet_state", hosted):
+        s = conv.state_from_msg(e, "/line/fleet_state", tid, b, StepWindow())
+        del s["again"]
+        out.append((tid, s, e.echo))
+    return out
+
+
+def test_checked_fast_path_equals_the_per_entry_path() -> None:
+    """fleet_states_checked gives the per-entry path's dicts (values, types, key order)."""
+    scn = load_scenario("mini")
+    b = bounds_for(scn)
+    ids = list(scn.train_ids)
+    n = 0
+    for k, t, st in _states_along_a_run():
+        for hosted in ({i: None for i in ids}, {ids[-1]: None}, {"train_99": None}):
+            echo = np.arange(len(ids)) % 3 == 0
+            fleet = conv.fleet_state_msg(ids, np.arange(len(ids)), st, k, t, echo)
+            try:
+                slow = _per_entry(fleet, hosted, b)
+            except Rejected:
+                assert conv.fleet_states_checked(fleet, "/line/fleet_state", hosted, b) is None
+                continue
+            fast = conv.fleet_states_checked(fleet, "/line/fleet_state", hosted, b)
+            assert fast is not None
+            assert [(tid, list(s.items()), e) for tid, s, e in fast] == \
+                [(tid, list(s.items()), e) for tid, s, e in slow]
+            assert [type(v) for _, s, _ in fast for v in s.values()] == \
+                [type(v) for _, s, _ in slow for v in s.values()]
+            n += len(fast)
+    assert n > 20
+
+
+@pytest.mark.parametrize("field,value", [
+    ("position_m", math.nan), ("position_m", -1e7), ("speed_mps", -0.1),
+    ("speed_mps", math.inf), ("acceleration_mps2", 1e3), ("current_station", 99),
+    ("next_station", -2), ("mode", 200), ("departure_time_s", -1.0),
+    ("target_running_time_s", math.inf), ("supervision_speed_mps", math.nan),
+    ("movement_authority_m", -math.inf), ("movement_authority_m", math.nan),
+    ("stamp", 0.1), ("length", 0), ("duplicate", 0)])
+def test_checked_fast_path_refuses_what_the_per_entry_path_rejects(field: str,
+                                                                   value: float) -> None:
+    """One bad value in one hosted entry: the fast path returns None (the caller then takes
+    the per-entry path, which rejects that entry or the message)."""
+    scn = load_scenario("mini")
+    b = bounds_for(scn)
+    ids = list(scn.train_ids)
+    k, t, st = _states_along_a_run(40, 39)[-1]
+    fleet = conv.fleet_state_msg(ids, np.arange(len(ids)), st, k, t)
+    hosted = {i: None for i in ids}
+    assert conv.fleet_states_checked(fleet, "/line/fleet_state", hosted, b) is not None
+    if field == "stamp":
+        fleet.header.stamp = conv.to_time(t + value)
+    elif field == "length":
+        fleet.echo = [False] * (len(ids) + 1)
+    elif field == "duplicate":
+        fleet.train_id = [ids[0]] * len(ids)
+    else:
+        vals = list(getattr(fleet, field))
+        vals[-1] = value
+        setattr(fleet, field, vals)
+    with pytest.raises(Rejected):
+        _per_entry(fleet, hosted, b)
+    assert conv.fleet_states_checked(fleet, "/line/fleet_state", hosted, b) is None

@@ -138,6 +138,83 @@ def _brake_capability_numpy(self: OnboardAto, x_from: float, x_to: float) -> flo
     return max(self.train.max_service_brake_mps2 + veh.G_MPS2 * min(g, 0.0), 0.05)
 
 
+def _speed_cap_reference(self: OnboardAto, s: dict[str, Any], x_at: Any = None,
+                         authority: bool = True) -> float:
+    """OnboardAto.speed_cap as written before its per-state context (the reference)."""
+    x, v, t = float(s["x_m"]), float(s["v_mps"]), float(s["t_s"])
+    if x_at is not None:
+        x = float(x_at)
+    cap = math.inf
+    atp = self.atp
+    sup = float(s["supervision_speed_mps"])
+    if math.isfinite(sup):
+        cap = sup - atp.sbi_offset_mps - onb_mod.SPEED_MARGIN_MPS
+    tab = atp.sbi_static_mps
+    assert tab is not None
+    k0 = int((x - atp.grid_x0_m) / atp.grid_dx_m)
+    k1 = int((x + v * onb_mod.CAP_LOOKAHEAD_S + 1.0 - atp.grid_x0_m) / atp.grid_dx_m) + 1
+    k0 = min(max(k0, 0), tab.size - 1)
+    k1 = min(max(k1, k0 + 1), tab.size)
+    cap = min(cap, float(tab[k0:k1].min()) - atp.sbi_offset_mps - onb_mod.SPEED_MARGIN_MPS)
+    b = self._plan_decel(x)
+    ma = float(s["movement_authority_m"])
+    if authority and math.isfinite(ma):
+        d = ma - x - onb_mod.AUTHORITY_MARGIN_M
+        cap = min(cap, math.sqrt(2.0 * b * max(d, 0.0)),
+                  atp.sbi_speed(d, v) - onb_mod.SPEED_MARGIN_MPS)
+    lead = self.core.limits.restriction_lead_m
+    margin = self.core.limits.speed_margin_mps
+    for z in self.tsrs:
+        if not (z.known_s <= t < z.to_s) or x - self.train.length_m >= z.end_m:
+            continue
+        lim = max(z.limit_mps - margin, 0.5 * z.limit_mps)
+        d = z.start_m - lead - x
+        cap = min(cap, math.sqrt(lim * lim + 2.0 * b * max(d, 0.0)),
+                  atp.sbi_speed_to(z.start_m - x, z.limit_mps) - onb_mod.SPEED_MARGIN_MPS)
+    return max(cap, 0.0)
+
+
+def test_speed_caps_equal_the_former_formula(blue: Any) -> None:
+    """speed_cap (one context per state, the SBI table minimum over a list) and the guard
+    give the former per-call construction's floats exactly, with TSRs known, active and
+    cleared, authorities finite and infinite, supervision speeds known and not, planned
+    and unplanned."""
+    scn, train, track, limits, atp = blue
+    st = timetable_for(scn).station_positions_m
+    lo, hi = float(min(st)), float(max(st))
+    zones = []
+    for _ in range(6):
+        a = float(RNG.uniform(lo, hi - 500.0))
+        t0 = float(RNG.uniform(0.0, 400.0))
+        zones.append(onb_mod.TsrZone(a, a + float(RNG.uniform(50.0, 600.0)),
+                                     float(RNG.uniform(4.0, 18.0)), t0, t0 + 60.0,
+                                     t0 + float(RNG.uniform(100.0, 300.0))))
+    ato = OnboardAto(train, track, st, limits=limits, atp=atp, tsrs=zones)
+    n = 0
+    for planned in (False, True):
+        if planned:
+            ato.plan(2, 110.0, 0.0)
+        for _ in range(1500):
+            x = float(RNG.uniform(lo - 100.0, hi + 100.0))
+            s = {"x_m": x, "v_mps": float(RNG.choice([0.0, RNG.uniform(0.0, 25.0)])),
+                 "t_s": float(RNG.uniform(0.0, 700.0)), "next_station": 3,
+                 "supervision_speed_mps": float(RNG.choice([math.inf, RNG.uniform(0, 30)])),
+                 "movement_authority_m": float(RNG.choice(
+                     [math.inf, x + float(RNG.uniform(-20.0, 2000.0))]))}
+            for x_at, auth in ((None, True), (x + 7.5, True), (x + 7.5, False),
+                               (x - 3.0, True)):
+                assert ato.speed_cap(s, x_at, auth) == _speed_cap_reference(ato, s, x_at, auth)
+            with pytest.MonkeyPatch.context() as mp:
+                ref_guard = ato.guard(s)
+                mp.setattr(OnboardAto, "speed_cap", _speed_cap_reference)
+                mp.setattr(OnboardAto, "_cap_at",
+                           lambda self, ctx, x_at, auth, s=s: _speed_cap_reference(
+                               self, s, x_at, auth))
+                assert ato.guard(s) == ref_guard
+            n += 1
+    assert n == 3000 and any(z.known_s < 700.0 for z in zones)
+
+
 def test_brake_capability_matches_samples(blue: Any) -> None:
     """The two-piece shortcut equals the minimum over the 64 samples."""
     scn, train, track, limits, atp = blue

@@ -355,13 +355,36 @@ class AtoController(Node):
                 if exc.kind != "step" or not self._rewind(msg, topic):
                     raise
                 s = conv.state_from_msg(msg, topic, self.train_id, self.bounds, self.steps)
-            last = self._last_cmd
-            if s["again"] and last is not None and last.step == s["step"]:
-                return last
-            effort, mode = conv.guarded(topic, self.control, s)
+            return self._act(s, topic, flush)
         except conv.MessageRejected as exc:
             self._reject("state", exc)
             return None
+
+    def answer_checked(self, s: dict[str, Any], entry: Any, topic: str,
+                       flush: bool = True) -> Cmd | None:
+        """:meth:`answer` for a state already validated field by field (fleet fast path).
+
+        ``s``: the dict :func:`conversions.state_from_msg` would return, without ``again``;
+        ``entry``: the TrainState-like view, used as :meth:`answer` does when the step is
+        outside the window (a re-synchronisation or a resumed simulator).
+        """
+        last = self.steps.last
+        k = s["step"]
+        if last is not None and k != last + 1 and k != last:
+            return self.answer(entry, topic, flush)
+        try:
+            s["again"] = self.steps.accept(k, f"{topic}.step") == "again"
+            return self._act(s, topic, flush)
+        except conv.MessageRejected as exc:
+            self._reject("state", exc)
+            return None
+
+    def _act(self, s: dict[str, Any], topic: str, flush: bool) -> Cmd | None:
+        """The command for a validated state (its step accepted); journal it."""
+        last = self._last_cmd
+        if s["again"] and last is not None and last.step == s["step"]:
+            return last
+        effort, mode = conv.guarded(topic, self.control, s)
         self._remember(s, effort, mode)
         if self._journal is not None:
             self._journal.write(json.dumps(s) + "\n")
@@ -414,15 +437,24 @@ class FleetLink:
         self.pub = bulk_publisher(host, FleetCommand, self.TOPIC_COMMAND, QOS_RELIABLE)
         self.sub = bulk_subscription(host, FleetState, self.TOPIC_STATE, self.on_fleet_state,
                                      QOS_RELIABLE)
+        # the fast path checks all entries with one set of bounds (the hosted trains share
+        # their scenario; otherwise every entry takes the per-train path)
+        b = {n.bounds for n in nodes}
+        self.bounds = next(iter(b)) if len(b) == 1 else None
 
     def on_fleet_state(self, msg: FleetState) -> None:
         """Answer the hosted trains of a fleet state (a malformed message: counted, dropped)."""
         topic = self.TOPIC_STATE
-        try:
-            entries = conv.fleet_state_entries(msg, topic, self.nodes)
-        except conv.MessageRejected as exc:
-            next(iter(self.nodes.values()))._reject("fleet state", exc)
-            return
+        checked = conv.fleet_states_checked(msg, topic, self.nodes, self.bounds) \
+            if self.bounds is not None else None
+        if checked is None:
+            try:
+                entries = conv.fleet_state_entries(msg, topic, self.nodes)
+            except conv.MessageRejected as exc:
+                next(iter(self.nodes.values()))._reject("fleet state", exc)
+                return
+        else:
+            entries = [(tid, _Lazy(msg, tid, s, e)) for tid, s, e in checked]
         ids: list[str] = []
         efforts: list[float] = []
         modes: list[int] = []
@@ -431,7 +463,8 @@ class FleetLink:
         answered: list[AtoController] = []
         for tid, e in entries:
             node = self.nodes[tid]
-            cmd = node.answer(e, topic, flush=False)
+            cmd = node.answer_checked(e.state, e, topic, flush=False) \
+                if isinstance(e, _Lazy) else node.answer(e, topic, flush=False)
             answered.append(node)
             if cmd is None or (step is not None and cmd.step != step):
                 continue
@@ -451,6 +484,26 @@ class FleetLink:
         if ids and step is not None and stamp is not None:
             stamp = conv.from_time(conv.to_time(stamp))  # as a TractionCommand carried it
             self.pub.publish(conv.fleet_command_msg(step, stamp, ids, efforts, modes))
+
+
+class _Lazy:
+    """A fleet entry validated on the fast path: its state dict, its message view on demand.
+
+    Reads like the TrainState-like view of :func:`conversions.fleet_state_entries` (built
+    only when a train's step falls outside its window and :meth:`AtoController.answer`
+    takes over).
+    """
+
+    def __init__(self, msg: FleetState, tid: str, state: dict[str, Any], echo: bool) -> None:
+        self.msg, self.tid, self.state, self.echo = msg, tid, state, echo
+        self._view: Any = None
+
+    def __getattr__(self, name: str) -> Any:
+        """A field of the entry's TrainState-like view (built on first use)."""
+        if self._view is None:
+            views = conv.fleet_state_entries(self.msg, FleetLink.TOPIC_STATE, {self.tid: None})
+            self._view = dict(views)[self.tid]
+        return getattr(self._view, name)
 
 
 PLANNED_POINTS = 200

@@ -593,3 +593,57 @@ def fleet_command_efforts(msg: FleetCommand, topic: str, index: Mapping[str, int
     except Rejected:
         return None
     return ix, np.clip(e, -1.0, 1.0)
+
+
+def fleet_states_checked(msg: FleetState, topic: str, hosted: Mapping[str, Any],
+                         b: Bounds) -> list[tuple[str, dict[str, Any], bool]] | None:
+    """The hosted entries of a FleetState as validated state dicts, in one pass.
+
+    The fast path of :func:`fleet_state_entries` + :func:`state_from_msg` (issue 13): the
+    message's shape and every rule of :func:`state_from_msg` except the step window are
+    checked entry by entry without building a view per entry; the dicts are those
+    :func:`state_from_msg` returns, field for field (without ``again``, which the
+    receiver's step window sets).  None when anything fails (a NaN fails every range): the
+    caller then takes the per-entry path, which rejects exactly as before.  Returns
+    (train id, state, echo) in the order of the message.
+    """
+    try:
+        ids = msg.train_id
+        n = len(ids)
+        arrays = [getattr(msg, f) for f in FLEET_STATE_FIELDS]
+        echo = msg.echo
+        if any(len(a) != n for a in arrays) or len(echo) != n or len(set(ids)) != n:
+            return None
+        rows = [j for j, tid in enumerate(ids) if tid in hosted]
+        if not rows:
+            return []
+        t = from_time(msg.header.stamp)
+        k = int(msg.step)
+        check_stamp(topic, t, k * b.control_period_s)
+        check_time(f"{topic}.header.stamp", t, b)
+    except (Rejected, TypeError, ValueError, AttributeError):
+        return None
+    xs, vs, accs, curs, nxts, modes, deps, tgts, sups, mas = arrays
+    x0, x1, vmax, amax, hor = b.x_min_m, b.x_max_m, b.v_max_mps, b.a_max_mps2, b.horizon_s
+    last, mmax = b.n_stations - 1, len(MODES) - 1
+    out = []
+    for j in rows:
+        x, v, a, cur, nxt, md = xs[j], vs[j], accs[j], curs[j], nxts[j], modes[j]
+        dep, tgt, sup, ma = deps[j], tgts[j], sups[j], mas[j]
+        if isinstance(md, bytes):
+            md = md[0]
+        if not (type(x) is float and type(v) is float and type(a) is float  # noqa: E721
+                and type(dep) is float and type(tgt) is float and type(sup) is float
+                and type(ma) is float and type(cur) is int and type(nxt) is int
+                and type(md) is int
+                and x0 <= x <= x1 and 0.0 <= v <= vmax and -amax <= a <= amax
+                and -1 <= cur <= last and -1 <= nxt <= last and 0 <= md <= mmax
+                and (dep != dep or 0.0 <= dep <= hor) and (tgt != tgt or 0.0 <= tgt <= hor)
+                and 0.0 <= sup <= vmax and (ma == math.inf or x0 <= ma <= x1)):
+            return None
+        out.append((ids[j], {"step": k, "t_s": t, "x_m": x, "v_mps": v, "a_mps2": a,
+                             "current_station": cur, "next_station": nxt, "mode": md,
+                             "departure_time_s": dep, "target_running_time_s": tgt,
+                             "supervision_speed_mps": sup, "movement_authority_m": ma},
+                    bool(echo[j])))
+    return out

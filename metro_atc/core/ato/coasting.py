@@ -40,7 +40,6 @@ from typing import Optional
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import RectBivariateSpline
 
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, OperatingLimits, RunModel
 from metro_atc.core.ato.strategy import strategy_step
@@ -168,8 +167,10 @@ def simulate_switching(run: RunModel, coast_point_s: FloatArray, delta: FloatArr
         return simulate_switching_numpy(run, coast_point_s, delta, h_m, record)
     from metro_atc.core.ato.step_kernel import pack_train
     from metro_atc.core.ato.switching_kernel import simulate_kernel
-    yc = np.ascontiguousarray(np.atleast_1d(np.asarray(coast_point_s, dtype=float)))
-    dl = np.ascontiguousarray(np.broadcast_to(np.asarray(delta, dtype=float), yc.shape))
+    yc = np.array(np.atleast_1d(np.asarray(coast_point_s, dtype=float)), order="C")
+    # always a fresh writable C array: a read-only view (broadcast_to of a shaped delta) is
+    # another numba signature, compiled in the first plan although warmed up (issue 13)
+    dl = np.array(np.broadcast_to(np.asarray(delta, dtype=float), yc.shape), order="C")
     tab = step_table(run, float(h_m))
     c = _CONSTANTS.get(run)
     if c is None:
@@ -412,6 +413,9 @@ def actp(run: RunModel, target_time_s: float, tune_traction: bool = True,
     x_e = e_tab / e_ref
     cn = coasts / run.length_m
     if tune_traction:
+        # imported here: scipy.interpolate is ~1 CPU s of every ATO process's start-up
+        # (issue 13) and only ACTP-TC needs it
+        from scipy.interpolate import RectBivariateSpline
         spl_t = RectBivariateSpline(deltas, cn, x_t, kx=3, ky=3)
         spl_e = RectBivariateSpline(deltas, cn, x_e, kx=3, ky=3)
     else:

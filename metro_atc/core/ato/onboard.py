@@ -183,25 +183,26 @@ class OnboardAto:
         v = float(s["v_mps"])
         xp = float(s["x_m"]) + PREVIEW_PERIODS * v * self.core.period
         h = max(v * self.core.period, 0.5)
-        cap_p = self.speed_cap(s, xp)
+        ctx = self._cap_context(s)  # the position-independent part of the caps, once
+        cap_p = self._cap_at(ctx, xp, True)
         if cap_p - v > JOIN_BAND_MPS and v > JOIN_MIN_SPEED_MPS \
                 and self.core.last_effort > 0.0:
             # in traction below a falling cap: aim where the swing to braking would end
             xp += v * self.core.swing_s
-            cap_p = min(cap_p, self.speed_cap(s, xp))
-        cap_h = self.speed_cap(s, xp + h)
+            cap_p = min(cap_p, self._cap_at(ctx, xp, True))
+        cap_h = self._cap_at(ctx, xp + h, True)
         slope = (cap_h * cap_h - cap_p * cap_p) / (2.0 * h) \
             if math.isfinite(cap_p) and math.isfinite(cap_h) else 0.0
         v_ma = self._authority_speed(float(s["t_s"]), float(s["movement_authority_m"]))
         if slope < 0.0 and v_ma > 0.0 and v > 0.0 \
-                and cap_p < self.speed_cap(s, xp, authority=False) - 1e-9:
+                and cap_p < self._cap_at(ctx, xp, False) - 1e-9:
             # the authority curve sets the cap and its end moves ahead at v_ma: along the
             # train's path the cap falls at dcap/dx (v - v_ma), not dcap/dx v (a static
             # curve's slope would brake a train following at the leader's speed: hunting)
             slope *= min(max(1.0 - v_ma / v, 0.0), 1.0)
         u_trk = float(self.core.command(s["t_s"], s["x_m"], v, r_cap_mps=cap_p,
                                         cap_accel_mps2=slope))
-        u = min(u_trk, self.guard(s))
+        u = min(u_trk, self.guard(s, ctx))
         if u < u_trk:
             self.core.applied(u)
         mode = MODE_ACCELERATE if u > 0.05 else (MODE_BRAKE if u < -0.05 else MODE_COAST)
@@ -257,31 +258,46 @@ class OnboardAto:
         supervision speed of the state still applies); ``authority=False`` leaves the end of
         movement authority out.
         """
+        return self._cap_at(self._cap_context(s), x_at, authority)
+
+    def _cap_context(self, s: dict[str, Any]) -> tuple[Any, ...]:
+        """What :meth:`speed_cap` takes from a state whatever the position (issue 13).
+
+        (x [m], v [m/s], supervision cap [m/s] (inf when unknown), end of authority [m],
+        the TSRs known and not yet ended at the state's time with their target speeds).
+        """
         x, v, t = float(s["x_m"]), float(s["v_mps"]), float(s["t_s"])
-        if x_at is not None:
-            x = float(x_at)
         cap = math.inf
-        atp = self.atp
         sup = float(s["supervision_speed_mps"])
         if math.isfinite(sup):
-            cap = sup - atp.sbi_offset_mps - SPEED_MARGIN_MPS
+            cap = sup - self.atp.sbi_offset_mps - SPEED_MARGIN_MPS
+        margin = self.core.limits.speed_margin_mps
+        zones = tuple((z, max(z.limit_mps - margin, 0.5 * z.limit_mps)) for z in self.tsrs
+                      if z.known_s <= t < z.to_s)
+        return x, v, cap, float(s["movement_authority_m"]), zones
+
+    def _cap_at(self, ctx: tuple[Any, ...], x_at: Optional[float], authority: bool) -> float:
+        """:meth:`speed_cap` from a :meth:`_cap_context` (the same operations, in order)."""
+        x, v, cap, ma, zones = ctx
+        if x_at is not None:
+            x = float(x_at)
+        atp = self.atp
         # the static SBI curve a little ahead (the tracker needs time to follow it down)
         cap = min(cap, atp.static_sbi(x, x + v * CAP_LOOKAHEAD_S + 1.0) - SPEED_MARGIN_MPS)
         b = self._plan_decel(x)
-        ma = float(s["movement_authority_m"])
         if authority and math.isfinite(ma):
             d = ma - x - AUTHORITY_MARGIN_M
             cap = min(cap, math.sqrt(2.0 * b * max(d, 0.0)),
                       atp.sbi_speed(d, v) - SPEED_MARGIN_MPS)
-        lead = self.core.limits.restriction_lead_m
-        margin = self.core.limits.speed_margin_mps
-        for z in self.tsrs:
-            if not (z.known_s <= t < z.to_s) or x - self.train.length_m >= z.end_m:
-                continue
-            lim = max(z.limit_mps - margin, 0.5 * z.limit_mps)
-            d = z.start_m - lead - x
-            cap = min(cap, math.sqrt(lim * lim + 2.0 * b * max(d, 0.0)),
-                      atp.sbi_speed_to(z.start_m - x, z.limit_mps) - SPEED_MARGIN_MPS)
+        if zones:
+            lead = self.core.limits.restriction_lead_m
+            rear = x - self.train.length_m
+            for z, lim in zones:
+                if rear >= z.end_m:
+                    continue
+                d = z.start_m - lead - x
+                cap = min(cap, math.sqrt(lim * lim + 2.0 * b * max(d, 0.0)),
+                          atp.sbi_speed_to(z.start_m - x, z.limit_mps) - SPEED_MARGIN_MPS)
         return max(cap, 0.0)
 
     def _plan_decel(self, x: float) -> float:
@@ -300,12 +316,13 @@ class OnboardAto:
         i = int((run.run_coordinate_at(x) + 50.0) / 10.0)
         return float(self._b_tab[min(max(i, 0), self._b_tab.size - 1)])
 
-    def guard(self, s: dict[str, Any]) -> float:
+    def guard(self, s: dict[str, Any], ctx: Optional[tuple[Any, ...]] = None) -> float:
         """Upper bound on the effort from authority, TSRs, the stop and supervision.
 
         The caps of :meth:`speed_cap` are followed by the tracker; this hard bound only acts
         when the train is well above one (speed feedback on top of the curve's
         deceleration) and when it is above the curve that still stops at the platform.
+        ``ctx``: the state's :meth:`_cap_context` when the caller has it.
         """
         bound = 1.0
         x, v = float(s["x_m"]), float(s["v_mps"])
@@ -322,7 +339,7 @@ class OnboardAto:
             a_req = v * v / (2.0 * max(d - 0.15, 0.05))
             if a_req > STOP_GUARD * b_ach:
                 bound = min(bound, -min(1.0, (a_req + bs - b_ach) / bs))
-        cap = self.speed_cap(s)
+        cap = self._cap_at(ctx if ctx is not None else self._cap_context(s), None, True)
         over = v - cap - GUARD_SLACK_MPS
         if over > 0.0:
             bound = min(bound, -min(1.0, (bs - b_ach) / bs + GUARD_GAIN * over))
@@ -351,6 +368,16 @@ class AtpModel:
     tol_mps: float = 0.0
     resp_dist_m: float = 0.0
     sbi_dist_m: float = 0.0
+    _sbi_list: Optional[list[float]] = dataclasses.field(default=None, init=False, repr=False,
+                                                         compare=False)
+
+    def __post_init__(self) -> None:
+        """Keep the static SBI table as a list too (its minima without numpy; not with NaN)."""
+        tab = self.sbi_static_mps
+        lst = None
+        if tab is not None and not bool(np.isnan(np.asarray(tab, dtype=float)).any()):
+            lst = np.asarray(tab, dtype=float).tolist()
+        object.__setattr__(self, "_sbi_list", lst)
 
     def sbi_speed_to(self, dist_m: float, target_mps: float) -> float:
         """Static SBI speed [m/s] ``dist_m`` before a point where the limit is ``target``.
@@ -379,6 +406,10 @@ class AtpModel:
         k1 = int((x_to_m - self.grid_x0_m) / self.grid_dx_m) + 1
         k0 = min(max(k0, 0), tab.size - 1)
         k1 = min(max(k1, k0 + 1), tab.size)
+        lst = self._sbi_list
+        if lst is not None:
+            # the same minimum over the same floats without a numpy call (issue 13)
+            return min(lst[k0:k1]) - self.sbi_offset_mps
         return float(tab[k0:k1].min()) - self.sbi_offset_mps
 
     def sbi_speed(self, dist_m: float, v_mps: float) -> float:
