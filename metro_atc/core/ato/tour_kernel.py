@@ -223,10 +223,10 @@ def simulate_kernel(p: FloatArray, fg: FloatArray, cap: FloatArray, modes: IntAr
     differences at that sub-step (round-off only), and the simulation stops there.  Off when
     ``last[k] < 0``, the base is stalled or a history is recorded.
 
-    Pruning: at each section start, a tour whose time so far plus ``t_lb`` there (a lower
-    bound of the time to the stop from that sub-step, (n + 1,),
-    :meth:`TourSimulator.time_lower_bound`; empty: 0) exceeds ``t_cut`` [s], or whose energy
-    so far exceeds ``e_cut`` [J] (energy never decreases along a run), is stopped there with
+    Pruning: a tour whose time so far plus ``t_lb`` (a lower bound of the time to the stop
+    from that sub-step, (n + 1,), :meth:`TourSimulator.time_lower_bound`; empty: 0) exceeds
+    ``t_cut`` [s] (checked every sub-step), or whose energy so far exceeds ``e_cut`` [J]
+    (energy never decreases along a run; checked at section starts), is stopped there with
     time and energy +inf (not stalled): its final figures are past those bounds.  Off with
     t_cut = e_cut = inf; never while a history is recorded.
     """
@@ -269,6 +269,11 @@ def simulate_kernel(p: FloatArray, fg: FloatArray, cap: FloatArray, modes: IntAr
                 stalled = stalled or st
                 if rec:
                     hist[k, j + 1] = e
+                elif prune and use_lb and t + t_lb[j + 1] > t_cut:
+                    cut = True
+                    break
+            if cut:
+                break
         if cut:
             t = np.inf
             en = np.inf
