@@ -42,8 +42,9 @@ Deviations from seed 001: the local searches above; the heuristic floor 0.1; the
 formula (reconstruction); the reported energy and time are the exact simulation of the
 planned tour, not the table estimate.
 
-All ants are evaluated together (vectorised over ants); one iteration costs N_s table
-look-ups on arrays of n_ants elements.
+One iteration's ants are built and evaluated on the tables in one compiled call
+(:func:`metro_atc.core.ato.mmas_kernel.construct_ants`; without numba the numpy
+construction, vectorised over the ants, same tours for the same uniforms).
 """
 
 from __future__ import annotations

@@ -12,6 +12,9 @@ simulation instead of the tables.  ``test_ato_mmas.py`` checks both paths agree 
 on random tours (every mode, speed command, grade sign, braking).
 
 Constants of a run are packed in one float vector (indices ``P_*``, :func:`pack_params`).
+Cheaper, same numbers: a coasting step re-uses the closed-form position / time of the
+previous step's end (:func:`_coast`); candidates may be pruned on a time lower bound to the
+stop and on energy (:func:`simulate_kernel`).
 Compiled on first use and cached on disk (``cache=True``).
 """
 
