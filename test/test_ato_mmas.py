@@ -281,3 +281,98 @@ def test_table_evaluation_equals_section_lookups() -> None:
     np.testing.assert_allclose(t, t_ref, rtol=1e-13)
     np.testing.assert_allclose(en, en_ref, rtol=1e-13)
     np.testing.assert_allclose(e_end, e, rtol=1e-13)
+
+
+# ------------------------------------------------- compiled colony, pruning (issue 12 CPU)
+def test_colony_kernel_equals_numpy_construction() -> None:
+    """Compiled ant construction = the numpy one (same uniforms: same tours, same figures)."""
+    from metro_atc.core.ato.mmas_kernel import construct_ants, construct_ants_numpy
+    run = _graded_run()
+    tab = build_section_tables(run, n_sections=12)
+    rng = np.random.default_rng(11)
+    n_s, n_c, n_k = tab.n_sections, tab.n_codes, 64
+    tau_m = rng.uniform(0.2, 2.0, (n_s, 3, 3))
+    tau_c = rng.uniform(0.2, 2.0, (n_s, 3, n_c))
+    cum_m = np.cumsum(tau_m * rng.uniform(0.1, 1.0, (n_s, 1, 3)), axis=2)
+    cum_c = np.cumsum(tau_c * tab.code_allowed.astype(float)[:, None, :], axis=2)
+    u = rng.random((n_s, 2, n_k))
+    out = []
+    for fn in (construct_ants, construct_ants_numpy):
+        m = np.empty((n_k, n_s), dtype=np.int64)
+        c = np.empty((n_k, n_s), dtype=np.int64)
+        t, en = np.empty(n_k), np.empty(n_k)
+        fn(cum_m, cum_c, u, tab.packed, 1.0 / tab.h_e, int(tab.e_grid.size), m, c, t, en)
+        out.append((m, c, t, en))
+    for a, b in zip(*out):
+        assert np.array_equal(a, b)
+    # every mode and several codes drawn; codes only where allowed; figures = table lookups
+    m, c, t, en = out[0]
+    assert set(np.unique(m)) == {0, 1, 2} and np.unique(c).size >= 3
+    assert np.all(tab.code_allowed[np.arange(n_s)[None, :], c])
+    t_ref, en_ref, _ = evaluate_tours(tab, m, c)
+    np.testing.assert_allclose(t, t_ref, rtol=1e-12)
+    np.testing.assert_allclose(en, en_ref, rtol=1e-12)
+
+
+def test_table_prefix_equals_section_lookups() -> None:
+    """State of a tour at every section start = the look-ups of the sections before."""
+    from metro_atc.core.ato.mmas_kernel import table_prefix
+    run = _graded_run()
+    tab = build_section_tables(run, n_sections=12)
+    rng = np.random.default_rng(4)
+    modes = rng.integers(0, 3, 12)
+    codes = rng.integers(0, tab.n_codes, 12)
+    e_p, t_p, en_p = np.empty(12), np.empty(12), np.empty(12)
+    table_prefix(tab.packed, tab.h_e, int(tab.e_grid.size), tab.n_codes, modes, codes,
+                 e_p, t_p, en_p)
+    e, t, en = np.zeros(1), np.zeros(1), np.zeros(1)
+    for i in range(12):
+        assert (e_p[i], t_p[i], en_p[i]) == (e[0], t[0], en[0])
+        e, dt, de = tab.lookup(i, modes[i:i + 1], codes[i:i + 1], e)
+        t, en = t + dt, en + de
+
+
+def test_tour_kernel_pruning_is_exact() -> None:
+    """Pruned tours are past the cuts; the others are simulated bit for bit as without.
+
+    Also the time lower bound to the stop is below every simulated tour's remaining time.
+    """
+    run = _graded_run()
+    tab = build_section_tables(run, n_sections=12)
+    sim = TourSimulator(tab)
+    rng = np.random.default_rng(9)
+    k = 200
+    modes = rng.integers(0, 3, (k, 12))
+    modes[:, 0] = MODE_ACCEL
+    speeds = rng.uniform(25.0, 75.0, (k, 12)) / 3.6
+    t_f, e_f, _, st_f, _ = sim.run(modes, speeds)
+    ok = ~st_f
+    t_cut = float(np.median(t_f[ok]))
+    e_cut = float(np.median(e_f[ok]))
+    t_p, e_p, _, st_p, _ = sim.run(modes, speeds, t_cut=t_cut, e_cut=e_cut)
+    cut = ~np.isfinite(e_p)
+    assert 0.2 * k < np.sum(cut) < k
+    assert np.all((t_f[cut] > t_cut) | (e_f[cut] > e_cut) | st_f[cut])
+    assert np.array_equal(t_p[~cut], t_f[~cut]) and np.array_equal(e_p[~cut], e_f[~cut])
+    assert np.array_equal(st_p[~cut], st_f[~cut]) and not np.any(st_p[cut])
+    lb = sim.time_lower_bound()
+    for q in np.nonzero(ok)[0][:40]:
+        h = sim.history(modes[q], speeds[q], sim.equal_bounds())
+        assert np.all(h[1, -1] - h[1] >= lb - 1e-9)
+        assert lb[0] > 0.5 * h[1, -1]
+
+
+def test_colony_without_numba_gives_the_same_colony(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The numpy construction path (no numba) runs the same colony as the compiled one."""
+    import metro_atc.core.ato.mmas as mmas_mod
+    from metro_atc.core.ato.mmas_kernel import construct_ants_numpy
+    run = _graded_run()
+    tab = build_section_tables(run, n_sections=12)
+    t_fast = float(evaluate_tours(tab, np.zeros((1, 12), dtype=np.int64),
+                                  np.full((1, 12), tab.n_codes - 1, dtype=np.int64))[0][0])
+    par = MmasParams(seed=2, n_iterations=15, local_search=False)
+    a = solve_mmas(tab, t_fast * 1.15, par)
+    monkeypatch.setattr(mmas_mod, "_construct", construct_ants_numpy)
+    b = solve_mmas(tab, t_fast * 1.15, par)
+    assert np.array_equal(a.history, b.history)
+    assert np.array_equal(a.modes, b.modes) and np.array_equal(a.codes, b.codes)

@@ -42,8 +42,9 @@ Deviations from seed 001: the local searches above; the heuristic floor 0.1; the
 formula (reconstruction); the reported energy and time are the exact simulation of the
 planned tour, not the table estimate.
 
-All ants are evaluated together (vectorised over ants); one iteration costs N_s table
-look-ups on arrays of n_ants elements.
+One iteration's ants are built and evaluated on the tables in one compiled call
+(:func:`metro_atc.core.ato.mmas_kernel.construct_ants`; without numba the numpy
+construction, vectorised over the ants, same tours for the same uniforms).
 """
 
 from __future__ import annotations
@@ -56,14 +57,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, MODE_CRUISE
+from metro_atc.core.ato.mmas_kernel import construct_ants, construct_ants_numpy, table_prefix
 from metro_atc.core.ato.mmas_polish import polish_tour
 from metro_atc.core.ato.sections import SectionTables
+from metro_atc.core.ato.step_kernel import numba_available
 from metro_atc.core.ato.tour_kernel import TourSimulator, table_kernel
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 _PENALTY_J = 1e15
+_construct = construct_ants if numba_available() else construct_ants_numpy
 
 
 @dataclass(frozen=True)
@@ -181,17 +185,11 @@ def evaluate_neighbours(tables: SectionTables, modes: IntArray, codes: IntArray,
     sec, mode, code, _ = moves
     n_s = modes.size
     # the tour's state at the start of each section (the candidates' common prefix)
-    e_p, t_p, en_p = np.zeros(n_s), np.zeros(n_s), np.zeros(n_s)
+    e_p, t_p, en_p = np.empty(n_s), np.empty(n_s), np.empty(n_s)
     m1 = np.ascontiguousarray(modes[None, :], dtype=np.int64)
     c1 = np.ascontiguousarray(codes[None, :], dtype=np.int64)
     n_e = int(tables.e_grid.size)
-    for j in range(1, n_s):
-        e1, t1, en1 = e_p[j - 1:j].copy(), t_p[j - 1:j].copy(), en_p[j - 1:j].copy()
-        sub_m = np.ascontiguousarray(m1[:, :j])
-        sub_c = np.ascontiguousarray(c1[:, :j])
-        table_kernel(tables.packed, tables.h_e, n_e, tables.n_codes, sub_m, sub_c,
-                     np.array([j - 1], dtype=np.int64), e1, t1, en1)
-        e_p[j], t_p[j], en_p[j] = e1[0], t1[0], en1[0]
+    table_prefix(tables.packed, tables.h_e, n_e, tables.n_codes, m1[0], c1[0], e_p, t_p, en_p)
     cm = np.repeat(m1, sec.size, axis=0)
     cc = np.repeat(c1, sec.size, axis=0)
     rows = np.arange(sec.size)
@@ -346,7 +344,6 @@ def solve_mmas(tables: SectionTables, t_max_s: float,
     unimproved = 0
     history = np.empty(p.n_iterations)
     evals = 0
-    rows = np.arange(n_k)
     sec_idx = np.arange(n_s)
     n_e = tables.e_grid.size
     packed = tables.packed
@@ -358,26 +355,9 @@ def solve_mmas(tables: SectionTables, t_max_s: float,
         cum_c = np.cumsum(tau_c * allowed[:, None, :], axis=2)
         modes = np.empty((n_k, n_s), dtype=np.int64)
         codes = np.empty((n_k, n_s), dtype=np.int64)
-        prev = np.zeros(n_k, dtype=np.int64)
-        e = np.zeros(n_k)
-        t = np.zeros(n_k)
-        en = np.zeros(n_k)
-        for i in range(n_s):
-            cm = cum_m[i, prev]
-            m = np.minimum((cm < (u[i, 0] * cm[:, 2])[:, None]).sum(axis=1), 2)
-            cc = cum_c[i, m]
-            c = np.minimum((cc < (u[i, 1] * cc[:, -1])[:, None]).sum(axis=1), n_c - 1)
-            modes[:, i] = m
-            codes[:, i] = c
-            f = np.minimum(e * inv_he, n_e - 1.000001)
-            j0 = f.astype(np.int64)
-            w = (f - j0)[:, None]
-            base = ((i * 3 + m) * n_c + c) * n_e + j0
-            val = packed[base] * (1.0 - w) + packed[base + 1] * w
-            e = val[:, 0]
-            t += val[:, 1]
-            en += val[:, 2]
-            prev = m
+        t = np.empty(n_k)
+        en = np.empty(n_k)
+        _construct(cum_m, cum_c, u, packed, inv_he, n_e, modes, codes, t, en)
         evals += n_k
         sc = _score(t, en, t_max_s)
         k_ib = int(np.argmin(sc))
@@ -407,7 +387,6 @@ def solve_mmas(tables: SectionTables, t_max_s: float,
             tau_m.fill(p.tau_max)
             tau_c.fill(p.tau_max)
             unimproved = 0
-    _ = rows
     if p.local_search and p.polish_rounds > 0 and np.isfinite(best_score):
         best_m, best_c, best_score, n_ev = lagrangian_polish(tables, best_m, best_c, t_max_s,
                                                              p.polish_rounds, p.ls_max_passes)

@@ -12,6 +12,9 @@ simulation instead of the tables.  ``test_ato_mmas.py`` checks both paths agree 
 on random tours (every mode, speed command, grade sign, braking).
 
 Constants of a run are packed in one float vector (indices ``P_*``, :func:`pack_params`).
+Cheaper, same numbers: a coasting step re-uses the closed-form position / time of the
+previous step's end (:func:`_coast`); candidates may be pruned on a time lower bound to the
+stop and on energy (:func:`simulate_kernel`).
 Compiled on first use and cached on disk (``cache=True``).
 """
 
@@ -92,9 +95,15 @@ def _coast_xt(w: float, d4: float, c2: float, bp: float) -> tuple[float, float]:
 
 
 @njit(cache=True, error_model="numpy")
-def _coast(p: FloatArray, e0: float, h: float, fg: float
+def _coast(p: FloatArray, e0: float, h: float, fg: float, memo: FloatArray
            ) -> tuple[float, float, bool]:  # pragma: no cover - compiled
-    """:func:`strategy.coast_step` for one element: (e1, dt [s], stalled)."""
+    """:func:`strategy.coast_step` for one element: (e1, dt [s], stalled).
+
+    memo (4,): (fg, w, X, T) of the last closed-form evaluation at the end of a step; a
+    step with the same grade force starting at that w (the previous coasting step's end,
+    bit for bit) takes its start X, T from there instead of recomputing them (the same
+    numbers: same inputs).  NaN fg: empty.
+    """
     m = p[P_MEFF]
     c0 = (p[P_DA] + fg) / m
     c1 = p[P_DB] / m
@@ -125,7 +134,11 @@ def _coast(p: FloatArray, e0: float, h: float, fg: float
     if abs(d4) < 1e-9:
         d4 = 1e-9
     w0 = v0 + bp
-    x0, t0 = _coast_xt(w0, d4, c2, bp)
+    if memo[0] == fg and memo[1] == w0:
+        x0 = memo[2]
+        t0 = memo[3]
+    else:
+        x0, t0 = _coast_xt(w0, d4, c2, bp)
     w = math.sqrt(2.0 * e_guess) + bp
     x, _ = _coast_xt(w, d4, c2, bp)
     dxdw = -(w - bp) / (c2 * (w * w + d4))
@@ -133,7 +146,12 @@ def _coast(p: FloatArray, e0: float, h: float, fg: float
         w = max(w - (x - x0 - h) / dxdw, bp)
     v1 = max(w - bp, 0.0)
     e1 = 0.0 if stalled else 0.5 * v1 * v1
-    _, t1 = _coast_xt(math.sqrt(2.0 * e1) + bp, d4, c2, bp)
+    w1 = math.sqrt(2.0 * e1) + bp
+    x1, t1 = _coast_xt(w1, d4, c2, bp)
+    memo[0] = fg
+    memo[1] = w1
+    memo[2] = x1
+    memo[3] = t1
     dt = t1 - t0
     trap = 2.0 * h / max(v0 + math.sqrt(2.0 * e1), _TINY)
     if not (math.isfinite(dt) and dt > 0.0):
@@ -143,8 +161,12 @@ def _coast(p: FloatArray, e0: float, h: float, fg: float
 
 @njit(cache=True, error_model="numpy")
 def _step(p: FloatArray, e: float, fg: float, e_cap: float, mode: int, e_code: float,
-          e_hold: float, latch: bool) -> tuple[float, float, float, bool, bool]:
-    """:func:`strategy.strategy_step` for one trajectory: (e1, dt, energy, stalled, latch)."""
+          e_hold: float, latch: bool, memo: FloatArray
+          ) -> tuple[float, float, float, bool, bool]:  # pragma: no cover - compiled
+    """:func:`strategy.strategy_step` for one trajectory: (e1, dt, energy, stalled, latch).
+
+    memo: the coasting step's closed-form memo (:func:`_coast`).
+    """
     h = p[P_H]  # pragma: no cover - compiled
     e0 = max(e, 0.0)
     m = mode
@@ -154,7 +176,7 @@ def _step(p: FloatArray, e: float, fg: float, e_cap: float, mode: int, e_code: f
     dt_c = 0.0
     st_c = False
     if m == _COA:
-        e_m, dt_c, st_c = _coast(p, e0, h, fg)
+        e_m, dt_c, st_c = _coast(p, e0, h, fg, memo)
     else:
         e_p = max(e0 + h * _trac_acc(p, v0, fg), 0.0)
         v_m = 0.5 * (v0 + math.sqrt(2.0 * e_p))
@@ -186,8 +208,8 @@ def simulate_kernel(p: FloatArray, fg: FloatArray, cap: FloatArray, modes: IntAr
                     e_codes: FloatArray, bounds: IntArray, first: IntArray,
                     e_out: FloatArray, t_out: FloatArray, en_out: FloatArray,
                     st_out: NDArray[np.bool_], hist: FloatArray,
-                    last: IntArray, base: FloatArray,
-                    ) -> None:  # pragma: no cover - compiled
+                    last: IntArray, base: FloatArray, t_cut: float, e_cut: float,
+                    t_lb: FloatArray) -> None:  # pragma: no cover - compiled
     """Exact simulation of tours: mode, command e = v^2/2 and first sub-step per section.
 
     fg, cap: grade force [N] over and envelope e at the end of each sub-step (n,); modes,
@@ -203,39 +225,61 @@ def simulate_kernel(p: FloatArray, fg: FloatArray, cap: FloatArray, modes: IntAr
     the run is the base's: the final time and energy are the base's final figures plus the
     differences at that sub-step (round-off only), and the simulation stops there.  Off when
     ``last[k] < 0``, the base is stalled or a history is recorded.
+
+    Pruning: a tour whose time so far plus ``t_lb`` (a lower bound of the time to the stop
+    from that sub-step, (n + 1,), :meth:`TourSimulator.time_lower_bound`; empty: 0) exceeds
+    ``t_cut`` [s] (checked every sub-step), or whose energy so far exceeds ``e_cut`` [J]
+    (energy never decreases along a run; checked at section starts), is stopped there with
+    time and energy +inf (not stalled): its final figures are past those bounds.  Off with
+    t_cut = e_cut = inf; never while a history is recorded.
     """
     n_k, n_s = modes.shape
     n = fg.shape[0]
     rec = hist.shape[1] == n + 1
     can_join = base.shape[1] == n + 1 and (not rec) and math.isfinite(base[1, n])
+    prune = (not rec) and (t_cut < np.inf or e_cut < np.inf)
+    use_lb = t_lb.shape[0] == n + 1
+    memo = np.full(4, np.nan)
     for k in range(n_k):
         e = e_out[k]
         t = t_out[k]
         en = en_out[k]
         stalled = st_out[k]
+        cut = False
         if rec:
             hist[k, bounds[k, first[k]]] = e
         for i in range(first[k], n_s):
+            j0 = bounds[k, i]
             if can_join and 0 <= last[k] < i and (not stalled):
-                j0 = bounds[k, i]
                 if e == base[0, j0]:
                     t += base[1, n] - base[1, j0]
                     en += base[2, n] - base[2, j0]
                     e = base[0, n]
                     break
+            if prune and (en > e_cut or t + (t_lb[j0] if use_lb else 0.0) > t_cut):
+                cut = True
+                break
             m = modes[k, i]
             e_code = e_codes[k, i]
             hold = min(e, e_code)
             latch = m == _ACC and e >= e_code
             j_end = bounds[k, i + 1] if i + 1 < n_s else n
             for j in range(bounds[k, i], j_end):
-                e, dt, de, st, latch = _step(p, e, fg[j], cap[j], m, e_code, hold, latch)
+                e, dt, de, st, latch = _step(p, e, fg[j], cap[j], m, e_code, hold, latch, memo)
                 if math.isfinite(dt):
                     t += dt
                 en += de
                 stalled = stalled or st
                 if rec:
                     hist[k, j + 1] = e
+                elif prune and use_lb and t + t_lb[j + 1] > t_cut:
+                    cut = True
+                    break
+            if cut:
+                break
+        if cut:
+            t = np.inf
+            en = np.inf
         t_out[k] = np.inf if stalled else t
         en_out[k] = en
         e_out[k] = e
@@ -253,6 +297,7 @@ def history_kernel(p: FloatArray, fg: FloatArray, cap: FloatArray, modes: IntArr
     t = 0.0
     en = 0.0
     stalled = False
+    memo = np.full(4, np.nan)
     for i in range(n_s):
         m = modes[i]
         e_code = e_codes[i]
@@ -260,7 +305,7 @@ def history_kernel(p: FloatArray, fg: FloatArray, cap: FloatArray, modes: IntArr
         latch = m == _ACC and e >= e_code
         j_end = bounds[i + 1] if i + 1 < n_s else n
         for j in range(bounds[i], j_end):
-            e, dt, de, st, latch = _step(p, e, fg[j], cap[j], m, e_code, hold, latch)
+            e, dt, de, st, latch = _step(p, e, fg[j], cap[j], m, e_code, hold, latch, memo)
             if math.isfinite(dt):
                 t += dt
             en += de
@@ -328,6 +373,19 @@ class TourSimulator:
         self.n_steps = n_s * n_sub
         self.length_m = float(run.length_m)
         self.h = h
+        self.t_lb = self.time_lower_bound()
+
+    def time_lower_bound(self) -> FloatArray:
+        """Lower bound of the running time [s] from each sub-step to the stop (n + 1,).
+
+        The speed at a sub-step end never exceeds the envelope there (``cap``), so a sub-step
+        takes at least h / max(envelope speed at its start, at its end); the sum over the
+        remaining sub-steps, less 0.1 % for the round-off of the coasting formula.
+        """
+        v_cap = np.sqrt(2.0 * np.maximum(self.cap, 0.0))
+        v_max = np.maximum(v_cap, np.concatenate((v_cap[:1], v_cap[:-1])))
+        dt_min = self.h / np.maximum(v_max, 1e-3)
+        return np.append(np.cumsum(dt_min[::-1])[::-1], 0.0) * (1.0 - 1e-3)
 
     def equal_bounds(self) -> IntArray:
         """First sub-step of each of the tables' equal sections (N_s,)."""
@@ -338,6 +396,7 @@ class TourSimulator:
             record: bool = False,
             tour: "tuple[IntArray, FloatArray, IntArray] | None" = None,
             start: "tuple[FloatArray, FloatArray, FloatArray] | None" = None,
+            t_cut: float = np.inf, e_cut: float = np.inf,
             ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_], FloatArray]:
         """(time [s], energy [J], e_end, stalled, e history or empty) of tours (K, N_s).
 
@@ -348,7 +407,9 @@ class TourSimulator:
         (modes, speeds [m/s], bounds), to stop a candidate once it rejoins it (see
         :func:`simulate_kernel`; e_end is then the base's); start: the state (e, t [s],
         energy [J]) of each tour at the start of section ``first`` (K,) each, given by the
-        caller (e.g. from another tour sharing that prefix) instead of read from ``base``.
+        caller (e.g. from another tour sharing that prefix) instead of read from ``base``;
+        t_cut [s] / e_cut [J]: tours that cannot end within them are stopped early with time
+        and energy +inf (pruning, see :func:`simulate_kernel`; never with ``record``).
         """
         m = np.ascontiguousarray(np.atleast_2d(modes), dtype=np.int64)
         sp = np.broadcast_to(np.asarray(speeds_mps, dtype=np.float64), m.shape)
@@ -391,7 +452,7 @@ class TourSimulator:
                 f = np.ascontiguousarray(f1, dtype=np.int64)
                 st = ~np.isfinite(t)
         simulate_kernel(self.params, self.fg, self.cap, m, ec, b, f, e, t, en, st, hist,
-                        last, ref)
+                        last, ref, float(t_cut), float(e_cut), self.t_lb)
         return t, en, e, st, hist
 
     def history(self, modes: IntArray, speeds_mps: FloatArray, bounds: IntArray
@@ -420,7 +481,7 @@ def warm_up() -> None:
     z = np.zeros(1)
     simulate_kernel(p, fg, cap, m, ec, b, np.zeros(1, dtype=np.int64), z.copy(), z.copy(),
                     z.copy(), np.zeros(1, dtype=bool), np.zeros((1, 0)),
-                    np.full(1, -1, dtype=np.int64), np.zeros((3, 0)))
+                    np.full(1, -1, dtype=np.int64), np.zeros((3, 0)), np.inf, np.inf, np.zeros(3))
     history_kernel(p, fg, cap, m[0], ec[0], b[0], np.zeros((3, 3)))
     table_kernel(np.zeros((4, 3)), 1.0, 2, 1, m, b, np.zeros(1, dtype=np.int64), z.copy(),
                  z.copy(), z.copy())
