@@ -38,3 +38,13 @@ def test_tsr_after_departure_on_a_descent_no_intervention_no_hunting(
     assert row["atp_interventions"] == 0
     assert row["tsr_speed_minima_raw_max"] == 1
     assert row["tsr_speed_minima_max"] == 1
+
+
+@pytest.mark.parametrize("seed", [39, 40])
+def test_intervention_at_a_tsr_notice_is_counted_apart(seed: int) -> None:
+    """gen_0039/0040_inc: the TSR becomes known (to the ATP and the ATO at once) with the
+    first train inside the zone (0040: its rear) at 63-66 km/h: an SBI in the same step,
+    which no ATO can avoid; the bench counts it in ``atp_interventions_at_tsr_notice``."""
+    row = run_closed_loop(load_generated(seed, incidents=True), duration_s=260.0).row()
+    assert row["atp_interventions"] == 1
+    assert row["atp_interventions_at_tsr_notice"] == 1

@@ -21,7 +21,11 @@ ATO that drives inside the ATP envelope (all SI):
   ATO berthed; an arrival where the train came to rest under a breakdown or an ATP
   emergency brake (the plant takes any standstill within its +-1 m tolerance as the
   arrival) is no programmed station stop: its error is kept apart (``forced_stop_errors_m``);
-- ATP interventions (service or emergency brake onsets) per 100 stops;
+- ATP interventions (service or emergency brake onsets) per 100 stops; those within
+  ``TSR_NOTICE_ONSET_S`` of a TSR becoming known, with the train inside the zone or within
+  ``TSR_APPROACH_M`` of it, are also counted apart (``atp_interventions_at_tsr_notice``): the
+  ATP supervises a TSR from its notice time and the ATO learns of it at that same instant,
+  so a train already too close to brake for it (or inside it) meets the ATP whatever it does;
 - time above the civil limit [s]: train-seconds of trains in service whose speed exceeds the
   permanent/temporary limit in force for the whole train (``LineSim.ceiling_phys`` minus
   the overspeed margin) by more than ``CIVIL_TOL_MPS``;
@@ -57,6 +61,8 @@ CIVIL_TOL_MPS = 0.01
 """Speed above the civil limit that counts as 'above the limit' [m/s] (numerical noise)."""
 TSR_APPROACH_M = 800.0
 """Distance before a TSR zone from which a train's speed is watched for hunting [m]."""
+TSR_NOTICE_ONSET_S = 1.0
+"""An intervention onset this soon after a TSR becomes known counts as one at its notice [s]."""
 STOP_WINDOW_M = 0.30
 """Berthing tolerance of issue 11 (platform screen doors, +-0.30 m) [m]."""
 
@@ -86,6 +92,8 @@ class ClosedLoopResult:
     """Every arrival: (train index, station index, time [s], stop error [m], forced)."""
     brake: dict[str, Any] = field(default_factory=dict)
     """Brake-diagnosis figures (:meth:`LineBrakeMonitor.summary`) when it ran."""
+    interventions_at_tsr_notice: int = 0
+    """ATP intervention onsets at a TSR's notice time (module docstring)."""
 
     @property
     def forced_stop_errors_m(self) -> list[float]:
@@ -101,6 +109,7 @@ class ClosedLoopResult:
             "tracker": self.tracker, "stops": self.stops,
             "missed_stops": self.missed_stops, "atp_violations": self.atp_violations,
             "atp_interventions": self.atp_interventions,
+            "atp_interventions_at_tsr_notice": self.interventions_at_tsr_notice,
             "atp_interventions_per_100_stops": (100.0 * self.atp_interventions
                                                 / max(self.stops, 1)),
             "stop_error_p50_m": q(50), "stop_error_p95_m": q(95),
@@ -164,6 +173,8 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
     dist = 0.0
     approaches: dict[tuple[int, int], SpeedMinima] = {}
     minima: list[SpeedMinima] = []
+    itv_prev = np.asarray(sim.interventions).copy()
+    at_notice = 0
     perm = window_min_behind(np.asarray(sim.static_limit, dtype=float), int(sim.n_len))
     step = 0
     while not sim.done and sim.t < limit_s - 1e-9:
@@ -196,6 +207,10 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
         dist += float(np.sum(np.minimum(moved, 100.0)))
         x_prev = x.copy()
         _watch_tsrs(sim, tsrs, run, approaches, minima, perm)
+        itv = np.asarray(sim.interventions)
+        if (itv != itv_prev).any():
+            at_notice += _at_tsr_notice(sim, tsrs, np.flatnonzero(itv > itv_prev))
+            itv_prev = itv.copy()
         for ev in res.events:
             if ev.kind == "arrival":
                 j = int(ev.train_idx)
@@ -218,7 +233,18 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
         tsr_minima=minima, energy_kwh=float(kp["energy_kwh"]), train_km=dist / 1000.0,
         sim_time_s=float(sim.t), wall_s=time.perf_counter() - w0, finished=bool(sim.done),
         kpis=kp, arrivals=arrivals,
-        brake=mon.summary() if mon is not None else {})
+        brake=mon.summary() if mon is not None else {}, interventions_at_tsr_notice=at_notice)
+
+
+def _at_tsr_notice(sim: LineSim, tsrs: list[Any], trains: Any) -> int:
+    """How many of the trains with an intervention onset now met it at a TSR's notice."""
+    t = float(sim.t)
+    n = 0
+    for i in trains:
+        x = float(sim.x[i])
+        n += any(0.0 <= t - z.known_s <= TSR_NOTICE_ONSET_S
+                 and z.start_m - TSR_APPROACH_M <= x <= z.end_m + sim.length_m for z in tsrs)
+    return n
 
 
 def _watch_tsrs(sim: LineSim, tsrs: list[Any], run: Any,
