@@ -54,8 +54,8 @@ from metro_atc.core.brake.line_monitor import LineBrakeMonitor
 from metro_atc.core.bridge import timetable_for, track_for, train_for
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.line.scenario import Scenario
-from metro_atc.core.line.track import window_min_behind
-from metro_atc.core.tsr_hunting import SpeedMinima, explain
+from metro_atc.core.line.track import window_min_ahead, window_min_behind
+from metro_atc.core.tsr_hunting import LIMIT_REACH_M, SpeedMinima, explain
 
 CIVIL_TOL_MPS = 0.01
 """Speed above the civil limit that counts as 'above the limit' [m/s] (numerical noise)."""
@@ -175,7 +175,9 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
     minima: list[SpeedMinima] = []
     itv_prev = np.asarray(sim.interventions).copy()
     at_notice = 0
-    perm = window_min_behind(np.asarray(sim.static_limit, dtype=float), int(sim.n_len))
+    reach = int(math.ceil(LIMIT_REACH_M * sim.inv_dx))
+    perm = window_min_ahead(window_min_behind(np.asarray(sim.static_limit, dtype=float),
+                                              int(sim.n_len) + reach), reach)
     step = 0
     while not sim.done and sim.t < limit_s - 1e-9:
         st = sim.states()
@@ -252,7 +254,8 @@ def _watch_tsrs(sim: LineSim, tsrs: list[Any], run: Any,
                 perm: Any) -> None:
     """Update the speed minima of every train inside a TSR approach window (hunting).
 
-    ``perm``: the permanent civil limit over the whole train per plant cell [m/s].
+    ``perm``: the permanent civil limit over the whole train and ``LIMIT_REACH_M`` either
+    side per plant cell of the front [m/s].
     """
     t = float(sim.t)
     st = sim.station_positions_m

@@ -7,8 +7,9 @@ braking and releasing again and again on the approach (stop-start, issue 11 "ins
 the watched window other things legitimately make a speed minimum, and they are not hunting:
 
 - a **lower permanent civil limit** the train rides (the minimum is within
-  ``PERMANENT_BAND_MPS`` of the permanent limit over the whole train): e.g. a 40 km/h curve
-  limit before a 25 km/h TSR, 36 km/h there, then the TSR;
+  ``PERMANENT_BAND_MPS`` of the permanent limit over the whole train, ``LIMIT_REACH_M``
+  either side): e.g. a 40 km/h curve limit before a 25 km/h TSR, 35 km/h there, then
+  the TSR;
 - a **station stop** (standstill within ``STATION_TOLERANCE_M`` of a stopping point);
 - a **stop or hold forced by the incident**: the broken-down train itself, or a train whose
   end of movement authority (the train ahead) is close enough to constrain it (closer than
@@ -32,6 +33,12 @@ PERMANENT_BAND_MPS = 1.5
 riding that limit [m/s] (the ATO tracks ``SPEED_MARGIN_MPS`` = 0.5 m/s below a limit and
 undershoots it by up to ~0.6 m/s when the braking to it releases; gen_0006_inc: 36 km/h
 under a 40 km/h limit)."""
+LIMIT_REACH_M = 30.0
+"""The permanent limit explaining a minimum is the lowest from this far ahead of the front to
+this far behind the rear [m]: braking to a lower limit ends at (and may undershoot just
+before) its start (gen_0006_inc: 35.4 km/h 12 m before a 40 km/h limit, then ~38 km/h in
+it), and the ATO accelerates only once the rear has cleared it, the speed still falling
+while the traction builds up (jerk-limited, ~1 s)."""
 STANDSTILL_MPS = 0.3
 """Speed below which a train is at a standstill [m/s]."""
 STATION_TOLERANCE_M = 2.0
@@ -55,8 +62,9 @@ def explain(v_mps: float, permanent_limit_mps: float, station_dist_m: float,
 
     Args:
         v_mps: speed [m/s].
-        permanent_limit_mps: lowest permanent civil limit over the whole train [m/s]
-            (without TSRs and without the ATP's overspeed margin).
+        permanent_limit_mps: lowest permanent civil limit over the whole train and
+            ``LIMIT_REACH_M`` beyond it on both sides [m/s] (without TSRs and without the
+            ATP's overspeed margin).
         station_dist_m: distance from the front to the nearest stopping point [m].
         broken: the train is broken down (the incident).
         authority_dist_m: distance from the front to the end of its movement authority [m]
