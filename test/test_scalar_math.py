@@ -170,7 +170,8 @@ def _speed_cap_reference(self: OnboardAto, s: dict[str, Any], x_at: Any = None,
         lim = max(z.limit_mps - margin, 0.5 * z.limit_mps)
         d = z.start_m - lead - x
         cap = min(cap, math.sqrt(lim * lim + 2.0 * b * max(d, 0.0)),
-                  atp.sbi_speed_to(z.start_m - x, z.limit_mps) - onb_mod.SPEED_MARGIN_MPS)
+                  atp.sbi_speed_to(z.start_m - x - v * onb_mod.CAP_LOOKAHEAD_S, z.limit_mps)
+                  - onb_mod.SPEED_MARGIN_MPS)
     return max(cap, 0.0)
 
 

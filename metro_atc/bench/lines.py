@@ -13,7 +13,11 @@ cores, the plant, lockstep) and prints one row per line plus totals: ATP violati
 stops, ATP interventions per 100 stops, stop error p50/p95/max [m] of the stops the ATO
 berthed, stops outside +-0.30 m, arrivals at a standstill forced by a breakdown or an ATP
 emergency brake (``forced_stops``, not in the stop-error figures), time above the civil
-limit [s], speed minima per TSR approach (hunting), energy per train-km [kWh] and the
+limit [s], speed minima per TSR approach (``tsr_speed_minima_max``: hunting, the minima
+not explained by a lower permanent limit, a station stop or a forced stop/hold,
+:mod:`metro_atc.core.tsr_hunting`; ``tsr_speed_minima_raw_max``: all), ATP interventions
+at a TSR's notice time (``atp_interventions_at_tsr_notice``, included in the
+interventions), energy per train-km [kWh] and the
 brake diagnosis of every train (issue 11 item 8,
 :class:`metro_atc.core.brake.line_monitor.LineBrakeMonitor`: false alarms = level rises of
 trains without a brake fault; injected pad/wheel faults detected; ``--no-brake`` skips it).
@@ -55,6 +59,8 @@ def totals(rows: List[dict[str, Any]], errors: List[float]) -> dict[str, Any]:
         "atp_violations": int(sum(r["atp_violations"] for r in rows)),
         "missed_stops": int(sum(r["missed_stops"] for r in rows)),
         "atp_interventions": ints,
+        "atp_interventions_at_tsr_notice": int(sum(r.get("atp_interventions_at_tsr_notice", 0)
+                                                   for r in rows)),
         "atp_interventions_per_100_stops": 100.0 * ints / max(stops, 1),
         "stop_error_p50_m": float(np.percentile(err, 50)) if err.size else math.nan,
         "stop_error_p95_m": float(np.percentile(err, 95)) if err.size else math.nan,
@@ -64,6 +70,12 @@ def totals(rows: List[dict[str, Any]], errors: List[float]) -> dict[str, Any]:
         "time_above_civil_limit_s": float(sum(r["time_above_civil_limit_s"] for r in rows)),
         "tsr_approaches": int(sum(r["tsr_approaches"] for r in rows)),
         "tsr_speed_minima_max": int(max([r["tsr_speed_minima_max"] for r in rows] or [0])),
+        "tsr_speed_minima_raw_max": int(max([r.get("tsr_speed_minima_raw_max", 0) for r in rows]
+                                            or [0])),
+        "tsr_minima_explained": {c: int(sum(r.get("tsr_minima_explained", {}).get(c, 0)
+                                            for r in rows))
+                                 for c in sorted({c for r in rows
+                                                  for c in r.get("tsr_minima_explained", {})})},
         "energy_kwh_per_train_km": e / max(km, 1e-9), "train_km": km,
         "unfinished": int(sum(not r["finished"] for r in rows)),
         **_brake_totals(rows),

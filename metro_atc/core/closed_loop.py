@@ -21,14 +21,22 @@ ATO that drives inside the ATP envelope (all SI):
   ATO berthed; an arrival where the train came to rest under a breakdown or an ATP
   emergency brake (the plant takes any standstill within its +-1 m tolerance as the
   arrival) is no programmed station stop: its error is kept apart (``forced_stop_errors_m``);
-- ATP interventions (service or emergency brake onsets) per 100 stops;
+- ATP interventions (service or emergency brake onsets) per 100 stops; those within
+  ``TSR_NOTICE_ONSET_S`` of a TSR becoming known, with the train inside the zone or within
+  ``TSR_APPROACH_M`` of it, are also counted apart (``atp_interventions_at_tsr_notice``): the
+  ATP supervises a TSR from its notice time and the ATO learns of it at that same instant,
+  so a train already too close to brake for it (or inside it) meets the ATP whatever it does;
 - time above the civil limit [s]: train-seconds of trains in service whose speed exceeds the
   permanent/temporary limit in force for the whole train (``LineSim.ceiling_phys`` minus
   the overspeed margin) by more than ``CIVIL_TOL_MPS``;
 - speed minima per TSR approach (hunting): the speed of each train from
   ``TSR_APPROACH_M`` before a zone in force (or the last platform before it) to where its
   rear leaves the zone, reduced to its turning points
-  with a hysteresis of ``HUNT_HYSTERESIS_MPS``; one approach (brake, hold, release) has one.
+  (:class:`metro_atc.core.tsr_hunting.SpeedMinima`); a minimum explained by a lower
+  permanent limit, a station stop or a stop/hold forced by the incident
+  (:func:`metro_atc.core.tsr_hunting.explain`) is no hunting; one approach (brake, hold,
+  release) has at most one unexplained minimum (``tsr_speed_minima_max``; all minima:
+  ``tsr_speed_minima_raw_max``).
 """
 
 from __future__ import annotations
@@ -46,24 +54,17 @@ from metro_atc.core.brake.line_monitor import LineBrakeMonitor
 from metro_atc.core.bridge import timetable_for, track_for, train_for
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.line.scenario import Scenario
+from metro_atc.core.line.track import window_min_ahead, window_min_behind
+from metro_atc.core.tsr_hunting import LIMIT_REACH_M, SpeedMinima, explain
 
 CIVIL_TOL_MPS = 0.01
 """Speed above the civil limit that counts as 'above the limit' [m/s] (numerical noise)."""
 TSR_APPROACH_M = 800.0
 """Distance before a TSR zone from which a train's speed is watched for hunting [m]."""
-HUNT_HYSTERESIS_MPS = 0.5
-"""A speed minimum counts when the speed rose by this much after it [m/s]."""
+TSR_NOTICE_ONSET_S = 1.0
+"""An intervention onset this soon after a TSR becomes known counts as one at its notice [s]."""
 STOP_WINDOW_M = 0.30
 """Berthing tolerance of issue 11 (platform screen doors, +-0.30 m) [m]."""
-
-
-@dataclass
-class _Approach:
-    """Zig-zag state of one train's speed through one TSR approach."""
-
-    direction: int = 0
-    extreme: float = math.nan
-    minima: int = 0
 
 
 @dataclass
@@ -80,7 +81,7 @@ class ClosedLoopResult:
     atp_violations: int
     atp_interventions: int
     time_above_civil_s: float
-    tsr_minima: list[int]
+    tsr_minima: list[SpeedMinima]
     energy_kwh: float
     train_km: float
     sim_time_s: float
@@ -91,6 +92,8 @@ class ClosedLoopResult:
     """Every arrival: (train index, station index, time [s], stop error [m], forced)."""
     brake: dict[str, Any] = field(default_factory=dict)
     """Brake-diagnosis figures (:meth:`LineBrakeMonitor.summary`) when it ran."""
+    interventions_at_tsr_notice: int = 0
+    """ATP intervention onsets at a TSR's notice time (module docstring)."""
 
     @property
     def forced_stop_errors_m(self) -> list[float]:
@@ -106,6 +109,7 @@ class ClosedLoopResult:
             "tracker": self.tracker, "stops": self.stops,
             "missed_stops": self.missed_stops, "atp_violations": self.atp_violations,
             "atp_interventions": self.atp_interventions,
+            "atp_interventions_at_tsr_notice": self.interventions_at_tsr_notice,
             "atp_interventions_per_100_stops": (100.0 * self.atp_interventions
                                                 / max(self.stops, 1)),
             "stop_error_p50_m": q(50), "stop_error_p95_m": q(95),
@@ -116,7 +120,11 @@ class ClosedLoopResult:
                                            default=0.0),
             "time_above_civil_limit_s": self.time_above_civil_s,
             "tsr_approaches": len(self.tsr_minima),
-            "tsr_speed_minima_max": max(self.tsr_minima) if self.tsr_minima else 0,
+            "tsr_speed_minima_max": max((m.hunting for m in self.tsr_minima), default=0),
+            "tsr_speed_minima_raw_max": max((m.minima for m in self.tsr_minima), default=0),
+            "tsr_minima_explained": {c: sum(m.causes.get(c, 0) for m in self.tsr_minima)
+                                     for c in sorted({c for m in self.tsr_minima
+                                                      for c in m.causes})},
             "energy_kwh": self.energy_kwh,
             "energy_kwh_per_train_km": self.energy_kwh / max(self.train_km, 1e-9),
             "train_km": self.train_km, "sim_time_s": self.sim_time_s,
@@ -163,8 +171,13 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
     arrivals: list[tuple[int, int, float, float, bool]] = []
     x_prev = sim.x.copy()
     dist = 0.0
-    approaches: dict[tuple[int, int], _Approach] = {}
-    minima: list[int] = []
+    approaches: dict[tuple[int, int], SpeedMinima] = {}
+    minima: list[SpeedMinima] = []
+    itv_prev = np.asarray(sim.interventions).copy()
+    at_notice = 0
+    reach = int(math.ceil(LIMIT_REACH_M * sim.inv_dx))
+    perm = window_min_ahead(window_min_behind(np.asarray(sim.static_limit, dtype=float),
+                                              int(sim.n_len) + reach), reach)
     step = 0
     while not sim.done and sim.t < limit_s - 1e-9:
         st = sim.states()
@@ -195,7 +208,11 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
         moved = np.where(run, np.abs(x - x_prev), 0.0)
         dist += float(np.sum(np.minimum(moved, 100.0)))
         x_prev = x.copy()
-        _watch_tsrs(sim, tsrs, run, approaches, minima)
+        _watch_tsrs(sim, tsrs, run, approaches, minima, perm)
+        itv = np.asarray(sim.interventions)
+        if (itv != itv_prev).any():
+            at_notice += _at_tsr_notice(sim, tsrs, np.flatnonzero(itv > itv_prev))
+            itv_prev = itv.copy()
         for ev in res.events:
             if ev.kind == "arrival":
                 j = int(ev.train_idx)
@@ -207,8 +224,7 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
             cmd = ats.on_event(ids[ev.train_idx], ev.station_idx, ev.kind, ev.t_s)
             if cmd is not None:
                 dispatch(cmd)
-    for a in approaches.values():
-        minima.append(a.minima + (1 if a.direction < 0 else 0))
+    minima.extend(a.close() for a in approaches.values())
     kp = sim.kpis()
     return ClosedLoopResult(
         scenario=scn.name, regulator=regulator, planner=planner, tracker=tracker,
@@ -219,41 +235,48 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
         tsr_minima=minima, energy_kwh=float(kp["energy_kwh"]), train_km=dist / 1000.0,
         sim_time_s=float(sim.t), wall_s=time.perf_counter() - w0, finished=bool(sim.done),
         kpis=kp, arrivals=arrivals,
-        brake=mon.summary() if mon is not None else {})
+        brake=mon.summary() if mon is not None else {}, interventions_at_tsr_notice=at_notice)
+
+
+def _at_tsr_notice(sim: LineSim, tsrs: list[Any], trains: Any) -> int:
+    """How many of the trains with an intervention onset now met it at a TSR's notice."""
+    t = float(sim.t)
+    n = 0
+    for i in trains:
+        x = float(sim.x[i])
+        n += any(0.0 <= t - z.known_s <= TSR_NOTICE_ONSET_S
+                 and z.start_m - TSR_APPROACH_M <= x <= z.end_m + sim.length_m for z in tsrs)
+    return n
 
 
 def _watch_tsrs(sim: LineSim, tsrs: list[Any], run: Any,
-                approaches: dict[tuple[int, int], _Approach], minima: list[int]) -> None:
-    """Update the zig-zag of every train inside a TSR approach window (hunting count)."""
+                approaches: dict[tuple[int, int], SpeedMinima], minima: list[SpeedMinima],
+                perm: Any) -> None:
+    """Update the speed minima of every train inside a TSR approach window (hunting).
+
+    ``perm``: the permanent civil limit over the whole train and ``LIMIT_REACH_M`` either
+    side per plant cell of the front [m/s].
+    """
     t = float(sim.t)
+    st = sim.station_positions_m
     for z_i, z in enumerate(tsrs):
         if not (z.from_s <= t < z.to_s):
             continue
+        before = st[st <= z.start_m]
+        w0 = max(z.start_m - TSR_APPROACH_M, float(before[-1]) + 1.0 if before.size
+                 else -math.inf)
         for i in np.flatnonzero(run):
             x, v = float(sim.x[i]), float(sim.v[i])
             key = (z_i, int(i))
-            st = sim.station_positions_m
-            before = st[st <= z.start_m]
-            w0 = max(z.start_m - TSR_APPROACH_M, float(before[-1]) + 1.0 if before.size
-                     else -math.inf)
             inside = w0 <= x <= z.end_m + sim.length_m
             a = approaches.get(key)
             if not inside:
                 if a is not None:
-                    minima.append(a.minima + (1 if a.direction < 0 else 0))
+                    minima.append(a.close())
                     del approaches[key]
                 continue
             if a is None:
-                a = approaches[key] = _Approach(0, v, 0)
-                continue
-            if a.direction >= 0:
-                if v > a.extreme:
-                    a.extreme = v
-                elif v < a.extreme - HUNT_HYSTERESIS_MPS:
-                    a.direction, a.extreme = -1, v
-            else:
-                if v < a.extreme:
-                    a.extreme = v
-                elif v > a.extreme + HUNT_HYSTERESIS_MPS:
-                    a.minima += 1
-                    a.direction, a.extreme = 1, v
+                a = approaches[key] = SpeedMinima()
+            k = min(max(int((x - sim.x0) * sim.inv_dx), 0), perm.size - 1)
+            a.feed(v, explain(v, float(perm[k]), float(np.min(np.abs(st - x))),
+                              bool(sim.broken[i]), float(sim.eoa[i]) - x))

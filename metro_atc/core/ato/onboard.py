@@ -296,8 +296,11 @@ class OnboardAto:
                 if rear >= z.end_m:
                     continue
                 d = z.start_m - lead - x
+                # the SBI curve a little ahead, as the static one: the tracker needs time
+                # to follow the falling cap down (jerk-limited brake build-up)
                 cap = min(cap, math.sqrt(lim * lim + 2.0 * b * max(d, 0.0)),
-                          atp.sbi_speed_to(z.start_m - x, z.limit_mps) - SPEED_MARGIN_MPS)
+                          atp.sbi_speed_to(z.start_m - x - v * CAP_LOOKAHEAD_S, z.limit_mps)
+                          - SPEED_MARGIN_MPS)
         return max(cap, 0.0)
 
     def _plan_decel(self, x: float) -> float:
