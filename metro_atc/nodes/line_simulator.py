@@ -592,7 +592,7 @@ class LineSimulator(Node):
             # a topic nobody reads is not published (outside tools that subscribe get it at
             # the declared rate; the fleet state carries every step): no writes, and no
             # per-train command echoes from the ATOs for them (issue 13)
-            per_train = per_train & self._state_read()
+            per_train = self._state_read(per_train)
         idx = np.flatnonzero(active)
         self._echo_mask = per_train
         self._fleet_msg = conv.fleet_state_msg(self.ids, idx, states, self.k, t,
@@ -602,10 +602,15 @@ class LineSimulator(Node):
             self.state_pubs[i].publish(m)
         return active
 
-    def _state_read(self) -> np.ndarray:
-        """Trains whose ``/<train>/state`` has a subscriber (checked for every train)."""
-        return np.fromiter((p.get_subscription_count() > 0 for p in self.state_pubs),
-                           dtype=bool, count=len(self.state_pubs))
+    def _state_read(self, mask: np.ndarray) -> np.ndarray:
+        """``mask`` less the trains whose ``/<train>/state`` has no subscriber.
+
+        Only the trains in ``mask`` are asked (one graph query each, on the step path).
+        """
+        out = np.zeros_like(mask)
+        for i in np.flatnonzero(mask):
+            out[i] = self.state_pubs[i].get_subscription_count() > 0
+        return out
 
     def new_fleet_subscribers(self) -> bool:
         """The fleet state topic matched a new (or lost a) subscriber since the last check."""
