@@ -671,6 +671,8 @@ class MetroBrakeObserver:
         self.counters = _Counters()
         self.decision = dg.OnlineDecision(self.cfg, dt_first=self.dt)
         self.ukf: Optional[UKF] = None
+        self._ukf_template: Optional[UKF] = None
+        """The filter of the first initialisation: later ones restart from its models."""
         self.t_last: Optional[float] = None
         self._u_last = np.zeros(2 * N_AX + 1)
         self._u_last[-1] = self.mass
@@ -678,7 +680,12 @@ class MetroBrakeObserver:
 
     # -- helpers -----------------------------------------------------------------------
     def _init_filter(self, v0: float, omega0: Optional[FloatArray]) -> None:
-        self.ukf = make_metro_ukf(self.p, self.dt, v0, self.tuning, self.noise, omega0)
+        if self._ukf_template is None:
+            self.ukf = self._ukf_template = make_metro_ukf(self.p, self.dt, v0, self.tuning,
+                                                           self.noise, omega0)
+        else:  # the same filter as make_metro_ukf builds, its models and weights reused
+            self.ukf = self._ukf_template.restarted(*metro_prior(self.p, self.tuning, v0,
+                                                                 omega0))
         self.decision.restart()
         self.counters.resets += 1
 
