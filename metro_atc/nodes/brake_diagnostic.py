@@ -12,10 +12,14 @@ seed 000 second-paper UKF, metro variant) per train at the sensor rate, and publ
   lockstep speed), stamped with the newest sample's simulated time.
 
 **One process for all trains.**  The per-train work is one UKF step (19 states, 39 sigma
-points) per sample, ~0.15 ms of numpy (about 7 000 observer updates per CPU second in
-this node, 5 000 samples/s including message handling); the filters are independent, so a
+points) per used sample (the compiled kernel of :mod:`metro_atc.core.brake.metro_kernel`
+plus the residuals and decision, ~0.3 ms under load; a sample of a standing train is
+only validated, journaled and counted); the filters are independent, so a
 single-threaded node serves ``N x rate`` samples per second as long as that stays below
-those figures.  The Taipei Blue scenario at 20 Hz needs at most 30 x 20 = 600 updates per
+those figures.  On Taipei Blue the used samples are few at any instant (0.4 trains per
+sample instant on average over 1 800 s), so batching the filters across trains would
+batch nothing; the per-sample costs are cut instead: raw subscriptions decoded from CDR
+(:func:`metro_atc.nodes.conversions.sensor_from_cdr`), one journal write per burst.  The Taipei Blue scenario at 20 Hz needs at most 30 x 20 = 600 updates per
 simulated second (every train braking at once), and the simulator sends the full rate only
 while a car brakes (a 1 Hz heartbeat otherwise), so even a graph running at 10x real time
 needs about one core; one process per train would cost 30 Python interpreters and DDS
@@ -88,8 +92,12 @@ QOS_SENSOR_DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=QUEUE_DEPTH,
 reader queue of QUEUE_DEPTH samples: the lockstep simulator publishes each train's samples
 in bursts (rate x control period per step, at up to ~100 steps/s of wall time), so a
 shallow queue drops samples whenever this process is descheduled for a few steps."""
-SLOW_PERIOD_S = 0.05
-"""The executor (parameter services, the /diagnostics timer) is spun this often [s, wall]."""
+SLOW_PERIOD_S = 0.2
+"""The executor (parameter services, the /diagnostics timer) is spun this often [s, wall]:
+each spin rebuilds rclpy's wait set in Python (~1 ms); a parameter request waits at most
+this long.  The sample wait itself is at most ``POLL_S``."""
+POLL_S = 0.1
+"""Longest wait for samples [s, wall] (the stop flag is checked in between)."""
 
 
 class BrakeDiagnostic(Node):
@@ -408,7 +416,7 @@ def sample_loop(executor: SingleThreadedExecutor, nodes: Sequence[Node]) -> None
     poller = SubscriptionPoller(ctx, [s for n in diag for s in n.fast_subs])
     last_slow = 0.0
     while ctx.ok() and not stop_requested():
-        poller.poll(SLOW_PERIOD_S)
+        poller.poll(POLL_S)
         for n in diag:
             n.flush()
         now = time.monotonic()
