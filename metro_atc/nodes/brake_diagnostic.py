@@ -19,12 +19,12 @@ single-threaded node serves ``N x rate`` samples per second as long as that stay
 those figures.  On Taipei Blue the used samples are few at any instant (0.4 trains per
 sample instant on average over 1 800 s), so batching the filters across trains would
 batch nothing; the per-sample costs are cut instead: raw subscriptions decoded from CDR
-(:func:`metro_atc.nodes.conversions.sensor_from_cdr`), one journal write per burst.  The Taipei Blue scenario at 20 Hz needs at most 30 x 20 = 600 updates per
-simulated second (every train braking at once), and the simulator sends the full rate only
-while a car brakes (a 1 Hz heartbeat otherwise), so even a graph running at 10x real time
-needs about one core; one process per train would cost 30 Python interpreters and DDS
-participants for no gain.  The 30 sensor subscriptions are served by
-:func:`~metro_atc.nodes.common.spin_fast` (a direct wait set), not by the executor.
+(:func:`metro_atc.nodes.conversions.sensor_from_cdr`), one journal write per burst.
+The Taipei Blue scenario at 20 Hz needs at most 30 x 20 = 600 updates per simulated
+second (every train braking at once), and the simulator sends the full rate only while a
+car brakes (a 1 Hz heartbeat otherwise); one process per train would cost 30 Python
+interpreters and DDS participants for no gain.  The 30 sensor subscriptions are served by
+:func:`sample_loop` (a direct wait set), not by the executor.
 
 **Time.**  The filter's step and the decision logic's persistence are driven by the sample
 stamps (simulated time), so the verdicts do not depend on wall-clock speed; only the
