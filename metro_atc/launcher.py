@@ -180,8 +180,11 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
              ProcessSpec("ats_regulator", "ats_regulator", str(cfg / "ats_regulator.yaml"),
                          dict(base, regulator=regulator,
                               **({"weights_file": weights_file} if weights_file else {}))),
+             # the brake diagnosis takes its time from the sample stamps: no /clock reader
+             # (one delivery per step less for the simulator, none to take here)
              ProcessSpec("brake_diagnostic", "brake_diagnostic",
-                         str(cfg / "brake_diagnostic.yaml"), dict(base, **resume))]
+                         str(cfg / "brake_diagnostic.yaml"),
+                         dict(base, use_sim_time=False, **resume))]
     n = max(1, int(ato_per_process))
     for g in range(0, len(train_ids), n):
         group = list(train_ids[g:g + n])

@@ -31,6 +31,13 @@ class Journal:
         self._fh.write(json.dumps(entry) + "\n")
         self._fh.flush()
 
+    def append_all(self, entries: list[dict[str, Any]]) -> None:
+        """Write several entries in one write (flushed to the OS before returning)."""
+        assert self._fh is not None
+        if entries:
+            self._fh.write("".join(json.dumps(e) + "\n" for e in entries))
+            self._fh.flush()
+
     def reset(self, entries: list[dict[str, Any]]) -> None:
         """Replace the journal's content by ``entries`` (atomically) and go on appending."""
         if self._fh is not None:

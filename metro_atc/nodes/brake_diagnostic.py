@@ -12,15 +12,19 @@ seed 000 second-paper UKF, metro variant) per train at the sensor rate, and publ
   lockstep speed), stamped with the newest sample's simulated time.
 
 **One process for all trains.**  The per-train work is one UKF step (19 states, 39 sigma
-points) per sample, ~0.15 ms of numpy (about 7 000 observer updates per CPU second in
-this node, 5 000 samples/s including message handling); the filters are independent, so a
+points) per used sample (the compiled kernel of :mod:`metro_atc.core.brake.metro_kernel`
+plus the residuals and decision, ~0.3 ms under load; a sample of a standing train is
+only validated, journaled and counted); the filters are independent, so a
 single-threaded node serves ``N x rate`` samples per second as long as that stays below
-those figures.  The Taipei Blue scenario at 20 Hz needs at most 30 x 20 = 600 updates per
-simulated second (every train braking at once), and the simulator sends the full rate only
-while a car brakes (a 1 Hz heartbeat otherwise), so even a graph running at 10x real time
-needs about one core; one process per train would cost 30 Python interpreters and DDS
-participants for no gain.  The 30 sensor subscriptions are served by
-:func:`~metro_atc.nodes.common.spin_fast` (a direct wait set), not by the executor.
+those figures.  On Taipei Blue the used samples are few at any instant (0.4 trains per
+sample instant on average over 1 800 s), so batching the filters across trains would
+batch nothing; the per-sample costs are cut instead: raw subscriptions decoded from CDR
+(:func:`metro_atc.nodes.conversions.sensor_from_cdr`), one journal write per burst.
+The Taipei Blue scenario at 20 Hz needs at most 30 x 20 = 600 updates per simulated
+second (every train braking at once), and the simulator sends the full rate only while a
+car brakes (a 1 Hz heartbeat otherwise); one process per train would cost 30 Python
+interpreters and DDS participants for no gain.  The 30 sensor subscriptions are served by
+:func:`sample_loop` (a direct wait set), not by the executor.
 
 **Time.**  The filter's step and the decision logic's persistence are driven by the sample
 stamps (simulated time), so the verdicts do not depend on wall-clock speed; only the
@@ -61,6 +65,7 @@ from typing import Any, Callable, Optional, Sequence
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from metro_atc_msgs.msg import BrakeDiagnosis, BrakeSensorData
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -75,8 +80,8 @@ from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (QOS_LATCHED, NodeConfigError, RuntimeParams,
-                                    bulk_publisher, bulk_subscription, run_nodes, spin_fast,
-                                    static)
+                                    SubscriptionPoller, bulk_publisher, run_nodes, static,
+                                    stop_requested)
 
 QUEUE_DEPTH = 4000
 """Reader queue per sensor topic [samples] (see QOS_SENSOR_DEEP)."""
@@ -87,6 +92,12 @@ QOS_SENSOR_DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=QUEUE_DEPTH,
 reader queue of QUEUE_DEPTH samples: the lockstep simulator publishes each train's samples
 in bursts (rate x control period per step, at up to ~100 steps/s of wall time), so a
 shallow queue drops samples whenever this process is descheduled for a few steps."""
+SLOW_PERIOD_S = 0.2
+"""The executor (parameter services, the /diagnostics timer) is spun this often [s, wall]:
+each spin rebuilds rclpy's wait set in Python (~1 ms); a parameter request waits at most
+this long.  The sample wait itself is at most ``POLL_S``."""
+POLL_S = 0.1
+"""Longest wait for samples [s, wall] (the stop flag is checked in between)."""
 
 
 class BrakeDiagnostic(Node):
@@ -122,6 +133,10 @@ class BrakeDiagnostic(Node):
                         "directory of the per-train sample journals ('' : none): a restarted "
                         "node replays them, a simulator resumed behind is followed back")
         self.journals: dict[str, Journal] = {}
+        self._unwritten: dict[str, list[dict[str, Any]]] = {}
+        """Journal entries of the current burst of samples, written by :meth:`flush`."""
+        self._kv: dict[str, dict[str, KeyValue]] = {t: {} for t in self.ids}
+        """The /diagnostics key-values of each train (reused: only their values change)."""
         self.down_since: set[str] = set()
         """Trains that, after a restart, have not caught up yet: their samples after the last
         journaled one and before the live stream were missed while down (one catch-up each)."""
@@ -136,9 +151,14 @@ class BrakeDiagnostic(Node):
                 # a restart: every train catches up once, also one that had sent nothing
                 # before the kill (empty journal: its whole re-send was missed)
                 self.down_since = set(self.ids)
-        self.fast_subs = [bulk_subscription(self, BrakeSensorData, f"/{t}/brake_sensors",
-                                            partial(self._on_sample, t), QOS_SENSOR_DEEP)
-                          for t in self.ids]
+        # raw: the serialised samples are decoded by conversions.sensor_from_cdr (an rclpy
+        # message object per sample cost more than the rest of a paused sample's handling);
+        # no QoS-event waitables (see common.bulk_subscription)
+        self.fast_subs = [self.create_subscription(
+            BrakeSensorData, f"/{t}/brake_sensors", partial(self._on_sample, t),
+            QOS_SENSOR_DEEP, raw=True,
+            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+            for t in self.ids]
         self.get_logger().info(
             f"watching {len(self.ids)} trains of scenario '{scn.name}' "
             f"({scn.line.adhesion} rail, {scn.sensors.rate_hz:g} Hz samples)")
@@ -197,6 +217,7 @@ class BrakeDiagnostic(Node):
         self.down_since.discard(train_id)  # one catch-up per restart
         self._replay(train_id, j.entries[:cut])
         j.entries = j.entries[:cut]
+        self._unwritten.pop(train_id, None)  # written by the reset if before the cut
         j.reset(j.entries)
         self.get_logger().warning(f"{train_id}: samples from t={s['t_s']:.3f} s again (a "
                                   "resumed simulator or a re-send): observer rebuilt from the "
@@ -204,17 +225,35 @@ class BrakeDiagnostic(Node):
         return True
 
     def _journal(self, train_id: str, entry: dict[str, Any]) -> None:
+        """Keep ``entry`` in the train's journal (written to the file by :meth:`flush`)."""
         j = self.journals.get(train_id)
         if j is not None:
             j.entries.append(entry)
-            j.append(entry)
+            self._unwritten.setdefault(train_id, []).append(entry)
+
+    def flush(self) -> None:
+        """Write the journal entries of the samples handled since the last call.
+
+        Called after each burst of samples (one wait of the sample loop), by the
+        /diagnostics tick and at shutdown: one write per journal and burst instead of
+        one per sample.  A kill between a sample and its write loses it from the journal
+        like a sample lost before the kill (see :meth:`_rewind`).
+        """
+        if not self._unwritten:
+            return
+        pending, self._unwritten = self._unwritten, {}
+        for train_id, entries in pending.items():
+            self.journals[train_id].append_all(entries)
 
     # ------------------------------------------------------------------ samples
-    def _on_sample(self, train_id: str, msg: BrakeSensorData) -> None:
-        """Validate one sample and run the train's observer on it."""
+    def _on_sample(self, train_id: str, msg: BrakeSensorData | bytes) -> None:
+        """Validate one sample (a message or its serialisation) and run the observer."""
         topic = f"/{train_id}/brake_sensors"
         try:
-            s = conv.sensor_from_msg(msg, topic, train_id, N_AXLES, self.bounds)
+            if isinstance(msg, bytes):
+                s = conv.sensor_from_cdr(msg, topic, train_id, N_AXLES, self.bounds)
+            else:
+                s = conv.sensor_from_msg(msg, topic, train_id, N_AXLES, self.bounds)
             self._rewind(train_id, s)
             w = self.watch[train_id]
             self._journal(train_id, _sample_entry(s))
@@ -273,6 +312,7 @@ class BrakeDiagnostic(Node):
         c = w.counts
         st = DiagnosticStatus(level=bytes([level]), name=f"brake_diagnostic: {train_id}",
                               message=text, hardware_id=f"{train_id}/car_1")
+        kvs = self._kv[train_id]
         kv = [("mu_b", f"{r.mu_b:.4f}"), ("mu_b_std", f"{r.mu_b_std:.4f}"),
               ("pad_flaw", str(bool(r.pad_flaw))),
               ("axle_flaw", ",".join(str(bool(x)) for x in r.wheel_flaw)),
@@ -286,7 +326,14 @@ class BrakeDiagnostic(Node):
         kv += [(f"samples_{k}", str(v)) for k, v in c.items()]
         if w.update_s > 0.0:
             kv.append(("observer_updates_per_s", f"{w.updates / w.update_s:.0f}"))
-        st.values = [KeyValue(key=k, value=v) for k, v in kv]
+        out = []
+        for k, v in kv:  # a KeyValue per key and train, its value set (cheaper than new)
+            e = kvs.get(k)
+            if e is None:
+                e = kvs[k] = KeyValue(key=k)
+            e.value = v
+            out.append(e)
+        st.values = out
         return st
 
     def last_sample_t(self) -> float:
@@ -296,6 +343,7 @@ class BrakeDiagnostic(Node):
 
     def health(self) -> list[DiagnosticStatus]:
         """/diagnostics: one status per train (and its BrakeDiagnosis published now)."""
+        self.flush()
         stamp_s = self.last_sample_t()
         out = []
         for t in self.ids:
@@ -326,7 +374,8 @@ class BrakeDiagnostic(Node):
         return out
 
     def close(self) -> None:
-        """Log :meth:`summary` at shutdown (stderr if the context is already shut down)."""
+        """Write the journals; log :meth:`summary` (stderr if the context is shut down)."""
+        self.flush()
         for line in self.summary():
             if self.context.ok():
                 self.get_logger().info(line)
@@ -335,10 +384,14 @@ class BrakeDiagnostic(Node):
 
 
 def _sample_entry(s: dict[str, Any]) -> dict[str, Any]:
-    """A validated sample as a journal entry (JSON: arrays as lists, NaN as NaN)."""
-    return json.loads(json.dumps({k: (np.asarray(v, dtype=float).tolist()
-                                      if isinstance(v, (np.ndarray, list)) else v)
-                                  for k, v in s.items()}))
+    """A validated sample as a journal entry (arrays as lists of floats).
+
+    Equal to its own JSON round trip (what :meth:`Journal.entries` holds after a restart):
+    the channels are Python floats (NaN stays NaN), the arrays float lists.
+    """
+    return {k: (np.asarray(v, dtype=float).tolist() if isinstance(v, (np.ndarray, list))
+                else float(v) if isinstance(v, (float, np.floating)) else v)
+            for k, v in s.items()}
 
 
 def _sample_of(e: dict[str, Any]) -> dict[str, Any]:
@@ -352,14 +405,30 @@ def build_nodes(args: Optional[Sequence[str]] = None) -> list[Node]:
     return [BrakeDiagnostic()]
 
 
+def sample_loop(executor: SingleThreadedExecutor, nodes: Sequence[Node]) -> None:
+    """Serve the sensor topics with a direct wait set, the rest every ``SLOW_PERIOD_S``.
+
+    Like :func:`metro_atc.nodes.common.spin_fast`, with the journals written after each
+    burst of samples (:meth:`BrakeDiagnostic.flush`).
+    """
+    diag = [n for n in nodes if isinstance(n, BrakeDiagnostic)]
+    ctx = nodes[0].context if nodes else executor.context
+    poller = SubscriptionPoller(ctx, [s for n in diag for s in n.fast_subs])
+    last_slow = 0.0
+    while ctx.ok() and not stop_requested():
+        poller.poll(POLL_S)
+        for n in diag:
+            n.flush()
+        now = time.monotonic()
+        if now - last_slow >= SLOW_PERIOD_S:
+            last_slow = now
+            executor.spin_once(timeout_sec=0.0)
+
+
 def main(args: Sequence[str] | None = None) -> int:
     """Entry point of the ``brake_diagnostic`` executable (sensor topics on the fast path)."""
-    def loop(executor: SingleThreadedExecutor, nodes: Sequence[Node]) -> None:
-        subs = [s for n in nodes if isinstance(n, BrakeDiagnostic) for s in n.fast_subs]
-        spin_fast(executor, nodes, subs)
-
     factory: Callable[[], Sequence[Node]] = build_nodes
-    return run_nodes(factory, loop, args)
+    return run_nodes(factory, sample_loop, args)
 
 
 if __name__ == "__main__":

@@ -39,6 +39,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from metro_atc.core.brake import diagnosis as dg
+from metro_atc.core.brake.metro_kernel import MetroUKF, kernel_enabled
 from metro_atc.core.brake.ukf import UKF, BatchUKF
 
 G = 9.80665
@@ -467,6 +468,19 @@ def make_metro_ukf(p: MetroCarParams, dt: float = 0.02, v0: float = 0.0,
                p_max_diag=metro_variance_caps())
 
 
+def make_metro_ukf_compiled(p: MetroCarParams, dt: float = 0.02, v0: float = 0.0,
+                            tuning: Optional[MetroObserverTuning] = None,
+                            noise: Optional[MetroSensorNoise] = None,
+                            omega0: Optional[FloatArray] = None) -> UKF:
+    """:func:`make_metro_ukf` with its steps done by the compiled kernels.
+
+    :class:`metro_atc.core.brake.metro_kernel.MetroUKF`: the same filter to round-off.
+    """
+    base = make_metro_ukf(p, dt, v0, tuning, noise, omega0)
+    return MetroUKF(base, lambda step: metro_linear_part(p, step), dt,
+                    np.array([2.0 * p.r_b / p.j_w, 1.0 / p.w_eps, p.j_w, *p.davis]))
+
+
 def metro_variance_caps() -> FloatArray:
     """Upper bounds of the observer variances (bounded growth while predicting only)."""
     cap = np.empty(M_NX)
@@ -646,6 +660,9 @@ class MetroBrakeObserver:
             as the target model instead of :func:`adhesion` (e.g. the line plant's
             ``AdhesionCurve(...).mu`` for the rail condition it simulates); the target
             is then ``sign(s) N_j mu(|s|)``.
+        compiled: UKF steps by the compiled kernels (:func:`make_metro_ukf_compiled`, the
+            same filter to round-off) or the numpy path; default
+            :func:`metro_atc.core.brake.metro_kernel.kernel_enabled`.
     """
 
     def __init__(self, params: Optional[MetroCarParams] = None, dt: float = 0.02,
@@ -653,8 +670,10 @@ class MetroBrakeObserver:
                  tuning: Optional[MetroObserverTuning] = None,
                  noise: Optional[MetroSensorNoise] = None, mass: Optional[float] = None,
                  min_brake_clamp: float = 2000.0, max_gap_s: float = 2.0,
-                 adhesion_fn: Optional[Callable[[FloatArray], FloatArray]] = None) -> None:
+                 adhesion_fn: Optional[Callable[[FloatArray], FloatArray]] = None,
+                 compiled: Optional[bool] = None) -> None:
         """Create the observer (see class docstring)."""
+        self.compiled = kernel_enabled() if compiled is None else bool(compiled)
         self.p = params or MetroCarParams()
         self.dt = float(dt)
         self.mu_rail = self.p.mu_rail if mu_rail is None else float(mu_rail)
@@ -671,6 +690,8 @@ class MetroBrakeObserver:
         self.counters = _Counters()
         self.decision = dg.OnlineDecision(self.cfg, dt_first=self.dt)
         self.ukf: Optional[UKF] = None
+        self._ukf_template: Optional[UKF] = None
+        """The filter of the first initialisation: later ones restart from its models."""
         self.t_last: Optional[float] = None
         self._u_last = np.zeros(2 * N_AX + 1)
         self._u_last[-1] = self.mass
@@ -678,7 +699,13 @@ class MetroBrakeObserver:
 
     # -- helpers -----------------------------------------------------------------------
     def _init_filter(self, v0: float, omega0: Optional[FloatArray]) -> None:
-        self.ukf = make_metro_ukf(self.p, self.dt, v0, self.tuning, self.noise, omega0)
+        if self._ukf_template is None:
+            make = make_metro_ukf_compiled if self.compiled else make_metro_ukf
+            self.ukf = self._ukf_template = make(self.p, self.dt, v0, self.tuning, self.noise,
+                                                 omega0)
+        else:  # the same filter as make_metro_ukf builds, its models and weights reused
+            self.ukf = self._ukf_template.restarted(*metro_prior(self.p, self.tuning, v0,
+                                                                 omega0))
         self.decision.restart()
         self.counters.resets += 1
 

@@ -28,6 +28,7 @@ All quantities are in the caller's SI units.
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from typing import Callable, Optional
 
@@ -181,6 +182,19 @@ class UKF:
         self._e = np.concatenate((np.zeros((1, n)), np.eye(n), -np.eye(n))) * self.weights.gamma
         self.p_max_diag = None if p_max_diag is None else np.asarray(p_max_diag, dtype=float)
         self.n_rejected = 0
+
+    def restarted(self, x0: FloatArray, p0: FloatArray) -> "UKF":
+        """A new filter at ``(x0, P0)`` with this one's models, noises, weights and caps.
+
+        Equal to constructing a :class:`UKF` with the same arguments (the weights and the
+        sigma-point selector depend on L and the UT parameters only), without recomputing
+        them; this filter is not changed.
+        """
+        new = copy.copy(self)
+        new.x = np.array(x0, dtype=float)
+        new.p = symmetrize(np.array(p0, dtype=float))
+        new.n_rejected = 0
+        return new
 
     def _q(self, dt: float) -> FloatArray:
         q = self.q
