@@ -237,3 +237,26 @@ def test_journal_entries_equal_their_json_round_trip(
         back = json.loads(json.dumps(e))
         assert json.dumps(e, sort_keys=True) == json.dumps(back, sort_keys=True)
         assert repr(e) == repr(back)
+
+
+def test_precompile_covers_every_call_of_the_observer(
+        pad_fault_stream: list[Any], monkeypatch: pytest.MonkeyPatch) -> None:
+    """``precompile_metro_kernels`` (run by scripts/install.sh) compiles the kernels for the
+    argument types a node passes: with compiling then disabled, the mini_pad_fault stream
+    and a corrupted single-car run (partial updates, restarts) still go through the kernels.
+    """
+    from metro_atc.core.brake.metro_kernel import predict_kernel, update_kernel
+
+    assert mc.precompile_metro_kernels() == 3
+    kernels = (predict_kernel, update_kernel)
+    for k in kernels:
+        assert len(k.signatures) == 1, k.signatures  # one type signature: one cache entry
+        k.disable_compile()
+    try:
+        _, steps = _watch_outputs(pad_fault_stream[:4000], True, monkeypatch)
+        assert steps > 0
+        test_kernel_observer_equals_numpy_on_corrupted_runs("pad")
+    finally:
+        for k in kernels:
+            k.disable_compile(False)
+    assert [len(k.signatures) for k in kernels] == [1, 1]

@@ -29,7 +29,6 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
-from scipy.signal import lfilter
 
 FloatArray = np.ndarray
 
@@ -78,6 +77,10 @@ def lowpass(res: FloatArray, dt: float, tau: float) -> FloatArray:
     """
     if tau <= 0.0:
         return np.asarray(res, dtype=float)
+    # imported here: scipy.signal pulls in scipy.stats (~1 s of CPU), and the online
+    # path (OnlineDecision, what the brake node runs) never calls this batch filter
+    from scipy.signal import lfilter
+
     a = dt / (tau + dt)
     return np.asarray(lfilter([a], [1.0, -(1.0 - a)], res, axis=-2))
 
