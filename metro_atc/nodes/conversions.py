@@ -412,6 +412,17 @@ def diagnosis_msg(train_id: str, stamp_s: float, d: Any, level: int, message: st
     return m
 
 
+def diagnosis_ack_s(msg: BrakeDiagnosis, topic: str, train_id: str, b: Bounds) -> float:
+    """The newest sample a BrakeDiagnosis acknowledges: its stamp [s] (simulated time).
+
+    ``brake_diagnostic`` stamps each train's diagnosis with the train's newest sample (0
+    before any); the simulator keeps the samples after it for a restarted diagnosis.
+    Rejected: another train, a stamp outside the run's horizon.
+    """
+    _train(msg, topic, train_id)
+    return check_time(f"{topic}.header.stamp", from_time(msg.header.stamp), b)
+
+
 def line_status_msg(k: Mapping[str, Any], step: int, t_s: float, finished: bool) -> LineStatus:
     """LineStatus from the simulator's KPI dict."""
     m = LineStatus()
