@@ -5,7 +5,10 @@ One node watches all trains of the scenario.  It subscribes to ``/<train>/brake_
 seed 000 second-paper UKF, metro variant) per train at the sensor rate, and publishes
 
 * ``/<train>/brake_diagnosis`` (``metro_atc_msgs/BrakeDiagnosis``, latched) every
-  ``diagnostics_period_s`` of wall time and at once when the train's level changes;
+  ``diagnostics_period_s`` of wall time, at once when the train's level changes, and within
+  :data:`ACK_PERIOD_S` (wall) of a new sample: its stamp is the train's newest sample, which
+  the simulator takes as an acknowledgement (it keeps the samples after it for a restarted
+  diagnosis, and at the end of a run waits until the last one is acknowledged);
 * ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``): one status per train, OK / WARN /
   ERROR, with key-values (mu_b estimate and std, per-axle residuals and forces, counters),
   every ``diagnostics_period_s`` of wall time (a steady-clock timer, so ~1 Hz whatever the
@@ -49,7 +52,9 @@ rejected one, for the counters) is appended to ``<checkpoint_dir>/brake_<train>.
 (:class:`metro_atc.core.journal.Journal`).  A restarted node replays the journals into fresh
 observers: the UKF, the decision logic and the counters are where they were.  When the
 simulator resumes from a checkpoint and sends again a sample the journal holds (same stamp,
-same channels), the train's observer is rebuilt from the journal up to that sample.
+same channels), the train's observer is rebuilt from the journal up to that sample; the
+newest sample sent again (the simulator's end-of-run re-send of what the best-effort topic
+may have lost) is skipped.
 """
 
 from __future__ import annotations
@@ -65,6 +70,7 @@ from typing import Any, Callable, Optional, Sequence
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from metro_atc_msgs.msg import BrakeDiagnosis, BrakeSensorData
+from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -99,6 +105,10 @@ this long.  The sample wait itself is at most ``POLL_S``."""
 POLL_S = 0.1
 """Longest wait for samples [s, wall] (the stop flag is checked in between)."""
 
+ACK_PERIOD_S = 0.5
+"""Wall period of the acknowledgement: a train whose newest sample is newer than the stamp
+of its last BrakeDiagnosis gets one within this time."""
+
 
 class BrakeDiagnostic(Node):
     """The brake diagnosis node (see module docstring)."""
@@ -129,6 +139,13 @@ class BrakeDiagnostic(Node):
             "(wall clock) [s]", partial(setattr, self, "log_period_s"), 0.0, 3600.0)
         self.pubs = {t: bulk_publisher(self, BrakeDiagnosis, f"/{t}/brake_diagnosis",
                                        QOS_LATCHED) for t in self.ids}
+        self._recv_t = {t: -math.inf for t in self.ids}
+        """Stamp of the newest sample this process received per train, rejected ones too
+        [s] (what the acknowledgement covers besides the observer's newest sample)."""
+        self._pub_stamp = {t: math.nan for t in self.ids}
+        """Stamp of each train's last BrakeDiagnosis [s] (the acknowledged sample)."""
+        self.ack_timer = self.create_timer(ACK_PERIOD_S, self._acknowledge,
+                                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         ck_dir = static(self, "checkpoint_dir", "",
                         "directory of the per-train sample journals ('' : none): a restarted "
                         "node replays them, a simulator resumed behind is followed back")
@@ -188,6 +205,14 @@ class BrakeDiagnostic(Node):
                 except (KeyError, TypeError, ValueError) as exc:
                     self.get_logger().error(f"{train_id}: journal entry not replayed: {exc}")
         self._levels[train_id] = -1  # publish the diagnosis again at the next sample
+
+    def _is_newest(self, train_id: str, s: dict[str, Any]) -> bool:
+        """``s`` is the newest sample the observer had, sent again (same stamp, channels)."""
+        j = self.journals.get(train_id)
+        if j is None or not j.entries or s["t_s"] != self.watch[train_id].t_last:
+            return False
+        return json.dumps(j.entries[-1], sort_keys=True) == \
+            json.dumps(_sample_entry(s), sort_keys=True)
 
     def _rewind(self, train_id: str, s: dict[str, Any]) -> bool:
         """A sample behind the stream that the journal holds: the simulator resumed.
@@ -249,11 +274,16 @@ class BrakeDiagnostic(Node):
     def _on_sample(self, train_id: str, msg: BrakeSensorData | bytes) -> None:
         """Validate one sample (a message or its serialisation) and run the observer."""
         topic = f"/{train_id}/brake_sensors"
+        stamp = conv.sensor_stamp(msg)  # before the validation: rejected ones count too
+        if stamp is not None and stamp > self._recv_t[train_id]:
+            self._recv_t[train_id] = stamp
         try:
             if isinstance(msg, bytes):
                 s = conv.sensor_from_cdr(msg, topic, train_id, N_AXLES, self.bounds)
             else:
                 s = conv.sensor_from_msg(msg, topic, train_id, N_AXLES, self.bounds)
+            if self._is_newest(train_id, s):
+                return  # nothing new (a re-send of what the topic may have lost)
             self._rewind(train_id, s)
             w = self.watch[train_id]
             self._journal(train_id, _sample_entry(s))
@@ -288,7 +318,12 @@ class BrakeDiagnostic(Node):
 
     # ------------------------------------------------------------------ outputs
     def _publish_train(self, train_id: str, stamp_s: float) -> tuple[int, str]:
-        """Publish the train's BrakeDiagnosis; return its (level, message)."""
+        """Publish the train's BrakeDiagnosis; return its (level, message).
+
+        The journals are written first: the simulator takes the stamp as the acknowledgement
+        of every sample up to it and sends none of them again to a restarted node.
+        """
+        self.flush()
         w = self.watch[train_id]
         level, text = w.level_message()
         if level != self._levels[train_id] and self._levels[train_id] >= 0:
@@ -299,6 +334,7 @@ class BrakeDiagnostic(Node):
             else:
                 self.get_logger().info(line)
         self._levels[train_id] = level
+        self._pub_stamp[train_id] = stamp_s
         c = w.counts
         self.pubs[train_id].publish(conv.diagnosis_msg(
             train_id, stamp_s, w.result, level, text, c["used"] + c["degraded"],
@@ -336,18 +372,32 @@ class BrakeDiagnostic(Node):
         st.values = out
         return st
 
+    def _train_stamp(self, train_id: str) -> float:
+        """The train's newest sample, received or replayed [s] (simulated time; 0: none)."""
+        t = max(self.watch[train_id].t_last, self._recv_t[train_id])
+        return t if math.isfinite(t) else 0.0
+
+    def _acknowledge(self) -> None:
+        """Publish the BrakeDiagnosis of every train with a sample newer than its last one."""
+        for t in self.ids:
+            stamp = self._train_stamp(t)
+            if stamp != self._pub_stamp[t]:
+                self._publish_train(t, stamp)
+
     def last_sample_t(self) -> float:
         """Stamp of the newest sample of any train [s] (simulated time), 0 before any."""
         last = max((w.t_last for w in self.watch.values()), default=-math.inf)
         return last if math.isfinite(last) else 0.0
 
     def health(self) -> list[DiagnosticStatus]:
-        """/diagnostics: one status per train (and its BrakeDiagnosis published now)."""
+        """/diagnostics: one status per train (and its BrakeDiagnosis, published now).
+
+        Each BrakeDiagnosis is stamped with its train's newest sample.
+        """
         self.flush()
-        stamp_s = self.last_sample_t()
         out = []
         for t in self.ids:
-            level, text = self._publish_train(t, stamp_s)
+            level, text = self._publish_train(t, self._train_stamp(t))
             out.append(self._status(t, level, text))
         return out
 

@@ -434,6 +434,24 @@ def _decode_sensor_cdr(data: bytes) -> _SensorView | None:
     return _SensorView(sec, nanosec, train_id, seqs[0], seqs[1], accel, vref, mass)
 
 
+def sensor_stamp(msg: BrakeSensorData | bytes) -> float | None:
+    """Header stamp [s] of a BrakeSensorData or of its serialisation; None if unreadable.
+
+    Read before any validation (a receiver acknowledges rejected samples too); the same
+    float as :func:`from_time` of the decoded message.
+    """
+    if not isinstance(msg, bytes):
+        return from_time(msg.header.stamp)
+    try:
+        order = _CDR_ORDER.get(bytes(msg[:2]))
+        if order is None:
+            return from_time(deserialize_message(msg, BrakeSensorData).header.stamp)
+        sec, nanosec = struct.unpack_from(order + "iI", msg, 4)
+    except Exception:  # noqa: BLE001 - an unreadable buffer has no stamp
+        return None
+    return float(sec) + 1e-9 * float(nanosec)
+
+
 def sensor_from_cdr(data: bytes, topic: str, train_id: str, n_axles: int,
                     b: Bounds) -> dict[str, Any]:
     """:func:`sensor_from_msg` of a serialised BrakeSensorData (a raw subscription's bytes).
@@ -492,6 +510,17 @@ def diagnosis_msg(train_id: str, stamp_s: float, d: Any, level: int, message: st
     m.measurements_used = int(max(used, 0))
     m.measurements_rejected = int(max(rejected, 0))
     return m
+
+
+def diagnosis_ack_s(msg: BrakeDiagnosis, topic: str, train_id: str, b: Bounds) -> float:
+    """The newest sample a BrakeDiagnosis acknowledges: its stamp [s] (simulated time).
+
+    ``brake_diagnostic`` stamps each train's diagnosis with the train's newest sample (0
+    before any); the simulator keeps the samples after it for a restarted diagnosis.
+    Rejected: another train, a stamp outside the run's horizon.
+    """
+    _train(msg, topic, train_id)
+    return check_time(f"{topic}.header.stamp", from_time(msg.header.stamp), b)
 
 
 def line_status_msg(k: Mapping[str, Any], step: int, t_s: float, finished: bool) -> LineStatus:

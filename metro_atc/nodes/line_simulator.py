@@ -37,9 +37,9 @@ from typing import Any, Sequence
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
-from metro_atc_msgs.msg import (BrakeSensorData, DepartureCommand, FleetCommand, FleetState,
-                                LineStatus, SpeedProfile, TractionCommand, TrainEvent,
-                                TrainState)
+from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureCommand,
+                                FleetCommand, FleetState, LineStatus, SpeedProfile,
+                                TractionCommand, TrainEvent, TrainState)
 from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -84,6 +84,12 @@ RESEND_CHUNK = 8
 """Kept sensor samples re-sent back to back before a pause (the writer keeps 20)."""
 RESEND_PAUSE_S = 0.005
 """Pause between re-sent chunks [s] (wall; ~0.6 ms per sample re-sent)."""
+TAIL_RESEND_S = 3.0
+"""End of a run: wall seconds a train's diagnosis must have kept acknowledging the same
+sample (a live, idle reader: its periodic diagnosis came again with that stamp) while its
+sensor readers stayed the same, before the samples after it are published again (the last
+samples of a best-effort stream can be lost). A reader busy catching up publishes nothing;
+a dead one neither."""
 RECORDER_SYNC_STEPS = 250
 """While a recorder is waited for (``wait_for_subscribers``), every this many steps the
 lockstep waits until every reliable reader acknowledged what was published: half the
@@ -173,6 +179,15 @@ class LineSimulator(Node):
             "brake sensors: the samples of this many simulated seconds are kept and sent "
             "again when a new reader matches (a restarted brake_diagnostic catches up)",
             0.0, 1e5)
+        self.sensor_keep_max = static(
+            self, "sensor_keep_max", 200_000,
+            "brake sensors: at most this many samples are kept for a re-send (the oldest "
+            "beyond it are dropped, counted and logged)", 0, 100_000_000)
+        self.sensor_drain_timeout_s = static(
+            self, "sensor_drain_timeout_s", 60.0,
+            "end of a run: wall seconds to wait until every train's brake diagnosis "
+            "acknowledged its last sensor sample (a restarted brake_diagnostic catching up; "
+            "0: no wait)", 0.0, 3600.0)
         self.checkpoint_period_s = static(
             self, "checkpoint_period_s", 60.0,
             "simulated time between checkpoints [s] (0: none)", 0.0, 1e7)
@@ -230,6 +245,17 @@ class LineSimulator(Node):
         self._sensor_readers: list[set[bytes]] = [set() for _ in range(n)]
         self._resend_due = np.zeros(n, dtype=bool)
         self._readers_known = False
+        self._reader_new_wall = np.full(n, -np.inf)
+        """Wall time a sensor topic last gained a reader (monotonic clock) [s]."""
+        self.diag_ack_t = np.full(n, -np.inf)
+        """Per train: the newest sensor sample its BrakeDiagnosis acknowledged [s] (-inf: no
+        diagnosis heard). Samples after it are kept for a re-send however old."""
+        self._ack_wall = np.full(n, -np.inf)
+        """Wall time the acknowledgement of each train last changed (monotonic) [s]."""
+        self._ack_seen_wall = np.full(n, -np.inf)
+        """Wall time a diagnosis of each train was last received (monotonic) [s]."""
+        self.sensor_dropped = 0
+        """Kept samples dropped beyond ``sensor_keep_max``."""
         self._journal: Any = None
         self.first_start = True
         """No earlier process of this run (see :data:`STARTED_MARKER`)."""
@@ -271,6 +297,9 @@ class LineSimulator(Node):
         self.profile_subs = [bulk_subscription(self, SpeedProfile, f"/{t}/speed_profile",
                                                self._on_profile, QOS_LATCHED)
                              for t in self.ids]
+        self.diag_subs = [bulk_subscription(self, BrakeDiagnosis, f"/{t}/brake_diagnosis",
+                                            partial(self._on_diagnosis, i), QOS_LATCHED)
+                          for i, t in enumerate(self.ids)]
         if self.resumed_from >= 0:
             self.republish_history()
         self.get_logger().info(
@@ -456,6 +485,21 @@ class LineSimulator(Node):
                 and np.isfinite(v).all():
             # the latest plan of each run is the one that was tracked (for the plots)
             self.planned.setdefault(i, {})[int(msg.from_station)] = (x, v)
+
+    def _on_diagnosis(self, i: int, msg: BrakeDiagnosis) -> None:
+        """Take the newest sample train i's brake diagnosis acknowledges (its stamp)."""
+        try:
+            t = conv.diagnosis_ack_s(msg, f"/{self.ids[i]}/brake_diagnosis", self.ids[i],
+                                     self.bounds)
+        except conv.MessageRejected as exc:
+            self._reject(f"/{self.ids[i]}/brake_diagnosis", exc)
+            return
+        now = time.monotonic()
+        self._ack_seen_wall[i] = now
+        if t != self.diag_ack_t[i]:
+            # the latest, not the largest: a restarted diagnosis acknowledges less
+            self.diag_ack_t[i] = t
+            self._ack_wall[i] = now
 
     def _set_progress_period(self, value: float) -> None:
         self.progress_period_s = float(value)
@@ -752,9 +796,25 @@ class LineSimulator(Node):
                 self.sensor_pubs[i].publish(conv.fill_sensor_msg(self._sensor_out[i], *sample))
                 if keep:
                     self.sensor_log.append((ts, i, sample))
-        horizon = float(self.sim.t) - self.sensor_resend_s
-        while self.sensor_log and self.sensor_log[0][0] < horizon:
-            self.sensor_log.popleft()
+        log = self.sensor_log
+        floor = float(self.sim.t) - self.sensor_resend_s
+        if log and log[0][0] < floor:
+            # kept back to what each train's diagnosis acknowledged (a restarted reader
+            # catches up on all it missed, however long it was down)
+            heard = np.isfinite(self.diag_ack_t) & np.isfinite(self.sensor_last_t)
+            if heard.any():
+                floor = min(floor, float(self.diag_ack_t[heard].min()))
+            while log and log[0][0] < floor:
+                log.popleft()
+        if len(log) > self.sensor_keep_max:
+            extra = len(log) - int(self.sensor_keep_max)
+            for _ in range(extra):
+                log.popleft()
+            self.sensor_dropped += extra
+            self._warn_rate_limited("sensor_keep_max", f"{self.sensor_dropped} kept brake "
+                                    f"sensor samples dropped (sensor_keep_max="
+                                    f"{self.sensor_keep_max}): a brake_diagnostic that is "
+                                    "down cannot catch up on them")
 
     def resend_sensors(self) -> int:
         """Send the kept samples again to trains whose sensor topic gained a reader.
@@ -772,6 +832,7 @@ class LineSimulator(Node):
             gids = subscriber_gids(self, pub)
             if gids - self._sensor_readers[i] and self._readers_known:
                 self._resend_due[i] = True
+                self._reader_new_wall[i] = self._ack_wall[i] = time.monotonic()
             self._sensor_readers[i] |= gids
         self._readers_known = self.started  # the readers at step 0 are not new
         gained = due
@@ -789,6 +850,66 @@ class LineSimulator(Node):
             self.get_logger().info(f"sent {sent} kept brake sensor samples again to a new "
                                    "reader")
         return sent
+
+    def sensors_unacknowledged(self) -> np.ndarray:
+        """Trains whose brake diagnosis (once heard) has not acknowledged their last sample."""
+        return np.isfinite(self.diag_ack_t) & (self.sensor_last_t > self.diag_ack_t + 1e-6)
+
+    def resend_tail(self, pending: np.ndarray) -> int:
+        """Publish again the kept samples after each pending train's acknowledgement.
+
+        Only for a train whose diagnosis kept acknowledging the same sample for
+        :data:`TAIL_RESEND_S` (a live reader that has taken all it got) while its readers
+        stayed the same (a new reader gets the whole re-send of :meth:`resend_sensors`);
+        they are the samples the best-effort topic lost. Returns the number of samples sent.
+        """
+        now = time.monotonic()
+        due = pending & (self._ack_seen_wall - self._ack_wall >= TAIL_RESEND_S) \
+            & (now - self._reader_new_wall >= TAIL_RESEND_S) & ~self._resend_due
+        if not due.any():
+            return 0
+        self._ack_wall[due] = now  # once per TAIL_RESEND_S
+        sent = 0
+        for ts, i, sample in self.sensor_log:
+            if due[i] and ts > self.diag_ack_t[i] + 1e-6:
+                self.sensor_pubs[i].publish(conv.sensor_sample_msg(self.ids[i], *sample))
+                sent += 1
+                if sent % RESEND_CHUNK == 0:
+                    time.sleep(RESEND_PAUSE_S)
+        return sent
+
+    def drain_sensors(self, spin: Any) -> bool:
+        """End of a run: wait until every train's brake diagnosis acknowledged its last sample.
+
+        A ``brake_diagnostic`` killed near the end of a fast run comes back after the
+        simulator finished: without this wait it would never get the samples it missed.
+        Bounded by ``sensor_drain_timeout_s`` (wall); new readers get the kept samples
+        (:meth:`resend_sensors`), a train whose acknowledgement stands still gets the samples
+        after it again (:meth:`resend_tail`). ``spin(timeout_s)`` serves the subscriptions.
+        True when everything was acknowledged (or no diagnosis was ever heard).
+        """
+        t0 = time.monotonic()
+        end = t0 + float(self.sensor_drain_timeout_s)
+        next_check = t0 + 1.0
+        while True:
+            pending = self.sensors_unacknowledged()
+            now = time.monotonic()
+            if not pending.any():
+                if now - t0 > 2.0:
+                    self.get_logger().info(f"every brake diagnosis acknowledged its last "
+                                           f"sensor sample after {now - t0:.1f} s")
+                return True
+            if now >= end or stop_requested():
+                names = ", ".join(self.ids[i] for i in np.flatnonzero(pending))
+                self.get_logger().warning(
+                    f"brake diagnosis of {names} did not acknowledge the last sensor samples "
+                    f"within {self.sensor_drain_timeout_s:g} s (brake_diagnostic down?)")
+                return False
+            spin(0.05)
+            if now >= next_check:
+                next_check = now + 1.0
+                self.resend_sensors()
+                self.resend_tail(pending)
 
     def kpis(self) -> dict[str, Any]:
         """The core's KPIs plus the node's lockstep/rejection counters."""
@@ -877,7 +998,8 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
             got = pollers[key] = (
                 SubscriptionPoller(sim.context, [sim.fleet_sub, *own]),
                 SubscriptionPoller(sim.context, [sim.fleet_sub, *own, *sim.dep_subs]),
-                SubscriptionPoller(sim.context, [*echo, *sim.profile_subs, *sim.dep_subs]))
+                SubscriptionPoller(sim.context, [*echo, *sim.profile_subs, *sim.dep_subs,
+                                                 *sim.diag_subs]))
         return got
 
     def wait(timeout_s: float) -> None:
@@ -977,6 +1099,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
         return
     log.info(f"scenario finished at t={sim.sim.t:.1f} s after {sim.k} steps, "
              f"{time.monotonic() - t0:.1f} s wall")
+    sim.drain_sensors(lambda timeout_s: executor.spin_once(timeout_sec=timeout_s))
     # let the last events/status reach late subscribers before the process exits
     end = time.monotonic() + 0.3
     while time.monotonic() < end:
