@@ -214,6 +214,10 @@ def test_sensor_from_cdr_equals_rclpy() -> None:
             except Rejected as exc:
                 outcome.append(exc.kind)
         assert outcome[0] == outcome[1], (i, outcome)
+        # the acknowledgement's stamp, read before any validation: the message's own
+        assert conv.sensor_stamp(raw) == conv.from_time(m.header.stamp) \
+            == conv.sensor_stamp(deserialize_message(raw, BrakeSensorData))
+        assert conv.sensor_stamp(raw[:6]) is None
         for cut in (3, 9, len(raw) // 2, len(raw) - 1):
             try:
                 conv.sensor_from_cdr(raw[:cut], "/t", "train_01", 4, b)
