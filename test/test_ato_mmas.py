@@ -376,3 +376,14 @@ def test_colony_without_numba_gives_the_same_colony(monkeypatch: pytest.MonkeyPa
     b = solve_mmas(tab, t_fast * 1.15, par)
     assert np.array_equal(a.history, b.history)
     assert np.array_equal(a.modes, b.modes) and np.array_equal(a.codes, b.codes)
+
+
+def test_shares_section_equals_the_float_product() -> None:
+    """The word-wise overlap of the move pairs equals ``c @ c.T > 0`` (any section count)."""
+    from metro_atc.core.ato.mmas_polish import shares_section
+    rng = np.random.default_rng(4)
+    for n_s in (1, 7, 50, 63, 64, 65, 129):
+        for k in (1, 2, 9, 200):
+            c = rng.random((k, n_s)) < rng.uniform(0.0, 0.2)
+            f = c.astype(np.float64)
+            assert np.array_equal(shares_section(c), (f @ f.T) > 0)
