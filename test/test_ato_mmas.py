@@ -395,3 +395,40 @@ def test_shares_section_equals_the_float_product() -> None:
             c = rng.random((k, n_s)) < rng.uniform(0.0, 0.2)
             f = c.astype(np.float64)
             assert np.array_equal(shares_section(c), (f @ f.T) > 0)
+
+
+def test_same_runs_simulated_once_give_every_candidate() -> None:
+    """Grouped candidates: the representatives' figures equal every candidate's, bit for bit.
+
+    Acceleration-phase candidates; those whose commands are above every speed they reach
+    run the same and are grouped.
+    """
+    from metro_atc.core.ato.mmas_polish import same_runs
+    run = _graded_run()
+    tab = build_section_tables(run, n_sections=12)
+    sim = TourSimulator(tab)
+    rng = np.random.default_rng(11)
+    tour_m = rng.integers(0, 3, 12)
+    tour_m[0] = MODE_ACCEL
+    tour_v = rng.uniform(30.0, 70.0, 12) / 3.6
+    tb = sim.equal_bounds()
+    hist = sim.history(tour_m, tour_v, tb)
+    ends, cmds = np.meshgrid(np.arange(6), np.arange(20.0, 75.0, 5.0) / 3.6, indexing="ij")
+    ends, cmds = ends.ravel(), cmds.ravel()
+    upto = np.arange(12)[None, :] <= ends[:, None]
+    cm = np.where(upto, MODE_ACCEL, tour_m[None, :])
+    cv = np.where(upto, cmds[:, None], tour_v[None, :])
+    cb = np.repeat(tb[None, :], ends.size, axis=0)
+    first = np.minimum(ends + 1, 11)
+    # the state after the acceleration phase, as _starts gives it
+    acc_h = {c: sim.history(np.full(12, MODE_ACCEL), np.full(12, c), tb) for c in cmds}
+    e0, t0, en0 = (np.array([acc_h[cmds[k]][q, tb[first[k]]] for k in range(ends.size)])
+                   for q in range(3))
+    rep, inv = same_runs(cm, cv, cb, first, (e0, t0, en0))
+    assert rep.size < 0.9 * ends.size  # unreached commands grouped
+    kw = {"tour": (tour_m, tour_v, tb)}
+    t_a, e_a, _, s_a, _ = sim.run(cm, cv, cb, first, hist, start=(e0, t0, en0), **kw)
+    t_r, e_r, _, s_r, _ = sim.run(cm[rep], cv[rep], cb[rep], first[rep], hist,
+                                  start=(e0[rep], t0[rep], en0[rep]), **kw)
+    assert np.array_equal(t_r[inv], t_a) and np.array_equal(e_r[inv], e_a)
+    assert np.array_equal(s_r[inv], s_a)
