@@ -432,3 +432,22 @@ def test_same_runs_simulated_once_give_every_candidate() -> None:
                                   start=(e0[rep], t0[rep], en0[rep]), **kw)
     assert np.array_equal(t_r[inv], t_a) and np.array_equal(e_r[inv], e_a)
     assert np.array_equal(s_r[inv], s_a)
+
+
+def test_changed_tours_from_the_prefix_equal_full_evaluation() -> None:
+    """Tours changed from a base tour, evaluated from their first change: bit for bit."""
+    from metro_atc.core.ato.mmas import evaluate_changed, tour_prefix
+    run = _graded_run()
+    tab = build_section_tables(run, n_sections=12)
+    rng = np.random.default_rng(13)
+    base_m = rng.integers(0, 3, 12)
+    base_c = rng.integers(0, tab.n_codes, 12)
+    cm = np.repeat(base_m[None, :], 300, axis=0)
+    cc = np.repeat(base_c[None, :], 300, axis=0)
+    for k in range(1, 300):  # row 0: the base tour itself
+        sec = rng.choice(12, size=rng.integers(1, 4), replace=False)
+        cm[k, sec] = rng.integers(0, 3, sec.size)
+        cc[k, sec] = rng.integers(0, tab.n_codes, sec.size)
+    t_f, e_f, _ = evaluate_tours(tab, cm, cc)
+    t_c, e_c = evaluate_changed(tab, base_m, base_c, tour_prefix(tab, base_m, base_c), cm, cc)
+    assert np.array_equal(t_c, t_f) and np.array_equal(e_c, e_f)
