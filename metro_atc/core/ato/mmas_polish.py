@@ -32,6 +32,8 @@ interpolation).  Neighbourhood of a tour:
   halves when nothing improves; stops below ``min_span_mps`` or after ``max_rounds``;
 - the acceleration-phase moves (most of the cost) are in a round only while they win, in
   the first round, or when the other moves found nothing (then with every lattice code).
+- the same acceleration-phase move at the same tour is not simulated again (memo), and
+  moves that run the same (:func:`same_runs`) are simulated once.
 
 Deterministic; never returns a tour worse than its input (or slower than the bound when the
 input met it).
