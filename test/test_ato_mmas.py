@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -86,21 +87,28 @@ def test_paper_defaults() -> None:
 
 
 # ----------------------------------------------------------------- exact kernel, issue 12
-def _graded_run() -> RunModel:
-    """600 m with a steep descent, a climb and a 45 km/h restriction (every branch)."""
+def _graded_run(davis_b_zero: bool = False) -> RunModel:
+    """600 m with a steep descent, a climb and a 45 km/h restriction (every branch).
+
+    davis_b_zero: the train without the linear resistance term (as the TTOBench trains:
+    the kernel's coasting step then skips an arctangent).
+    """
     track = Track(np.array([-1e12, 150.0, 350.0]), np.array([0.0, -0.03, 0.025]),
                   np.array([-1e12, 250.0, 400.0]), np.array([70 / 3.6, 45 / 3.6, 70 / 3.6]))
-    return RunModel(TAIPEI_MRT_6CAR, track, 0.0, 600.0)
+    train = replace(TAIPEI_MRT_6CAR, davis_b_n_per_mps=0.0) if davis_b_zero else \
+        TAIPEI_MRT_6CAR
+    return RunModel(train, track, 0.0, 600.0)
 
 
-def test_tour_kernel_equals_simulate_tours() -> None:
+@pytest.mark.parametrize("davis_b_zero", [False, True])
+def test_tour_kernel_equals_simulate_tours(davis_b_zero: bool) -> None:
     """The compiled kernel reproduces the numpy exact simulation to round-off.
 
     Random modes and continuous commands (including commands below the speeds reached, so
     accelerate sections latch and coast sections brake at their code) on grades of both
-    signs and a restriction.
+    signs and a restriction; trains with and without the Davis b term.
     """
-    run = _graded_run()
+    run = _graded_run(davis_b_zero)
     tab = build_section_tables(run, n_sections=12)
     sim = TourSimulator(tab)
     rng = np.random.default_rng(5)
@@ -376,3 +384,70 @@ def test_colony_without_numba_gives_the_same_colony(monkeypatch: pytest.MonkeyPa
     b = solve_mmas(tab, t_fast * 1.15, par)
     assert np.array_equal(a.history, b.history)
     assert np.array_equal(a.modes, b.modes) and np.array_equal(a.codes, b.codes)
+
+
+def test_shares_section_equals_the_float_product() -> None:
+    """The word-wise overlap of the move pairs equals ``c @ c.T > 0`` (any section count)."""
+    from metro_atc.core.ato.mmas_polish import shares_section
+    rng = np.random.default_rng(4)
+    for n_s in (1, 7, 50, 63, 64, 65, 129):
+        for k in (1, 2, 9, 200):
+            c = rng.random((k, n_s)) < rng.uniform(0.0, 0.2)
+            f = c.astype(np.float64)
+            assert np.array_equal(shares_section(c), (f @ f.T) > 0)
+
+
+def test_same_runs_simulated_once_give_every_candidate() -> None:
+    """Grouped candidates: the representatives' figures equal every candidate's, bit for bit.
+
+    Acceleration-phase candidates; those whose commands are above every speed they reach
+    run the same and are grouped.
+    """
+    from metro_atc.core.ato.mmas_polish import same_runs
+    run = _graded_run()
+    tab = build_section_tables(run, n_sections=12)
+    sim = TourSimulator(tab)
+    rng = np.random.default_rng(11)
+    tour_m = rng.integers(0, 3, 12)
+    tour_m[0] = MODE_ACCEL
+    tour_v = rng.uniform(30.0, 70.0, 12) / 3.6
+    tb = sim.equal_bounds()
+    hist = sim.history(tour_m, tour_v, tb)
+    ends, cmds = np.meshgrid(np.arange(6), np.arange(20.0, 75.0, 5.0) / 3.6, indexing="ij")
+    ends, cmds = ends.ravel(), cmds.ravel()
+    upto = np.arange(12)[None, :] <= ends[:, None]
+    cm = np.where(upto, MODE_ACCEL, tour_m[None, :])
+    cv = np.where(upto, cmds[:, None], tour_v[None, :])
+    cb = np.repeat(tb[None, :], ends.size, axis=0)
+    first = np.minimum(ends + 1, 11)
+    # the state after the acceleration phase, as _starts gives it
+    acc_h = {c: sim.history(np.full(12, MODE_ACCEL), np.full(12, c), tb) for c in cmds}
+    e0, t0, en0 = (np.array([acc_h[cmds[k]][q, tb[first[k]]] for k in range(ends.size)])
+                   for q in range(3))
+    rep, inv = same_runs(cm, cv, cb, first, (e0, t0, en0))
+    assert rep.size < 0.9 * ends.size  # unreached commands grouped
+    kw = {"tour": (tour_m, tour_v, tb)}
+    t_a, e_a, _, s_a, _ = sim.run(cm, cv, cb, first, hist, start=(e0, t0, en0), **kw)
+    t_r, e_r, _, s_r, _ = sim.run(cm[rep], cv[rep], cb[rep], first[rep], hist,
+                                  start=(e0[rep], t0[rep], en0[rep]), **kw)
+    assert np.array_equal(t_r[inv], t_a) and np.array_equal(e_r[inv], e_a)
+    assert np.array_equal(s_r[inv], s_a)
+
+
+def test_changed_tours_from_the_prefix_equal_full_evaluation() -> None:
+    """Tours changed from a base tour, evaluated from their first change: bit for bit."""
+    from metro_atc.core.ato.mmas import evaluate_changed, tour_prefix
+    run = _graded_run()
+    tab = build_section_tables(run, n_sections=12)
+    rng = np.random.default_rng(13)
+    base_m = rng.integers(0, 3, 12)
+    base_c = rng.integers(0, tab.n_codes, 12)
+    cm = np.repeat(base_m[None, :], 300, axis=0)
+    cc = np.repeat(base_c[None, :], 300, axis=0)
+    for k in range(1, 300):  # row 0: the base tour itself
+        sec = rng.choice(12, size=rng.integers(1, 4), replace=False)
+        cm[k, sec] = rng.integers(0, 3, sec.size)
+        cc[k, sec] = rng.integers(0, tab.n_codes, sec.size)
+    t_f, e_f, _ = evaluate_tours(tab, cm, cc)
+    t_c, e_c = evaluate_changed(tab, base_m, base_c, tour_prefix(tab, base_m, base_c), cm, cc)
+    assert np.array_equal(t_c, t_f) and np.array_equal(e_c, e_f)

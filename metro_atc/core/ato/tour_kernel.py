@@ -13,8 +13,11 @@ on random tours (every mode, speed command, grade sign, braking).
 
 Constants of a run are packed in one float vector (indices ``P_*``, :func:`pack_params`).
 Cheaper, same numbers: a coasting step re-uses the closed-form position / time of the
-previous step's end (:func:`_coast`); candidates may be pruned on a time lower bound to the
-stop and on energy (:func:`simulate_kernel`).
+previous step's end and the coefficients of the last grade force (:func:`_coast`), the
+Newton start skips the arctangent when it is multiplied by zero (Davis b = 0,
+:func:`_coast_x`), a coasting step skips the force and trapezoid time it does not use;
+candidates may be pruned on a time lower bound to the stop and on energy
+(:func:`simulate_kernel`).
 Compiled on first use and cached on disk (``cache=True``).
 """
 
@@ -80,14 +83,14 @@ def _trac_acc(p: FloatArray, v: float, fg: float) -> float:  # pragma: no cover 
 
 
 @njit(cache=True, error_model="numpy")
-def _coast_xt(w: float, d4: float, c2: float, bp: float) -> tuple[float, float]:
-    """:func:`strategy._coast_x_t` for one element (X [m], T [s])."""  # pragma: no cover
+def _coast_xt(w: float, d4: float, c2: float, bp: float, a: float
+              ) -> tuple[float, float]:  # pragma: no cover - compiled
+    """:func:`strategy._coast_x_t` for one element (X [m], T [s]); a = sqrt(|d4|)."""
     if d4 > 0.0:
-        a = math.sqrt(d4)
         t = -math.atan(w / a) / (c2 * a)
         x_log = -0.5 * math.log(w * w + d4) / c2
         return x_log - bp * t, t
-    k = math.sqrt(-d4)
+    k = a
     r = abs((k + w) / (k - w + _TINY))
     t = math.log(r) / (2.0 * c2 * k) if r > 0.0 else -np.inf / (2.0 * c2 * k)
     x_log = -0.5 * math.log(abs(w * w + d4) + _TINY) / c2
@@ -95,24 +98,64 @@ def _coast_xt(w: float, d4: float, c2: float, bp: float) -> tuple[float, float]:
 
 
 @njit(cache=True, error_model="numpy")
-def _coast(p: FloatArray, e0: float, h: float, fg: float, memo: FloatArray
+def _coast_x(w: float, d4: float, c2: float, bp: float, a: float
+             ) -> float:  # pragma: no cover - compiled
+    """X of :func:`_coast_xt`, bit for bit; without the arctangent when bp = 0 and d4 > 0.
+
+    There T is finite, so ``bp * T`` is a zero and ``x_log - bp * T`` is ``x_log`` (Davis
+    b = 0, e.g. the TTOBench trains: every coasting step's Newton start).
+    """
+    if d4 > 0.0 and bp == 0.0:
+        return -0.5 * math.log(w * w + d4) / c2
+    return _coast_xt(w, d4, c2, bp, a)[0]
+
+
+M_FG, M_W, M_X, M_T, M_FGC, M_C0, M_C1, M_C2, M_BP, M_D4, M_A, N_MEMO = range(12)
+"""Slots of the coasting memo (:func:`_coast`)."""
+
+
+@njit(cache=True, error_model="numpy")
+def _coast(p: FloatArray, e0: float, v0: float, h: float, fg: float, memo: FloatArray
            ) -> tuple[float, float, bool]:  # pragma: no cover - compiled
     """:func:`strategy.coast_step` for one element: (e1, dt [s], stalled).
 
-    memo (4,): (fg, w, X, T) of the last closed-form evaluation at the end of a step; a
-    step with the same grade force starting at that w (the previous coasting step's end,
-    bit for bit) takes its start X, T from there instead of recomputing them (the same
-    numbers: same inputs).  NaN fg: empty.
+    e0 >= 0 [m^2/s^2] and v0 = sqrt(2 e0) [m/s] (the caller's).  memo (N_MEMO,), NaN when
+    empty: (fg, w, X, T) of the last closed-form evaluation at the end of a step; a step
+    with the same grade force starting at that w (the previous coasting step's end, bit for
+    bit) takes its start X, T from there instead of recomputing them; and the coefficients
+    c0, c1, c2, bp, d4, sqrt(|d4|) of the last grade force fg (the same expressions, so the
+    same numbers).
     """
-    m = p[P_MEFF]
-    c0 = (p[P_DA] + fg) / m
-    c1 = p[P_DB] / m
-    c2 = p[P_DC] / m
-    v0 = math.sqrt(2.0 * e0)
-    # RK4 in distance (the Newton start)
-    ee = e0
-    v = math.sqrt(2.0 * max(ee, 0.0))
-    k1 = -(c0 + c1 * v + c2 * v * v)
+    if memo[M_FGC] == fg:
+        c0 = memo[M_C0]
+        c1 = memo[M_C1]
+        c2 = memo[M_C2]
+        bp = memo[M_BP]
+        d4 = memo[M_D4]
+        a = memo[M_A]
+    else:
+        m = p[P_MEFF]
+        c0 = (p[P_DA] + fg) / m
+        c1 = p[P_DB] / m
+        c2 = p[P_DC] / m
+        bp = 0.0
+        d4 = 0.0
+        a = 0.0
+        if c2 > 0.0:
+            bp = c1 / (2.0 * c2)
+            d4 = c0 / c2 - bp * bp
+            if abs(d4) < 1e-9:
+                d4 = 1e-9
+            a = math.sqrt(d4) if d4 > 0.0 else math.sqrt(-d4)
+        memo[M_FGC] = fg
+        memo[M_C0] = c0
+        memo[M_C1] = c1
+        memo[M_C2] = c2
+        memo[M_BP] = bp
+        memo[M_D4] = d4
+        memo[M_A] = a
+    # RK4 in distance (the Newton start); the first stage's speed is v0
+    k1 = -(c0 + c1 * v0 + c2 * v0 * v0)
     ee = e0 + 0.5 * h * k1
     v = math.sqrt(2.0 * max(ee, 0.0))
     k2 = -(c0 + c1 * v + c2 * v * v)
@@ -129,33 +172,28 @@ def _coast(p: FloatArray, e0: float, h: float, fg: float, memo: FloatArray
         v1 = math.sqrt(2.0 * e_guess)
         dt = 2.0 * h / (v0 + v1 + 1e-300) if v0 + v1 > 0 else np.inf
         return e_guess, (np.inf if stalled else dt), stalled
-    bp = c1 / (2.0 * c2)
-    d4 = c0 / c2 - bp * bp
-    if abs(d4) < 1e-9:
-        d4 = 1e-9
     w0 = v0 + bp
-    if memo[0] == fg and memo[1] == w0:
-        x0 = memo[2]
-        t0 = memo[3]
+    if memo[M_FG] == fg and memo[M_W] == w0:
+        x0 = memo[M_X]
+        t0 = memo[M_T]
     else:
-        x0, t0 = _coast_xt(w0, d4, c2, bp)
+        x0, t0 = _coast_xt(w0, d4, c2, bp, a)
     w = math.sqrt(2.0 * e_guess) + bp
-    x, _ = _coast_xt(w, d4, c2, bp)
+    x = _coast_x(w, d4, c2, bp, a)
     dxdw = -(w - bp) / (c2 * (w * w + d4))
     if (not stalled) and abs(dxdw) > _TINY:
         w = max(w - (x - x0 - h) / dxdw, bp)
     v1 = max(w - bp, 0.0)
     e1 = 0.0 if stalled else 0.5 * v1 * v1
     w1 = math.sqrt(2.0 * e1) + bp
-    x1, t1 = _coast_xt(w1, d4, c2, bp)
-    memo[0] = fg
-    memo[1] = w1
-    memo[2] = x1
-    memo[3] = t1
+    x1, t1 = _coast_xt(w1, d4, c2, bp, a)
+    memo[M_FG] = fg
+    memo[M_W] = w1
+    memo[M_X] = x1
+    memo[M_T] = t1
     dt = t1 - t0
-    trap = 2.0 * h / max(v0 + math.sqrt(2.0 * e1), _TINY)
     if not (math.isfinite(dt) and dt > 0.0):
-        dt = trap
+        dt = 2.0 * h / max(v0 + math.sqrt(2.0 * e1), _TINY)
     return e1, (np.inf if stalled else dt), stalled
 
 
@@ -176,7 +214,7 @@ def _step(p: FloatArray, e: float, fg: float, e_cap: float, mode: int, e_code: f
     dt_c = 0.0
     st_c = False
     if m == _COA:
-        e_m, dt_c, st_c = _coast(p, e0, h, fg, memo)
+        e_m, dt_c, st_c = _coast(p, e0, v0, h, fg, memo)
     else:
         e_p = max(e0 + h * _trac_acc(p, v0, fg), 0.0)
         v_m = 0.5 * (v0 + math.sqrt(2.0 * e_p))
@@ -187,15 +225,20 @@ def _step(p: FloatArray, e: float, fg: float, e_cap: float, mode: int, e_code: f
     cap = min(e_code_cap, e_cap)
     e1 = max(min(e_m, cap), 0.0)
     clamped = e_m > cap
-    v1 = math.sqrt(2.0 * e1)
-    vm = 0.5 * (v0 + v1)
-    force = p[P_MEFF] * (e1 - e0) / h + p[P_DA] + p[P_DB] * vm + p[P_DC] * vm * vm + fg
-    energy = 0.0 if is_coast else max(force, 0.0) * h
-    if v0 + v1 > 0.0:
-        trap = 2.0 * h / max(v0 + v1, 1e-300)
+    energy = 0.0
+    if is_coast and not clamped:
+        dt = dt_c  # (the force and the trapezoid time below are not used)
     else:
-        trap = np.inf
-    dt = dt_c if (is_coast and not clamped) else trap
+        v1 = math.sqrt(2.0 * e1)
+        if not is_coast:
+            vm = 0.5 * (v0 + v1)
+            force = p[P_MEFF] * (e1 - e0) / h + p[P_DA] + p[P_DB] * vm + p[P_DC] * vm * vm \
+                + fg
+            energy = max(force, 0.0) * h
+        if v0 + v1 > 0.0:
+            dt = 2.0 * h / max(v0 + v1, 1e-300)
+        else:
+            dt = np.inf
     stalled = (is_coast and (not clamped) and st_c) or (e1 <= 0.0 and e_cap > 1e-9)
     if stalled:
         dt = np.inf
@@ -239,7 +282,7 @@ def simulate_kernel(p: FloatArray, fg: FloatArray, cap: FloatArray, modes: IntAr
     can_join = base.shape[1] == n + 1 and (not rec) and math.isfinite(base[1, n])
     prune = (not rec) and (t_cut < np.inf or e_cut < np.inf)
     use_lb = t_lb.shape[0] == n + 1
-    memo = np.full(4, np.nan)
+    memo = np.full(N_MEMO, np.nan)
     for k in range(n_k):
         e = e_out[k]
         t = t_out[k]
@@ -297,7 +340,7 @@ def history_kernel(p: FloatArray, fg: FloatArray, cap: FloatArray, modes: IntArr
     t = 0.0
     en = 0.0
     stalled = False
-    memo = np.full(4, np.nan)
+    memo = np.full(N_MEMO, np.nan)
     for i in range(n_s):
         m = modes[i]
         e_code = e_codes[i]
