@@ -132,6 +132,9 @@ class AtoCore:
         self.swing_s = (self.limits.accel_max_mps2 + self.limits.brake_decel_mps2) \
             / max(self.limits.jerk_max_mps3, 1e-6)
         """Time of a jerk-limited swing from full traction to the planned braking [s]."""
+        self._brake_share = self.limits.brake_decel_mps2 / max(train.max_service_brake_mps2,
+                                                               1e-6)
+        """The planned braking deceleration as an effort (a share of the service brake) [-]."""
 
     # ------------------------------------------------------------------ planning
     def plan(self, x_start_m: float, x_stop_m: float,
@@ -208,6 +211,58 @@ class AtoCore:
             return min(f / max(max_traction_force_at(tr, v), 1.0), 1.0)
         return max(f / (tr.effective_mass_kg * tr.max_service_brake_mps2), -1.0)
 
+    def _braking_needed(self, s: float, v: float, r: float, r_a: float, ds: float) -> bool:
+        """Whether following the reference from r to r_a over ds [m] needs the brake.
+
+        True when the deceleration of the reference ``(r^2 - r_a^2) / (2 ds)`` exceeds what
+        the train loses coasting (resistance and grade at s, seed 004 Newton's law): a
+        braking curve, not a coasting phase of the plan.
+        """
+        run = self.run
+        assert run is not None
+        tr = self.train
+        if ds <= 0.0:
+            return False
+        a_ref = (r * r - r_a * r_a) / (2.0 * ds)
+        a_coast = (resistance_force_at(tr, v) + run.mean_grade_force_at(s - tr.length_m, s)) \
+            / tr.effective_mass_kg
+        return a_ref > a_coast
+
+    def brake_onset_bound(self, s: float, s_p: float, v: float, r: float, dt: float) -> float:
+        """Highest effort [-1, 1] that still joins the plan's braking curve ahead on time.
+
+        The brake builds up at the ATO's effort rate rho (the jerk limit): from the last
+        effort u0 to the curve's effort u_c (:meth:`_feedforward` with the curve's
+        deceleration) a linear ramp of tau = (u0 - u_c) / rho, which loses the speed of
+        braking at the curve's deceleration for tau / 2 only.  Started when the train
+        reaches the curve's speed v tau / 2 ahead of the preview point ``s_p`` [m run
+        coordinate], the ramp ends on the curve; started at the curve (a step demand),
+        it ends behind it, and the tracker and the stopping guard catch up with a full
+        service brake (issue 11, ``gen_0009_inc``: a brake false alarm).  Once the onset
+        is reached the bound keeps ramping, ``rho dt`` per step, down to u_c; 1 (no bound)
+        before it, when the curve ahead is not a braking curve (no steeper than
+        coasting) or when the effort is already at the curve's.
+        """
+        assert self._ref is not None
+        rho, u0 = self._du_max_per_s, self._last_u
+        h = max(v * self.period, 0.5)
+        tau = (self._brake_share + u0) / rho
+        u_c = u0
+        r_a = r
+        for _ in range(2):
+            s_a = s_p + 0.5 * v * tau
+            r_a = float(self._ref.speed(s_a))
+            r_h = float(self._ref.speed(s_a + h))
+            if not self._braking_needed(s, v, r_a, r_h, h):
+                return 1.0
+            u_c = self._feedforward(s, v, r_a, (r_h * r_h - r_a * r_a) / (2.0 * h))
+            tau = max(u0 - u_c, 0.0) / rho
+            if tau <= 0.0:
+                return 1.0
+        if v < r_a:
+            return 1.0  # the onset is still ahead
+        return max(u_c, u0 - rho * dt)
+
     def approach_bound(self, s: float, v: float, r_end: float) -> float:
         """Highest effort [-1, 1] that still reaches ``r_end`` [m/s] from below without overshoot.
 
@@ -280,6 +335,27 @@ class AtoCore:
             else:
                 hi = mid
         return min(max((f_hold + tr.effective_mass_kg * lo) / f_max, 0.0), 1.0)
+
+    def reference_speed(self, x_m: float) -> float:
+        """The planned reference r [m/s] at chainage x [m] (0 with no plan)."""
+        if self.run is None or self._ref is None:
+            return 0.0
+        return float(self._ref.speed(self.run.run_coordinate_at(float(x_m))))
+
+    def net_accel(self, x_m: float, v_mps: float) -> float:
+        """Net acceleration [m/s^2] of full traction at chainage x [m] and speed v [m/s].
+
+        Traction less resistance and the grade over the train (seed 004 Newton's law),
+        at most the planning limit ``accel_max_mps2``; 0 with no plan.
+        """
+        run = self.run
+        if run is None:
+            return 0.0
+        tr = self.train
+        s = run.run_coordinate_at(float(x_m))
+        f = max_traction_force_at(tr, v_mps) - resistance_force_at(tr, v_mps) \
+            - run.mean_grade_force_at(s - tr.length_m, s)
+        return min(max(f / tr.effective_mass_kg, 0.0), self.limits.accel_max_mps2)
 
     @property
     def last_effort(self) -> float:
@@ -363,6 +439,11 @@ class AtoCore:
             r_end = r if capped else min(max(r, float(self._ref.speed(s_p + v * self.swing_s))),
                                          r_cap_mps)
             u_b = self.approach_bound(s, v, r_end)
+            if u_b < u:
+                u, bounded = u_b, True
+        if not capped and v > JOIN_MIN_SPEED_MPS and self._last_u > -self._brake_share:
+            # coasting toward a braking curve of the plan: ramp the brake on in time
+            u_b = self.brake_onset_bound(s, s_p, v, r, dt)
             if u_b < u:
                 u, bounded = u_b, True
         if u > 0.0 and v < RESTART_MAX_SPEED_MPS and s > 0.5 * run.length_m:

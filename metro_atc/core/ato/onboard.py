@@ -190,7 +190,11 @@ class OnboardAto:
             # in traction below a falling cap: aim where the swing to braking would end
             xp += v * self.core.swing_s
             cap_p = min(cap_p, self._cap_at(ctx, xp, True))
-        cap_h = self._cap_at(ctx, xp + h, True)
+        hold = bool(ctx[4]) and v > JOIN_MIN_SPEED_MPS and cap_p > v \
+            and self._tsr_hold(ctx, xp, v, min(cap_p, self.core.reference_speed(xp)))
+        if hold:
+            cap_p = v  # hold the speed and follow the TSR curve down when it comes
+        cap_h = cap_p if hold else self._cap_at(ctx, xp + h, True)
         slope = (cap_h * cap_h - cap_p * cap_p) / (2.0 * h) \
             if math.isfinite(cap_p) and math.isfinite(cap_h) else 0.0
         v_ma = self._authority_speed(float(s["t_s"]), float(s["movement_authority_m"]))
@@ -207,6 +211,34 @@ class OnboardAto:
             self.core.applied(u)
         mode = MODE_ACCELERATE if u > 0.05 else (MODE_BRAKE if u < -0.05 else MODE_COAST)
         return u, mode, planned
+
+    def _tsr_hold(self, ctx: tuple[Any, ...], xp: float, v: float, r: float) -> bool:
+        """No traction toward r [m/s] when a known TSR's curve takes the gain back (issue 11).
+
+        Accelerating from v to r and braking back to v (the swing between them included)
+        takes ``H = (r^2 - v^2) / (2 a) + v swing_s + (r^2 - v^2) / (2 b)`` metres at the net
+        acceleration a of full traction here (:meth:`AtoCore.net_accel`) and the planned
+        deceleration b.  When the braking curve of a TSR ahead falls below v within H of
+        the preview position ``xp`` [m], the gain would be braked away before the zone: a
+        speed minimum before the TSR's own (hunting, e.g. a coast-and-motor cycle of the
+        plan just before the curve).  The train then holds its speed instead.
+        """
+        if r <= v + JOIN_BAND_MPS:
+            return False
+        a = self.core.net_accel(xp, v)
+        b = self._plan_decel(xp)
+        dv2 = r * r - v * v
+        reach = v * self.core.swing_s + dv2 / (2.0 * b) \
+            + (dv2 / (2.0 * a) if a > 1e-3 else math.inf)
+        lead = self.core.limits.restriction_lead_m
+        rear = xp - self.train.length_m
+        for z, _ in ctx[4]:
+            if rear >= z.end_m:
+                continue
+            x_e = min(xp + reach, max(z.start_m - lead, xp))
+            if self._cap_at(ctx, x_e, False) < v:
+                return True
+        return False
 
     def _authority_speed(self, t: float, ma: float) -> float:
         """Speed [m/s] of the end of movement authority from the last two states.
