@@ -13,10 +13,9 @@ onsets each (every train whose run was planned with the TSR in force, 119 m befo
 
 from __future__ import annotations
 
-import dataclasses
-
 import pytest
 
+from tsr_cases import shifted_tsr_row
 from metro_atc.core.closed_loop import run_closed_loop
 from metro_atc.core.linegen import load_generated
 
@@ -26,13 +25,7 @@ from metro_atc.core.linegen import load_generated
 def test_tsr_after_departure_on_a_descent_no_intervention_no_hunting(
         shift_m: float, limit_kmh: float) -> None:
     """0 ATP interventions and violations, one speed minimum per TSR approach."""
-    base = load_generated(14, incidents=True)
-    z0 = next(i for i in base.incidents if i.kind == "tsr")
-    z = dataclasses.replace(z0, start_m=z0.start_m + shift_m, end_m=z0.end_m + shift_m,
-                            limit_kmh=limit_kmh)
-    scn = dataclasses.replace(base, incidents=[z if i is z0 else i for i in base.incidents])
-    headway = scn.timetable.periods[0].headway_s
-    row = run_closed_loop(scn, duration_s=z.at_s + 2.0 * headway + 250.0).row()
+    row = shifted_tsr_row(14, shift_m, limit_kmh)
     assert row["atp_violations"] == 0
     assert row["tsr_approaches"] >= 3
     assert row["atp_interventions"] == 0

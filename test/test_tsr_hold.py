@@ -13,12 +13,9 @@ ATP, real ATO) up to the third train through the zone has one speed minimum per 
 
 from __future__ import annotations
 
-import dataclasses
-
 import pytest
 
-from metro_atc.core.closed_loop import run_closed_loop
-from metro_atc.core.linegen import load_generated
+from tsr_cases import shifted_tsr_row
 
 
 @pytest.mark.parametrize("shift_m,limit_kmh", [
@@ -29,13 +26,7 @@ from metro_atc.core.linegen import load_generated
         " of the hold rule and still counts as a second minimum in the 800 m window")))])
 def test_no_remotoring_into_a_tsr_curve(shift_m: float, limit_kmh: float) -> None:
     """0 violations, one speed minimum per TSR approach, the stops within 0.30 m."""
-    base = load_generated(39, incidents=True)
-    z0 = next(i for i in base.incidents if i.kind == "tsr")
-    z = dataclasses.replace(z0, start_m=z0.start_m + shift_m, end_m=z0.end_m + shift_m,
-                            limit_kmh=limit_kmh)
-    scn = dataclasses.replace(base, incidents=[z if i is z0 else i for i in base.incidents])
-    headway = scn.timetable.periods[0].headway_s
-    row = run_closed_loop(scn, duration_s=z.at_s + 2.0 * headway + 250.0).row()
+    row = shifted_tsr_row(39, shift_m, limit_kmh)
     assert row["atp_violations"] == 0
     assert row["tsr_approaches"] >= 2
     assert row["tsr_speed_minima_max"] == 1
