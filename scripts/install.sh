@@ -64,11 +64,13 @@ else
 fi
 # 5. the numba kernels compiled into their on-disk caches now (next to the installed
 # modules; numba's user cache or NUMBA_CACHE_DIR where those are read-only), not by the
-# first node that needs them (the brake observer's: ~6 s of CPU at its first braked sample).
+# first node that needs them (the brake observer's: ~6 s of CPU at its first braked sample;
+# the plant's and the ATO's: ~20 s in the first run after an install): a short ROS-free
+# closed loop (metro_atc.core.precompile).
 # -P and the install space only: the installed modules are the ones the nodes load.
 SITE="$(ls -d "$ROOT"/install/metro_atc/lib/python3*/site-packages | head -1)"
 if PYTHONPATH="$SITE${PYTHONPATH:+:$PYTHONPATH}" "$VENV/bin/python" -P -c \
-    'from metro_atc.core.brake.metro_car import precompile_metro_kernels as f; assert f() == 3'
+    'from metro_atc.core.precompile import precompile_graph_kernels as f; assert f() == 3'
 then
   echo "[install] numba kernels compiled (on-disk caches)"
 else
