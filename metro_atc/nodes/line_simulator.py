@@ -245,13 +245,12 @@ class LineSimulator(Node):
         self._sensor_readers: list[set[bytes]] = [set() for _ in range(n)]
         self._resend_due = np.zeros(n, dtype=bool)
         self._readers_known = False
-        self._reader_new_wall = np.full(n, -np.inf)
-        """Wall time a sensor topic last gained a reader (monotonic clock) [s]."""
         self.diag_ack_t = np.full(n, -np.inf)
         """Per train: the newest sensor sample its BrakeDiagnosis acknowledged [s] (-inf: no
         diagnosis heard). Samples after it are kept for a re-send however old."""
         self._ack_wall = np.full(n, -np.inf)
-        """Wall time the acknowledgement of each train last changed (monotonic) [s]."""
+        """Wall time the acknowledgement of each train last changed, or its sensor topic
+        gained a reader (monotonic) [s]."""
         self._ack_seen_wall = np.full(n, -np.inf)
         """Wall time a diagnosis of each train was last received (monotonic) [s]."""
         self.sensor_dropped = 0
@@ -832,23 +831,27 @@ class LineSimulator(Node):
             gids = subscriber_gids(self, pub)
             if gids - self._sensor_readers[i] and self._readers_known:
                 self._resend_due[i] = True
-                self._reader_new_wall[i] = self._ack_wall[i] = time.monotonic()
+                self._ack_wall[i] = time.monotonic()  # no tail re-send for a while
             self._sensor_readers[i] |= gids
         self._readers_known = self.started  # the readers at step 0 are not new
-        gained = due
-        if not gained.any():
+        sent = self._publish_kept(due, np.full(len(self.ids), -np.inf))
+        if sent:
+            self.get_logger().info(f"sent {sent} kept brake sensor samples again to a new "
+                                   "reader")
+        return sent
+
+    def _publish_kept(self, trains: np.ndarray, after_t: np.ndarray) -> int:
+        """Publish again the kept samples of ``trains`` newer than ``after_t`` (per train)."""
+        if not trains.any():
             return 0
         sent = 0
-        for _, i, sample in self.sensor_log:
-            if gained[i]:
+        for ts, i, sample in self.sensor_log:
+            if trains[i] and ts > after_t[i]:
                 self.sensor_pubs[i].publish(conv.sensor_sample_msg(self.ids[i], *sample))
                 sent += 1
                 if sent % RESEND_CHUNK == 0:
                     # best effort through a writer history of 20: paced, or a burst is lost
                     time.sleep(RESEND_PAUSE_S)
-        if sent:
-            self.get_logger().info(f"sent {sent} kept brake sensor samples again to a new "
-                                   "reader")
         return sent
 
     def sensors_unacknowledged(self) -> np.ndarray:
@@ -860,23 +863,15 @@ class LineSimulator(Node):
 
         Only for a train whose diagnosis kept acknowledging the same sample for
         :data:`TAIL_RESEND_S` (a live reader that has taken all it got) while its readers
-        stayed the same (a new reader gets the whole re-send of :meth:`resend_sensors`);
-        they are the samples the best-effort topic lost. Returns the number of samples sent.
+        stayed the same (a new reader gets the whole re-send of :meth:`resend_sensors`, and
+        restarts ``_ack_wall``); they are the samples the best-effort topic lost. Returns the
+        number of samples sent.
         """
-        now = time.monotonic()
         due = pending & (self._ack_seen_wall - self._ack_wall >= TAIL_RESEND_S) \
-            & (now - self._reader_new_wall >= TAIL_RESEND_S) & ~self._resend_due
-        if not due.any():
-            return 0
-        self._ack_wall[due] = now  # once per TAIL_RESEND_S
-        sent = 0
-        for ts, i, sample in self.sensor_log:
-            if due[i] and ts > self.diag_ack_t[i] + 1e-6:
-                self.sensor_pubs[i].publish(conv.sensor_sample_msg(self.ids[i], *sample))
-                sent += 1
-                if sent % RESEND_CHUNK == 0:
-                    time.sleep(RESEND_PAUSE_S)
-        return sent
+            & ~self._resend_due
+        if due.any():
+            self._ack_wall[due] = time.monotonic()  # once per TAIL_RESEND_S
+        return self._publish_kept(due, self.diag_ack_t + 1e-6)
 
     def drain_sensors(self, spin: Any) -> bool:
         """End of a run: wait until every train's brake diagnosis acknowledged its last sample.
