@@ -44,6 +44,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
+import numpy as np
+
 from metro_atc.dds import config_dir, dds_defaults
 from metro_atc.process_watch import PARENT_PID_ENV
 
@@ -349,10 +351,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         memory["graph"] = own_peak_rss_mb()
         cpu["graph"] = round(time.process_time(), 2)
     else:
-        horizon_s = a.duration if a.duration > 0 else float(scn.sim.duration_s)
         show = a.progress == "always" or (a.progress == "auto" and sys.stderr.isatty())
-        code = _run_processes(a, train_ids, out_dir, horizon_s if show else None, memory,
-                              cpu)
+        horizon_s = progress_horizon_s(scn, a.duration) if show else None
+        code = _run_processes(a, train_ids, out_dir, horizon_s, memory, cpu)
     wall = time.monotonic() - t0
     kpi_file = out_dir / "kpis.json"
     if code != 0:
@@ -427,6 +428,30 @@ def prepare_checkpoints(folder: Path, resume: bool) -> str | None:
     return None
 
 
+def progress_horizon_s(scn: Any, duration_s: float) -> float:
+    """Simulated time the progress ETA counts to [s].
+
+    The run stops at ``duration_s`` (> 0) or the scenario's ``sim.duration_s``, or earlier
+    when every train is out of service. The estimate of that end is a pure function of the
+    scenario: the last scheduled arrival, its dwell, the run into the tail track (a
+    triangular profile at the driving deceleration) and the turnback time; the earlier of the
+    two counts.
+    """
+    limit = float(duration_s) if duration_s > 0 else float(scn.sim.duration_s)
+    from metro_atc.core.line.service import describe
+    d = describe(scn)
+    sv = d.service
+    arr = np.asarray(sv.sched_arr, dtype=float)[:, -1]
+    if not np.isfinite(arr).any():
+        return limit
+    i = int(np.nanargmax(arr))
+    tail_m = max(float(d.geometry.x_tail_stop - d.geometry.station_positions_m[-1]), 0.0)
+    tail_s = 2.0 * math.sqrt(tail_m / max(float(sv.b_drive), 1e-3))
+    dwell = float(np.nanmax(np.asarray(sv.sched_dwell, dtype=float)[..., -1], initial=0.0))
+    end = float(arr[i]) + dwell + tail_s + float(scn.line.turnback_s)
+    return min(limit, end)
+
+
 def scenario_train_ids(scn: Any) -> list[str]:
     """Train ids of a loaded scenario (``train_01`` ...)."""
     return list(scn.train_ids)
@@ -481,8 +506,11 @@ class ProgressTail:
                 continue
             t, trains, misses, rtf = float(m[1]), int(m[2]), int(m[3]), float(m[4])
             left = max(self.horizon_s - t, 0.0) / rtf if rtf > 0 else math.inf
-            eta = f"{left / 60:.0f} min {left % 60:02.0f} s" if math.isfinite(left) else "?"
-            print(f"metro_atc run: t = {t:.0f} / {self.horizon_s:.0f} s simulated, {trains} "
+            eta = f"{left // 60:.0f} min {left % 60:02.0f} s" if math.isfinite(left) else "?"
+            if t > self.horizon_s:  # running late: the last trains are still arriving
+                eta = "last trains arriving"
+            end = max(self.horizon_s, t)
+            print(f"metro_atc run: t = {t:.0f} / {end:.0f} s simulated, {trains} "
                   f"trains in service, {misses} lockstep misses, {rtf:.1f}x real time, "
                   f"ETA {eta}", file=self.stream, flush=True)
             n += 1

@@ -26,3 +26,35 @@ def test_progress_tail_prints_new_lines_with_eta(tmp_path: Path) -> None:
     last = out.getvalue().strip().splitlines()[-1]
     assert "t = 1200 / 6000 s" in last and "1 lockstep misses" in last and "ETA 8 min 00 s" in last
     assert tail.poll() == 0
+
+
+def test_progress_runs_late_past_the_estimate(tmp_path: Path) -> None:
+    """Past the end estimate the horizon follows the simulated time (no negative ETA)."""
+    log = tmp_path / "line_simulator.log"
+    out = io.StringIO()
+    tail = ProgressTail(log, 6000.0, out)
+    log.write_text("[INFO] [2.0] [line_simulator]: t=6100 s: 1 trains in service, 0 lockstep "
+                   "misses, 40.0x real time\n")
+    assert tail.poll() == 1
+    row = out.getvalue().strip()
+    assert "t = 6100 / 6100 s" in row and "last trains arriving" in row
+
+
+def test_progress_horizon_is_the_estimated_end_of_service() -> None:
+    """The ETA counts to the estimated end of service, or the duration when that comes first.
+
+    The estimate (last scheduled arrival + terminus dwell + tail track + turnback) is within
+    a few minutes of the end of a real run: the ROS-free closed loop of ``taipei_blue``.
+    """
+    import numpy as np
+
+    from metro_atc.core.line.scenario import load_scenario
+    from metro_atc.core.line.service import timetable_for
+    from metro_atc.launcher import progress_horizon_s
+
+    scn = load_scenario("taipei_blue")
+    last = float(np.nanmax(timetable_for(scn).arrival_s))
+    end = progress_horizon_s(scn, 0.0)
+    assert last + scn.line.turnback_s < end < float(scn.sim.duration_s)
+    assert progress_horizon_s(scn, 900.0) == 900.0
+    assert progress_horizon_s(scn, 1e9) == end
