@@ -30,9 +30,10 @@ from metro_atc.core.line.vehicle import TrainParams
 
 from .atp import AtpSupervisor
 from .braking import N_AXLES_SENSED, Brakes
-from .driver import driver_command
+from .driver import driver_command, simple_driver
 from .energy import EnergyMeter
 from .fast import FastSensors, NumbaStepper, resolve_kernel
+from .fast_run import DrivenRun, run_compiled
 from .fleet import (DONE, MODE_ACCEL, MODE_ATP, MODE_BRAKE, MODE_COAST, MODE_CRUISE,
                     MODE_DWELL, MODE_OUT, RUN, WAIT, Fleet, Status)
 from .incidents import Incidents
@@ -46,7 +47,7 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
-__all__ = ["KMH", "MODE_ACCEL", "MODE_ATP", "MODE_BRAKE", "MODE_COAST", "MODE_CRUISE",
+__all__ = ["DrivenRun", "KMH", "MODE_ACCEL", "MODE_ATP", "MODE_BRAKE", "MODE_COAST", "MODE_CRUISE",
            "MODE_DWELL", "MODE_OUT", "N_AXLES_SENSED", "PRESETS", "BrakeSensorSample",
            "LineSim", "SensorBlock", "Status", "StepResult", "TrainEvent", "train_params_for"]
 
@@ -370,3 +371,23 @@ class LineSim:
             self.stations.station_logic(t_new, hit, d)
             self._masks()
         return StepResult(events, snap, n_int, sen)
+
+    def run_driven(self, until_s: float, samples: bool = True) -> DrivenRun:
+        """Step with :func:`.driver.simple_driver` until done or ``t >= until_s`` [s].
+
+        The same as ``while not done and t < until_s: step(simple_driver(self))`` with the
+        samples read when ``samples``; with the compiled kernel the steps between two
+        discrete times / station events run several per call (:mod:`.fast_run`).
+        """
+        out = DrivenRun()
+        while not self.done and self.t < until_s:
+            if self.stepper is not None and self.t < self._t_next - 1e-9:
+                k, hit, d = run_compiled(self, self._t_next, until_s, samples, out)
+                if k:
+                    if hit is not None:
+                        self.stations.events_out = out.events
+                        self.stations.station_logic(self.t, hit, d)
+                        self._masks()
+                    continue
+            out.add(self.step(simple_driver(self)), samples)
+        return out
