@@ -19,13 +19,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .braking import AxleState
-from .driver import simple_driver
 from .sensors import SensorBlock, StepResult
 from .stations import TrainEvent
 
 FloatArray = NDArray[np.float64]
 
-MAX_STEPS = 64
+MAX_STEPS = 256
 """Steps per compiled call at most (output blocks allocated per call)."""
 
 
@@ -61,21 +60,22 @@ class DrivenRun:
         return sum(b.t.size * b.trains.size for b in self.blocks)
 
 
-def run_compiled(sim: Any, t_next: float, until_s: float, samples: bool,
+def run_compiled(sim: Any, u0: FloatArray, t_next: float, until_s: float, samples: bool,
                  out: DrivenRun) -> tuple[int, Any, Any]:
     """Reference-driver steps in one compiled call; returns (steps, hit, d).
 
-    ``t_next``: the plant's next discrete time [s] (the call stops before it);
-    ``until_s``: no step starts at or after it.  ``hit`` (arrival / overrun candidates)
-    and ``d`` (distance past the stop point [m]) of the last step when it needs the
-    station logic, else None.
+    ``u0``: the reference driver's command for the first step, whose discrete events (if
+    due) the caller has done; ``t_next``: the plant's next discrete time [s] (the call
+    stops before a later step starting at or after it); ``until_s``: no step starts at or
+    after it.  ``hit`` (arrival / overrun candidates) and ``d`` (distance past the stop
+    point [m]) of the last step when it needs the station logic, else None.
     """
-    from . import kernel_run as kr
+    kr = _kernel_run()
     stp, fl, atp, br, sen = sim.stepper, sim.fleet, sim.atp, sim.brakes, sim.sensors
     kn = stp.kn
     if br.any_slide or br.any_wsp:
         return 0, None, None
-    u0 = np.ascontiguousarray(simple_driver(sim), dtype=float)
+    u0 = np.ascontiguousarray(u0, dtype=float)
     fs, ints, bools, grids, axc, blk0 = stp.packed(sim)
     n, na = fl.n, axc.shape[2]
     sensed = bool(sen.any_sensed)
@@ -86,8 +86,12 @@ def run_compiled(sim: Any, t_next: float, until_s: float, samples: bool,
     m = idx.size
     samples = samples and sensed
     dt = sim.control_period_s
+    t0 = sim.t
+    # steps this call can make at most (output buffers; a hit may end it sooner)
+    t_end = min(t_next, until_s, sim.duration_s)
+    kmax = max(1, min(MAX_STEPS, int((t_end - t0) / dt) + 2))
     if samples:
-        cap = MAX_STEPS * (int(dt / sen.sensor_dt) + 2)
+        cap = kmax * (int(dt / sen.sensor_dt) + 2)
         sen.reserve((2 * na + 2) * cap * m)
         ax0 = br.ax
         slip0 = np.ascontiguousarray(ax0.arrays[2] if ax0.arrays is not None
@@ -98,13 +102,13 @@ def run_compiled(sim: Any, t_next: float, until_s: float, samples: bool,
         slip0 = np.zeros((n, na))
         axs = np.empty((2, 3, 0, na))
     o4, o2 = np.empty((2, cap, m, na)), np.empty((2, cap, m))
-    blks = np.empty((MAX_STEPS, kn.N_OUT, n))
+    blks = np.empty((kmax, kn.N_OUT, n))
+    tk = np.empty(kmax)
     rf, ri = np.empty(kr.N_RF), np.zeros(kr.N_RI, dtype=np.int64)
-    t0 = sim.t
     kr.run_rows(stp.c, stp.tabs, stp.geo, stp.stab, stp.dcs, fs, ints, bools, grids, axc,
                 blk0, blks, u0, axs, br.r_w, idx, slip0, sen.clock, sen.zbuf, o4, o2, False,
                 False, fl.any_auto, sensed, samples, t0, t_next, sim.duration_s, until_s,
-                cpos0, sen.zpos, rf, ri)
+                cpos0, sen.zpos, tk, rf, ri)
     k = int(ri[kr.R_STEPS])
     out.stops[int(ri[kr.R_WHY])] += 1
     if k == 0:
@@ -147,18 +151,16 @@ def run_compiled(sim: Any, t_next: float, until_s: float, samples: bool,
             car_mass = fl.mass / sim.p.cars
             out.blocks.append(SensorBlock(ts, idx, omega, clamp, accel, vref, car_mass[idx]))
     # time, step count, trace rows
-    every, tr, sc, t = sim.trace_every, sim.trace, sim.step_count, t0
-    for j in range(k):
-        t = t + dt
-        sc += 1
-        if every and sc % every == 0:
+    every, tr, sc = sim.trace_every, sim.trace, sim.step_count
+    if every:  # steps j with (sc + j + 1) % every == 0
+        for j in range(every - 1 - sc % every, k, every):
             bj = blks[j]
-            tr["t"].append(t)
+            tr["t"].append(float(tk[j]))
             tr["x"].append(bj[kn.O_X1].copy())
             tr["v"].append(bj[kn.O_V1].copy())
             tr["run"].append(fl.run)
             tr["atp"].append(bj[kn.O_LIM].copy())
-    sim.t, sim.step_count = float(rf[kr.R_T]), sc
+    sim.t, sim.step_count = float(rf[kr.R_T]), sc + k
     out.steps += k
     out.kernel_steps += k
     out.calls += 1
@@ -169,5 +171,16 @@ def run_compiled(sim: Any, t_next: float, until_s: float, samples: bool,
     tol = sim.tol_stop
     return k, fl.cand & ((d > tol) | ((v1 <= 0.0) & (d >= -tol))), d
 
+
+def _kernel_run() -> Any:
+    """:mod:`.kernel_run` (imported on first use: numba stays optional)."""
+    global _KR
+    if _KR is None:
+        from . import kernel_run
+        _KR = kernel_run
+    return _KR
+
+
+_KR: Any = None
 
 __all__ = ["MAX_STEPS", "DrivenRun", "run_compiled"]

@@ -5,11 +5,12 @@
 :mod:`.fast_run`), one compiled call for many steps: each step's command is the reference
 driver's, computed by the previous step (row ``O_DRV``); the sample instants are read from
 the sensors' laid-out clock and the noise from their normals buffer (both advanced as the
-per-step path does).  It stops *before* a step that starts at or after the next discrete
-time, the duration or the caller's limit, whose rail force needs the numpy slide model
-(the step's in-place ATP updates are rolled back), or that would run past the laid-out
-clock, the drawn normals or the output buffers; and *after* a step with an arrival or
-overrun candidate (the station logic is Python's).
+per-step path does).  It stops *before* a step (other than the first, whose discrete
+events the caller has done) that starts at or after the next discrete time, the duration
+or the caller's limit, whose rail force needs the numpy slide model (the step's in-place
+ATP updates are rolled back), or that would run past the laid-out clock, the drawn normals
+or the output buffers; and *after* a step with an arrival or overrun candidate (the
+station logic is Python's).
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ R_T, R_GMIN, N_RF = range(3)
 def run_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blks, u0, axs,
              r_w, sidx, slip0, clock, zbuf, o4, o2, any_slide: bool, any_wsp: bool,
              auto: bool, sensed: bool, samples: bool, t0: float, t_next: float,
-             t_dur: float, t_limit: float, cpos: int, zpos: int, rf,
+             t_dur: float, t_limit: float, cpos: int, zpos: int, tk, rf,
              ri):  # type: ignore[no-untyped-def]
     """Up to ``blks.shape[0]`` steps from time ``t0`` (see module doc); results in ``rf``/``ri``.
 
@@ -47,7 +48,8 @@ def run_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blks, u
     the sample instants laid out, ``clock[cpos]`` the next one (``sensed``: an instrumented
     train runs); ``zbuf[zpos:]``: the normals drawn ahead; ``o4`` / ``o2``: the samples of
     all steps one after the other along their sample axis (``samples``: compute them).
-    ``t_next`` / ``t_dur`` / ``t_limit``: next discrete time, duration, caller's limit [s].
+    ``t_next`` / ``t_dur`` / ``t_limit``: next discrete time (the first step's discrete
+    events are done), duration, caller's limit [s]; ``tk[k]``: the time at the end of step k.
     """
     dt = c[C_DT]
     m, na = sidx.shape[0], axc.shape[2]
@@ -69,7 +71,7 @@ def run_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blks, u
     n_int, n_civil, gmin = 0, 0, math.inf
     any_atp, any_viol = False, False
     while k < blks.shape[0]:
-        if t >= t_next - 1e-9 or t >= t_dur - 1e-9 or not t < t_limit:
+        if (k and t >= t_next - 1e-9) or t >= t_dur - 1e-9 or not t < t_limit:
             why = STOP_TIME
             break
         t1 = t + dt
@@ -125,6 +127,7 @@ def run_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blks, u
         t = t1
         prev = blk
         u = blk[O_DRV]
+        tk[k] = t
         k += 1
         if r[5] > 0:
             why = STOP_HIT

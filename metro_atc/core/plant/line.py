@@ -326,6 +326,9 @@ class LineSim:
         NaN entries keep the previous command; values are clipped to [-1, 1].  Trains at a
         platform, broken down or out of service ignore their command; ATP may override it.
         """
+        return self._step(u, True)
+
+    def _step(self, u: Any, discrete: bool) -> StepResult:  # False: discrete events done
         fl, atp, p = self.fleet, self.atp, self.p
         ua = np.asarray(u, dtype=float)
         if ua.shape != (self.n,):
@@ -334,7 +337,7 @@ class LineSim:
         self.stations.events_out = events
         t = self.t
         dt = self.control_period_s
-        if t >= self._t_next - 1e-9:
+        if discrete and t >= self._t_next - 1e-9:
             self._discrete(t)
         # the plant drives turning-back trains (the compiled step does it itself)
         auto_u = driver_command(self) if fl.any_auto and self.stepper is None else None
@@ -373,21 +376,25 @@ class LineSim:
         return StepResult(events, snap, n_int, sen)
 
     def run_driven(self, until_s: float, samples: bool = True) -> DrivenRun:
-        """Step with :func:`.driver.simple_driver` until done or ``t >= until_s`` [s].
+        """``while not done and t < until_s: step(simple_driver(self))``, samples read if asked.
 
-        The same as ``while not done and t < until_s: step(simple_driver(self))`` with the
-        samples read when ``samples``; with the compiled kernel the steps between two
-        discrete times / station events run several per call (:mod:`.fast_run`).
+        With the compiled kernel, several steps per call (:mod:`.fast_run`).
         """
-        out = DrivenRun()
+        out, st = DrivenRun(), self.stations
         while not self.done and self.t < until_s:
-            if self.stepper is not None and self.t < self._t_next - 1e-9:
-                k, hit, d = run_compiled(self, self._t_next, until_s, samples, out)
-                if k:
-                    if hit is not None:
-                        self.stations.events_out = out.events
-                        self.stations.station_logic(self.t, hit, d)
-                        self._masks()
-                    continue
-            out.add(self.step(simple_driver(self)), samples)
+            if self.stepper is None:
+                out.add(self.step(simple_driver(self)), samples)
+                continue
+            u = simple_driver(self)  # before the step's discrete events, as in the loop
+            if self.t >= self._t_next - 1e-9:
+                st.events_out = out.events
+                self._discrete(self.t)
+            lim = self.t + 0.5 * self.control_period_s if self.done else until_s  # 1 step
+            k, hit, d = run_compiled(self, u, self._t_next, lim, samples, out)
+            if not k:
+                out.add(self._step(u, False), samples)
+            elif hit is not None:
+                st.events_out = out.events
+                st.station_logic(self.t, hit, d)
+                self._masks()
         return out
