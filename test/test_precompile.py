@@ -16,10 +16,11 @@ from metro_atc.core.ato import step_kernel, switching_kernel
 from metro_atc.core.brake import metro_kernel
 from metro_atc.core.closed_loop import run_closed_loop
 from metro_atc.core.line.scenario import load_scenario
-from metro_atc.core.plant import kernel, kernel_aux, kernel_step
+from metro_atc.core.plant import kernel, kernel_aux, kernel_run, kernel_step
+from metro_atc.core.plant.line import LineSim
 from metro_atc.core.precompile import precompile_graph_kernels
 
-MODULES: tuple[ModuleType, ...] = (kernel, kernel_aux, kernel_step, step_kernel,
+MODULES: tuple[ModuleType, ...] = (kernel, kernel_aux, kernel_step, kernel_run, step_kernel,
                                    switching_kernel, metro_kernel)
 
 
@@ -38,6 +39,12 @@ def test_warm_up_compiles_what_a_taipei_blue_run_calls() -> None:
     # the plant step, the driver and the brake filter kernels ran in the warm-up
     assert any("kernel_step" in k for k in used), before
     assert any("metro_kernel" in k for k in used), before
+    assert "metro_atc.core.plant.kernel_run.run_rows" in used, before
     row = run_closed_loop(load_scenario("taipei_blue"), duration_s=120.0, brake=True).row()
     assert row["atp_violations"] == 0
+    assert _signatures() == before
+    # the headless multi-step run (bench perf), with and without the samples read
+    sim = LineSim(load_scenario("taipei_blue"), seed=1)
+    sim.run_driven(60.0, samples=False)
+    assert sim.run_driven(120.0).kernel_steps > 0
     assert _signatures() == before

@@ -1,9 +1,13 @@
 """Benchmark: speed of the ROS-free line plant core (issue 3).
 
-``python -m metro_atc.bench.perf [--json] [--out DIR] [--quick] [--seed N] [--scenario S]``
+``python -m metro_atc.bench.perf [--json] [--out DIR] [--quick] [--seed N] [--scenario S]
+[--per-step]``
 
 Runs the scenario (default ``taipei_blue``: one peak hour of departures, 30 trains, plus the
-run-out) headless with the reference driver :func:`simple_driver` in lockstep and reports
+run-out) headless with the reference driver :func:`simple_driver` in lockstep
+(:meth:`LineSim.run_driven`: with the numba kernel, the steps between two discrete events
+run several per compiled call; ``--per-step``: one ``step`` call per step, the same
+results bit for bit) and reports
 the core real-time factor ``core_rtf`` = simulated time / wall time (``core_rtf_cpu`` per
 CPU second of this process: the figure to compare on a loaded machine; both also with the
 sensor samples consumed, ``core_rtf_with_sensors[_cpu]``),
@@ -34,6 +38,8 @@ from metro_atc.core.plant.driver import simple_driver
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.line.scenario import load_scenario
 
+PROGRESS_CHUNK_S = 100.0
+"""Simulated time between two progress rows of :func:`run_core` [s]."""
 TARGET_CORE_RTF = 5000.0
 """Issue 3 target for the core-only real-time factor."""
 TARGET_GRAPH_RTF = 100.0
@@ -56,8 +62,13 @@ def energy_balance_error(sim: LineSim) -> float:
 
 def run_core(scenario: str, seed: int, sim_limit_s: float | None, sensors: bool,
              profile: bool = False, label: str = "",
-             kernel: str | None = None) -> dict[str, Any]:
+             kernel: str | None = None, per_step: bool = False) -> dict[str, Any]:
     """Run a scenario headless; returns timing, KPIs and (optionally) a profile.
+
+    The reference driver runs through :meth:`LineSim.run_driven` (several steps per
+    compiled call with the numba kernel; the samples of every step read when ``sensors``);
+    ``per_step``: the loop ``step(simple_driver(sim))`` instead (same results, bit for bit;
+    the one that times the driver apart).
 
     ``label``: progress rows on stderr (:mod:`metro_atc.bench.progress`) under this name.
     ``kernel``: the plant step (``auto``/``numba``/``numpy``, :mod:`metro_atc.core.plant.fast`);
@@ -74,7 +85,14 @@ def run_core(scenario: str, seed: int, sim_limit_s: float | None, sensors: bool,
     c0 = time.process_time()
     if prof is not None:
         prof.enable()
-    while not sim.done and sim.t < limit:
+    kernel_steps = 0
+    while not per_step and not sim.done and sim.t < limit:
+        run = sim.run_driven(min(limit, sim.t + PROGRESS_CHUNK_S), samples=sensors)
+        n_samples += run.n_samples
+        kernel_steps += run.kernel_steps
+        if prog.enabled:
+            prog.update(sim.t, f"{int(sim.active_mask().sum())} trains in service")
+    while per_step and not sim.done and sim.t < limit:
         d0 = time.perf_counter()
         u = simple_driver(sim)
         t_drv += time.perf_counter() - d0
@@ -93,7 +111,9 @@ def run_core(scenario: str, seed: int, sim_limit_s: float | None, sensors: bool,
         "sim_time_s": sim.t, "wall_s": wall, "cpu_s": cpu, "steps": sim.step_count,
         "rtf": sim.t / wall, "rtf_cpu": sim.t / max(cpu, 1e-9),
         "us_per_step": wall / max(sim.step_count, 1) * 1e6,
-        "driver_share": t_drv / wall, "trains": sim.n, "sensor_samples": n_samples,
+        "driver_share": t_drv / wall if per_step else None,
+        "kernel_step_share": kernel_steps / max(sim.step_count, 1), "trains": sim.n,
+        "sensor_samples": n_samples,
         "kpis": sim.kpis(), "energy_balance_error": energy_balance_error(sim), "sim": sim,
         "plant_kernel": sim.kernel,
         "kernel_warmup_s": float(getattr(sim.stepper, "warm_s", 0.0)),
@@ -141,14 +161,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-graph", action="store_true", help="skip the ROS graph run")
     ap.add_argument("--kernel", choices=("auto", "numba", "numpy"), default=None,
                     help="plant step kernel (default: $METRO_ATC_PLANT_KERNEL, else auto)")
+    ap.add_argument("--per-step", action="store_true",
+                    help="one step(simple_driver(sim)) call per step (the previous loop)")
     a = ap.parse_args(argv)
     limit = 900.0 if a.quick else None
     main_run = run_core(a.scenario, a.seed, limit, sensors=False, label="core 1/3",
-                        kernel=a.kernel)
+                        kernel=a.kernel, per_step=a.per_step)
     sens_run = run_core(a.scenario, a.seed, limit, sensors=True,
-                        label="core 2/3 (sensors)", kernel=a.kernel)
+                        label="core 2/3 (sensors)", kernel=a.kernel, per_step=a.per_step)
     prof_run = run_core(a.scenario, a.seed, 600.0, sensors=False, profile=True,
-                        label="core 3/3 (cProfile)", kernel=a.kernel)
+                        label="core 3/3 (cProfile)", kernel=a.kernel,
+                        per_step=a.per_step)
     if progress_enabled() and not a.no_graph:
         print("bench perf: graph run (python -m metro_atc run)", file=sys.stderr, flush=True)
     k = main_run["kpis"]
@@ -161,7 +184,9 @@ def main(argv: list[str] | None = None) -> int:
         "core_rtf": round(main_run["rtf"], 1),
         "core_rtf_cpu": round(main_run["rtf_cpu"], 1),
         "core_us_per_step": round(main_run["us_per_step"], 1),
-        "core_driver_share": round(main_run["driver_share"], 3),
+        "core_driver_share": (None if main_run["driver_share"] is None
+                              else round(main_run["driver_share"], 3)),
+        "core_kernel_step_share": round(main_run["kernel_step_share"], 4),
         "core_rtf_with_sensors": round(sens_run["rtf"], 1),
         "core_rtf_with_sensors_cpu": round(sens_run["rtf_cpu"], 1),
         "sensor_samples_per_s": round(sens_run["sensor_samples"] / sens_run["sim_time_s"], 1),
@@ -202,7 +227,11 @@ def main(argv: list[str] | None = None) -> int:
          f"{result['core_rtf_with_sensors']:.0f}"),
         ("    (CPU time)", "", f"{result['core_rtf_with_sensors_cpu']:.0f}"),
         ("wall time per lockstep step [us]", "", f"{result['core_us_per_step']:.0f}"),
-        ("  of which reference driver", "", f"{100 * result['core_driver_share']:.0f} %"),
+        ("  of which reference driver", "",
+         "in the call" if result["core_driver_share"] is None
+         else f"{100 * result['core_driver_share']:.0f} %"),
+        ("steps in multi-step compiled calls", "",
+         f"{100 * result['core_kernel_step_share']:.1f} %"),
         ("graph real-time factor (issue 13)", f">= {TARGET_GRAPH_RTF:.0f}",
          f"{result['graph_rtf']:.1f}" if result["graph_rtf"] is not None else "skipped"),
         ("trains", ">= 25", f"{result['trains']}"),

@@ -7,7 +7,8 @@ needs them (~20 s of CPU in the simulator and each ATO process: `make demo` on a
 clone paid it).  A short ROS-free closed loop of the ``mini`` scenario with the brake
 diagnosis on calls the plant, ATO and brake kernels with the argument types a graph run
 passes (one type signature each; the test checks that a ``taipei_blue`` run then compiles
-nothing new).
+nothing new).  A short :meth:`LineSim.run_driven` of the same scenario compiles the
+multi-step kernel of ``bench perf`` and the headless runs (:mod:`.plant.kernel_run`).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from __future__ import annotations
 from metro_atc.core.brake.metro_car import precompile_metro_kernels
 from metro_atc.core.closed_loop import run_closed_loop
 from metro_atc.core.line.scenario import load_scenario
+from metro_atc.core.plant.line import LineSim
 
 WARMUP_SCENARIO = "mini"
 """The scenario of the warm-up run (two trains: every kernel, little time)."""
@@ -29,4 +31,5 @@ def precompile_graph_kernels() -> int:
     """
     steps = precompile_metro_kernels()
     run_closed_loop(load_scenario(WARMUP_SCENARIO), duration_s=WARMUP_S, brake=True)
+    LineSim(load_scenario(WARMUP_SCENARIO)).run_driven(WARMUP_S)
     return steps

@@ -227,6 +227,17 @@ class NumbaStepper:
             blk0[row] = arr
         return blk0
 
+    def packed(self, sim: PlantParts) -> tuple[Any, ...]:
+        """The kernel's packed state: (float, int, bool blocks, grids, axle coefs, blk0)."""
+        fl, atp, br, en = sim.fleet, sim.atp, sim.brakes, sim.energy
+        if br.ax_coef is not self.ax_key:
+            self._sync(fl, atp, br, en)
+        fs, ints, bools, grids = self.state.sync((fl, atp, en, br))
+        r0 = self.blk0_rows  # the previous output block while its rows are still bound
+        blk0 = (self.blk0 if r0 and r0[0] is fl.x and r0[1] is fl.v and r0[2] is fl.u_last
+                and r0[3] is fl.a_dem and r0[4] is atp.eoa else self._blk0(fl, atp))
+        return fs, ints, bools, grids, self.axc, blk0
+
     def advance(self, sim: PlantParts, u: FloatArray, auto_u: FloatArray | None,
                 axles: bool = False, ts: FloatArray | None = None
                 ) -> tuple[int, BoolArray | None, FloatArray]:
@@ -241,16 +252,10 @@ class NumbaStepper:
         :meth:`FastSensors.block` when they are read in order).
         """
         kn = self.kn
-        fl, atp, br, en = sim.fleet, sim.atp, sim.brakes, sim.energy
+        fl, atp, br = sim.fleet, sim.atp, sim.brakes
         n = fl.n
         coef = br.ax_coef
-        if coef is not self.ax_key:
-            self._sync(fl, atp, br, en)
-        fs, ints, bools, grids = self.state.sync((fl, atp, en, br))
-        axc = self.axc
-        r0 = self.blk0_rows  # the previous output block while its rows are still bound
-        blk0 = (self.blk0 if r0 and r0[0] is fl.x and r0[1] is fl.v and r0[2] is fl.u_last
-                and r0[3] is fl.a_dem and r0[4] is atp.eoa else self._blk0(fl, atp))
+        fs, ints, bools, grids, axc, blk0 = self.packed(sim)
         blk = np.empty((kn.N_OUT, n))
         ax_out = np.empty((3, n, axc.shape[2])) if axles else self.no_axles
         sen = sim.sensors

@@ -30,9 +30,10 @@ from metro_atc.core.line.vehicle import TrainParams
 
 from .atp import AtpSupervisor
 from .braking import N_AXLES_SENSED, Brakes
-from .driver import driver_command
+from .driver import driver_command, simple_driver
 from .energy import EnergyMeter
 from .fast import FastSensors, NumbaStepper, resolve_kernel
+from .fast_run import DrivenRun, run_compiled
 from .fleet import (DONE, MODE_ACCEL, MODE_ATP, MODE_BRAKE, MODE_COAST, MODE_CRUISE,
                     MODE_DWELL, MODE_OUT, RUN, WAIT, Fleet, Status)
 from .incidents import Incidents
@@ -46,7 +47,7 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
-__all__ = ["KMH", "MODE_ACCEL", "MODE_ATP", "MODE_BRAKE", "MODE_COAST", "MODE_CRUISE",
+__all__ = ["DrivenRun", "KMH", "MODE_ACCEL", "MODE_ATP", "MODE_BRAKE", "MODE_COAST", "MODE_CRUISE",
            "MODE_DWELL", "MODE_OUT", "N_AXLES_SENSED", "PRESETS", "BrakeSensorSample",
            "LineSim", "SensorBlock", "Status", "StepResult", "TrainEvent", "train_params_for"]
 
@@ -325,6 +326,9 @@ class LineSim:
         NaN entries keep the previous command; values are clipped to [-1, 1].  Trains at a
         platform, broken down or out of service ignore their command; ATP may override it.
         """
+        return self._step(u, True)
+
+    def _step(self, u: Any, discrete: bool) -> StepResult:  # False: discrete events done
         fl, atp, p = self.fleet, self.atp, self.p
         ua = np.asarray(u, dtype=float)
         if ua.shape != (self.n,):
@@ -333,7 +337,7 @@ class LineSim:
         self.stations.events_out = events
         t = self.t
         dt = self.control_period_s
-        if t >= self._t_next - 1e-9:
+        if discrete and t >= self._t_next - 1e-9:
             self._discrete(t)
         # the plant drives turning-back trains (the compiled step does it itself)
         auto_u = driver_command(self) if fl.any_auto and self.stepper is None else None
@@ -370,3 +374,27 @@ class LineSim:
             self.stations.station_logic(t_new, hit, d)
             self._masks()
         return StepResult(events, snap, n_int, sen)
+
+    def run_driven(self, until_s: float, samples: bool = True) -> DrivenRun:
+        """``while not done and t < until_s: step(simple_driver(self))``, samples read if asked.
+
+        With the compiled kernel, several steps per call (:mod:`.fast_run`).
+        """
+        out, st = DrivenRun(), self.stations
+        while not self.done and self.t < until_s:
+            if self.stepper is None:
+                out.add(self.step(simple_driver(self)), samples)
+                continue
+            u = simple_driver(self)  # before the step's discrete events, as in the loop
+            if self.t >= self._t_next - 1e-9:
+                st.events_out = out.events
+                self._discrete(self.t)
+            lim = self.t + 0.5 * self.control_period_s if self.done else until_s  # 1 step
+            k, hit, d = run_compiled(self, u, self._t_next, lim, samples, out)
+            if not k:
+                out.add(self._step(u, False), samples)
+            elif hit is not None:
+                st.events_out = out.events
+                st.station_logic(self.t, hit, d)
+                self._masks()
+        return out

@@ -146,11 +146,8 @@ class Sensors:
         cl, pos = self.clock_l, self.cpos
         last = len(cl) - 1
         if pos >= last or cl[pos] != self.next_sample_t:
-            seq = np.full(CLOCK_BLOCK, self.sensor_dt)
-            seq[0] = self.next_sample_t
-            self.clock = np.add.accumulate(seq)
-            self.clock_l = cl = self.clock.tolist()  # Python floats: cheap to compare
-            pos, last = 0, CLOCK_BLOCK - 1
+            self.clock_ready()
+            cl, pos, last = self.clock_l, 0, CLOCK_BLOCK - 1
         end = pos
         while cl[end] <= lim:
             end += 1
@@ -159,6 +156,19 @@ class Sensors:
                 return np.concatenate((self.clock[pos:last], self.sample_times(t1)))
         self.cpos, self.next_sample_t = end, cl[end]
         return self.clock[pos:end]
+
+    def clock_ready(self) -> None:
+        """Lay the instants out again from ``next_sample_t`` when :meth:`sample_times` would.
+
+        ``clock[cpos]`` is then ``next_sample_t`` (nothing is advanced).
+        """
+        cl, pos = self.clock_l, self.cpos
+        if pos >= len(cl) - 1 or cl[pos] != self.next_sample_t:
+            seq = np.full(CLOCK_BLOCK, self.sensor_dt)
+            seq[0] = self.next_sample_t
+            self.clock = np.add.accumulate(seq)
+            self.clock_l = self.clock.tolist()  # Python floats: cheap to compare
+            self.cpos = 0
 
     def reserve(self, k: int) -> None:
         """Make the next ``k`` normals available in ``zbuf`` from ``zpos`` (draws ahead)."""

@@ -1,0 +1,138 @@
+"""Compiled multi-step run (numba): :func:`.kernel_step.step_all` driven by the reference driver.
+
+:func:`run_rows` repeats what a Python loop of :func:`.driver.simple_driver` +
+:meth:`.line.LineSim.step` does between two points that need Python (see
+:mod:`.fast_run`), one compiled call for many steps: each step's command is the reference
+driver's, computed by the previous step (row ``O_DRV``); the sample instants are read from
+the sensors' laid-out clock and the noise from their normals buffer (both advanced as the
+per-step path does).  It stops *before* a step (other than the first, whose discrete
+events the caller has done) that starts at or after the next discrete time, the duration
+or the caller's limit, whose rail force needs the numpy slide model (the step's in-place
+ATP updates are rolled back), or that would run past the laid-out clock, the drawn normals
+or the output buffers; and *after* a step with an arrival or overrun candidate (the
+station logic is Python's).
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from .kernel import C_DT, O_AD, O_DRV, O_EOA, O_U, O_V1, O_X1, _mn
+from .kernel_step import (B_EB, B_INVIOL, B_MASKS, B_SB, C_NOISE, F_AUTO, F_BK, F_CODE,
+                          F_EELEC, F_EFRIC, F_ECURVE, F_EGRADE, F_ERES, F_ESTOP, F_ETRAC,
+                          F_MP, F_STOP_X, F_TRAC, I_INTERV, I_NSERV, I_STATUS, I_VIOL,
+                          step_all)
+
+# why run_rows stopped
+(STOP_TIME, STOP_SLOW, STOP_HIT, STOP_CLOCK, STOP_NORMALS, STOP_BUFFER) = range(6)
+# float results of run_rows
+R_T, R_GMIN, N_RF = range(3)
+# integer results of run_rows
+(R_STEPS, R_WHY, R_CPOS, R_ZPOS, R_NINT, R_NCIVIL, R_ANY_ATP, R_ANY_VIOL, R_SAMPLES,
+ N_RI) = range(10)
+
+
+@njit(cache=True)
+def run_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blks, u0, axs,
+             r_w, sidx, slip0, clock, zbuf, o4, o2, any_slide: bool, any_wsp: bool,
+             auto: bool, sensed: bool, samples: bool, t0: float, t_next: float,
+             t_dur: float, t_limit: float, cpos: int, zpos: int, tk, rf,
+             ri):  # type: ignore[no-untyped-def]
+    """Up to ``blks.shape[0]`` steps from time ``t0`` (see module doc); results in ``rf``/``ri``.
+
+    ``blks[k]``: output block of step k (``blk0``: the one before); ``u0``: the first
+    step's command; ``axs``: two axle buffers [2, 3, n, 4] used in turn (no rows: axles and
+    samples not computed); ``slip0``: the axle slips of the step before ``t0``; ``clock``:
+    the sample instants laid out, ``clock[cpos]`` the next one (``sensed``: an instrumented
+    train runs); ``zbuf[zpos:]``: the normals drawn ahead; ``o4`` / ``o2``: the samples of
+    all steps one after the other along their sample axis (``samples``: compute them).
+    ``t_next`` / ``t_dur`` / ``t_limit``: next discrete time (the first step's discrete
+    events are done), duration, caller's limit [s]; ``tk[k]``: the time at the end of step k.
+    """
+    dt = c[C_DT]
+    m, na = sidx.shape[0], axc.shape[2]
+    last = clock.shape[0] - 1
+    cap = o4.shape[1]
+    noise = c[C_NOISE:C_NOISE + 4]
+    eb, sb, inv = bools[B_EB], bools[B_SB], bools[B_INVIOL]
+    interv, viol, code = ints[I_INTERV], ints[I_VIOL], fs[F_CODE]
+    save_b = eb.copy()
+    save_s, save_v, save_i = sb.copy(), inv.copy(), interv.copy()
+    save_w, save_c = viol.copy(), code.copy()
+    t = t0
+    prev = blk0
+    u = u0
+    sl = slip0
+    s_off = 0
+    k = 0
+    why = STOP_BUFFER
+    n_int, n_civil, gmin = 0, 0, math.inf
+    any_atp, any_viol = False, False
+    while k < blks.shape[0]:
+        if (k and t >= t_next - 1e-9) or t >= t_dur - 1e-9 or not t < t_limit:
+            why = STOP_TIME
+            break
+        t1 = t + dt
+        end = cpos
+        if sensed and clock[cpos] <= t1 + 1e-9:
+            while clock[end] <= t1 + 1e-9 and end < last:
+                end += 1
+            if end == last:
+                why = STOP_CLOCK
+                break
+        ns = end - cpos
+        n_s = ns if samples else 0
+        if n_s and zpos + (2 * na + 2) * n_s * m > zbuf.shape[0]:
+            why = STOP_NORMALS
+            break
+        if s_off + n_s > cap:
+            why = STOP_BUFFER
+            break
+        save_b[:] = eb
+        save_s[:] = sb
+        save_v[:] = inv
+        save_i[:] = interv
+        save_w[:] = viol
+        save_c[:] = code
+        blk = blks[k]
+        ax_out = axs[k % 2]
+        r = step_all(
+            c, prev[O_X1], prev[O_V1], ints[I_STATUS], bools[B_MASKS:], u, prev[O_U],
+            fs[F_AUTO], prev[O_AD], fs[F_MP:F_MP + 5], fs[F_TRAC], eb, sb, interv, viol, inv,
+            grids, tabs, code, fs[F_BK:F_BK + 2], any_slide, any_wsp, blk, geo,
+            fs[F_STOP_X], fs[F_ETRAC], fs[F_EELEC], fs[F_EFRIC], fs[F_ERES], fs[F_ECURVE],
+            fs[F_EGRADE], fs[F_ESTOP], ints[I_NSERV], axc, stab, ax_out, dcs[0], True, sidx,
+            r_w, sl, clock[cpos:end], t, t1, zbuf, zpos, noise,
+            o4[:, s_off:s_off + n_s], o2[:, s_off:s_off + n_s], auto, prev[O_EOA], dcs[1])
+        if r[5] < 0:  # the numpy slide model: undo the step's ATP updates, Python steps
+            eb[:] = save_b
+            sb[:] = save_s
+            inv[:] = save_v
+            interv[:] = save_i
+            viol[:] = save_w
+            code[:] = save_c
+            why = STOP_SLOW
+            break
+        n_int += r[0]
+        any_atp, any_viol = r[1], r[2]
+        gmin = _mn(gmin, r[3])
+        n_civil += r[4]
+        if ax_out.shape[1]:
+            sl = ax_out[2]
+        zpos += (2 * na + 2) * n_s * m
+        s_off += n_s
+        cpos = end
+        t = t1
+        prev = blk
+        u = blk[O_DRV]
+        tk[k] = t
+        k += 1
+        if r[5] > 0:
+            why = STOP_HIT
+            break
+    rf[R_T], rf[R_GMIN] = t, gmin
+    ri[R_STEPS], ri[R_WHY], ri[R_CPOS], ri[R_ZPOS] = k, why, cpos, zpos
+    ri[R_NINT], ri[R_NCIVIL], ri[R_ANY_ATP], ri[R_ANY_VIOL] = n_int, n_civil, any_atp, any_viol
+    ri[R_SAMPLES] = s_off
