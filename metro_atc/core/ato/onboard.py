@@ -129,6 +129,7 @@ class OnboardAto:
                              np.asarray(track.grades, dtype=float).tolist())
         self._b_run: Any = None
         self._b_tab = np.zeros(1)
+        self._b_list: list[float] = [0.0]
         self.planned_from = -1
         self.cur_station = -1
         self.last_mode = -1
@@ -296,7 +297,8 @@ class OnboardAto:
         """What :meth:`speed_cap` takes from a state whatever the position (issue 13).
 
         (x [m], v [m/s], supervision cap [m/s] (inf when unknown), end of authority [m],
-        the TSRs known and not yet ended at the state's time with their target speeds).
+        the TSRs known and not yet ended at the state's time with their target speeds,
+        the ATP's worst-case response acceleration at v [m/s^2]).
         """
         x, v, t = float(s["x_m"]), float(s["v_mps"]), float(s["t_s"])
         cap = math.inf
@@ -306,11 +308,13 @@ class OnboardAto:
         margin = self.core.limits.speed_margin_mps
         zones = tuple((z, max(z.limit_mps - margin, 0.5 * z.limit_mps)) for z in self.tsrs
                       if z.known_s <= t < z.to_s)
-        return x, v, cap, float(s["movement_authority_m"]), zones
+        # the ATP's worst-case response acceleration at the state's speed (AtpModel.sbi_speed)
+        a_w = max_traction_accel_at(self.atp.train, v) + self.atp.g_down
+        return x, v, cap, float(s["movement_authority_m"]), zones, a_w
 
     def _cap_at(self, ctx: tuple[Any, ...], x_at: Optional[float], authority: bool) -> float:
         """:meth:`speed_cap` from a :meth:`_cap_context` (the same operations, in order)."""
-        x, v, cap, ma, zones = ctx
+        x, v, cap, ma, zones, a_w = ctx
         if x_at is not None:
             x = float(x_at)
         atp = self.atp
@@ -320,7 +324,7 @@ class OnboardAto:
         if authority and math.isfinite(ma):
             d = ma - x - AUTHORITY_MARGIN_M
             cap = min(cap, math.sqrt(2.0 * b * max(d, 0.0)),
-                      atp.sbi_speed(d, v) - SPEED_MARGIN_MPS)
+                      atp.sbi_speed(d, v, a_w) - SPEED_MARGIN_MPS)
         if zones:
             lead = self.core.limits.restriction_lead_m
             rear = x - self.train.length_m
@@ -347,9 +351,11 @@ class OnboardAto:
             k = 45
             pad = np.concatenate((b, np.full(k, b[-1])))
             self._b_tab = np.lib.stride_tricks.sliding_window_view(pad, k + 1).min(axis=1)
+            self._b_list = self._b_tab.tolist()  # the same floats, read without numpy
             self._b_run = run
         i = int((run.run_coordinate_at(x) + 50.0) / 10.0)
-        return float(self._b_tab[min(max(i, 0), self._b_tab.size - 1)])
+        tab = self._b_list
+        return tab[min(max(i, 0), len(tab) - 1)]
 
     def guard(self, s: dict[str, Any], ctx: Optional[tuple[Any, ...]] = None) -> float:
         """Upper bound on the effort from authority, TSRs, the stop and supervision.
@@ -447,13 +453,15 @@ class AtpModel:
             return min(lst[k0:k1]) - self.sbi_offset_mps
         return float(tab[k0:k1].min()) - self.sbi_offset_mps
 
-    def sbi_speed(self, dist_m: float, v_mps: float) -> float:
+    def sbi_speed(self, dist_m: float, v_mps: float, a_w: Optional[float] = None) -> float:
         """ATP service-brake intervention speed [m/s] for a stop ``dist_m`` ahead at v.
 
         ``ebi_speed(dist - t_sbi v)`` with the worst-case response acceleration
-        ``a_w = traction(v) + g_down`` (:func:`metro_atc.core.line.track.ebi_speed`).
+        ``a_w = traction(v) + g_down`` (:func:`metro_atc.core.line.track.ebi_speed`;
+        ``a_w`` [m/s^2]: that value when the caller has it for this v).
         """
-        a_w = max_traction_accel_at(self.train, v_mps) + self.g_down
+        if a_w is None:
+            a_w = max_traction_accel_at(self.train, v_mps) + self.g_down
         return ebi_speed_at(dist_m - self.t_sbi * v_mps, 0.0, a_w, self.t_r, self.b_g) \
             - self.sbi_offset_mps
 
