@@ -404,9 +404,10 @@ class AtoCore:
         smoothly, jerk limited; ``cap_accel_mps2``: the cap's slope d(cap^2/2)/ds there
         (the feedforward acceleration while the cap sets the reference) [m/s^2].
         """
-        vals = (t_s, x_m, v_mps) + (() if now_s is None else (now_s,))
+        isfinite = math.isfinite
         try:
-            if not all(math.isfinite(float(a)) for a in vals):
+            if not (isfinite(float(t_s)) and isfinite(float(x_m)) and isfinite(float(v_mps))
+                    and (now_s is None or isfinite(float(now_s)))):
                 return self._fail("non-finite state input")
         except (TypeError, ValueError):
             return self._fail("non-numeric state input")

@@ -318,13 +318,21 @@ class OnboardAto:
         if x_at is not None:
             x = float(x_at)
         atp = self.atp
-        # the static SBI curve a little ahead (the tracker needs time to follow it down)
-        cap = min(cap, atp.static_sbi(x, x + v * CAP_LOOKAHEAD_S + 1.0) - SPEED_MARGIN_MPS)
+        # the static SBI curve a little ahead (the tracker needs time to follow it down);
+        # min / max of two floats written out as the builtins decide them (`b if b < a
+        # else a`, NaN included: the same floats without the calls, issue 13)
+        c = atp.static_sbi(x, x + v * CAP_LOOKAHEAD_S + 1.0) - SPEED_MARGIN_MPS
+        if c < cap:
+            cap = c
         b = self._plan_decel(x)
         if authority and math.isfinite(ma):
             d = ma - x - AUTHORITY_MARGIN_M
-            cap = min(cap, math.sqrt(2.0 * b * max(d, 0.0)),
-                      atp.sbi_speed(d, v, a_w) - SPEED_MARGIN_MPS)
+            c = math.sqrt(2.0 * b * (0.0 if 0.0 > d else d))
+            if c < cap:
+                cap = c
+            c = atp.sbi_speed(d, v, a_w) - SPEED_MARGIN_MPS
+            if c < cap:
+                cap = c
         if zones:
             lead = self.core.limits.restriction_lead_m
             rear = x - self.train.length_m
@@ -337,7 +345,7 @@ class OnboardAto:
                 cap = min(cap, math.sqrt(lim * lim + 2.0 * b * max(d, 0.0)),
                           atp.sbi_speed_to(z.start_m - x - v * CAP_LOOKAHEAD_S, z.limit_mps)
                           - SPEED_MARGIN_MPS)
-        return max(cap, 0.0)
+        return 0.0 if 0.0 > cap else cap
 
     def _plan_decel(self, x: float) -> float:
         """Planned braking deceleration at chainage x (the run's, else the capability)."""
@@ -355,7 +363,8 @@ class OnboardAto:
             self._b_run = run
         i = int((run.run_coordinate_at(x) + 50.0) / 10.0)
         tab = self._b_list
-        return tab[min(max(i, 0), len(tab) - 1)]
+        n = len(tab)
+        return tab[0 if i < 0 else (i if i < n else n - 1)]
 
     def guard(self, s: dict[str, Any], ctx: Optional[tuple[Any, ...]] = None) -> float:
         """Upper bound on the effort from authority, TSRs, the stop and supervision.
@@ -445,12 +454,16 @@ class AtpModel:
             return math.inf
         k0 = int((x_from_m - self.grid_x0_m) / self.grid_dx_m)
         k1 = int((x_to_m - self.grid_x0_m) / self.grid_dx_m) + 1
-        k0 = min(max(k0, 0), tab.size - 1)
-        k1 = min(max(k1, k0 + 1), tab.size)
         lst = self._sbi_list
         if lst is not None:
-            # the same minimum over the same floats without a numpy call (issue 13)
+            # the same minimum over the same floats without a numpy call, the index clamps
+            # of the numpy path written out (integers; issue 13)
+            n = len(lst)
+            k0 = 0 if k0 < 0 else (k0 if k0 < n else n - 1)
+            k1 = k0 + 1 if k1 < k0 + 1 else (k1 if k1 < n else n)
             return min(lst[k0:k1]) - self.sbi_offset_mps
+        k0 = min(max(k0, 0), tab.size - 1)
+        k1 = min(max(k1, k0 + 1), tab.size)
         return float(tab[k0:k1].min()) - self.sbi_offset_mps
 
     def sbi_speed(self, dist_m: float, v_mps: float, a_w: Optional[float] = None) -> float:
