@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from metro_atc.core.ato.envelope import RunModel
 from metro_atc.core.line.vehicle import max_traction_force, resistance_force
-from metro_atc.core.scalar_math import interp1, maximum1, minimum1
+from metro_atc.core.scalar_math import interp1, maximum1
 
 FloatArray = NDArray[np.float64]
 
