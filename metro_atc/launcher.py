@@ -187,9 +187,7 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
              ProcessSpec("brake_diagnostic", "brake_diagnostic",
                          str(cfg / "brake_diagnostic.yaml"),
                          dict(base, use_sim_time=False, **resume))]
-    n = max(1, int(ato_per_process))
-    for g in range(0, len(train_ids), n):
-        group = list(train_ids[g:g + n])
+    for group in ato_groups(train_ids, ato_per_process):
         # the ATOs take their time from the lockstep states, not from /clock: without
         # use_sim_time their 2 x 15 nodes add no /clock readers (each reader costs the
         # simulator a delivery per step, issue 13)
@@ -202,6 +200,21 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
         procs.append(ProcessSpec("bag_recorder", "bag_recorder", None,
                                  dict(base, output=str(record_dir))))
     return procs
+
+
+def ato_groups(train_ids: Sequence[str], per_process: int) -> list[list[str]]:
+    """The trains of each ATO process: at most ``per_process`` each, dealt round-robin.
+
+    ``ceil(n / per_process)`` processes; process k hosts trains k, k + P, k + 2P, ... of
+    the timetable (P processes).  The trains of a line enter service in timetable order, so
+    contiguous groups would load the first process alone for the first part of a run (on the
+    lockstep's critical path) while the last idles; dealt round-robin, every process hosts
+    early and late trains.  A process is labelled by its first train (``ato_<train>``).
+    """
+    ids = list(train_ids)
+    n = max(1, int(per_process))
+    procs = max(1, -(-len(ids) // n)) if ids else 0
+    return [ids[k::procs] for k in range(procs)]
 
 
 def record_dir(a: argparse.Namespace, out_dir: Path) -> str | None:

@@ -87,7 +87,7 @@ class AtoController(Node):
                  shared: dict[str, Any] | None = None, **kwargs: Any) -> None:
         """Declare parameters, load the line, create the per-train topics."""
         # the executor (parameter and type-description services, timers) is spun every
-        # 50 ms by spin_fast, so the services cost little: all are on (remote tools can
+        # 0.25 s by spin_fast, so the services cost little: all are on (remote tools can
         # fetch the types of /<train>/command and /<train>/speed_profile)
         super().__init__("ato_controller", namespace=f"/{train_id}", **kwargs)
         self.train_id = train_id
@@ -506,6 +506,13 @@ class _Lazy:
         return getattr(self._view, name)
 
 
+EXECUTOR_PERIOD_S = 0.25
+"""Wall period of the executor spin (parameter and type-description services, the 1 Hz
+/diagnostics timers) [s]; the fleet states and departure commands are polled directly.
+Each spin rebuilds a wait set of ~200 entities (15 nodes): every 50 ms of wall time that
+was most of an ATO process's CPU on a loaded machine (issue 13; the simulator spins at
+the same period)."""
+
 PLANNED_POINTS = 200
 """Samples of the planned speed curve carried by a SpeedProfile message."""
 
@@ -554,7 +561,7 @@ def main(args: Sequence[str] | None = None) -> int:
         subs = [s for n in atos for s in n.fast_subs]
         if atos:
             subs.insert(0, FleetLink(atos).sub)
-        spin_fast(executor, nodes, subs)
+        spin_fast(executor, nodes, subs, slow_period_s=EXECUTOR_PERIOD_S)
 
     return run_nodes(build_nodes, loop, args)
 

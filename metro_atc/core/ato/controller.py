@@ -123,6 +123,9 @@ class AtoCore:
         self._arrived = False
         self._still_s = 0.0
         self.last_reason = "no plan"
+        self._fg_run: Optional[RunModel] = None
+        self._fg_s = math.nan
+        self._fg_v = 0.0
         a_ref = max(train.a1_mps2, train.max_service_brake_mps2)
         self._du_max_per_s = self.limits.jerk_max_mps3 / max(a_ref, 1e-6)
         # jerk [m/s^3] at which the surplus traction can be taken off: the ATO's rate limit
@@ -199,9 +202,9 @@ class AtoCore:
         a_ref = float(a_cap) if a_cap is not None and math.isfinite(a_cap) else 0.0
         if a_cap is None and r > 0.0:
             h = max(v * self.period, 0.5)
-            r1 = float(self._ref.speed(s + h))
+            r1 = self._ref.speed_at(s + h)
             a_ref = (r1 * r1 - r * r) / (2.0 * h)
-        f_g = run.mean_grade_force_at(s - tr.length_m, s)
+        f_g = self._grade_force(run, s)
         f = tr.effective_mass_kg * a_ref + resistance_force_at(tr, v) + f_g
         if r < STOP_FF_MPS:
             # final stop: no traction feedforward (the resistance at standstill is static
@@ -224,8 +227,7 @@ class AtoCore:
         if ds <= 0.0:
             return False
         a_ref = (r * r - r_a * r_a) / (2.0 * ds)
-        a_coast = (resistance_force_at(tr, v) + run.mean_grade_force_at(s - tr.length_m, s)) \
-            / tr.effective_mass_kg
+        a_coast = (resistance_force_at(tr, v) + self._grade_force(run, s)) / tr.effective_mass_kg
         return a_ref > a_coast
 
     def brake_onset_bound(self, s: float, s_p: float, v: float, r: float, dt: float) -> float:
@@ -251,8 +253,8 @@ class AtoCore:
         r_a = r
         for _ in range(2):
             s_a = s_p + 0.5 * v * tau
-            r_a = float(self._ref.speed(s_a))
-            r_h = float(self._ref.speed(s_a + h))
+            r_a = self._ref.speed_at(s_a)
+            r_h = self._ref.speed_at(s_a + h)
             if not self._braking_needed(s, v, r_a, r_h, h):
                 return 1.0
             u_c = self._feedforward(s, v, r_a, (r_h * r_h - r_a * r_a) / (2.0 * h))
@@ -280,7 +282,7 @@ class AtoCore:
         j, t = self.approach_jerk, self.period
         gap = max(r_end - v, 0.0)
         a_ex = j * (-t + math.sqrt(t * t + 2.0 * gap / j))
-        f = resistance_force_at(tr, v) + run.mean_grade_force_at(s - tr.length_m, s) \
+        f = resistance_force_at(tr, v) + self._grade_force(run, s) \
             + tr.effective_mass_kg * a_ex
         if f >= 0.0:
             return min(f / max(max_traction_force_at(tr, v), 1.0), 1.0)
@@ -318,7 +320,7 @@ class AtoCore:
         assert run is not None
         tr = self.train
         d = run.length_m - s
-        f_hold = resistance_force_at(tr, v) + run.mean_grade_force_at(s - tr.length_m, s)
+        f_hold = resistance_force_at(tr, v) + self._grade_force(run, s)
         f_max = max(max_traction_force_at(tr, v), 1.0)
         a_hi = max((f_max - f_hold) / tr.effective_mass_kg, 0.0)
         a_last = max((self._last_u * f_max - f_hold) / tr.effective_mass_kg, 0.0) \
@@ -336,11 +338,24 @@ class AtoCore:
                 hi = mid
         return min(max((f_hold + tr.effective_mass_kg * lo) / f_max, 0.0), 1.0)
 
+    def _grade_force(self, run: RunModel, s: float) -> float:
+        """Mean grade force [N] over the train with its front at run coordinate s [m].
+
+        ``run.mean_grade_force_at(s - length, s)``, kept for the last (run, s): the
+        feedforward and the bounds of one control step ask for it at the same s several
+        times (issue 13; the same float, computed once).
+        """
+        if s == self._fg_s and run is self._fg_run:
+            return self._fg_v
+        f = run.mean_grade_force_at(s - self.train.length_m, s)
+        self._fg_run, self._fg_s, self._fg_v = run, s, f
+        return f
+
     def reference_speed(self, x_m: float) -> float:
         """The planned reference r [m/s] at chainage x [m] (0 with no plan)."""
         if self.run is None or self._ref is None:
             return 0.0
-        return float(self._ref.speed(self.run.run_coordinate_at(float(x_m))))
+        return self._ref.speed_at(self.run.run_coordinate_at(float(x_m)))
 
     def net_accel(self, x_m: float, v_mps: float) -> float:
         """Net acceleration [m/s^2] of full traction at chainage x [m] and speed v [m/s].
@@ -354,7 +369,7 @@ class AtoCore:
         tr = self.train
         s = run.run_coordinate_at(float(x_m))
         f = max_traction_force_at(tr, v_mps) - resistance_force_at(tr, v_mps) \
-            - run.mean_grade_force_at(s - tr.length_m, s)
+            - self._grade_force(run, s)
         return min(max(f / tr.effective_mass_kg, 0.0), self.limits.accel_max_mps2)
 
     @property
@@ -389,9 +404,10 @@ class AtoCore:
         smoothly, jerk limited; ``cap_accel_mps2``: the cap's slope d(cap^2/2)/ds there
         (the feedforward acceleration while the cap sets the reference) [m/s^2].
         """
-        vals = (t_s, x_m, v_mps) + (() if now_s is None else (now_s,))
+        isfinite = math.isfinite
         try:
-            if not all(math.isfinite(float(a)) for a in vals):
+            if not (isfinite(float(t_s)) and isfinite(float(x_m)) and isfinite(float(v_mps))
+                    and (now_s is None or isfinite(float(now_s)))):
                 return self._fail("non-finite state input")
         except (TypeError, ValueError):
             return self._fail("non-numeric state input")
@@ -419,11 +435,13 @@ class AtoCore:
         # preview: the command acts over the coming control period, so track the reference
         # where the train will be (PREVIEW_PERIODS control periods ahead at its speed)
         s_p = s + PREVIEW_PERIODS * v * self.period
-        r = float(self._ref.speed(s_p))
+        r = self._ref.speed_at(s_p)
+        r_swing = math.nan  # the reference where a swing to braking would end (once a step)
         if r - v > JOIN_BAND_MPS and v > JOIN_MIN_SPEED_MPS and self._last_u > 0.0:
             # below the reference while in traction: when accelerating toward a braking
             # curve, aim at the curve where the jerk-limited swing to braking would end
-            r = min(r, float(self._ref.speed(s_p + v * self.swing_s)))
+            r_swing = self._ref.speed_at(s_p + v * self.swing_s)
+            r = min(r, r_swing)
         r_plan = r
         capped = r_cap_mps < r
         if capped:
@@ -436,8 +454,9 @@ class AtoCore:
         if u > 0.0 and v > APPROACH_MIN_SPEED_MPS:
             # approaching the reference from below: take the traction off in time (the
             # reference where a swing would end when the plan still rises)
-            r_end = r if capped else min(max(r, float(self._ref.speed(s_p + v * self.swing_s))),
-                                         r_cap_mps)
+            if not capped and r_swing != r_swing:
+                r_swing = self._ref.speed_at(s_p + v * self.swing_s)
+            r_end = r if capped else min(max(r, r_swing), r_cap_mps)
             u_b = self.approach_bound(s, v, r_end)
             if u_b < u:
                 u, bounded = u_b, True

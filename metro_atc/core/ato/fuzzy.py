@@ -156,15 +156,21 @@ class FuzzyController:
 
     def reset(self, u0: ArrayLike = 0.0) -> None:
         """Forget the previous error and set the effort state."""
-        self._e_prev: Optional[FloatArray] = None
-        self._u = np.asarray(u0, dtype=float)
+        # plain floats while the controller runs one train (the scalar step reads them
+        # without numpy; the vector step takes either)
+        self._e_prev: "FloatArray | float | None" = None
+        self._u: "FloatArray | float" = u0 if type(u0) is float \
+            else np.asarray(u0, dtype=float)
 
     def set_output(self, u: ArrayLike, u_ff: ArrayLike = 0.0) -> None:
         """Align the effort state with the effort u actually applied (after rate limits).
 
         ``u_ff``: the feedforward part of that effort (the state keeps the feedback part).
         """
-        self._u = np.asarray(u, dtype=float) - np.asarray(u_ff, dtype=float)
+        if type(u) is float and type(u_ff) is float:
+            self._u = u - u_ff  # the same double as the numpy difference
+        else:
+            self._u = np.asarray(u, dtype=float) - np.asarray(u_ff, dtype=float)
 
     def step(self, r_mps: ArrayLike, v_mps: ArrayLike, dt_s: float = 0.1,
              u_ff: ArrayLike = 0.0) -> FloatArray:
@@ -195,11 +201,12 @@ class FuzzyController:
         """:meth:`step` (incremental form) for one train given plain floats; the same result."""
         u_prev = self._u
         e_prev = self._e_prev
-        if np.ndim(u_prev) != 0 or (e_prev is not None and np.ndim(e_prev) != 0):
+        if (type(u_prev) is not float and np.ndim(u_prev) != 0) \
+                or (e_prev is not None and type(e_prev) is not float and np.ndim(e_prev) != 0):
             raise ValueError("fuzzy tracker: scalar step on a vector state")
         e = r - v
         d = 0.0 if e_prev is None else e - float(e_prev)
-        self._e_prev = np.asarray(e)
+        self._e_prev = e
         e_n, d_n = e / self.p.e_scale_mps, d / self.p.d_scale_mps
         if not (math.isfinite(e_n) and math.isfinite(d_n) and math.isfinite(ff)):
             y = float(flc_output(e_n, d_n))
@@ -209,6 +216,6 @@ class FuzzyController:
         lo, hi = -1.0 - ff, 1.0 - ff
         u = u if not u < lo else lo
         u = u if not u > hi else hi
-        self._u = np.asarray(u)
+        self._u = u
         out = u + ff
         return -1.0 if out < -1.0 else (1.0 if out > 1.0 else out)

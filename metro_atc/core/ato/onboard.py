@@ -129,6 +129,7 @@ class OnboardAto:
                              np.asarray(track.grades, dtype=float).tolist())
         self._b_run: Any = None
         self._b_tab = np.zeros(1)
+        self._b_list: list[float] = [0.0]
         self.planned_from = -1
         self.cur_station = -1
         self.last_mode = -1
@@ -296,7 +297,8 @@ class OnboardAto:
         """What :meth:`speed_cap` takes from a state whatever the position (issue 13).
 
         (x [m], v [m/s], supervision cap [m/s] (inf when unknown), end of authority [m],
-        the TSRs known and not yet ended at the state's time with their target speeds).
+        the TSRs known and not yet ended at the state's time with their target speeds,
+        the ATP's worst-case response acceleration at v [m/s^2]).
         """
         x, v, t = float(s["x_m"]), float(s["v_mps"]), float(s["t_s"])
         cap = math.inf
@@ -306,21 +308,31 @@ class OnboardAto:
         margin = self.core.limits.speed_margin_mps
         zones = tuple((z, max(z.limit_mps - margin, 0.5 * z.limit_mps)) for z in self.tsrs
                       if z.known_s <= t < z.to_s)
-        return x, v, cap, float(s["movement_authority_m"]), zones
+        # the ATP's worst-case response acceleration at the state's speed (AtpModel.sbi_speed)
+        a_w = max_traction_accel_at(self.atp.train, v) + self.atp.g_down
+        return x, v, cap, float(s["movement_authority_m"]), zones, a_w
 
     def _cap_at(self, ctx: tuple[Any, ...], x_at: Optional[float], authority: bool) -> float:
         """:meth:`speed_cap` from a :meth:`_cap_context` (the same operations, in order)."""
-        x, v, cap, ma, zones = ctx
+        x, v, cap, ma, zones, a_w = ctx
         if x_at is not None:
             x = float(x_at)
         atp = self.atp
-        # the static SBI curve a little ahead (the tracker needs time to follow it down)
-        cap = min(cap, atp.static_sbi(x, x + v * CAP_LOOKAHEAD_S + 1.0) - SPEED_MARGIN_MPS)
+        # the static SBI curve a little ahead (the tracker needs time to follow it down);
+        # min / max of two floats written out as the builtins decide them (`b if b < a
+        # else a`, NaN included: the same floats without the calls, issue 13)
+        c = atp.static_sbi(x, x + v * CAP_LOOKAHEAD_S + 1.0) - SPEED_MARGIN_MPS
+        if c < cap:
+            cap = c
         b = self._plan_decel(x)
         if authority and math.isfinite(ma):
             d = ma - x - AUTHORITY_MARGIN_M
-            cap = min(cap, math.sqrt(2.0 * b * max(d, 0.0)),
-                      atp.sbi_speed(d, v) - SPEED_MARGIN_MPS)
+            c = math.sqrt(2.0 * b * (0.0 if 0.0 > d else d))
+            if c < cap:
+                cap = c
+            c = atp.sbi_speed(d, v, a_w) - SPEED_MARGIN_MPS
+            if c < cap:
+                cap = c
         if zones:
             lead = self.core.limits.restriction_lead_m
             rear = x - self.train.length_m
@@ -333,7 +345,7 @@ class OnboardAto:
                 cap = min(cap, math.sqrt(lim * lim + 2.0 * b * max(d, 0.0)),
                           atp.sbi_speed_to(z.start_m - x - v * CAP_LOOKAHEAD_S, z.limit_mps)
                           - SPEED_MARGIN_MPS)
-        return max(cap, 0.0)
+        return 0.0 if 0.0 > cap else cap
 
     def _plan_decel(self, x: float) -> float:
         """Planned braking deceleration at chainage x (the run's, else the capability)."""
@@ -347,9 +359,12 @@ class OnboardAto:
             k = 45
             pad = np.concatenate((b, np.full(k, b[-1])))
             self._b_tab = np.lib.stride_tricks.sliding_window_view(pad, k + 1).min(axis=1)
+            self._b_list = self._b_tab.tolist()  # the same floats, read without numpy
             self._b_run = run
         i = int((run.run_coordinate_at(x) + 50.0) / 10.0)
-        return float(self._b_tab[min(max(i, 0), self._b_tab.size - 1)])
+        tab = self._b_list
+        n = len(tab)
+        return tab[0 if i < 0 else (i if i < n else n - 1)]
 
     def guard(self, s: dict[str, Any], ctx: Optional[tuple[Any, ...]] = None) -> float:
         """Upper bound on the effort from authority, TSRs, the stop and supervision.
@@ -439,21 +454,27 @@ class AtpModel:
             return math.inf
         k0 = int((x_from_m - self.grid_x0_m) / self.grid_dx_m)
         k1 = int((x_to_m - self.grid_x0_m) / self.grid_dx_m) + 1
-        k0 = min(max(k0, 0), tab.size - 1)
-        k1 = min(max(k1, k0 + 1), tab.size)
         lst = self._sbi_list
         if lst is not None:
-            # the same minimum over the same floats without a numpy call (issue 13)
+            # the same minimum over the same floats without a numpy call, the index clamps
+            # of the numpy path written out (integers; issue 13)
+            n = len(lst)
+            k0 = 0 if k0 < 0 else (k0 if k0 < n else n - 1)
+            k1 = k0 + 1 if k1 < k0 + 1 else (k1 if k1 < n else n)
             return min(lst[k0:k1]) - self.sbi_offset_mps
+        k0 = min(max(k0, 0), tab.size - 1)
+        k1 = min(max(k1, k0 + 1), tab.size)
         return float(tab[k0:k1].min()) - self.sbi_offset_mps
 
-    def sbi_speed(self, dist_m: float, v_mps: float) -> float:
+    def sbi_speed(self, dist_m: float, v_mps: float, a_w: Optional[float] = None) -> float:
         """ATP service-brake intervention speed [m/s] for a stop ``dist_m`` ahead at v.
 
         ``ebi_speed(dist - t_sbi v)`` with the worst-case response acceleration
-        ``a_w = traction(v) + g_down`` (:func:`metro_atc.core.line.track.ebi_speed`).
+        ``a_w = traction(v) + g_down`` (:func:`metro_atc.core.line.track.ebi_speed`;
+        ``a_w`` [m/s^2]: that value when the caller has it for this v).
         """
-        a_w = max_traction_accel_at(self.train, v_mps) + self.g_down
+        if a_w is None:
+            a_w = max_traction_accel_at(self.train, v_mps) + self.g_down
         return ebi_speed_at(dist_m - self.t_sbi * v_mps, 0.0, a_w, self.t_r, self.b_g) \
             - self.sbi_offset_mps
 

@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from metro_atc.core.ato.envelope import RunModel
 from metro_atc.core.line.vehicle import max_traction_force, resistance_force
-from metro_atc.core.scalar_math import interp1, maximum1, minimum1
+from metro_atc.core.scalar_math import interp1, maximum1
 
 FloatArray = NDArray[np.float64]
 
@@ -181,6 +181,10 @@ class ProfileReference:
         self.departure_speed = float(departure_speed)
         self._s_list: list[float] = self.s_grid.tolist()
         self._e_list: list[float] = (self.v * self.v).tolist()
+        # the stop tail's region bounds as stop_tail_at computes them (the same floats, once)
+        d, cv, _, bb = self.tail
+        s_b = self.length_m - cv * cv / (2.0 * bb)
+        self._tail_at = (s_b - creep_len, s_b, cv * cv, 2.0 * d, 2.0 * bb)
 
     def speed_at(self, s: float) -> float:
         """:meth:`speed` at one run coordinate s [m] (a float; the same IEEE result) [m/s].
@@ -192,11 +196,24 @@ class ProfileReference:
             return float(self.speed(np.asarray(s)))
         e = interp1(s, self._s_list, self._e_list)
         plan = math.sqrt(e) if e >= 0.0 else math.nan  # np.sqrt: NaN below 0
-        if s < 0.5 * self.length_m:
-            plan = maximum1(plan, self.departure_speed)
-        d, cv, cl, b = self.tail
-        tail = stop_tail_at(s, self.length_m, d, cv, cl, b)
-        return 0.0 if s >= self.length_m else minimum1(plan, tail)
+        # maximum1 / minimum1 / stop_tail_at written out (their operations, in order)
+        length = self.length_m
+        if s < 0.5 * length:
+            dep = self.departure_speed
+            if not (plan != plan or plan >= dep):
+                plan = dep
+        s_c, s_b, cv2, d2, b2 = self._tail_at
+        if s < s_c:
+            m = s_c - s
+            tail = math.sqrt(cv2 + d2 * (m if m != m or m >= 0.0 else 0.0))
+        elif s < s_b:
+            tail = self.tail[1]
+        else:
+            m = length - s
+            tail = math.sqrt(b2 * (m if m != m or m >= 0.0 else 0.0))
+        if s >= length:
+            return 0.0
+        return plan if plan != plan or plan <= tail else tail
 
     def speed(self, s: ArrayLike) -> FloatArray:
         """Desired speed [m/s] at s [m]."""
