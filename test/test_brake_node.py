@@ -185,33 +185,38 @@ def test_node_reports_rate_and_exits_cleanly(fault_run: dict[str, Any]) -> None:
 
 def _sample(train: str, t: float, v: float, omega: Any = None, clamp: Any = None,
             accel: float = -0.1, mass: float = 30_000.0) -> Any:
-    from metro_atc_msgs.msg import BrakeSensorData
+    """One sample as a FleetBrakeSensorData (what the simulator publishes), any axle count."""
+    from metro_atc_msgs.msg import FleetBrakeSensorData
 
-    from metro_atc.nodes.conversions import to_time
+    from metro_atc.nodes.conversions import stamps_ns, to_time
 
-    m = BrakeSensorData()
+    w = [float(x) for x in (omega if omega is not None else [v / 0.43] * 4)]
+    m = FleetBrakeSensorData()
     m.header.stamp = to_time(t)
-    m.train_id = train
-    m.wheel_angular_speed_radps = [float(x) for x in
-                                   (omega if omega is not None else [v / 0.43] * 4)]
-    m.clamp_force_n = [float(x) for x in (clamp if clamp is not None else [0.0] * 4)]
-    m.longitudinal_acceleration_mps2 = float(accel)
-    m.reference_speed_mps = float(v)
-    m.car_mass_kg = float(mass)
+    m.train_id = [train]
+    m.sample_train = [0]
+    m.stamp_ns = [int(stamps_ns([t])[0])]
+    m.axle_count = [len(w)]
+    m.wheel_angular_speed_radps = w
+    m.clamp_force_n = [float(x) for x in (clamp if clamp is not None else [0.0] * len(w))]
+    m.longitudinal_acceleration_mps2 = [float(accel)]
+    m.reference_speed_mps = [float(v)]
+    m.car_mass_kg = [float(mass)]
     return m
 
 
 def test_bad_samples_are_skipped_node_stays_alive(installed: Path, ros_env: dict[str, str],
                                                   probe: TopicProbe, tmp_path: Path) -> None:
-    """NaN, wrong-length, out-of-order and wrong-train samples: logged, skipped, no NaN out."""
+    """NaN, wrong-length, out-of-range, out-of-order and unknown-train samples on the fleet
+    sensor topic: logged, skipped, no NaN out."""
     from diagnostic_msgs.msg import DiagnosticArray
-    from metro_atc_msgs.msg import BrakeDiagnosis, BrakeSensorData
+    from metro_atc_msgs.msg import BrakeDiagnosis, FleetBrakeSensorData
 
-    from metro_atc.nodes.common import QOS_SENSOR
+    from metro_atc.nodes.common import FLEET_SENSOR_TOPIC, QOS_FLEET_SENSOR
 
     diags = probe.subscribe(DiagnosticArray, "/diagnostics", _qos_all())
     bd = probe.subscribe(BrakeDiagnosis, "/train_01/brake_diagnosis", _qos_all())
-    pub = probe.publisher(BrakeSensorData, "/train_01/brake_sensors", QOS_SENSOR)
+    pub = probe.publisher(FleetBrakeSensorData, FLEET_SENSOR_TOPIC, QOS_FLEET_SENSOR)
     p = NodeProcess.installed("brake_diagnostic", ["-p", "scenario:=mini",
                                                    "-p", "diagnostics_period_s:=0.5",
                                                    "-p", "log_period_s:=0.0"],
@@ -247,8 +252,11 @@ def test_bad_samples_are_skipped_node_stays_alive(installed: Path, ros_env: dict
         assert p.wait_for_log("expected 4 axles", timeout=20), p.log()
         pub.publish(_sample("train_01", 0.5, 19.0))
         assert p.wait_for_log("out of order", timeout=20), p.log()
-        pub.publish(_sample("train_02", t + 0.05, 19.0))
-        assert p.wait_for_log("does not match", timeout=20), p.log()
+        pub.publish(_sample("train_99", t + 0.05, 19.0))
+        assert p.wait_for_log("not a train of the scenario", timeout=20), p.log()
+        t += 0.05
+        pub.publish(_sample("train_01", t, 19.0, accel=100.0))
+        assert p.wait_for_log("longitudinal_acceleration_mps2[0] outside", timeout=20), p.log()
         # a 3 s total dropout (every channel NaN), then good data again
         for _ in range(60):
             t += 0.05

@@ -125,6 +125,42 @@ def test_sensor_data_at_the_configured_rate(two_runs: dict[str, Any]) -> None:
                for x in samples)
 
 
+def test_per_train_sensor_topic_carries_the_fleet_samples(two_runs: dict[str, Any]) -> None:
+    """An outside reader of /train_01/brake_sensors (the probe) gets the samples of the fleet
+    topic (/line/brake_sensors, from the recorded bag), value for value, until the end of the
+    run: the per-train topic is published while it has a reader, although no node of the
+    graph reads it."""
+    import numpy as np
+    from rosbags.highlevel import AnyReader
+
+    bag = Path(two_runs["kpis"][0]["bag"])
+    fleet: dict[int, np.ndarray] = {}
+    with AnyReader([bag]) as r:
+        cons = [c for c in r.connections if c.topic == "/line/brake_sensors"]
+        for con, _, raw in r.messages(connections=cons):
+            m = r.deserialize(raw, con.msgtype)
+            n = len(m.axle_count)
+            w = np.asarray(m.wheel_angular_speed_radps).reshape(n, -1)
+            c = np.asarray(m.clamp_force_n).reshape(n, -1)
+            for s in range(n):
+                if m.train_id[m.sample_train[s]] == "train_01":
+                    fleet[int(m.stamp_ns[s])] = np.concatenate((w[s], c[s], [
+                        m.longitudinal_acceleration_mps2[s], m.reference_speed_mps[s],
+                        m.car_mass_kg[s]]))
+    got = two_runs["sensors"][0]
+    # best effort to a Python reader, and the simulator looks for per-train readers once a
+    # wall second: not every sample arrives, but what arrives is a fleet sample, to the end
+    last = max(fleet)
+    assert len(fleet) > 50 and len(got) > 50, (len(got), len(fleet))
+    assert max(x.header.stamp.sec for x in got) >= 0.9e-9 * last, (len(got), last)
+    for x in got:
+        ns = x.header.stamp.sec * 1_000_000_000 + x.header.stamp.nanosec
+        assert ns in fleet, ns
+        one = np.concatenate((x.wheel_angular_speed_radps, x.clamp_force_n, [
+            x.longitudinal_acceleration_mps2, x.reference_speed_mps, x.car_mass_kg]))
+        assert np.array_equal(fleet[ns], one, equal_nan=True), ns
+
+
 def test_clock_is_monotonic(two_runs: dict[str, Any]) -> None:
     """/clock never goes backwards and covers the run."""
     clock = two_runs["clock"][0]
@@ -159,6 +195,7 @@ def test_recorded_bag_reads_back(two_runs: dict[str, Any]) -> None:
     state: dict[str, list[int]] = {t: [] for t in ids}
     command: dict[str, list[int]] = {t: [] for t in ids}
     diag_names: set[str] = set()
+    sensor_samples: dict[str, list[int]] = {t: [] for t in ids}
     with AnyReader([bag]) as r:
         topics = {c.topic: c for c in r.connections}
         assert set(topics) >= {t for t, _, _ in graph_topics(ids)}
@@ -175,7 +212,15 @@ def test_recorded_bag_reads_back(two_runs: dict[str, Any]) -> None:
                 command[tid].append(int(m.step))
             elif con.topic == "/diagnostics":
                 diag_names.update(s.name.split(":")[0] for s in m.status)
+            elif con.topic == "/line/brake_sensors":
+                assert len(m.stamp_ns) == len(m.sample_train) and all(m.axle_count == 4)
+                for j, ns in zip(m.sample_train, m.stamp_ns):
+                    sensor_samples[m.train_id[j]].append(int(ns))
     dt = clock[1] - clock[0]
+    # the fleet brake sensor samples of every train, in order, no duplicate
+    for t in ids:
+        ns = sensor_samples[t]
+        assert len(ns) > 50 and all(b > a for a, b in zip(ns, ns[1:])), t
     assert len(clock) == steps and clock[0] == 0.0, (len(clock), steps, clock[:3])
     assert np_allclose_steps(clock, dt)
     for t in ids:
@@ -469,6 +514,8 @@ def _fuzz_value(rng: Any, kind: str, train: str) -> Any:
         return int(_pick(rng, [-2 ** 31, 2 ** 31 - 1, -1, 0, 1, 2, int(rng.integers(-5, 10))]))
     if kind == "u32":
         return int(_pick(rng, [0, 1, 2 ** 32 - 1, int(rng.integers(0, 2 ** 32))]))
+    if kind == "i64":
+        return int(_pick(rng, [-2 ** 63, 2 ** 63 - 1, -1, 0, int(rng.integers(0, 3 * 10 ** 12))]))
     if kind == "u8":
         return int(rng.choice([0, 1, 2, 255, int(rng.integers(0, 256))]))
     if kind == "bool":
@@ -520,10 +567,11 @@ def _fuzz_graph(ros_env: dict[str, str], tmp_path: Path) -> dict[str, Any]:
     import time
 
     import numpy as np
-    from metro_atc_msgs.msg import (BrakeSensorData, DepartureCommand, FleetCommand,
+    from metro_atc_msgs.msg import (DepartureCommand, FleetBrakeSensorData, FleetCommand,
                                     FleetState, TractionCommand, TrainEvent)
 
-    from metro_atc.nodes.common import (QOS_EVENTS, QOS_LATCHED, QOS_RELIABLE, QOS_SENSOR)
+    from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_EVENTS, QOS_FLEET_SENSOR,
+                                        QOS_LATCHED, QOS_RELIABLE)
 
     specs: list[tuple[Any, str, Any, dict[str, str], str]] = []
     for t in ("train_01", "train_02"):
@@ -534,10 +582,6 @@ def _fuzz_graph(ros_env: dict[str, str], tmp_path: Path) -> dict[str, Any]:
              {"train_id": "train", "station_index": "i32", "departure_time_s": "f64",
               "target_running_time_s": "f64", "dwell_limit_s": "f64", "regulator": "u8",
               "sequence": "u64"}, t),
-            (BrakeSensorData, f"/{t}/brake_sensors", QOS_SENSOR,
-             {"train_id": "train", "wheel_angular_speed_radps": "f64[]",
-              "clamp_force_n": "f64[]", "longitudinal_acceleration_mps2": "f64",
-              "reference_speed_mps": "f64", "car_mass_kg": "f64"}, t),
             (TrainEvent, "/line/events", QOS_EVENTS,
              {"train_id": "train", "kind": "u8", "station_index": "i32",
               "actual_time_s": "f64", "scheduled_time_s": "f64", "passengers_boarded": "u32",
@@ -550,7 +594,12 @@ def _fuzz_graph(ros_env: dict[str, str], tmp_path: Path) -> dict[str, Any]:
           "supervision_speed_mps": "f64[2]", "movement_authority_m": "f64[2]",
           "echo": "bool[2]"}, ""),
         (FleetCommand, "/line/fleet_command", QOS_RELIABLE,
-         {"train_id": "train[2]", "step": "u64", "effort": "f64[2]", "mode": "u8[2]"}, "")]
+         {"train_id": "train[2]", "step": "u64", "effort": "f64[2]", "mode": "u8[2]"}, ""),
+        (FleetBrakeSensorData, FLEET_SENSOR_TOPIC, QOS_FLEET_SENSOR,
+         {"train_id": "train[2]", "sample_train": "u32[2]", "stamp_ns": "i64[2]",
+          "axle_count": "u32[2]", "wheel_angular_speed_radps": "f64[]",
+          "clamp_force_n": "f64[]", "longitudinal_acceleration_mps2": "f64[2]",
+          "reference_speed_mps": "f64[2]", "car_mass_kg": "f64[2]"}, "")]
     probe = TopicProbe(int(ros_env["ROS_DOMAIN_ID"]), name="fuzzer")
     pubs = [probe.publisher(s[0], s[1], s[2]) for s in specs]
     rng = np.random.default_rng(15)
@@ -604,8 +653,8 @@ def test_fuzz_every_subscribed_topic(two_runs: dict[str, Any], fuzzed_run: dict[
 
     During a lockstep run of the graph, a probe publishes ``_FUZZ_MESSAGES`` messages with
     random field values (NaN, +-inf, +-1.7e308, integer extremes, empty and 1000-character
-    train ids, arrays of wrong lengths, random stamps) on the command, departure command,
-    brake sensor and event topics of both trains and on the fleet state and fleet command
+    train ids, arrays of wrong lengths, random stamps) on the command, departure command and
+    event topics of both trains and on the fleet state, fleet command and fleet brake sensor
     topics (the per-train state topics have no subscriber in the graph: the ATOs take their
     states from the fleet state) (the scenario given by a path
     containing ``": "`` and ``#``).  No node dies, the run completes,

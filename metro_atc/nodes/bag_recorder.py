@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureCommand,
+from metro_atc_msgs.msg import (BrakeDiagnosis, DepartureCommand, FleetBrakeSensorData,
                                 FleetCommand, FleetState, LineStatus, SpeedProfile,
                                 TractionCommand, TrainEvent, TrainState)
 from rcl_interfaces.msg import Log, ParameterEvent
@@ -35,8 +35,9 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 
 from metro_atc.bag import BagWriter, Qos
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
-from metro_atc.nodes.common import (OK, QOS_CLOCK, QOS_DIAGNOSTICS, QOS_EVENTS, QOS_LATCHED,
-                                    QOS_RELIABLE, QOS_SENSOR, WARN, NodeConfigError,
+from metro_atc.nodes.common import (OK, FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_DIAGNOSTICS,
+                                    QOS_EVENTS, QOS_FLEET_SENSOR, QOS_LATCHED,
+                                    QOS_RELIABLE, WARN, NodeConfigError,
                                     RuntimeParams, SubscriptionPoller, diag_status, run_nodes,
                                     static, stop_requested)
 
@@ -58,13 +59,15 @@ def graph_topics(train_ids: Sequence[str]) -> list[tuple[str, Any, QoSProfile]]:
         ("/diagnostics", DiagnosticArray, QOS_DIAGNOSTICS),
         ("/rosout", Log, QOS_LOG), ("/parameter_events", ParameterEvent, QOS_LOG),
         ("/line/fleet_state", FleetState, QOS_RELIABLE),
-        ("/line/fleet_command", FleetCommand, QOS_RELIABLE)]
+        ("/line/fleet_command", FleetCommand, QOS_RELIABLE),
+        # the brake sensor samples of all trains (the per-train /<train>/brake_sensors are
+        # published only while read: recording them would make the simulator publish them)
+        (FLEET_SENSOR_TOPIC, FleetBrakeSensorData, QOS_FLEET_SENSOR)]
     for t in train_ids:
         out += [(f"/{t}/state", TrainState, QOS_RELIABLE),
                 (f"/{t}/command", TractionCommand, QOS_RELIABLE),
                 (f"/{t}/departure_command", DepartureCommand, QOS_LATCHED),
                 (f"/{t}/speed_profile", SpeedProfile, QOS_LATCHED),
-                (f"/{t}/brake_sensors", BrakeSensorData, QOS_SENSOR),
                 (f"/{t}/brake_diagnosis", BrakeDiagnosis, QOS_LATCHED)]
     return out
 
@@ -119,6 +122,8 @@ class BagRecorder(Node):
         self.rt = RuntimeParams(self, self.health)
         for topic, cls, qos in graph_topics(ids):
             self._record(topic, cls, qos)
+        # not discovered either: the fleet topic records the same samples
+        self.ignored |= {f"/{t}/brake_sensors" for t in ids}
         self.create_timer(self.discovery_period_s, self.discover,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(f"recording {len(self.subs)} topics to {output}")

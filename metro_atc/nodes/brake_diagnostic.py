@@ -1,7 +1,9 @@
 """brake_diagnostic node: brake-by-wire active safety diagnosis of every train (issue 6).
 
-One node watches all trains of the scenario.  It subscribes to ``/<train>/brake_sensors``
-(best effort), runs one :class:`~metro_atc.core.brake.metro_car.MetroBrakeObserver` (the
+One node watches all trains of the scenario.  It subscribes to ``/line/brake_sensors``
+(``metro_atc_msgs/FleetBrakeSensorData``, reliable: the samples of every train produced in
+one lockstep step, in one message; the per-train ``/<train>/brake_sensors`` are for outside
+tools), runs one :class:`~metro_atc.core.brake.metro_car.MetroBrakeObserver` (the
 seed 000 second-paper UKF, metro variant) per train at the sensor rate, and publishes
 
 * ``/<train>/brake_diagnosis`` (``metro_atc_msgs/BrakeDiagnosis``, latched) every
@@ -21,21 +23,24 @@ only validated, journaled and counted); the filters are independent, so a
 single-threaded node serves ``N x rate`` samples per second as long as that stays below
 those figures.  On Taipei Blue the used samples are few at any instant (0.4 trains per
 sample instant on average over 1 800 s), so batching the filters across trains would
-batch nothing; the per-sample costs are cut instead: raw subscriptions decoded from CDR
-(:func:`metro_atc.nodes.conversions.sensor_from_cdr`), one journal write per burst.
+batch nothing; the per-sample costs are cut instead: one message per step for all trains,
+validated in one vectorised pass (:func:`metro_atc.nodes.conversions.fleet_sensor_samples`),
+journal entries built directly and written once per burst.
 The Taipei Blue scenario at 20 Hz needs at most 30 x 20 = 600 updates per simulated
 second (every train braking at once), and the simulator sends the full rate only while a
 car brakes (a 1 Hz heartbeat otherwise); one process per train would cost 30 Python
-interpreters and DDS participants for no gain.  The 30 sensor subscriptions are served by
+interpreters and DDS participants for no gain.  The sensor subscription is served by
 :func:`sample_loop` (a direct wait set), not by the executor.
 
 **Time.**  The filter's step and the decision logic's persistence are driven by the sample
 stamps (simulated time), so the verdicts do not depend on wall-clock speed; only the
 publication period of ``/diagnostics`` is wall time.
 
-**Robustness.**  A sample with a wrong number of axles, a train id that does not match
-the topic, a stamp outside the run's horizon, an implausible channel value
-(:func:`metro_atc.nodes.conversions.sensor_from_msg`), or a stamp not after the previous
+**Robustness.**  A batch whose arrays disagree in length (or are absurdly large) is one
+rejection (kind ``length``); within a batch, a sample of a train not in the scenario, with a
+wrong number of axles, a stamp outside the run's horizon, an implausible channel value
+(:func:`metro_atc.nodes.conversions.fleet_sensor_samples`, the rules of
+:func:`~metro_atc.nodes.conversions.sensor_from_msg`), or a stamp not after the previous
 one (out of order / duplicate) is rejected (not used at all; ``RESYNC_SAMPLES`` in-order
 samples behind a future-stamped one re-synchronise the stream and restart the filter);
 a sample with NaN channels (dropouts) is used with those channels left out of the
@@ -53,8 +58,8 @@ rejected one, for the counters) is appended to ``<checkpoint_dir>/brake_<train>.
 observers: the UKF, the decision logic and the counters are where they were.  When the
 simulator resumes from a checkpoint and sends again a sample the journal holds (same stamp,
 same channels), the train's observer is rebuilt from the journal up to that sample; the
-newest sample sent again (the simulator's end-of-run re-send of what the best-effort topic
-may have lost) is skipped.
+newest sample sent again (the simulator's end-of-run re-send of what may have been lost) is
+skipped.
 """
 
 from __future__ import annotations
@@ -69,12 +74,11 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-from metro_atc_msgs.msg import BrakeDiagnosis, BrakeSensorData
+from metro_atc_msgs.msg import BrakeDiagnosis, FleetBrakeSensorData
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from metro_atc.core.brake.train_watch import (  # noqa: F401  (re-exported for callers)
     BRAKED_CLAMP_N, LEVEL_NAMES, MAX_GAP_S, MU_B_STD_JUDGE, N_AXLES, PERSISTENCE_S,
@@ -85,19 +89,11 @@ from metro_atc.core.journal import Journal
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.nodes import conversions as conv
-from metro_atc.nodes.common import (QOS_LATCHED, NodeConfigError, RuntimeParams,
+from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_FLEET_SENSOR, QOS_LATCHED,
+                                    NodeConfigError, RuntimeParams,
                                     SubscriptionPoller, bulk_publisher, run_nodes, static,
                                     stop_requested)
 
-QUEUE_DEPTH = 4000
-"""Reader queue per sensor topic [samples] (see QOS_SENSOR_DEEP)."""
-QOS_SENSOR_DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=QUEUE_DEPTH,
-                             reliability=ReliabilityPolicy.BEST_EFFORT,
-                             durability=DurabilityPolicy.VOLATILE)
-"""Like QOS_SENSOR (best effort, compatible with the simulator's publishers) but with a
-reader queue of QUEUE_DEPTH samples: the lockstep simulator publishes each train's samples
-in bursts (rate x control period per step, at up to ~100 steps/s of wall time), so a
-shallow queue drops samples whenever this process is descheduled for a few steps."""
 SLOW_PERIOD_S = 0.2
 """The executor (parameter services, the /diagnostics timer) is spun this often [s, wall]:
 each spin rebuilds rclpy's wait set in Python (~1 ms); a parameter request waits at most
@@ -168,14 +164,12 @@ class BrakeDiagnostic(Node):
                 # a restart: every train catches up once, also one that had sent nothing
                 # before the kill (empty journal: its whole re-send was missed)
                 self.down_since = set(self.ids)
-        # raw: the serialised samples are decoded by conversions.sensor_from_cdr (an rclpy
-        # message object per sample cost more than the rest of a paused sample's handling);
-        # no QoS-event waitables (see common.bulk_subscription)
+        # one FleetBrakeSensorData per lockstep step with samples (all trains); no QoS-event
+        # waitables (see common.bulk_subscription)
+        self.index = {t: i for i, t in enumerate(self.ids)}
         self.fast_subs = [self.create_subscription(
-            BrakeSensorData, f"/{t}/brake_sensors", partial(self._on_sample, t),
-            QOS_SENSOR_DEEP, raw=True,
-            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
-            for t in self.ids]
+            FleetBrakeSensorData, FLEET_SENSOR_TOPIC, self._on_batch, QOS_FLEET_SENSOR,
+            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))]
         self.get_logger().info(
             f"watching {len(self.ids)} trains of scenario '{scn.name}' "
             f"({scn.line.adhesion} rail, {scn.sensors.rate_hz:g} Hz samples)")
@@ -271,17 +265,40 @@ class BrakeDiagnostic(Node):
             self.journals[train_id].append_all(entries)
 
     # ------------------------------------------------------------------ samples
-    def _on_sample(self, train_id: str, msg: BrakeSensorData | bytes) -> None:
-        """Validate one sample (a message or its serialisation) and run the observer."""
-        topic = f"/{train_id}/brake_sensors"
-        stamp = conv.sensor_stamp(msg)  # before the validation: rejected ones count too
-        if stamp is not None and stamp > self._recv_t[train_id]:
-            self._recv_t[train_id] = stamp
+    def _on_batch(self, msg: FleetBrakeSensorData) -> None:
+        """Validate a batch of samples (one lockstep step, every train) and run the observers.
+
+        Each train's samples are handled in their order in the batch (stamp order); a
+        message that cannot be attributed sample by sample is one rejection (kind
+        ``length``), a sample of an unknown train one of kind ``train_id``.
+        """
         try:
-            if isinstance(msg, bytes):
-                s = conv.sensor_from_cdr(msg, topic, train_id, N_AXLES, self.bounds)
-            else:
-                s = conv.sensor_from_msg(msg, topic, train_id, N_AXLES, self.bounds)
+            items = conv.fleet_sensor_samples(msg, FLEET_SENSOR_TOPIC, self.index, N_AXLES,
+                                              self.bounds)
+        except conv.MessageRejected as exc:
+            self.rejections.add(exc.kind)
+            self._log_bounded("", exc.kind, f"skipped sample batch ({exc.kind}): {exc}")
+            return
+        except Exception as exc:  # noqa: BLE001 - no callback may raise out of the node
+            self.rejections.add("error")
+            self._log_bounded("", "error", f"skipped sample batch: {type(exc).__name__}: {exc}")
+            return
+        for train_id, stamp, s in items:
+            if train_id is None:
+                assert isinstance(s, conv.MessageRejected)
+                self.rejections.add(s.kind)
+                self._log_bounded("", s.kind, f"skipped sample ({s.kind}): {s}")
+                continue
+            if stamp > self._recv_t[train_id]:  # rejected ones count too
+                self._recv_t[train_id] = stamp
+            self._on_sample(train_id, s)
+
+    def _on_sample(self, train_id: str, s: dict[str, Any] | conv.MessageRejected) -> None:
+        """Run the observer on one validated sample (or count its rejection)."""
+        topic = FLEET_SENSOR_TOPIC
+        try:
+            if isinstance(s, conv.MessageRejected):
+                raise s
             if self._is_newest(train_id, s):
                 return  # nothing new (a re-send of what the topic may have lost)
             self._rewind(train_id, s)
@@ -293,7 +310,8 @@ class BrakeDiagnostic(Node):
             w.reject()
             self._journal(train_id, {"rejected": exc.kind})
             self.rejections.add(exc.kind)
-            self._log_bounded(train_id, exc.kind, f"skipped sample ({exc.kind}): {exc}")
+            self._log_bounded(train_id, exc.kind, f"skipped sample of {train_id} "
+                              f"({exc.kind}): {exc}")
             return
         if what == "out_of_order":
             self.rejections.add(what)
@@ -437,11 +455,29 @@ def _sample_entry(s: dict[str, Any]) -> dict[str, Any]:
     """A validated sample as a journal entry (arrays as lists of floats).
 
     Equal to its own JSON round trip (what :meth:`Journal.entries` holds after a restart):
-    the channels are Python floats (NaN stays NaN), the arrays float lists.
+    the channels are Python floats (NaN stays NaN), the arrays float lists.  The keys of
+    :func:`metro_atc.nodes.conversions.sensor_from_msg` are built directly (a generic
+    comprehension over the items was a visible share of the per-sample time, issue 13).
     """
-    return {k: (np.asarray(v, dtype=float).tolist() if isinstance(v, (np.ndarray, list))
+    if s.keys() == _SAMPLE_KEYS:
+        return {"t_s": float(s["t_s"]), "omega": _floats(s["omega"]),
+                "clamp": _floats(s["clamp"]), "accel": float(s["accel"]),
+                "ref_speed": float(s["ref_speed"]), "car_mass": float(s["car_mass"])}
+    return {k: (_floats(v) if isinstance(v, (np.ndarray, list))
                 else float(v) if isinstance(v, (float, np.floating)) else v)
             for k, v in s.items()}
+
+
+_SAMPLE_KEYS = {"t_s": 0, "omega": 0, "clamp": 0, "accel": 0, "ref_speed": 0,
+                "car_mass": 0}.keys()
+"""The keys of a validated sample (see :func:`_sample_entry`)."""
+
+
+def _floats(v: Any) -> list[float]:
+    """A float list of an array or list."""
+    if isinstance(v, np.ndarray) and v.dtype == np.float64:
+        return v.tolist()  # type: ignore[no-any-return]
+    return np.asarray(v, dtype=float).tolist()  # type: ignore[no-any-return]
 
 
 def _sample_of(e: dict[str, Any]) -> dict[str, Any]:

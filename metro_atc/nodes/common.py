@@ -69,6 +69,18 @@ QOS_SENSOR = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=20,
                         durability=DurabilityPolicy.VOLATILE)
 """High-rate sensor data: best effort, a lost sample is replaced by the next one."""
 
+FLEET_SENSOR_TOPIC = "/line/brake_sensors"
+"""The brake sensor samples of all trains, one FleetBrakeSensorData per step with samples."""
+
+QOS_FLEET_SENSOR = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                              reliability=ReliabilityPolicy.RELIABLE,
+                              durability=DurabilityPolicy.VOLATILE)
+"""/line/brake_sensors, writer and reader: a lost batch would lose every train's samples of a
+step, so reliable; keep-last, so a slow or dead reader never blocks the lockstep (a full
+history drops its oldest batch); 1 000 batches (10 s of wall time at 100 steps/s) before
+that happens.  Volatile: a restarted reader gets the kept samples from the simulator's
+re-send instead (acknowledged per train by the BrakeDiagnosis stamp)."""
+
 QOS_CLOCK = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                        reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)

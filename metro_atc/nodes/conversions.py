@@ -12,6 +12,7 @@ dropping the message.  Nothing else in a callback may raise: see
 from __future__ import annotations
 
 import array
+import functools
 import math
 import struct
 from types import SimpleNamespace
@@ -20,8 +21,8 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 from builtin_interfaces.msg import Time
 from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureCommand,
-                                FleetCommand, FleetState, LineStatus, TractionCommand,
-                                TrainEvent, TrainState)
+                                FleetBrakeSensorData, FleetCommand, FleetState, LineStatus,
+                                TractionCommand, TrainEvent, TrainState)
 from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 
@@ -469,6 +470,201 @@ def sensor_from_cdr(data: bytes, topic: str, train_id: str, n_axles: int,
         raise Rejected("malformed", f"{topic}: undecodable BrakeSensorData "
                        f"({type(exc).__name__})") from None
     return sensor_from_msg(msg, topic, train_id, n_axles, b)
+
+
+FLEET_SENSOR_MAX_SAMPLES = 10_000
+"""Most samples one FleetBrakeSensorData may carry (beyond: the message is rejected, kind
+``length``); a step of the largest line has a few hundred, a re-sent batch fewer."""
+FLEET_SENSOR_MAX_AXLES = 64
+"""Most axles a sample of a FleetBrakeSensorData may declare (beyond: kind ``length``)."""
+
+
+def _ints(values: Any, typecode: str, dtype: Any) -> "array.array[int]":
+    """An ``array(typecode)`` of ``values`` copied as one buffer (see :func:`doubles`)."""
+    return array.array(typecode, np.ascontiguousarray(values, dtype=dtype).tobytes())
+
+
+def stamps_ns(t_s: Any) -> np.ndarray:
+    """Simulation times [s] -> int64 nanoseconds, as :func:`to_time` rounds them."""
+    return np.round(np.maximum(np.asarray(t_s, dtype=np.float64), 0.0) * 1e9).astype(np.int64)
+
+
+def seconds_of_ns(ns: np.ndarray) -> np.ndarray:
+    """int64 nanoseconds -> seconds, the same floats as :func:`from_time` of the Time."""
+    ns = np.asarray(ns, dtype=np.int64)
+    return (ns // 1_000_000_000).astype(np.float64) + 1e-9 * (ns % 1_000_000_000).astype(
+        np.float64)
+
+
+def fleet_sensor_msg(train_ids: Sequence[str], t_step_s: float, trains: Any,
+                     t_s: Any, omega_radps: Any, clamp_n: Any, accel_mps2: Any,
+                     ref_speed_mps: Any, car_mass_kg: Any,
+                     out: FleetBrakeSensorData | None = None) -> FleetBrakeSensorData:
+    """FleetBrakeSensorData of the samples ``s`` (in order) of several trains.
+
+    ``train_ids``: the message's ``train_id``; ``trains[s]``: index into it of sample s's
+    train; ``t_s[s]`` its time [s]; ``omega_radps``, ``clamp_n``: (samples, axles) wheel
+    speeds [rad/s] and clamp forces [N]; ``accel_mps2`` [m/s^2], ``ref_speed_mps`` [m/s],
+    ``car_mass_kg`` [kg] (NaN: none) per sample.  ``t_step_s``: the header stamp (the
+    simulation time of the step).  The arrays go in as one buffer each (no per-value Python
+    loop).  ``out``: a message to refill instead of a new one (its header object is kept:
+    building a header cost more than the rest; publish copies the message out at once).
+    """
+    m = out if out is not None else FleetBrakeSensorData()
+    m.header.frame_id = "line"
+    ns = int(round(max(0.0, float(t_step_s)) * 1e9))
+    stamp = m.header.stamp
+    stamp.sec = ns // 1_000_000_000
+    stamp.nanosec = ns % 1_000_000_000
+    m.train_id = list(train_ids)
+    w = np.asarray(omega_radps, dtype=np.float64)
+    n = len(t_s)
+    axles = w.size // n if n else 0
+    m.sample_train = _ints(trains, "I", np.uint32)
+    m.stamp_ns = _ints(stamps_ns(t_s), "q", np.int64)
+    m.axle_count = _ints(np.full(n, axles), "I", np.uint32)
+    m.wheel_angular_speed_radps = doubles(w)
+    m.clamp_force_n = doubles(clamp_n)
+    m.longitudinal_acceleration_mps2 = doubles(accel_mps2)
+    m.reference_speed_mps = doubles(ref_speed_mps)
+    m.car_mass_kg = doubles(car_mass_kg)
+    return m
+
+
+def _f64(values: Any) -> np.ndarray:
+    """A float64 array of a message's float64[] field (its buffer, no per-value loop)."""
+    if isinstance(values, array.array) and values.typecode == "d":
+        return np.frombuffer(values, dtype=np.float64) if len(values) else np.zeros(0)
+    return np.asarray(values, dtype=np.float64).reshape(-1)
+
+
+def fleet_sensor_samples(msg: FleetBrakeSensorData, topic: str, index: Mapping[str, int],
+                         n_axles: int, b: Bounds
+                         ) -> list[tuple[str | None, float, dict[str, Any] | Rejected]]:
+    """Validate a FleetBrakeSensorData; return per sample ``(train, stamp, sample)``.
+
+    The message as a whole is rejected (raises :class:`MessageRejected`, kind ``length``)
+    when its arrays disagree in length, a ``sample_train`` index points outside
+    ``train_id``, it carries more than :data:`FLEET_SENSOR_MAX_SAMPLES` samples or a sample
+    declares more than :data:`FLEET_SENSOR_MAX_AXLES` axles: nothing in it can be attributed
+    to a train.  Otherwise each sample is checked on its own, with the rules and kinds of
+    :func:`sensor_from_msg` (a wrong number of axles, a stamp outside the run's horizon, a
+    finite channel outside ``SENSOR_RANGES``); its entry is then the
+    :class:`MessageRejected` instead of the sample dict.  A sample of a train not in
+    ``index`` comes back with train ``None`` and a rejection of kind ``train_id``.
+    ``stamp`` is the sample's stamp [s] (also of a rejected one: a receiver acknowledges
+    those too).  The sample dicts are those of :func:`sensor_from_msg` (``omega``, ``clamp``
+    float arrays of ``n_axles``; ``car_mass`` NaN when not finite).
+    """
+    ns = np.frombuffer(msg.stamp_ns, dtype=np.int64) if isinstance(msg.stamp_ns, array.array) \
+        else np.asarray(msg.stamp_ns, dtype=np.int64).reshape(-1)
+    n = ns.size
+    which = np.asarray(msg.sample_train, dtype=np.int64).reshape(-1)
+    axles = np.asarray(msg.axle_count, dtype=np.int64).reshape(-1)
+    ids = list(msg.train_id)
+    w = _f64(msg.wheel_angular_speed_radps)
+    c = _f64(msg.clamp_force_n)
+    acc = _f64(msg.longitudinal_acceleration_mps2)
+    vref = _f64(msg.reference_speed_mps)
+    mass = _f64(msg.car_mass_kg)
+    if n > FLEET_SENSOR_MAX_SAMPLES:
+        raise Rejected("length", f"{topic}: {n} samples (at most {FLEET_SENSOR_MAX_SAMPLES})")
+    if not (which.size == axles.size == acc.size == vref.size == mass.size == n):
+        raise Rejected("length", f"{topic}: per-sample arrays of different lengths "
+                       f"(stamp_ns[{n}], sample_train[{which.size}], axle_count[{axles.size}],"
+                       f" channels [{acc.size}, {vref.size}, {mass.size}])")
+    if n and (which.min() < 0 or which.max() >= len(ids)):
+        raise Rejected("length", f"{topic}: sample_train outside train_id[{len(ids)}]")
+    if n and axles.max() > FLEET_SENSOR_MAX_AXLES:
+        raise Rejected("length", f"{topic}: a sample declares {int(axles.max())} axles (at "
+                       f"most {FLEET_SENSOR_MAX_AXLES})")
+    total = int(axles.sum())
+    if w.size != total or c.size != total:
+        raise Rejected("length", f"{topic}: per-axle arrays wheel_angular_speed_radps"
+                       f"[{w.size}], clamp_force_n[{c.size}] do not hold the {total} axle "
+                       "values of axle_count")
+    out: list[tuple[str | None, float, dict[str, Any] | Rejected]] = []
+    if n == 0:
+        return out
+    t = seconds_of_ns(ns)
+    good_axles = axles == n_axles
+    # per-axle channels as (samples, n_axles) rows where the count is right (else zeros:
+    # those samples are rejected before their rows are read)
+    if good_axles.all():
+        wr, cr = w.reshape(n, n_axles), c.reshape(n, n_axles)
+    else:
+        start = np.concatenate(([0], np.cumsum(axles)[:-1]))
+        pick = start[:, None] + np.arange(n_axles)[None, :]
+        pick = np.where(good_axles[:, None], pick, 0)
+        wr = w[pick] if w.size else np.zeros((n, n_axles))
+        cr = c[pick] if c.size else np.zeros((n, n_axles))
+
+    # every channel of every sample against its range in one pass (NaN passes; an
+    # infinity fails); which channel failed is worked out only for a rejected sample
+    x = np.concatenate((wr, cr, acc[:, None], vref[:, None], mass[:, None]), axis=1)
+    lo, hi = _sensor_bounds(n_axles)
+    bad = (~np.isnan(x) & ~((x >= lo) & (x <= hi))).any(axis=1)
+    bad |= ~good_axles | ~((t >= 0.0) & (t <= b.horizon_s))
+    known = [index.get(name) is not None for name in ids]
+    # rows of x (owned: the message's buffers are not kept)
+    wl, cl = x[:, :n_axles], x[:, n_axles:2 * n_axles]
+    tl, al, vl = t.tolist(), acc.tolist(), vref.tolist()
+    ml = np.where(np.isfinite(mass), mass, np.nan).tolist()
+    badl, whichl = bad.tolist(), which.tolist()
+    for s in range(n):
+        j = whichl[s]
+        tid = ids[j]
+        if not known[j]:
+            out.append((None, tl[s], Rejected("train_id", f"{topic}: train_id "
+                                              f"{str(tid)[:40]!r} is not a train of the "
+                                              "scenario")))
+            continue
+        if badl[s]:
+            out.append((tid, tl[s], _sample_rejection(topic, s, int(axles[s]), n_axles,
+                                                      tl[s], b, x[s])))
+            continue
+        out.append((tid, tl[s], {"t_s": tl[s], "omega": wl[s], "clamp": cl[s],
+                                 "accel": al[s], "ref_speed": vl[s], "car_mass": ml[s]}))
+    return out
+
+
+_SENSOR_ORDER = ("wheel_angular_speed_radps", "clamp_force_n",
+                 "longitudinal_acceleration_mps2", "reference_speed_mps", "car_mass_kg")
+"""The channels in the order :func:`sensor_from_msg` checks them."""
+
+
+@functools.lru_cache(maxsize=8)
+def _sensor_bounds(n_axles: int) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bounds of a fleet sample's channels laid out as one row.
+
+    The row: ``n_axles`` wheel speeds, ``n_axles`` clamp forces, acceleration, speed, mass.
+    """
+    counts = (n_axles, n_axles, 1, 1, 1)
+    lo = np.repeat([SENSOR_RANGES[k][0] for k in _SENSOR_ORDER], counts)
+    hi = np.repeat([SENSOR_RANGES[k][1] for k in _SENSOR_ORDER], counts)
+    return lo, hi
+
+
+def _sample_rejection(topic: str, s: int, axles: int, n_axles: int, t: float, b: Bounds,
+                      row: np.ndarray) -> Rejected:
+    """The rejection of sample ``s`` of a fleet message, in :func:`sensor_from_msg`'s order.
+
+    ``row``: the sample's channels as laid out by :func:`_sensor_bounds`.
+    """
+    if axles != n_axles:
+        return Rejected("axles", f"{topic}: sample {s}: expected {n_axles} axles, got {axles}")
+    try:
+        check_time(f"{topic}.stamp_ns[{s}]", t, b)
+    except Rejected as exc:
+        return exc
+    start = 0
+    for name, k in zip(_SENSOR_ORDER, (n_axles, n_axles, 1, 1, 1)):
+        lo, hi = SENSOR_RANGES[name]
+        for v in row[start:start + k].tolist():
+            if v == v and not lo <= v <= hi:
+                return Rejected("range", f"{topic}.{name}[{s}] outside [{lo:g}, {hi:g}]")
+        start += k
+    return Rejected("error", f"{topic}: sample {s} rejected")
 
 
 def guarded(what: str, fn: Any, *args: Any) -> Any:

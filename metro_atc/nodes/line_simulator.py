@@ -3,7 +3,10 @@
 Publishes ``/clock``, ``/line/fleet_state`` (every lockstep step: the states of all active
 trains in one message), per-train ``/<train>/state`` (every ``train_state_period_s`` of
 simulated time, and every step for a train not answered by a fleet command),
-``/<train>/brake_sensors`` (best effort), ``/line/events`` and ``/line/status``; subscribes
+``/line/brake_sensors`` (one FleetBrakeSensorData per step with samples: every train's
+brake sensor samples of the step), ``/<train>/brake_sensors`` (the same samples per train,
+best effort, only while the topic has a reader), ``/line/events`` and ``/line/status``;
+subscribes
 to ``/line/fleet_command`` (the commands of one ATO process per message), ``/<train>/command``
 (ATO traction/brake of one train) and ``/<train>/departure_command`` (ATS).
 
@@ -38,8 +41,8 @@ from typing import Any, Sequence
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureCommand,
-                                FleetCommand, FleetState, LineStatus, SpeedProfile,
-                                TractionCommand, TrainEvent, TrainState)
+                                FleetBrakeSensorData, FleetCommand, FleetState, LineStatus,
+                                SpeedProfile, TractionCommand, TrainEvent, TrainState)
 from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -55,7 +58,8 @@ from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.jsonsafe import json_safe
 from metro_atc.nodes import conversions as conv
-from metro_atc.nodes.common import (QOS_CLOCK, QOS_EVENTS, QOS_LATCHED, QOS_LATCHED_IN,
+from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_EVENTS,
+                                    QOS_FLEET_SENSOR, QOS_LATCHED, QOS_LATCHED_IN,
                                     QOS_RELIABLE, QOS_SENSOR, OK, WARN, NodeConfigError,
                                     RuntimeParams,
                                     SubscriptionPoller, bulk_publisher, bulk_subscription,
@@ -80,10 +84,11 @@ ALONE_LINGER_S = 2.0
 """Wall seconds a simulator that found another one stays on the domain before it exits."""
 DEPARTURE_JOURNAL = "line_simulator_departures.jsonl"
 """Departure commands applied, one JSON line each (step, train, station, values)."""
-RESEND_CHUNK = 8
-"""Kept sensor samples re-sent back to back before a pause (the writer keeps 20)."""
+RESEND_BATCH = 64
+"""Kept sensor samples re-sent per FleetBrakeSensorData (a pause after each)."""
 RESEND_PAUSE_S = 0.005
-"""Pause between re-sent chunks [s] (wall; ~0.6 ms per sample re-sent)."""
+"""Pause between re-sent batches [s] (wall): a reader catching up is not flooded beyond the
+reliable writer's history of 1 000 batches."""
 TAIL_RESEND_S = 3.0
 """End of a run: wall seconds a train's diagnosis must have kept acknowledging the same
 sample (a live, idle reader: its periodic diagnosis came again with that stamp) while its
@@ -242,7 +247,15 @@ class LineSimulator(Node):
         self._sensor_out = [conv.sensor_sample_msg(t, 0.0, [], [], math.nan, math.nan,
                                                    math.nan) for t in self.ids]
         """The BrakeSensorData of each train, refilled for every sample published."""
-        self._sensor_readers: list[set[bytes]] = [set() for _ in range(n)]
+        self._fleet_sensor_out = FleetBrakeSensorData()
+        """The FleetBrakeSensorData, refilled for every batch published."""
+        self._sensor_ids: tuple[bytes, list[str]] = (b"", [])
+        """(train indices, their ids) of the last sensor block: its message train ids."""
+        self._sensor_readers: set[bytes] = set()
+        """Endpoint GIDs of the fleet sensor topic's readers seen so far."""
+        self._sensor_read = np.zeros(n, dtype=bool)
+        """Trains whose ``/<train>/brake_sensors`` had a reader at the last check (only
+        those are published: a topic nobody reads costs nothing)."""
         self._resend_due = np.zeros(n, dtype=bool)
         self._readers_known = False
         self.diag_ack_t = np.full(n, -np.inf)
@@ -284,6 +297,8 @@ class LineSimulator(Node):
         self.fleet_pub = bulk_publisher(self, FleetState, "/line/fleet_state", QOS_RELIABLE)
         self.fleet_sub = bulk_subscription(self, FleetCommand, "/line/fleet_command",
                                            self._on_fleet_command, QOS_RELIABLE)
+        self.fleet_sensor_pub = bulk_publisher(self, FleetBrakeSensorData, FLEET_SENSOR_TOPIC,
+                                               QOS_FLEET_SENSOR)
         self.sensor_pubs = [bulk_publisher(self, BrakeSensorData, f"/{t}/brake_sensors",
                                            QOS_SENSOR) for t in self.ids]
         self.cmd_subs = [bulk_subscription(self, TractionCommand, f"/{t}/command",
@@ -576,11 +591,11 @@ class LineSimulator(Node):
         ready = self.fleet_pub.get_subscription_count() > 0 and \
             all(s.get_publisher_count() > 0 for s in self.cmd_subs) and \
             all(s.get_publisher_count() > 0 for s in self.dep_subs) and \
-            all(p.get_subscription_count() > 0 for p in self.sensor_pubs)
+            self.fleet_sensor_pub.get_subscription_count() > 0
         if not ready or not self.wait_for_subscribers:
             return ready
         pubs = [self.clock_pub, self.event_pub, self.status_pub, *self.state_pubs,
-                *self.sensor_pubs]
+                self.fleet_sensor_pub]
         for p in pubs:
             names = {i.node_name for i in self.get_subscriptions_info_by_topic(p.topic_name)}
             if not all(w in names for w in self.wait_for_subscribers):
@@ -598,7 +613,8 @@ class LineSimulator(Node):
         (acknowledgements come with the DDS heartbeat, ~1 s: not every step).
         """
         end = time.monotonic() + timeout_s
-        for p in (self.clock_pub, self.event_pub, self.status_pub, *self.state_pubs):
+        for p in (self.clock_pub, self.event_pub, self.status_pub, *self.state_pubs,
+                  self.fleet_sensor_pub):
             rest = end - time.monotonic()
             if rest <= 0.0 or not p.wait_for_all_acked(Duration(seconds=rest)):
                 self.get_logger().warning(f"{p.topic_name}: not every reader acknowledged "
@@ -771,30 +787,31 @@ class LineSimulator(Node):
         # plain Python floats and lists here: numpy scalar indexing per sample was most of
         # the node's time with ~10 samples per step at the peak (issue 13)
         t = np.asarray(block.t, dtype=float).tolist()
-        trains = [int(i) for i in np.asarray(block.trains)]
         # braked: some axle clamp force well above the sensor noise (50 N scale)
-        braking = (np.nanmax(np.asarray(block.clamp, dtype=float), axis=2, initial=0.0)
-                   > 1000.0).tolist()
+        braking = np.nanmax(np.asarray(block.clamp, dtype=float), axis=2, initial=0.0) > 1000.0
         omega = np.asarray(block.omega, dtype=np.float64)
         clamp = np.asarray(block.clamp, dtype=np.float64)
-        accel = np.asarray(block.accel, dtype=float).tolist()
-        vref = np.asarray(block.vref, dtype=float).tolist()
-        mass = np.asarray(block.car_mass, dtype=float).tolist()
         idle = float(self.sensor_idle_period_s)
-        keep = self.sensor_resend_s > 0.0
-        last = self.sensor_last_t
+        tr_all = np.asarray(block.trains, dtype=np.int64)
+        last = self.sensor_last_t[tr_all]
+        # the sample instants of the step in order, all trains at once: braking trains
+        # every instant, the others once per idle period (the first instant due)
+        take = np.empty(braking.shape, dtype=bool)
         for a, ts in enumerate(t):
-            brk = braking[a]
-            for b, i in enumerate(trains):
-                if not (brk[b] or idle <= 0.0 or ts - last[i] >= idle - 1e-9):
-                    continue
-                last[i] = ts
-                sample = (ts, conv.doubles(omega[a, b]), conv.doubles(clamp[a, b]),
-                          accel[a][b], vref[a][b], mass[b])
-                # one message object per train, refilled (publish copies it out at once)
-                self.sensor_pubs[i].publish(conv.fill_sensor_msg(self._sensor_out[i], *sample))
-                if keep:
-                    self.sensor_log.append((ts, i, sample))
+            due = braking[a] | (idle <= 0.0) | (ts - last >= idle - 1e-9)
+            take[a] = due
+            last = np.where(due, ts, last)
+        self.sensor_last_t[tr_all] = last
+        aa, bb = np.nonzero(take)  # instant-major: the samples in stamp order
+        if aa.size:
+            key = tr_all.tobytes()
+            if key != self._sensor_ids[0]:
+                self._sensor_ids = (key, [self.ids[i] for i in tr_all])
+            self._send_samples(np.asarray(block.t, dtype=float)[aa], tr_all[bb], bb,
+                               self._sensor_ids[1], omega[aa, bb], clamp[aa, bb],
+                               np.asarray(block.accel, dtype=float)[aa, bb],
+                               np.asarray(block.vref, dtype=float)[aa, bb],
+                               np.asarray(block.car_mass, dtype=float)[bb], live=True)
         log = self.sensor_log
         floor = float(self.sim.t) - self.sensor_resend_s
         if log and log[0][0] < floor:
@@ -816,23 +833,25 @@ class LineSimulator(Node):
                                     "down cannot catch up on them")
 
     def resend_sensors(self) -> int:
-        """Send the kept samples again to trains whose sensor topic gained a reader.
+        """Send the kept samples of every train again when the fleet sensor topic gained a reader.
 
-        A restarted ``brake_diagnostic`` misses what was published while it was down (best
-        effort, volatile); it takes the samples it already has as the point to rebuild its
+        A restarted ``brake_diagnostic`` misses what was published while it was down
+        (volatile); it takes the samples it already has as the point to rebuild its
         observer from, then the ones it missed.  A reader is new when its endpoint GID was
         not seen before (a count can stay the same: the dead reader's lease expiring while
         the new one matches); the samples are sent at the next call (about 1 s later), once
-        the new reader had time to match.  Returns the number of samples re-sent.
+        the new reader had time to match.  Also notes which ``/<train>/brake_sensors`` have
+        a reader (only those are published).  Returns the number of samples re-sent.
         """
         due = self._resend_due
         self._resend_due = np.zeros(len(self.ids), dtype=bool)
-        for i, pub in enumerate(self.sensor_pubs):
-            gids = subscriber_gids(self, pub)
-            if gids - self._sensor_readers[i] and self._readers_known:
-                self._resend_due[i] = True
-                self._ack_wall[i] = time.monotonic()  # no tail re-send for a while
-            self._sensor_readers[i] |= gids
+        gids = subscriber_gids(self, self.fleet_sensor_pub)
+        if gids - self._sensor_readers and self._readers_known:
+            self._resend_due[:] = True
+            self._ack_wall[:] = time.monotonic()  # no tail re-send for a while
+        self._sensor_readers |= gids
+        self._sensor_read = np.array([p.get_subscription_count() > 0
+                                      for p in self.sensor_pubs], dtype=bool)
         self._readers_known = self.started  # the readers at step 0 are not new
         sent = self._publish_kept(due, np.full(len(self.ids), -np.inf))
         if sent:
@@ -840,19 +859,59 @@ class LineSimulator(Node):
                                    "reader")
         return sent
 
+    def _send_samples(self, ts: np.ndarray, trains: np.ndarray, which: np.ndarray,
+                      names: list[str], omega: np.ndarray, clamp: np.ndarray,
+                      accel: np.ndarray, vref: np.ndarray, mass: np.ndarray,
+                      live: bool) -> None:
+        """Publish samples (in order) as one FleetBrakeSensorData; keep the live ones.
+
+        ``ts`` [s], ``trains`` (train indices), ``which`` (indices into ``names``, the
+        message's train ids), ``omega`` [rad/s] and ``clamp`` [N] (samples x axles),
+        ``accel`` [m/s^2], ``vref`` [m/s], ``mass`` [kg] per sample.  Live samples also go
+        to the ``/<train>/brake_sensors`` that had a reader at the last check, and are kept
+        for a re-send (``sensor_resend_s``).
+        """
+        self.fleet_sensor_pub.publish(conv.fleet_sensor_msg(
+            names, float(self.sim.t), which, ts, omega, clamp, accel, vref, mass,
+            out=self._fleet_sensor_out))
+        if not live:
+            return
+        read = self._sensor_read
+        keep = self.sensor_resend_s > 0.0
+        if not (keep or read.any()):
+            return
+        tl, il = ts.tolist(), trains.tolist()
+        al, vl, ml = accel.tolist(), vref.tolist(), mass.tolist()
+        log = self.sensor_log
+        for j, i in enumerate(il):
+            sample = (tl[j], omega[j], clamp[j], al[j], vl[j], ml[j])
+            if read[i]:
+                # one message object per train, refilled (publish copies it out at once)
+                self.sensor_pubs[i].publish(conv.fill_sensor_msg(self._sensor_out[i], *sample))
+            if keep:
+                log.append((tl[j], i, sample))
+
     def _publish_kept(self, trains: np.ndarray, after_t: np.ndarray) -> int:
-        """Publish again the kept samples of ``trains`` newer than ``after_t`` (per train)."""
+        """Publish again the kept samples of ``trains`` newer than ``after_t`` (per train).
+
+        In batches of :data:`RESEND_BATCH` samples on the fleet topic, paused in between.
+        """
         if not trains.any():
             return 0
-        sent = 0
-        for ts, i, sample in self.sensor_log:
-            if trains[i] and ts > after_t[i]:
-                self.sensor_pubs[i].publish(conv.sensor_sample_msg(self.ids[i], *sample))
-                sent += 1
-                if sent % RESEND_CHUNK == 0:
-                    # best effort through a writer history of 20: paced, or a burst is lost
-                    time.sleep(RESEND_PAUSE_S)
-        return sent
+        picked = [(i, sample) for ts, i, sample in self.sensor_log
+                  if trains[i] and ts > after_t[i]]
+        for n in range(0, len(picked), RESEND_BATCH):
+            if n:
+                time.sleep(RESEND_PAUSE_S)
+            part = picked[n:n + RESEND_BATCH]
+            tr = np.array([i for i, _ in part], dtype=np.int64)
+            self._send_samples(np.array([s[0] for _, s in part]), tr, tr, self.ids,
+                               np.array([s[1] for _, s in part]),
+                               np.array([s[2] for _, s in part]),
+                               np.array([s[3] for _, s in part]),
+                               np.array([s[4] for _, s in part]),
+                               np.array([s[5] for _, s in part]), live=False)
+        return len(picked)
 
     def sensors_unacknowledged(self) -> np.ndarray:
         """Trains whose brake diagnosis (once heard) has not acknowledged their last sample."""
