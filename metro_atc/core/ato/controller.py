@@ -25,6 +25,7 @@ from metro_atc.core.ato.fuzzy import FuzzyController, FuzzyParams
 from metro_atc.core.ato.pi import PIController, PIParams
 from metro_atc.core.ato.planner import PLANNERS, Profile, plan_profile
 from metro_atc.core.ato.reference_curve import ProfileReference
+from metro_atc.core.ato.tsr_plan import track_with_tsrs
 from metro_atc.core.line.vehicle import (Track, TrainParams, max_traction_force_at,
                                          resistance_force_at)
 from metro_atc.core.scalar_math import sqrt_or_nan
@@ -110,7 +111,7 @@ class AtoCore:
             else PIController(PIParams())
         self._shared: dict[str, Any] = shared if shared is not None else {}
         self._cache: dict[Any, Any] = self._shared.setdefault("prework", {})
-        self._runs: dict[tuple[float, float], RunModel] = self._shared.setdefault("runs", {})
+        self._runs: dict[tuple[Any, ...], RunModel] = self._shared.setdefault("runs", {})
         self._plans: dict[Any, Profile] = self._shared.setdefault("plans", {})
         self.profile: Optional[Profile] = None
         self.run: Optional[RunModel] = None
@@ -140,13 +141,23 @@ class AtoCore:
         """The planned braking deceleration as an effort (a share of the service brake) [-]."""
 
     # ------------------------------------------------------------------ planning
-    def plan(self, x_start_m: float, x_stop_m: float,
-             target_running_time_s: float) -> Profile:
-        """Plan a run; returns the profile (a flat-out fallback with ``feasible=False``)."""
-        key = (float(x_start_m), float(x_stop_m))
+    def plan(self, x_start_m: float, x_stop_m: float, target_running_time_s: float,
+             restrictions: tuple[tuple[float, float, float], ...] = ()) -> Profile:
+        """Plan a run; returns the profile (a flat-out fallback with ``feasible=False``).
+
+        ``restrictions``: temporary speed limits the run respects as civil limits, (start
+        [m], end [m], limit [m/s]) (:func:`metro_atc.core.ato.tsr_plan.tsrs_for_run`).
+        """
+        key: tuple[Any, ...] = (float(x_start_m), float(x_stop_m))
+        cache = self._cache
+        if restrictions:
+            # a run of its own (envelope, pre-work tables and plans keyed by the TSRs too)
+            key = key + (tuple(restrictions),)
+            cache = self._shared.setdefault("prework_tsr", {}).setdefault(key, {})
         run = self._runs.get(key)
         if run is None:
-            run = RunModel(self.train, self.track, x_start_m, x_stop_m, self.limits)
+            track = track_with_tsrs(self.track, restrictions) if restrictions else self.track
+            run = RunModel(self.train, track, x_start_m, x_stop_m, self.limits)
             self._runs[key] = run
         params = dict(self.planner_params)
         # the profile integration grid grows with the run (cost ~ 1/h^2): 2 m on metro runs,
@@ -162,7 +173,7 @@ class AtoCore:
             if prof is not None:
                 self._plans[memo] = prof
         if prof is None:
-            prof = plan_profile(run, target_running_time_s, self.planner, self._cache, **params)
+            prof = plan_profile(run, target_running_time_s, self.planner, cache, **params)
             self._plans[memo] = prof
             if store is not None:
                 store.put(memo, prof)

@@ -39,6 +39,7 @@ from metro_atc.core.ato.controller import (JOIN_BAND_MPS, JOIN_MIN_SPEED_MPS, PR
                                            AtoCore)
 from metro_atc.core.ato.envelope import OperatingLimits
 from metro_atc.core.ato.planner import Profile
+from metro_atc.core.ato.tsr_plan import tsrs_for_run
 from metro_atc.core.bridge import ato_limits_for
 from metro_atc.core.line.atp_constants import SBI_OFFSET_MPS, atp_constants
 from metro_atc.core.line.geometry import build_geometry
@@ -136,6 +137,9 @@ class OnboardAto:
         self._ma_prev: Optional[tuple[float, float]] = None
         self.authority_speed_mps = 0.0
         """Speed at which the end of movement authority moves ahead (the train ahead) [m/s]."""
+        self._peak_mps = 0.0
+        self._next_stop_m = math.inf
+        self._held_mps = 0.0
 
     # ------------------------------------------------------------------ planning
     def on_departure(self, station: int, departure_s: float, running_s: float,
@@ -152,7 +156,9 @@ class OnboardAto:
     def plan(self, st: int, target_s: float, stamp_s: float, late: bool = False) -> PlanEvent:
         """Plan the run from station ``st`` to ``st + 1``."""
         x0, x1 = float(self.stations[st]), float(self.stations[st + 1])
-        prof = self.core.plan(x0, x1, target_s)
+        # the TSRs known now are limits of the run (issue 11: no motoring into their curve)
+        prof = self.core.plan(x0, x1, target_s, tsrs_for_run(self.tsrs, x0, x1,
+                                                             self.train.length_m, stamp_s))
         self.planned_from = st
         return PlanEvent(st, float(target_s), prof, float(stamp_s), late)
 
@@ -191,10 +197,16 @@ class OnboardAto:
             # in traction below a falling cap: aim where the swing to braking would end
             xp += v * self.core.swing_s
             cap_p = min(cap_p, self._cap_at(ctx, xp, True))
+        dip = self._speed_dip(s, v)
         hold = bool(ctx[4]) and v > JOIN_MIN_SPEED_MPS and cap_p > v \
-            and self._tsr_hold(ctx, xp, v, min(cap_p, self.core.reference_speed(xp)))
+            and self._tsr_hold(ctx, xp, v, min(cap_p, self.core.reference_speed(xp)), dip)
         if hold:
-            cap_p = v  # hold the speed and follow the TSR curve down when it comes
+            # hold the speed (not above the one the hold began at: on a descent the held
+            # speed would creep up, a minimum) and follow the TSR curve down when it comes
+            cap_p = min(v, self._held_mps) if self._held_mps > 0.0 else v
+            self._held_mps = cap_p
+        else:
+            self._held_mps = 0.0
         cap_h = cap_p if hold else self._cap_at(ctx, xp + h, True)
         slope = (cap_h * cap_h - cap_p * cap_p) / (2.0 * h) \
             if math.isfinite(cap_p) and math.isfinite(cap_h) else 0.0
@@ -213,7 +225,44 @@ class OnboardAto:
         mode = MODE_ACCELERATE if u > 0.05 else (MODE_BRAKE if u < -0.05 else MODE_COAST)
         return u, mode, planned
 
-    def _tsr_hold(self, ctx: tuple[Any, ...], xp: float, v: float, r: float) -> bool:
+    def _speed_dip(self, s: dict[str, Any], v: float) -> bool:
+        """Whether the speed has fallen since its last peak off the run's envelope (issue 11).
+
+        The peak [m/s] restarts at 0 at a station and follows the speed up; a train riding
+        the run's envelope (a civil limit or a braking curve to one, within
+        ``JOIN_BAND_MPS``) restarts it at its speed, so a speed lowered by a limit is no dip.
+        True when the speed is ``JOIN_BAND_MPS`` below the peak: the plan coasted (or the
+        tracker braked) and traction now would make a speed minimum here.
+        """
+        nxt = int(s["next_station"])
+        self._next_stop_m = float(self.stations[nxt]) if 0 <= nxt < len(self.stations) \
+            else math.inf
+        run = self.core.run
+        if s["mode"] == MODE_DWELL or run is None:
+            self._peak_mps = 0.0
+            return False
+        c = math.sqrt(2.0 * max(run.ceiling_e_at(run.run_coordinate_at(float(s["x_m"]))), 0.0))
+        if v >= c - JOIN_BAND_MPS or v > self._peak_mps:
+            self._peak_mps = v
+        return v < self._peak_mps - JOIN_BAND_MPS
+
+    def _tsr_dip_hold(self, ctx: tuple[Any, ...], xp: float, v: float) -> bool:
+        """No re-motoring out of a speed dip before a known TSR below the speed (issue 11).
+
+        A TSR ahead of the preview position ``xp`` [m], before the next stopping point,
+        whose target speed is below v [m/s]: whatever the distance, the gain of re-motoring
+        now would be braked away before the zone, after a speed minimum here (hunting:
+        the plan's coast-and-motor cycle before the TSR's braking curve).
+        """
+        lead = self.core.limits.restriction_lead_m
+        x_stop = self._next_stop_m
+        for z, lim in ctx[4]:
+            if xp < z.start_m - lead < x_stop and lim + JOIN_BAND_MPS < v:
+                return True
+        return False
+
+    def _tsr_hold(self, ctx: tuple[Any, ...], xp: float, v: float, r: float,
+                  dip: bool = False) -> bool:
         """No traction toward r [m/s] when a known TSR's curve takes the gain back (issue 11).
 
         Accelerating from v to r and braking back to v (the swing between them included)
@@ -222,10 +271,15 @@ class OnboardAto:
         deceleration b.  When the braking curve of a TSR ahead falls below v within H of
         the preview position ``xp`` [m], the gain would be braked away before the zone: a
         speed minimum before the TSR's own (hunting, e.g. a coast-and-motor cycle of the
-        plan just before the curve).  The train then holds its speed instead.
+        plan just before the curve).  The train then holds its speed instead.  ``dip``
+        (:meth:`_speed_dip`): the speed has fallen since its peak; then any TSR ahead before
+        the next stop whose target is below v holds it, whatever the distance
+        (:meth:`_tsr_dip_hold`).
         """
         if r <= v + JOIN_BAND_MPS:
             return False
+        if dip and self._tsr_dip_hold(ctx, xp, v):
+            return True
         a = self.core.net_accel(xp, v)
         b = self._plan_decel(xp)
         dv2 = r * r - v * v
