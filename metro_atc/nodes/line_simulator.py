@@ -115,6 +115,23 @@ NODE_STATE = ("k", "cmd_step", "cmd_effort", "lockstep_misses", "rejected", "rej
 """Node attributes saved with the plant in a checkpoint."""
 
 
+def sensor_keep_floor(now_s: float, resend_s: float, ack_t: np.ndarray,
+                      last_t: np.ndarray) -> float:
+    """Oldest stamp [s] of the brake sensor samples the simulator must still keep.
+
+    At least the last ``resend_s`` (for a reader that is new), and back to the
+    acknowledgement ``ack_t`` of every train whose newest sample ``last_t`` is not yet
+    acknowledged (a restarted reader catches up on all it missed, however long it was down).
+    A train whose samples are all acknowledged (one out of service included) holds nothing
+    back; a train never acknowledged (``-inf``) only the ``resend_s`` window.
+    """
+    floor = now_s - resend_s
+    pending = np.isfinite(ack_t) & (last_t > ack_t + 1e-6)
+    if pending.any():
+        floor = min(floor, float(ack_t[pending].min()))
+    return floor
+
+
 class LineSimulator(Node):
     """The plant node (see module docstring)."""
 
@@ -813,15 +830,10 @@ class LineSimulator(Node):
                                np.asarray(block.vref, dtype=float)[aa, bb],
                                np.asarray(block.car_mass, dtype=float)[bb], live=True)
         log = self.sensor_log
-        floor = float(self.sim.t) - self.sensor_resend_s
-        if log and log[0][0] < floor:
-            # kept back to what each train's diagnosis acknowledged (a restarted reader
-            # catches up on all it missed, however long it was down)
-            heard = np.isfinite(self.diag_ack_t) & np.isfinite(self.sensor_last_t)
-            if heard.any():
-                floor = min(floor, float(self.diag_ack_t[heard].min()))
-            while log and log[0][0] < floor:
-                log.popleft()
+        floor = sensor_keep_floor(float(self.sim.t), self.sensor_resend_s, self.diag_ack_t,
+                                  self.sensor_last_t)
+        while log and log[0][0] < floor:
+            log.popleft()
         if len(log) > self.sensor_keep_max:
             extra = len(log) - int(self.sensor_keep_max)
             for _ in range(extra):
