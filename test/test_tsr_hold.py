@@ -20,21 +20,42 @@ these 30 cases (two minima per approach).
 
 from __future__ import annotations
 
+import itertools
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
+from typing import Any
+
 import pytest
 
 from tsr_cases import shifted_tsr_row
 
+SEEDS = (39, 14)
 SHIFTS_M = (-150.0, -50.0, 50.0, 150.0, 250.0)
 LIMITS_KMH = (25.0, 30.0, 40.0)
+CASES = list(itertools.product(SEEDS, SHIFTS_M, LIMITS_KMH))
 
 
-@pytest.mark.parametrize("seed", [39, 14])
+def _row(case: tuple[int, float, float]) -> dict[str, Any]:
+    return shifted_tsr_row(*case)
+
+
+@pytest.fixture(scope="module")
+def sweep_rows() -> dict[tuple[int, float, float], dict[str, Any]]:
+    """The 30 closed loops of the sweep, run on two worker processes (each ~1-3 s CPU;
+    spawned: the test process may hold DDS threads a fork would copy)."""
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=2, mp_context=ctx) as ex:
+        return dict(zip(CASES, ex.map(_row, CASES)))
+
+
+@pytest.mark.parametrize("seed", SEEDS)
 @pytest.mark.parametrize("shift_m", SHIFTS_M)
 @pytest.mark.parametrize("limit_kmh", LIMITS_KMH)
-def test_one_speed_minimum_per_tsr_approach(seed: int, shift_m: float,
-                                            limit_kmh: float) -> None:
+def test_one_speed_minimum_per_tsr_approach(
+        sweep_rows: dict[tuple[int, float, float], dict[str, Any]], seed: int, shift_m: float,
+        limit_kmh: float) -> None:
     """0 violations, one speed minimum per TSR approach, the stops within 0.30 m."""
-    row = shifted_tsr_row(seed, shift_m, limit_kmh)
+    row = sweep_rows[(seed, shift_m, limit_kmh)]
     assert row["atp_violations"] == 0
     assert row["tsr_approaches"] >= 3
     assert row["tsr_speed_minima_max"] == 1
