@@ -9,8 +9,6 @@
   of the paper bench with a wheel fault and corrupted samples.  Every returned kind, level
   and message is the same; every estimate agrees to round-off (the kernel sums in another
   order than BLAS).
-* :func:`metro_atc.nodes.conversions.sensor_from_cdr` against rclpy's deserialisation of the
-  same bytes, and its rejections of damaged buffers.
 * Journal entries built directly equal their JSON round trip (what a restarted node reads).
 """
 
@@ -18,7 +16,6 @@ from __future__ import annotations
 
 import json
 import math
-import random
 from typing import Any
 
 import numpy as np
@@ -178,54 +175,6 @@ def test_kernel_observer_equals_numpy_on_corrupted_runs(fault: str) -> None:
     b = np.array([o[3] for o in res[True]])
     scale = np.maximum(np.max(np.abs(a), axis=0), 1e-12)
     assert (np.max(np.abs(a - b), axis=0) <= REL * scale).all()
-
-
-def test_sensor_from_cdr_equals_rclpy() -> None:
-    """Random BrakeSensorData: the CDR decoder reads what rclpy reads; damage is rejected."""
-    from metro_atc_msgs.msg import BrakeSensorData
-    from rclpy.serialization import deserialize_message, serialize_message
-
-    from metro_atc.core.validate import Rejected, bounds_for
-    from metro_atc.nodes import conversions as conv
-
-    rng = random.Random(1)
-    b = bounds_for(load_scenario("mini_pad_fault"))
-    for i in range(400):
-        m = BrakeSensorData()
-        m.header.stamp.sec = rng.randint(0, int(b.horizon_s * 1.2))
-        m.header.stamp.nanosec = rng.randint(0, 999_999_999)
-        m.header.frame_id = "x" * rng.randint(0, 9)
-        m.train_id = "train_01" if i % 4 else "".join(rng.choice("ab_\u00e90")
-                                                      for _ in range(rng.randint(0, 11)))
-        n = 4 if i % 5 else rng.randint(0, 6)
-        m.wheel_angular_speed_radps = [rng.uniform(-60.0, 1100.0) if rng.random() > 0.1
-                                       else math.nan for _ in range(n)]
-        m.clamp_force_n = [rng.uniform(-1e5, 1e6) for _ in range(n)]
-        m.longitudinal_acceleration_mps2 = rng.uniform(-5.0, 5.0)
-        m.reference_speed_mps = math.nan if rng.random() < 0.1 else rng.uniform(0.0, 30.0)
-        m.car_mass_kg = rng.uniform(500.0, 1e5)
-        raw = serialize_message(m)
-        outcome = []
-        for parse in (lambda: conv.sensor_from_msg(deserialize_message(raw, BrakeSensorData),
-                                                   "/t", "train_01", 4, b),
-                      lambda: conv.sensor_from_cdr(raw, "/t", "train_01", 4, b)):
-            try:
-                outcome.append(repr(parse()))
-            except Rejected as exc:
-                outcome.append(exc.kind)
-        assert outcome[0] == outcome[1], (i, outcome)
-        # the acknowledgement's stamp, read before any validation: the message's own
-        assert conv.sensor_stamp(raw) == conv.from_time(m.header.stamp) \
-            == conv.sensor_stamp(deserialize_message(raw, BrakeSensorData))
-        assert conv.sensor_stamp(raw[:6]) is None
-        for cut in (3, 9, len(raw) // 2, len(raw) - 1):
-            try:
-                conv.sensor_from_cdr(raw[:cut], "/t", "train_01", 4, b)
-            except Rejected as exc:
-                assert exc.kind in ("malformed", "train_id", "axles", "range", "time")
-    # another encapsulation (here a made-up one) goes through rclpy: rejected, not raised
-    with pytest.raises(Rejected):
-        conv.sensor_from_cdr(b"\x00\x0b\x00\x00" + raw[4:], "/t", "train_01", 4, b)
 
 
 def test_journal_entries_equal_their_json_round_trip(

@@ -14,8 +14,6 @@ from __future__ import annotations
 import array
 import functools
 import math
-import struct
-from types import SimpleNamespace
 from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
@@ -23,7 +21,6 @@ from builtin_interfaces.msg import Time
 from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureCommand,
                                 FleetBrakeSensorData, FleetCommand, FleetState, LineStatus,
                                 TractionCommand, TrainEvent, TrainState)
-from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 
 from metro_atc.core.validate import (Bounds, Rejected, StepWindow, check_finite, check_index,
@@ -42,9 +39,18 @@ MODES = range(TrainState.MODE_ATP_BRAKE + 1)
 
 
 def to_time(t_s: float) -> Time:
-    """Simulation seconds -> builtin_interfaces/Time (floor to the nanosecond)."""
+    """Simulation seconds -> builtin_interfaces/Time (rounded to the nanosecond)."""
+    return set_stamp(Time(), t_s)
+
+
+def set_stamp(stamp: Any, t_s: float) -> Any:
+    """Set a builtin_interfaces/Time in place to ``t_s`` simulation seconds; return it.
+
+    Rounded to the nanosecond (negative times clamp to 0), as :func:`stamps_ns` does.
+    """
     ns = int(round(max(0.0, float(t_s)) * 1e9))
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+    stamp.sec, stamp.nanosec = divmod(ns, 1_000_000_000)
+    return stamp
 
 
 def from_time(t: Time) -> float:
@@ -312,10 +318,7 @@ def fill_sensor_msg(m: BrakeSensorData, t_s: float, omega_radps: Any, clamp_n: A
     Same values as :func:`sensor_sample_msg`; the simulator refills one message per train
     (building a message with its header and stamp objects cost more than publishing it).
     """
-    ns = int(round(max(0.0, float(t_s)) * 1e9))
-    stamp = m.header.stamp
-    stamp.sec = ns // 1_000_000_000
-    stamp.nanosec = ns % 1_000_000_000
+    set_stamp(m.header.stamp, t_s)
     m.wheel_angular_speed_radps = doubles(omega_radps)
     m.clamp_force_n = doubles(clamp_n)
     m.longitudinal_acceleration_mps2 = float(accel_mps2)
@@ -375,103 +378,6 @@ def sensor_from_msg(msg: BrakeSensorData, topic: str, train_id: str, n_axles: in
             "car_mass": mass if math.isfinite(mass) else math.nan}
 
 
-class _SensorView:
-    """The fields of a BrakeSensorData decoded from CDR (what :func:`sensor_from_msg` reads)."""
-
-    __slots__ = ("header", "train_id", "wheel_angular_speed_radps", "clamp_force_n",
-                 "longitudinal_acceleration_mps2", "reference_speed_mps", "car_mass_kg")
-
-    def __init__(self, sec: int, nanosec: int, train_id: str, omega: np.ndarray,
-                 clamp: np.ndarray, accel: float, vref: float, mass: float) -> None:
-        """Store the decoded fields (the stamp as a builtin_interfaces/Time-like pair)."""
-        self.header = SimpleNamespace(stamp=SimpleNamespace(sec=sec, nanosec=nanosec))
-        self.train_id = train_id
-        self.wheel_angular_speed_radps = omega
-        self.clamp_force_n = clamp
-        self.longitudinal_acceleration_mps2 = accel
-        self.reference_speed_mps = vref
-        self.car_mass_kg = mass
-
-
-_CDR_ORDER = {b"\x00\x00": ">", b"\x00\x01": "<"}
-"""Plain CDR (XCDR1) encapsulation identifiers: big / little endian."""
-
-
-def _decode_sensor_cdr(data: bytes) -> _SensorView | None:
-    """BrakeSensorData fields from its plain-CDR serialisation (None: another encoding).
-
-    The layout of ``msg_defs/msg/BrakeSensorData.msg`` in XCDR1 (what rmw_fastrtps and
-    rmw_cyclonedds write): after the 4-byte encapsulation header, ``int32 sec``,
-    ``uint32 nanosec``, two strings (``uint32`` length with the NUL, the bytes), two
-    ``float64`` sequences (``uint32`` count, 8-byte aligned values) and three ``float64``;
-    alignment is relative to the end of the encapsulation header.  A truncated or
-    inconsistent buffer raises ``struct.error`` / ``ValueError``.
-    """
-    order = _CDR_ORDER.get(bytes(data[:2]))
-    if order is None:
-        return None
-    buf = memoryview(data)[4:]
-    u32 = struct.Struct(order + "I")
-    sec, nanosec, n = struct.unpack_from(order + "iII", buf, 0)
-    o = 12 + n  # frame_id (not used)
-    o = (o + 3) & ~3
-    (n,) = u32.unpack_from(buf, o)
-    if n < 1 or o + 4 + n > len(buf) or buf[o + 3 + n] != 0:
-        raise ValueError("train_id string malformed")
-    train_id = bytes(buf[o + 4:o + 3 + n]).decode("utf-8")
-    o = (o + 4 + n + 3) & ~3
-    seqs = []
-    for _ in range(2):
-        (n,) = u32.unpack_from(buf, o)
-        o += 4
-        if n:
-            o = (o + 7) & ~7
-        if o + 8 * n > len(buf):
-            raise ValueError("float64 sequence longer than the buffer")
-        seqs.append(np.array(struct.unpack_from(f"{order}{n}d", buf, o), dtype=float))
-        o += 8 * n
-    o = (o + 7) & ~7
-    accel, vref, mass = struct.unpack_from(order + "3d", buf, o)
-    return _SensorView(sec, nanosec, train_id, seqs[0], seqs[1], accel, vref, mass)
-
-
-def sensor_stamp(msg: BrakeSensorData | bytes) -> float | None:
-    """Header stamp [s] of a BrakeSensorData or of its serialisation; None if unreadable.
-
-    Read before any validation (a receiver acknowledges rejected samples too); the same
-    float as :func:`from_time` of the decoded message.
-    """
-    if not isinstance(msg, bytes):
-        return from_time(msg.header.stamp)
-    try:
-        order = _CDR_ORDER.get(bytes(msg[:2]))
-        if order is None:
-            return from_time(deserialize_message(msg, BrakeSensorData).header.stamp)
-        sec, nanosec = struct.unpack_from(order + "iI", msg, 4)
-    except Exception:  # noqa: BLE001 - an unreadable buffer has no stamp
-        return None
-    return float(sec) + 1e-9 * float(nanosec)
-
-
-def sensor_from_cdr(data: bytes, topic: str, train_id: str, n_axles: int,
-                    b: Bounds) -> dict[str, Any]:
-    """:func:`sensor_from_msg` of a serialised BrakeSensorData (a raw subscription's bytes).
-
-    Decodes plain CDR directly (:func:`_decode_sensor_cdr`, ~10x cheaper than building the
-    rclpy message); any other encapsulation goes through ``rclpy.serialization``.  Bytes
-    that decode to no BrakeSensorData are rejected (kind ``malformed``); the validation is
-    :func:`sensor_from_msg`'s.
-    """
-    try:
-        msg: Any = _decode_sensor_cdr(data)
-        if msg is None:
-            msg = deserialize_message(data, BrakeSensorData)
-    except Exception as exc:  # noqa: BLE001 - any undecodable buffer is one rejection
-        raise Rejected("malformed", f"{topic}: undecodable BrakeSensorData "
-                       f"({type(exc).__name__})") from None
-    return sensor_from_msg(msg, topic, train_id, n_axles, b)
-
-
 FLEET_SENSOR_MAX_SAMPLES = 10_000
 """Most samples one FleetBrakeSensorData may carry (beyond: the message is rejected, kind
 ``length``); a step of the largest line has a few hundred, a re-sent batch fewer."""
@@ -512,10 +418,7 @@ def fleet_sensor_msg(train_ids: Sequence[str], t_step_s: float, trains: Any,
     """
     m = out if out is not None else FleetBrakeSensorData()
     m.header.frame_id = "line"
-    ns = int(round(max(0.0, float(t_step_s)) * 1e9))
-    stamp = m.header.stamp
-    stamp.sec = ns // 1_000_000_000
-    stamp.nanosec = ns % 1_000_000_000
+    set_stamp(m.header.stamp, t_step_s)
     m.train_id = list(train_ids)
     w = np.asarray(omega_radps, dtype=np.float64)
     n = len(t_s)

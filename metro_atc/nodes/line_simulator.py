@@ -115,6 +115,15 @@ NODE_STATE = ("k", "cmd_step", "cmd_effort", "lockstep_misses", "rejected", "rej
 """Node attributes saved with the plant in a checkpoint."""
 
 
+def unacknowledged(ack_t: np.ndarray, last_t: np.ndarray) -> np.ndarray:
+    """Trains whose brake diagnosis has not acknowledged their newest sensor sample.
+
+    ``ack_t``: the acknowledged stamp [s] (-inf: no diagnosis heard yet, not pending);
+    ``last_t``: the newest sample's stamp [s].
+    """
+    return np.isfinite(ack_t) & (last_t > ack_t + 1e-6)
+
+
 def sensor_keep_floor(now_s: float, resend_s: float, ack_t: np.ndarray,
                       last_t: np.ndarray) -> float:
     """Oldest stamp [s] of the brake sensor samples the simulator must still keep.
@@ -126,7 +135,7 @@ def sensor_keep_floor(now_s: float, resend_s: float, ack_t: np.ndarray,
     back; a train never acknowledged (``-inf``) only the ``resend_s`` window.
     """
     floor = now_s - resend_s
-    pending = np.isfinite(ack_t) & (last_t > ack_t + 1e-6)
+    pending = unacknowledged(ack_t, last_t)
     if pending.any():
         floor = min(floor, float(ack_t[pending].min()))
     return floor
@@ -927,7 +936,7 @@ class LineSimulator(Node):
 
     def sensors_unacknowledged(self) -> np.ndarray:
         """Trains whose brake diagnosis (once heard) has not acknowledged their last sample."""
-        return np.isfinite(self.diag_ack_t) & (self.sensor_last_t > self.diag_ack_t + 1e-6)
+        return unacknowledged(self.diag_ack_t, self.sensor_last_t)
 
     def resend_tail(self, pending: np.ndarray) -> int:
         """Publish again the kept samples after each pending train's acknowledgement.
@@ -935,7 +944,8 @@ class LineSimulator(Node):
         Only for a train whose diagnosis kept acknowledging the same sample for
         :data:`TAIL_RESEND_S` (a live reader that has taken all it got) while its readers
         stayed the same (a new reader gets the whole re-send of :meth:`resend_sensors`, and
-        restarts ``_ack_wall``); they are the samples the best-effort topic lost. Returns the
+        restarts ``_ack_wall``); they are samples the reader lost (a keep-last
+        history of 1 000 batches overrun). Returns the
         number of samples sent.
         """
         due = pending & (self._ack_seen_wall - self._ack_wall >= TAIL_RESEND_S) \
