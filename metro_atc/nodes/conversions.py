@@ -25,6 +25,7 @@ from rosgraph_msgs.msg import Clock
 
 from metro_atc.core.validate import (Bounds, Rejected, StepWindow, check_finite, check_index,
                                      check_range, check_stamp, check_time)
+from metro_atc.nodes import cdr
 
 REGULATOR_CODES = {"none": DepartureCommand.REGULATOR_NONE, "lqr": DepartureCommand.REGULATOR_LQR,
                    "dhp": DepartureCommand.REGULATOR_DHP, "aoc": DepartureCommand.REGULATOR_AOC,
@@ -442,7 +443,7 @@ def _f64(values: Any) -> np.ndarray:
 
 
 def fleet_sensor_samples(msg: FleetBrakeSensorData, topic: str, index: Mapping[str, int],
-                         n_axles: int, b: Bounds
+                         n_axles: int, b: Bounds, lists: bool = False
                          ) -> list[tuple[str | None, float, dict[str, Any] | Rejected]]:
     """Validate a FleetBrakeSensorData; return per sample ``(train, stamp, sample)``.
 
@@ -457,7 +458,9 @@ def fleet_sensor_samples(msg: FleetBrakeSensorData, topic: str, index: Mapping[s
     ``index`` comes back with train ``None`` and a rejection of kind ``train_id``.
     ``stamp`` is the sample's stamp [s] (also of a rejected one: a receiver acknowledges
     those too).  The sample dicts are those of :func:`sensor_from_msg` (``omega``, ``clamp``
-    float arrays of ``n_axles``; ``car_mass`` NaN when not finite).
+    float arrays of ``n_axles``; ``car_mass`` NaN when not finite).  With ``lists`` they
+    are float lists instead (a sample dict is then its own JSON round trip: the
+    ``brake_diagnostic`` node journals it as it is, issue 13).
     """
     ns = np.frombuffer(msg.stamp_ns, dtype=np.int64) if isinstance(msg.stamp_ns, array.array) \
         else np.asarray(msg.stamp_ns, dtype=np.int64).reshape(-1)
@@ -511,6 +514,8 @@ def fleet_sensor_samples(msg: FleetBrakeSensorData, topic: str, index: Mapping[s
     known = [index.get(name) is not None for name in ids]
     # rows of x (owned: the message's buffers are not kept)
     wl, cl = x[:, :n_axles], x[:, n_axles:2 * n_axles]
+    if lists:
+        wl, cl = wl.tolist(), cl.tolist()
     tl, al, vl = t.tolist(), acc.tolist(), vref.tolist()
     ml = np.where(np.isfinite(mass), mass, np.nan).tolist()
     badl, whichl = bad.tolist(), which.tolist()
@@ -697,6 +702,27 @@ def fleet_state_msg(train_ids: Sequence[str], idx: "Sequence[int] | np.ndarray",
     return m
 
 
+def fleet_state_cdr(builder: cdr.FleetStateBuilder, idx: np.ndarray,
+                    states: Mapping[str, np.ndarray], step: int, t_s: float,
+                    echo: np.ndarray) -> bytes:
+    """The serialized FleetState of the trains ``idx`` (:mod:`metro_atc.nodes.cdr`).
+
+    The values of :func:`fleet_state_msg` (same fields, same conversions), built without
+    a message object (issue 13: the simulator publishes it every step).  ``builder``: the
+    layout of the train ids of ``idx`` (:class:`cdr.FleetStateBuilder`); ``echo`` per entry
+    of ``idx``.
+    """
+    n = idx.size
+    arrays: list[Any] = []
+    for field, key in zip(FLEET_STATE_FIELDS, _FLEET_STATE_KEYS):
+        a = states.get(key)
+        arrays.append(math.nan if a is None else np.asarray(a)[idx])
+    arrays.append(np.asarray(echo, dtype=bool))
+    if builder.n != n:
+        raise ValueError(f"a FleetState layout of {builder.n} trains for {n}")
+    return builder.build(t_s, step, arrays)
+
+
 class _Entry:
     """One train of a fleet message seen as a per-train message (for the per-train rules)."""
 
@@ -802,6 +828,51 @@ def fleet_command_efforts(msg: FleetCommand, topic: str, index: Mapping[str, int
         check_stamp(topic, from_time(msg.header.stamp), t_s)
     except Rejected:
         return None
+    return ix, np.clip(e, -1.0, 1.0)
+
+
+FALLBACK = None
+"""What :func:`fleet_command_efforts_cdr` returns when the message must take the slow path."""
+
+
+def fleet_command_efforts_cdr(data: bytes, topic: str, index: dict[bytes, int],
+                              ix_cache: dict[tuple[bytes, ...], np.ndarray], step: int,
+                              t_s: float) -> tuple[np.ndarray, np.ndarray | None] | None:
+    """:func:`fleet_command_efforts` of a serialized FleetCommand (a raw subscription).
+
+    ``index``: train id (UTF-8 bytes) -> train index; ``ix_cache``: the train indices of
+    each train id list seen (filled here; the caller bounds it).  Returns what
+    :func:`fleet_command_efforts` returns for a message all of whose entries pass, and
+    :data:`FALLBACK` (None) for anything else: bytes that are not a well-formed FleetCommand
+    (:mod:`metro_atc.nodes.cdr`), arrays of unequal lengths, an unknown or repeated train,
+    an entry breaking a per-entry rule; the caller then deserializes the message and takes
+    the object path, which rejects and counts exactly as for a message object.  Never
+    raises.
+    """
+    m = cdr.read_fleet_command(data)
+    if m is None:
+        return FALLBACK
+    n = len(m.train_id_raw)
+    if m.effort.size != n or m.mode.size != n:
+        return FALLBACK
+    ix = ix_cache.get(m.train_id_raw)
+    if ix is None:
+        got = [index.get(b, -1) for b in m.train_id_raw]
+        if min(got, default=0) < 0 or len(set(got)) != n:
+            return FALLBACK
+        ix = ix_cache[m.train_id_raw] = np.array(got, dtype=np.intp)
+    e = m.effort
+    # the largest |effort| is NaN when any is (NaN fails the comparison), inf when any is
+    if n and not (float(np.abs(e).max()) <= 1.0 + 1e-9 and int(m.mode.max()) <= len(MODES) - 1):
+        return FALLBACK
+    if m.step < step:
+        return ix, None
+    if m.step != step:
+        return FALLBACK
+    try:
+        check_stamp(topic, float(m.sec) + 1e-9 * float(m.nanosec), t_s)
+    except Rejected:
+        return FALLBACK
     return ix, np.clip(e, -1.0, 1.0)
 
 
