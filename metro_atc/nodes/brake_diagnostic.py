@@ -7,7 +7,8 @@ tools), runs one :class:`~metro_atc.core.brake.metro_car.MetroBrakeObserver` (th
 seed 000 second-paper UKF, metro variant) per train at the sensor rate, and publishes
 
 * ``/<train>/brake_diagnosis`` (``metro_atc_msgs/BrakeDiagnosis``, latched) every
-  ``diagnostics_period_s`` of wall time, at once when the train's level changes, and within
+  ``diagnostics_period_s`` of wall time if it changed, at once when the train's level
+  changes, and within
   :data:`ACK_PERIOD_S` (wall) of a new sample: its stamp is the train's newest sample, which
   the simulator takes as an acknowledgement (it keeps the samples after it for a restarted
   diagnosis, and at the end of a run waits until the last one is acknowledged);
@@ -24,8 +25,11 @@ single-threaded node serves ``N x rate`` samples per second as long as that stay
 those figures.  On Taipei Blue the used samples are few at any instant (0.4 trains per
 sample instant on average over 1 800 s), so batching the filters across trains would
 batch nothing; the per-sample costs are cut instead: one message per step for all trains,
-validated in one vectorised pass (:func:`metro_atc.nodes.conversions.fleet_sensor_samples`),
-journal entries built directly and written once per burst.
+validated in one vectorised pass (:func:`metro_atc.nodes.conversions.fleet_sensor_samples`,
+its samples as float lists that are their own journal entries), the journal lines formatted
+directly and written once per burst, the per-axle arithmetic of the watch and
+the observer done on plain floats (issue 13: ``test/brake_replay.py`` replays a run's
+batches bit for bit against the code before).
 The Taipei Blue scenario at 20 Hz needs at most 30 x 20 = 600 updates per simulated
 second (every train braking at once), and the simulator sends the full rate only while a
 car brakes (a 1 Hz heartbeat otherwise); one process per train would cost 30 Python
@@ -140,6 +144,14 @@ class BrakeDiagnostic(Node):
         [s] (what the acknowledgement covers besides the observer's newest sample)."""
         self._pub_stamp = {t: math.nan for t in self.ids}
         """Stamp of each train's last BrakeDiagnosis [s] (the acknowledged sample)."""
+        self._pub_key: dict[str, tuple[Any, ...]] = {}
+        """What each train's last BrakeDiagnosis was built from (its watch's generation,
+        samples received, stamp, level): the /diagnostics tick publishes it again only if
+        changed."""
+        self._status_cache: dict[str, tuple[tuple[Any, ...], DiagnosticStatus]] = {}
+        """Each train's last /diagnostics status and the key it was built for."""
+        self._gen = {t: 0 for t in self.ids}
+        """Times each train's watch was rebuilt from its journal (part of those keys)."""
         self.ack_timer = self.create_timer(ACK_PERIOD_S, self._acknowledge,
                                            clock=Clock(clock_type=ClockType.STEADY_TIME))
         ck_dir = static(self, "checkpoint_dir", "",
@@ -147,7 +159,7 @@ class BrakeDiagnostic(Node):
                         "node replays them, a simulator resumed behind is followed back")
         self.journals: dict[str, Journal] = {}
         self._unwritten: dict[str, list[dict[str, Any]]] = {}
-        """Journal entries of the current burst of samples, written by :meth:`flush`."""
+        """Journal entries not written yet (written by :meth:`flush`)."""
         self._kv: dict[str, dict[str, KeyValue]] = {t: {} for t in self.ids}
         """The /diagnostics key-values of each train (reused: only their values change)."""
         self.down_since: set[str] = set()
@@ -190,6 +202,7 @@ class BrakeDiagnostic(Node):
     def _replay(self, train_id: str, entries: list[dict[str, Any]]) -> None:
         """A fresh observer of ``train_id`` fed with journaled samples (no publication)."""
         w = self.watch[train_id] = TrainBrakeWatch(train_id, self.setup)
+        self._gen[train_id] = self._gen.get(train_id, 0) + 1
         for e in entries:
             if "rejected" in e:
                 w.reject()
@@ -253,16 +266,17 @@ class BrakeDiagnostic(Node):
     def flush(self) -> None:
         """Write the journal entries of the samples handled since the last call.
 
-        Called after each burst of samples (one wait of the sample loop), by the
-        /diagnostics tick and at shutdown: one write per journal and burst instead of
-        one per sample.  A kill between a sample and its write loses it from the journal
-        like a sample lost before the kill (see :meth:`_rewind`).
+        Called after each burst of samples (one wait of the sample loop), before every
+        BrakeDiagnosis (the acknowledgement), by the /diagnostics tick and at shutdown: one
+        write per journal and burst instead of one per sample.  A kill between a sample and
+        its write loses it from the journal like a sample lost before the kill (see
+        :meth:`_rewind`).
         """
         if not self._unwritten:
             return
         pending, self._unwritten = self._unwritten, {}
         for train_id, entries in pending.items():
-            self.journals[train_id].append_all(entries)
+            self.journals[train_id].append_all(entries, _entry_json)
 
     # ------------------------------------------------------------------ samples
     def _on_batch(self, msg: FleetBrakeSensorData) -> None:
@@ -274,7 +288,7 @@ class BrakeDiagnostic(Node):
         """
         try:
             items = conv.fleet_sensor_samples(msg, FLEET_SENSOR_TOPIC, self.index, N_AXLES,
-                                              self.bounds)
+                                              self.bounds, lists=True)
         except conv.MessageRejected as exc:
             self.rejections.add(exc.kind)
             self._log_bounded("", exc.kind, f"skipped sample batch ({exc.kind}): {exc}")
@@ -303,7 +317,7 @@ class BrakeDiagnostic(Node):
                 return  # nothing new (a re-send of what the topic may have lost)
             self._rewind(train_id, s)
             w = self.watch[train_id]
-            self._journal(train_id, _sample_entry(s))
+            self._journal(train_id, s)  # float lists: its own journal entry
             what = conv.guarded(topic, w.feed, s)
         except conv.MessageRejected as exc:
             w = self.watch[train_id]
@@ -330,8 +344,7 @@ class BrakeDiagnostic(Node):
             self._log_bounded(train_id, "nan",
                               f"{topic}: non-finite {', '.join(bad)} at t={s['t_s']:.3f} s "
                               f"(dropout): {action}")
-        lvl, _ = w.level_message()
-        if lvl != self._levels[train_id]:
+        if w.level() != self._levels[train_id]:
             self._publish_train(train_id, s["t_s"])
 
     # ------------------------------------------------------------------ outputs
@@ -353,6 +366,7 @@ class BrakeDiagnostic(Node):
                 self.get_logger().info(line)
         self._levels[train_id] = level
         self._pub_stamp[train_id] = stamp_s
+        self._pub_key[train_id] = (self._gen[train_id], w.counts["received"], stamp_s, level)
         c = w.counts
         self.pubs[train_id].publish(conv.diagnosis_msg(
             train_id, stamp_s, w.result, level, text, c["used"] + c["degraded"],
@@ -408,15 +422,29 @@ class BrakeDiagnostic(Node):
         return last if math.isfinite(last) else 0.0
 
     def health(self) -> list[DiagnosticStatus]:
-        """/diagnostics: one status per train (and its BrakeDiagnosis, published now).
+        """/diagnostics: one status per train (and its BrakeDiagnosis, published now if new).
 
-        Each BrakeDiagnosis is stamped with its train's newest sample.
+        Each BrakeDiagnosis is stamped with its train's newest sample; one that would say
+        what the train's last one said (same watch, samples received, stamp and level: the
+        latched message is still there) is not published again, and a status is rebuilt
+        only when its train's diagnosis changed (issue 13: thirty trains' messages every
+        tick cost more than the samples between ticks).
         """
         self.flush()
         out = []
         for t in self.ids:
-            level, text = self._publish_train(t, self._train_stamp(t))
-            out.append(self._status(t, level, text))
+            w = self.watch[t]
+            stamp = self._train_stamp(t)
+            key = (self._gen[t], w.counts["received"], stamp, w.level())
+            if self._pub_key.get(t) == key and self._levels[t] == key[3]:
+                level, text = w.level_message()
+            else:
+                level, text = self._publish_train(t, stamp)
+            cached = self._status_cache.get(t)
+            skey = (self._gen[t], w.counts["received"], level, text)
+            if cached is None or cached[0] != skey:
+                cached = self._status_cache[t] = (skey, self._status(t, level, text))
+            out.append(cached[1])
         return out
 
     def observer_rate(self) -> tuple[int, float]:
@@ -471,6 +499,31 @@ def _sample_entry(s: dict[str, Any]) -> dict[str, Any]:
 _SAMPLE_KEYS = {"t_s": 0, "omega": 0, "clamp": 0, "accel": 0, "ref_speed": 0,
                 "car_mass": 0}.keys()
 """The keys of a validated sample (see :func:`_sample_entry`)."""
+
+
+def _entry_json(e: dict[str, Any]) -> str:
+    """``json.dumps(e)`` of a journal entry, a 4-axle sample's formatted directly.
+
+    ``json`` writes a float as its ``repr``; the template gives the same text for a sample
+    of :func:`_sample_entry`'s keys (one ``%`` instead of the encoder's walk, issue 13)
+    when every value is a finite float (their ``repr`` has no ``n``: ``nan``, ``inf`` and
+    any non-float such as ``np.float64(...)`` do, and neither the template's keys nor a
+    finite float's digits, point, sign or exponent do); anything else goes through
+    ``json.dumps``.
+    """
+    if e.keys() == _SAMPLE_KEYS:
+        om, cl = e["omega"], e["clamp"]
+        if len(om) == 4 and len(cl) == 4:
+            text = _ENTRY_TEMPLATE % (e["t_s"], *om, *cl, e["accel"], e["ref_speed"],
+                                      e["car_mass"])
+            if "n" not in text:
+                return text
+    return json.dumps(e)
+
+
+_ENTRY_TEMPLATE = ('{"t_s": %r, "omega": [%r, %r, %r, %r], "clamp": [%r, %r, %r, %r], '
+                   '"accel": %r, "ref_speed": %r, "car_mass": %r}')
+"""The JSON text of a finite 4-axle sample entry (``%r`` of a float: its ``repr``)."""
 
 
 def _floats(v: Any) -> list[float]:

@@ -25,8 +25,9 @@ residual arrays (B, n_t, n_c).  Units: forces [N], time [s].
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -262,8 +263,8 @@ class OnlineDecision:
         """Initialise the timers."""
         self.reset()
 
-    def update(self, t: float, mu_b: float, mu_b_std: float, res: FloatArray,
-               res_valid: Optional[FloatArray] = None) -> int:
+    def update(self, t: float, mu_b: float, mu_b_std: float, res: FloatArray | Sequence[float],
+               res_valid: FloatArray | Sequence[bool] | None = None) -> int:
         """Process one sample and return the level (OK / WARN / ERROR).
 
         Args:
@@ -282,17 +283,19 @@ class OnlineDecision:
         dt = 0.0 if self.t_prev is None else t - self.t_prev
         self.t_prev = t
         gated = (t - self.t0) >= cfg.gate_s - 1e-9
-        raw = np.asarray(res, dtype=float)
-        if not np.isfinite(raw.sum()):
-            raw = np.where(np.isfinite(raw), raw, 0.0)
+        # per channel as plain floats (a handful of channels: numpy's per-call cost was
+        # most of this method's time, issue 13); the same arithmetic element by element
+        raw = [x if math.isfinite(x) else 0.0 for x in np.asarray(res, dtype=float).tolist()]
         if cfg.filter_tau_s <= 0.0:
-            self.res_f = raw
+            rf = raw
         else:
             h = dt if dt > 0 else self.dt_first
             a = h / (cfg.filter_tau_s + h)
-            self.res_f = self.res_f + a * (raw - self.res_f)
-        res = self.res_f
-        valid = np.ones(res.shape, dtype=bool) if res_valid is None else np.asarray(res_valid)
+            rf = [f + a * (x - f) for f, x in zip(self.res_f.tolist(), raw)]
+        self.res_f = np.array(rf)
+        n = len(rf)
+        valid = ([True] * n if res_valid is None
+                 else np.asarray(res_valid, dtype=bool).reshape(n).tolist())
         eps = 1e-9
         mu_up = mu_b + cfg.mu_b_sigmas * mu_b_std
         pad_v = gated and (mu_up < cfg.mu_b_min) and (mu_b_std < cfg.mu_b_std_max)
@@ -307,15 +310,21 @@ class OnlineDecision:
             self._pad_since = None
             if not self.latch:
                 self.pad_flaw = False
-        exc = gated & valid & (np.abs(res) > cfg.thresholds)
-        self._force_since = np.where(exc, np.minimum(self._force_since, t), np.inf)
-        lasting = t - self._force_since >= cfg.persistence_s - eps
-        if lasting.any() and self.detect_time is None:
+        thr = np.asarray(cfg.thresholds, dtype=float).reshape(-1).tolist()
+        if len(thr) == 1:  # one threshold for every channel (broadcast)
+            thr = thr * n
+        since = self._force_since.tolist()
+        exc = [gated and valid[j] and abs(rf[j]) > thr[j] for j in range(n)]
+        since = [min(since[j], t) if exc[j] else math.inf for j in range(n)]
+        self._force_since = np.array(since)
+        lasting = [t - s >= cfg.persistence_s - eps for s in since]
+        if any(lasting) and self.detect_time is None:
             self.detect_time = t
-        self.force_flaw = (self.force_flaw | lasting) if self.latch else lasting
-        if self.pad_flaw or bool(self.force_flaw.any()):
+        lasting_a = np.array(lasting, dtype=bool)
+        self.force_flaw = (self.force_flaw | lasting_a) if self.latch else lasting_a
+        if self.pad_flaw or any(self.force_flaw.tolist()):
             return LEVEL_ERROR
-        if pad_v or bool(exc.any()) or (gated and mu_up < cfg.mu_b_warn
-                                        and mu_b_std < cfg.mu_b_std_max):
+        if pad_v or any(exc) or (gated and mu_up < cfg.mu_b_warn
+                                 and mu_b_std < cfg.mu_b_std_max):
             return LEVEL_WARN
         return LEVEL_OK

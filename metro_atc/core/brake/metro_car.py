@@ -32,6 +32,7 @@ Parameters are estimates for a Taipei-MRT-class car (aligned with the line plant
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Optional, Sequence
 
@@ -41,6 +42,7 @@ from numpy.typing import ArrayLike
 from metro_atc.core.brake import diagnosis as dg
 from metro_atc.core.brake.metro_kernel import MetroUKF, kernel_enabled
 from metro_atc.core.brake.ukf import UKF, BatchUKF
+from metro_atc.core.line.adhesion import AdhesionCurve
 
 G = 9.80665
 """Standard gravity [m/s^2]."""
@@ -718,6 +720,14 @@ class MetroBrakeObserver:
         self._u_last = np.zeros(2 * N_AX + 1)
         self._u_last[-1] = self.mass
         self._last: Optional[DiagnosisResult] = None
+        self._p0: Optional[FloatArray] = None
+        """The prior covariance of :func:`metro_prior` (the same at every restart)."""
+        owner = getattr(adhesion_fn, "__self__", None)
+        self._curve = ((owner.c1, owner.c2, owner.c3)
+                       if isinstance(owner, AdhesionCurve)
+                       and getattr(adhesion_fn, "__func__", None) is AdhesionCurve.mu else None)
+        """(c1, c2, c3) when ``adhesion_fn`` is an :meth:`AdhesionCurve.mu` (evaluated
+        with plain floats by :meth:`_diagnose`), else None."""
 
     # -- helpers -----------------------------------------------------------------------
     def _init_filter(self, v0: float, omega0: Optional[FloatArray]) -> None:
@@ -726,8 +736,13 @@ class MetroBrakeObserver:
             self.ukf = self._ukf_template = make(self.p, self.dt, v0, self.tuning, self.noise,
                                                  omega0)
         else:  # the same filter as make_metro_ukf builds, its models and weights reused
-            self.ukf = self._ukf_template.restarted(*metro_prior(self.p, self.tuning, v0,
-                                                                 omega0))
+            if self._p0 is None:
+                self._p0 = metro_prior(self.p, self.tuning, v0, omega0)[1]
+            x0 = np.zeros(M_NX)  # metro_prior's mean (its covariance does not change)
+            x0[M_IV] = v0
+            x0[M_IW] = v0 / self.p.r_w if omega0 is None else omega0
+            x0[M_IMUB] = self.p.mu_b
+            self.ukf = self._ukf_template.restarted(x0, self._p0)
         self.decision.restart()
         self.counters.resets += 1
 
@@ -740,7 +755,7 @@ class MetroBrakeObserver:
 
     def set_mass(self, mass: float) -> None:
         """Update the car mass (load-weigh signal) [kg]; keeps the filter state."""
-        if np.isfinite(mass) and mass > 0:
+        if math.isfinite(mass) and mass > 0:
             self.mass = float(mass)
 
     # -- main entry --------------------------------------------------------------------
@@ -766,39 +781,54 @@ class MetroBrakeObserver:
         self.counters.updates += 1
         t = float(t)
         try:
-            z = np.concatenate((np.asarray(wheel_omega, dtype=float).reshape(N_AX),
-                                [float(accel_x), float(ref_speed)]))
+            z = np.empty(M_NY)
+            z[:N_AX] = np.asarray(wheel_omega, dtype=float).reshape(N_AX)
+            z[N_AX] = float(accel_x)
+            z[N_AX + 1] = float(ref_speed)
             fc = np.asarray(clamp_force, dtype=float).reshape(N_AX)
-            td = (np.zeros(N_AX) if drive_torque is None
-                  else np.asarray(drive_torque, dtype=float).reshape(N_AX))
-            ok = np.isfinite(z)
+            td = (None if drive_torque is None
+                  else np.asarray(drive_torque, dtype=float).reshape(N_AX).tolist())
+            okl = [math.isfinite(v) for v in z.tolist()]
             if valid_mask is not None:
-                ok &= np.asarray(valid_mask, dtype=bool).reshape(M_NY)
+                okl = [a and bool(b) for a, b in
+                       zip(okl, np.asarray(valid_mask, dtype=bool).reshape(M_NY).tolist())]
         except (TypeError, ValueError):
             self._skip("malformed sample")
             return self._result_or_default(self.t_last or 0.0, "malformed sample")
-        if not np.isfinite(t):
+        if not math.isfinite(t):
             self.counters.rejected_time += 1
             self._skip("non-finite time")
             return self._result_or_default(self.t_last or 0.0, "non-finite time")
-        u = self._u_last.copy()
-        fc_ok = np.isfinite(fc)
-        u[:N_AX] = np.where(fc_ok, np.maximum(fc, 0.0), u[:N_AX])
-        u[N_AX:2 * N_AX] = np.where(np.isfinite(td), td, u[N_AX:2 * N_AX])
-        u[-1] = self.mass
+        # the input vector (clamp forces held when invalid, np.maximum(fc, 0) as plain
+        # floats: a few numpy calls on 9 numbers cost more than the loop, issue 13)
+        ul = self._u_last.tolist()
+        fcl = fc.tolist()
+        fc_all = True
+        for j in range(N_AX):
+            f = fcl[j]
+            if math.isfinite(f):
+                ul[j] = f if f > 0.0 else 0.0
+            else:
+                fc_all = False
+        if td is not None:
+            for j in range(N_AX):
+                if math.isfinite(td[j]):
+                    ul[N_AX + j] = td[j]
+        ul[-1] = self.mass
+        u = np.array(ul)
         reason = ""
         if self.ukf is None or (self.t_last is not None and t - self.t_last > self.max_gap_s):
-            if not (ok[5] and ok[:4].all()):
+            if not (okl[5] and all(okl[:N_AX])):
                 self._skip("no valid data to initialise")
                 return self._result_or_default(t, "waiting for valid speed data")
-            self._init_filter(z[5], z[:4])
+            self._init_filter(float(z[5]), z[:N_AX])
         elif self.t_last is None or t <= self.t_last:
             self.counters.rejected_time += 1
             self._skip("out-of-order time stamp")
             return self._result_or_default(t, "out-of-order time stamp")
         else:
             dt_tot = t - self.t_last
-            n_sub = max(int(np.ceil(dt_tot / self.dt - 1e-6)), 1)
+            n_sub = max(int(math.ceil(dt_tot / self.dt - 1e-6)), 1)
             for _ in range(n_sub):
                 self.ukf.predict(self._u_last, dt_tot / n_sub)
         ukf = self.ukf
@@ -806,11 +836,11 @@ class MetroBrakeObserver:
         self.t_last = t
         self._u_last = u
         x_prev, p_prev = ukf.x.copy(), ukf.p.copy()
-        if not fc_ok.all():
+        if not fc_all:
             reason = "clamp force invalid (held)"
         used = False
-        if ok.any():
-            rows = None if ok.all() else np.flatnonzero(ok)
+        if any(okl):
+            rows = None if all(okl) else np.flatnonzero(okl)
             used = ukf.update(z if rows is None else z[rows], u, rows)
             if not used:
                 reason = "update rejected"
@@ -819,7 +849,7 @@ class MetroBrakeObserver:
         else:
             reason = "no valid measurement (predict only)"
             self.counters.predict_only += 1
-        if not np.isfinite(ukf.x.sum() + ukf.p.sum()):
+        if not math.isfinite(float(ukf.x.sum() + ukf.p.sum())):
             ukf.x, ukf.p = x_prev, p_prev
             used = False
             reason = "numerical failure (state restored)"
@@ -829,42 +859,62 @@ class MetroBrakeObserver:
 
     # -- outputs -----------------------------------------------------------------------
     def _diagnose(self, t: float, u: FloatArray, used: bool, reason: str) -> DiagnosisResult:
+        """Residuals, decision and result after an update (plain floats per axle).
+
+        The arithmetic is the array expressions' element by element, in their order
+        (``math.exp`` and ``math.sqrt`` give numpy's values: checked by
+        ``test/test_brake_replay.py`` against results recorded before this rewrite).
+        """
         assert self.ukf is not None
         p = self.p
-        x = self.ukf.x
-        pd = self.ukf.p.diagonal()
-        v = float(x[M_IV])
-        om = x[M_IW]
-        forces = x[7:19:3].copy()
-        creep = (p.r_w * om - v) / max(abs(v), p.v_min)
+        xl = self.ukf.x.tolist()
+        pm = self.ukf.p
+        v = xl[M_IV]
+        forces = xl[7:19:3]
+        den = max(abs(v), p.v_min)
+        creep = [(p.r_w * w - v) / den for w in xl[1:5]]
         cap = self.mass * (G / N_AX) * self.mu_rail
-        if self.adhesion_fn is None:
-            mu_t = adhesion(creep, self.mu_rail, p)
+        curve = self._curve
+        if curve is not None:  # sign(s) mu(clip(|s|, 0, 1)) of AdhesionCurve.mu
+            c1, c2, c3 = curve
+            mu_t = []
+            for s in creep:
+                sa = min(abs(s), 1.0)
+                m = c1 * (1.0 - math.exp(-c2 * sa)) - c3 * sa
+                mu_t.append(m if s > 0.0 else (-m if s < 0.0 else 0.0 * m))
+        elif self.adhesion_fn is None:
+            mu_t = adhesion(np.array(creep), self.mu_rail, p).tolist()
         else:
-            mu_t = np.sign(creep) * np.asarray(self.adhesion_fn(np.abs(creep)), dtype=float)
-        target = (self.mass * (G / N_AX)) * mu_t
-        res_force = forces - target
-        mu_std = float(np.sqrt(max(pd[M_IMUB], 0.0)))
+            ca = np.array(creep)
+            mu_t = (np.sign(ca) * np.asarray(self.adhesion_fn(np.abs(ca)), dtype=float)).tolist()
+        load = self.mass * (G / N_AX)
+        target = [load * m for m in mu_t]
+        res_force = [f - g for f, g in zip(forces, target)]
+        mu_std = math.sqrt(max(float(pm[M_IMUB, M_IMUB]), 0.0))
         if self.mu_b_std_floor is not None:
             floor = float(self.mu_b_std_floor(self, u))
-            if np.isfinite(floor):
+            if math.isfinite(floor):
                 mu_std = max(mu_std, floor)
-        active = (u[:N_AX] > self.min_brake_clamp) & (abs(v) > 2.0 * p.v_min)
-        level = self.decision.update(t, float(x[M_IMUB]), mu_std, res_force / cap, active)
+        moving = abs(v) > 2.0 * p.v_min
+        ul = u.tolist()
+        active = [moving and ul[j] > self.min_brake_clamp for j in range(N_AX)]
+        mu_b = xl[M_IMUB]
+        level = self.decision.update(t, mu_b, mu_std, [r / cap for r in res_force], active)
         if level == dg.LEVEL_OK:
             message = "ok"
         else:
             msgs = []
             if self.decision.pad_flaw:
-                msgs.append(f"brake pad friction {x[M_IMUB]:.2f} < {self.cfg.mu_b_min:.2f}")
+                msgs.append(f"brake pad friction {mu_b:.2f} < {self.cfg.mu_b_min:.2f}")
             for j in np.flatnonzero(self.decision.force_flaw):
                 msgs.append(f"axle {j + 1} wheel-rail force residual")
             message = "; ".join(msgs) if msgs else "violation in progress"
         result = DiagnosisResult(
-            t=t, mu_b=float(x[M_IMUB]), mu_b_std=mu_std, forces=forces,
-            force_std=np.sqrt(np.maximum(pd[7:19:3], 0.0)), target_forces=target,
-            residual_forces=res_force, residuals=self.decision.res_f.copy(), creep=creep,
-            speed=v, grade=float(x[M_IGRADE]), pad_flaw=bool(self.decision.pad_flaw),
+            t=t, mu_b=mu_b, mu_b_std=mu_std, forces=np.array(forces),
+            force_std=np.array([math.sqrt(max(float(pm[i, i]), 0.0)) for i in (7, 10, 13, 16)]),
+            target_forces=np.array(target), residual_forces=np.array(res_force),
+            residuals=self.decision.res_f.copy(), creep=np.array(creep), speed=v,
+            grade=xl[M_IGRADE], pad_flaw=bool(self.decision.pad_flaw),
             wheel_flaw=self.decision.force_flaw.copy(), level=int(level), message=message,
             measurement_used=used, skipped_reason=reason)
         self._last = result

@@ -215,6 +215,10 @@ class TrainBrakeWatch:
         self._info = (-1, 0.0)
         """(observer restarts seen, information variance of mu_b [-^2])."""
         self.obs.mu_b_std_floor = self.mu_b_std_bound
+        cur = setup.curve
+        self._c = (cur.c1, cur.c2, cur.c3)
+        self._slip_peak = cur.slip_peak
+        self._mu_peak = cur.mu_peak
 
     def reject(self) -> None:
         """Count a sample rejected before :meth:`feed` (malformed, wrong train id)."""
@@ -245,18 +249,27 @@ class TrainBrakeWatch:
             var = tun.p0_mub ** 2
         var += tun.q_mub ** 2
         om, vref = self._sample
-        fc = np.asarray(u[:N_AXLES], dtype=float)
         if ukf is not None and math.isfinite(vref) and vref > V_PSEUDO_MPS:
-            cur = self.setup.curve
-            s = np.abs(vref - p.r_w * om) / vref
-            ok = np.isfinite(s) & (s < cur.slip_peak) & (fc > 0.0)
-            if ok.any():
-                slope = cur.c1 * cur.c2 * np.exp(-cur.c2 * s[ok]) - cur.c3
-                sig_s = math.sqrt((self.setup.noise.omega * p.r_w) ** 2
-                                  + max(float(ukf.p[0, 0]), 0.0)) / vref
-                nload = obs.mass * mc.G / N_AXLES
-                gain = 2.0 * p.r_b * fc[ok] / (p.r_w * nload * slope * sig_s)
-                var = 1.0 / (1.0 / var + float(np.sum(gain * gain)))
+            # per axle as plain floats, the array expressions' arithmetic in their order
+            c1, c2, c3 = self._c
+            fc = np.asarray(u, dtype=float).tolist()[:N_AXLES]
+            oml = np.asarray(om, dtype=float).tolist()
+            info = None
+            sig_s = math.nan
+            nload = obs.mass * mc.G / N_AXLES
+            for j in range(N_AXLES):
+                s = abs(vref - p.r_w * oml[j]) / vref
+                if not (s < self._slip_peak and fc[j] > 0.0):
+                    continue  # NaN, the falling branch or no clamp force
+                if info is None:
+                    info = 0.0
+                    sig_s = math.sqrt((self.setup.noise.omega * p.r_w) ** 2
+                                      + max(float(ukf.p[0, 0]), 0.0)) / vref
+                slope = c1 * c2 * math.exp(-c2 * s) - c3
+                gain = 2.0 * p.r_b * fc[j] / (p.r_w * nload * slope * sig_s)
+                info += gain * gain
+            if info is not None:
+                var = 1.0 / (1.0 / var + info)
         self._info = (obs.counters.resets, var)
         return math.sqrt(var)
 
@@ -298,13 +311,20 @@ class TrainBrakeWatch:
         age = t - self._t_used
         if (not r.measurement_used or r.speed < V_PSEUDO_MPS or age > PSEUDO_MAX_AGE_S
                 or not abs(r.speed - vref) < PSEUDO_SPEED_GATE_MPS + 1.5 * age
-                or not (np.abs(r.creep) < self.setup.curve.slip_peak).all()):
+                or not all(abs(c) < self._slip_peak for c in r.creep.tolist())):
             return math.nan
         p = self.setup.params
-        nload = self.obs.mass * mc.G / N_AXLES
-        f = np.clip(r.target_forces, -nload * self.setup.curve.mu_peak,
-                    1.5 * p.j_w / (p.r_w * p.r_w))
-        return float(np.sum(f)) / self.obs.mass - float(p.davis_decel(np.array(r.speed)))
+        mass = self.obs.mass
+        nload = mass * mc.G / N_AXLES
+        lo, hi = -nload * self._mu_peak, 1.5 * p.j_w / (p.r_w * p.r_w)
+        f = 0.0
+        for x in r.target_forces.tolist():  # np.clip (NaN stays), then np.sum (in order)
+            f += x if x != x else (hi if x > hi else (x if x > lo else lo))
+        v = r.speed
+        a, b, c = p.davis
+        va = abs(v)
+        sign = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0 * v)
+        return f / mass - (a + b * va + c * va * va) * sign
 
     def feed(self, s: dict[str, Any]) -> str:
         """Process one sample (see class docstring)."""
@@ -318,15 +338,23 @@ class TrainBrakeWatch:
         if math.isfinite(self.t_last) and t - self.t_last > self.max_gap[0]:
             self.max_gap = (t - self.t_last, self.t_last)
         self.t_last = t
-        if math.isfinite(s["car_mass"]):
-            self.obs.set_mass(s["car_mass"])
-        om = np.asarray(s["omega"], dtype=float)
+        mass = s["car_mass"]
+        if math.isfinite(mass):
+            self.obs.set_mass(mass)
         vref = float(s["ref_speed"])
-        ok_om = np.isfinite(om)
+        if math.isfinite(vref) and vref <= V_PAUSE_MPS:
+            # a standing or slow train (most samples: the 1 Hz heartbeat): counted only
+            self.t_speed = t
+            c["paused"] += 1
+            self.state = "paused"
+            return "paused"
+        oml = np.asarray(s["omega"], dtype=float).tolist()
+        ok_om = [x for x in oml if math.isfinite(x)]
+        r_w = self.setup.params.r_w
         if math.isfinite(vref):
             v_chk = vref
-        elif ok_om.any():
-            v_chk = float(np.median(om[ok_om])) * self.setup.params.r_w
+        elif ok_om:
+            v_chk = float(np.median(ok_om)) * r_w
         else:
             v_chk = math.nan
         if math.isfinite(v_chk):
@@ -336,8 +364,8 @@ class TrainBrakeWatch:
                 self.state = "paused"
                 return "paused"
             if math.isfinite(vref):
-                slip = (vref - self.setup.params.r_w * om[ok_om]) / vref
-                if np.count_nonzero(slip > self.setup.curve.slip_peak) >= SLIDE_AXLES:
+                peak = self._slip_peak
+                if sum(1 for x in ok_om if (vref - r_w * x) / vref > peak) >= SLIDE_AXLES:
                     c["sliding"] += 1
                     self.state = "sliding"
                     return "sliding"
@@ -346,9 +374,12 @@ class TrainBrakeWatch:
             c["waiting"] += 1
             self.state = "no speed data"
             return "waiting"
+        om = np.array(oml)
         clamp = np.asarray(s["clamp"], dtype=float)
-        degraded = not (ok_om.all() and math.isfinite(vref) and np.isfinite(clamp).all()
-                        and math.isfinite(float(s["accel"])))
+        cl = clamp.tolist()
+        fin = [x for x in cl if math.isfinite(x)]
+        degraded = not (len(ok_om) == N_AXLES and math.isfinite(vref)
+                        and len(fin) == N_AXLES and math.isfinite(float(s["accel"])))
         ax = self._virtual_accel(t, vref)
         self._sample = (om, vref)
         if self.obs.ukf is not None and REGATE_GAP_S < t - self._t_fed <= MAX_GAP_S:
@@ -361,8 +392,12 @@ class TrainBrakeWatch:
         self.result = r
         if r.measurement_used:
             self._t_used = t
-        if np.isfinite(clamp).any() and float(np.nanmean(clamp)) > BRAKED_CLAMP_N:
-            self.braked_updates += 1
+        if fin:  # np.nanmean: the sum with NaN as 0, over the finite count
+            total = 0.0
+            for x in cl:
+                total += x if math.isfinite(x) else 0.0
+            if total / len(fin) > BRAKED_CLAMP_N:
+                self.braked_updates += 1
         if r.mu_b_std < MU_B_STD_JUDGE:
             self.mu_b_range = (min(self.mu_b_range[0], r.mu_b), max(self.mu_b_range[1], r.mu_b))
             self.last_judged = (r.mu_b, r.mu_b_std, t)
@@ -375,6 +410,19 @@ class TrainBrakeWatch:
         kind = "degraded" if degraded else "used"
         c[kind] += 1
         return kind
+
+    def level(self) -> int:
+        """The level of :meth:`level_message` without its text (checked after each sample)."""
+        c = self.counts
+        if c["received"] == 0:
+            return 0
+        level = int(self.result.level) if self.updates else 0
+        if self.state in ("paused", "sliding") and level < 2:
+            level = 0
+        bad = c["rejected"] + c["degraded"] + c["waiting"]
+        if level < 1 and bad > max(20, c["received"] // 2):
+            level = 1
+        return level
 
     def level_message(self) -> tuple[int, str]:
         """The train's level (0/1/2) and a one-line message for /diagnostics."""

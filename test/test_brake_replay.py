@@ -1,0 +1,100 @@
+"""The brake watches reproduce recorded diagnoses from recorded fleet sensor batches (issue 13).
+
+``test/data/brake_batches_mini_pad_fault.npz``: the first 420 s of ``/line/brake_sensors`` of
+a ``mini_pad_fault`` graph run (main d06fecf; 1 022 batches, 4 462 samples; the pad fault of
+train_01 at 270 s and its ERROR at 278.6 s in them).  The expected summaries (final
+diagnosis, counters, judged estimates, observer state and every level change per train)
+were recorded with the code before the issue-13 per-sample rewrite
+(:mod:`test.brake_replay`), on the batches as recorded and with hostile / degraded samples
+mixed in (:func:`brake_replay.perturbed`: dropouts, slides, out-of-range values, stamps out
+of order, an unknown train).  The rewrite keeps the arithmetic element by element, so the
+comparison allows only 1e-9 relative on floats; levels, texts and counters are exact.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+import brake_replay as br  # noqa: E402
+
+DATA = Path(__file__).parent / "data"
+BATCHES = DATA / "brake_batches_mini_pad_fault.npz"
+
+
+@pytest.mark.parametrize("seed,golden", [(-1, "brake_replay_mini_pad_fault.json.gz"),
+                                         (1, "brake_replay_mini_pad_fault_perturbed.json.gz")])
+def test_replay_matches_recorded_diagnosis(seed: int, golden: str) -> None:
+    """Final BrakeDiagnosis state and alarm events equal the recorded ones."""
+    batches = br.load_batches(BATCHES)
+    if seed >= 0:
+        batches = br.perturbed(batches, seed)
+    got, _ = br.replay(batches, "mini_pad_fault")
+    want = br.read_summary(DATA / golden)
+    diffs = br.compare(want, json.loads(json.dumps(got)))
+    assert not diffs, "\n".join(diffs[:20])
+    # the stream is not trivial: the fault is announced, every sample kind occurs
+    ev = want["events"]["train_01"]
+    assert [e[1] for e in ev] == [0, 1, 2] and 270.0 < ev[-1][0] < 280.0
+    c = want["trains"]["train_01"]["counts"]
+    assert c["used"] > 300 and c["paused"] > 2000
+    if seed >= 0:
+        assert min(c["degraded"], c["sliding"], c["rejected"]) > 0
+
+
+def test_compare_sees_a_difference() -> None:
+    """The comparison is not blind: a changed float, level or length is reported."""
+    a = {"x": [1.0, 2.0], "level": 1}
+    assert br.compare(a, {"x": [1.0, 2.0 * (1 + 1e-12)], "level": 1}) == []
+    assert br.compare(a, {"x": [1.0, 2.0 * (1 + 1e-8)], "level": 1})
+    assert br.compare(a, {"x": [1.0, 2.0], "level": 2})
+    assert br.compare(a, {"x": [1.0], "level": 1})
+
+
+def test_batches_round_trip(tmp_path: Path) -> None:
+    """save_batches / load_batches keep every field of every batch."""
+    batches = br.load_batches(BATCHES)[:50]
+    br.save_batches(batches, tmp_path / "b.npz")
+    again = br.load_batches(tmp_path / "b.npz")
+    assert len(again) == len(batches)
+    for x, y in zip(batches, again):
+        assert x["train_id"] == y["train_id"]
+        for k in br.FIELDS:
+            assert x[k].tolist() == y[k].tolist()
+
+
+def test_entry_json_is_json_dumps() -> None:
+    """The node's journal line of a sample is ``json.dumps`` of it, for any values."""
+    import random
+
+    import numpy as np
+
+    from metro_atc.nodes.brake_diagnostic import _entry_json
+
+    rnd = random.Random(0)
+    special = [0.0, -0.0, 1e-300, 1e300, math.nan, math.inf, -math.inf, 35000.0, 5e-324]
+
+    def pick() -> float:
+        if rnd.random() < 0.3:
+            return rnd.choice(special)
+        return rnd.uniform(-1e6, 1e6) * 10.0 ** rnd.randint(-12, 12)
+
+    for i in range(20000):
+        e: dict[str, Any] = {"t_s": pick(), "omega": [pick() for _ in range(4)],
+                             "clamp": [pick() for _ in range(4)], "accel": pick(),
+                             "ref_speed": pick(), "car_mass": pick()}
+        if i % 17 == 0:
+            e["accel"] = np.float64(e["accel"])
+        if i % 19 == 0:
+            e["t_s"] = rnd.randint(0, 100)
+        if i % 23 == 0:
+            e["omega"] = e["omega"][:3]
+        assert _entry_json(e) == json.dumps(e), e
+    assert _entry_json({"rejected": "range"}) == json.dumps({"rejected": "range"})
