@@ -1,14 +1,15 @@
 """line_simulator node: the metro line plant, ATP and the simulation clock.
 
-Publishes ``/clock``, ``/line/fleet_state`` (every lockstep step: the states of all active
-trains in one message), per-train ``/<train>/state`` (every ``train_state_period_s`` of
-simulated time, and every step for a train not answered by a fleet command),
-``/line/brake_sensors`` (one FleetBrakeSensorData per step with samples: every train's
-brake sensor samples of the step), ``/<train>/brake_sensors`` (the same samples per train,
-best effort, only while the topic has a reader), ``/line/events`` and ``/line/status``;
-subscribes
-to ``/line/fleet_command`` (the commands of one ATO process per message), ``/<train>/command``
-(ATO traction/brake of one train) and ``/<train>/departure_command`` (ATS).
+Publishes ``/clock`` (every ``clock_period_s``), ``/line/fleet_state`` (every lockstep
+step: the states of all active trains in one message), per-train ``/<train>/state`` (every
+``train_state_period_s`` of simulated time, and every step for a train not answered by a
+fleet command), ``/line/brake_sensors`` (one FleetBrakeSensorData per
+``sensor_batch_period_s``: every train's brake sensor samples of those steps),
+``/<train>/brake_sensors`` (the same samples per train, best effort, only while the topic
+has a reader), ``/line/events`` and ``/line/status``; subscribes to ``/line/fleet_command``
+(the commands of one ATO process per message, taken as CDR bytes), ``/<train>/command``
+(ATO traction/brake of one train) and ``/<train>/departure_command`` (ATS).  The fleet
+state, ``/clock`` and the sensor batches go out as CDR bytes (:mod:`metro_atc.nodes.cdr`).
 
 Lockstep (default): step k -> k+1 happens only once every active train's command for step
 k has arrived; on ``step_timeout_s`` the last command is applied (ATP still supervises), the
@@ -36,7 +37,7 @@ from collections import deque
 from functools import partial
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any, Sequence
+from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -44,8 +45,10 @@ from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureComman
                                 FleetBrakeSensorData, FleetCommand, FleetState, LineStatus,
                                 SpeedProfile, TractionCommand, TrainEvent, TrainState)
 from rclpy.duration import Duration
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 
 from metro_atc.core.ato_watchdog import AtoWatchdog
@@ -57,6 +60,7 @@ from metro_atc.core.plant.snapshot import scenario_hash, static_parts
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.jsonsafe import json_safe
+from metro_atc.nodes import cdr
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_EVENTS,
                                     QOS_FLEET_SENSOR, QOS_LATCHED, QOS_LATCHED_IN,
@@ -100,8 +104,10 @@ RECORDER_SYNC_STEPS = 250
 lockstep waits until every reliable reader acknowledged what was published: half the
 500-state writer history, so a recorder slower than the graph loses no state (issue 13:
 with the fast tracker the graph outruns a recording node)."""
-ECHO_PERIOD_S = 0.05
-"""Wall period of the poll of the per-train command echoes and speed profiles [s]."""
+ECHO_PERIOD_S = 0.25
+"""Wall period of the poll of the per-train command echoes, speed profiles, brake diagnoses
+and the departure commands the lockstep does not wait for [s] (none is on the lockstep's
+path: a departure command becomes waited for once its train dwells)."""
 EXECUTOR_PERIOD_S = 0.25
 """Wall period of the executor spin in the node's own process (parameter services, the
 /diagnostics timer) [s]."""
@@ -113,6 +119,22 @@ NODE_STATE = ("k", "cmd_step", "cmd_effort", "lockstep_misses", "rejected", "rej
               "_next_status_t", "_next_progress_t", "regulators", "planners", "planned",
               "watchdog")
 """Node attributes saved with the plant in a checkpoint."""
+
+
+class SensorBatch(NamedTuple):
+    """Brake sensor samples in stamp order.
+
+    ``t`` [s], ``trains`` (train indices), ``omega`` [rad/s] and ``clamp`` [N] (samples x
+    axles), ``accel`` [m/s^2], ``vref`` [m/s], ``mass`` [kg] per sample.
+    """
+
+    t: np.ndarray
+    trains: np.ndarray
+    omega: np.ndarray
+    clamp: np.ndarray
+    accel: np.ndarray
+    vref: np.ndarray
+    mass: np.ndarray
 
 
 def unacknowledged(ack_t: np.ndarray, last_t: np.ndarray) -> np.ndarray:
@@ -175,6 +197,11 @@ class LineSimulator(Node):
             "simulated time between the per-train /<train>/state messages of trains whose "
             "ATO answers /line/fleet_state (the lockstep carrier, every step); 0: every step",
             0.0, 3600.0)
+        self.clock_period_s = static(
+            self, "clock_period_s", 0.0,
+            "simulated time between /clock messages [s] (0: every step; -1: "
+            "train_state_period_s); nothing in the graph steps on /clock (the lockstep "
+            "carries the time), but outside tools see a lockstep hold on it", -1.0, 3600.0)
         self.rt = RuntimeParams(self, self.health)
         self.step_timeout_s = self.rt.dynamic(
             "step_timeout_s", 10.0, "lockstep: wall time to wait for all commands [s]",
@@ -222,6 +249,11 @@ class LineSimulator(Node):
         self.checkpoint_period_s = static(
             self, "checkpoint_period_s", 60.0,
             "simulated time between checkpoints [s] (0: none)", 0.0, 1e7)
+        self.sensor_batch_period_s = static(
+            self, "sensor_batch_period_s", 1.0,
+            "brake sensors: simulated time whose samples go out in one FleetBrakeSensorData "
+            "on /line/brake_sensors (0: one message per step with samples; the last batch "
+            "goes out at a checkpoint and at the end of the run)", 0.0, 3600.0)
         self._next_progress_t = self.progress_period_s
         self._wall0 = time.monotonic()
         try:
@@ -267,16 +299,18 @@ class LineSimulator(Node):
         self.journaled: set[tuple[Any, ...]] = set()
         """Departure commands of the journal (a late copy from the ATS is not re-applied)."""
         self.resumed_from = -1
-        self.sensor_log: deque[tuple[float, int, tuple[Any, ...]]] = deque()
-        """Recent brake sensor samples (t, train, :func:`conv.sensor_sample_msg` arguments
-        after the train id) for a restarted reader."""
+        self.sensor_log: deque[SensorBatch] = deque()
+        """Recent brake sensor samples, batch by batch as published, for a restarted
+        reader."""
+        self._sensor_log_n = 0
+        """Samples in :attr:`sensor_log`."""
+        self._sensor_pending: list[SensorBatch] = []
+        """Samples of the steps since the last fleet sensor message (not yet published)."""
+        self._sensor_flush_t = -math.inf
+        """Simulated time [s] from which the pending samples are published."""
         self._sensor_out = [conv.sensor_sample_msg(t, 0.0, [], [], math.nan, math.nan,
                                                    math.nan) for t in self.ids]
         """The BrakeSensorData of each train, refilled for every sample published."""
-        self._fleet_sensor_out = FleetBrakeSensorData()
-        """The FleetBrakeSensorData, refilled for every batch published."""
-        self._sensor_ids: tuple[bytes, list[str]] = (b"", [])
-        """(train indices, their ids) of the last sensor block: its message train ids."""
         self._sensor_readers: set[bytes] = set()
         """Endpoint GIDs of the fleet sensor topic's readers seen so far."""
         self._sensor_read = np.zeros(n, dtype=bool)
@@ -302,18 +336,40 @@ class LineSimulator(Node):
         self.fleet_driven = np.zeros(n, dtype=bool)
         """Trains whose ATO answered a fleet state (their per-train state is decimated)."""
         self._fleet_matched = 0
-        self._fleet_msg: FleetState | None = None
+        self._fleet_msg: bytes | None = None
+        """The serialized fleet state of step k (published again to a late ATO process)."""
+        self._id_bytes = {tid.encode("utf-8"): i for i, tid in enumerate(self.ids)}
+        """Train id (UTF-8) -> index, for the serialized fleet commands."""
+        self._ix_cache: dict[tuple[bytes, ...], np.ndarray] = {}
+        """Train indices of each fleet command train list seen (bounded)."""
+        self._ids_blocks: dict[bytes, bytes] = {}
+        self._state_builders: dict[bytes, cdr.FleetStateBuilder] = {}
+        """FleetState layouts by the train indices' bytes."""
+        """Serialized train id lists (cdr.string_seq) by the train indices' bytes."""
         self._echo_mask = np.zeros(n, dtype=bool)
+        self._active = np.zeros(n, dtype=bool)
+        """Active trains of the last step published."""
+        self._active_idx = np.zeros(0, dtype=np.intp)
+        self._active_idx_k = -1
+        """Their indices, and the step they are of."""
         """Trains whose per-train state was published at step k too (fleet ``echo``)."""
         self.fleet_resends = 0
         """Fleet states published again for trains that did not answer in time."""
         self._step_states: tuple[int, Any] = (-1, None)
         self._dwelling: tuple[int, list[tuple[int, int]]] = (-1, [])
+        self._dep_version = 0
+        """Bumped whenever a departure is received or given up (dep_received/dep_given_up)."""
+        self._pending: tuple[tuple[int, int], list[tuple[int, int]]] = ((-1, -1), [])
+        """((k, _dep_version), pending_departures()) of the last look."""
         """(k, (train, station) of the trains dwelling in service at step k)."""
         """(k, core states published at step k): the lockstep barrier reads them again."""
         self.state_every = max(1, int(round(self.train_state_period_s
                                             / float(self.sim.control_period_s))))
         """Steps between per-train states of fleet-driven trains."""
+        clock_period = float(self.train_state_period_s if self.clock_period_s < 0
+                             else self.clock_period_s)
+        self.clock_every = max(1, int(round(clock_period / float(self.sim.control_period_s))))
+        """Steps between /clock messages."""
 
         self.clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK)
         self.event_pub = self.create_publisher(TrainEvent, "/line/events", QOS_EVENTS)
@@ -321,8 +377,10 @@ class LineSimulator(Node):
         self.state_pubs = [bulk_publisher(self, TrainState, f"/{t}/state", QOS_RELIABLE)
                            for t in self.ids]
         self.fleet_pub = bulk_publisher(self, FleetState, "/line/fleet_state", QOS_RELIABLE)
-        self.fleet_sub = bulk_subscription(self, FleetCommand, "/line/fleet_command",
-                                           self._on_fleet_command, QOS_RELIABLE)
+        # raw: the commands are read from their CDR bytes (conv.fleet_command_efforts_cdr)
+        self.fleet_sub = self.create_subscription(
+            FleetCommand, "/line/fleet_command", self._on_fleet_command, QOS_RELIABLE,
+            raw=True, event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
         self.fleet_sensor_pub = bulk_publisher(self, FleetBrakeSensorData, FLEET_SENSOR_TOPIC,
                                                QOS_FLEET_SENSOR)
         self.sensor_pubs = [bulk_publisher(self, BrakeSensorData, f"/{t}/brake_sensors",
@@ -376,25 +434,52 @@ class LineSimulator(Node):
         self.cmd_step[i] = self.k
         self.cmd_effort[i] = effort
 
-    def _on_fleet_command(self, msg: FleetCommand) -> None:
-        """Take the commands of one ATO process for step k (each entry as a /<t>/command)."""
+    def _on_fleet_command(self, msg: "bytes | FleetCommand") -> None:
+        """Take the commands of one ATO process for step k (each entry as a /<t>/command).
+
+        ``msg``: the serialized message (the raw subscription) or a message object. The
+        bytes of a clean message are read with :func:`conv.fleet_command_efforts_cdr`;
+        anything else is deserialized and takes the object path (its rejections counted
+        as for a message object; bytes rclpy cannot read: kind ``cdr``).
+        """
         topic = "/line/fleet_command"
+        if isinstance(msg, bytes):
+            if len(self._ix_cache) > 256:
+                self._ix_cache.clear()  # a writer cycling through train lists
+            fast = conv.fleet_command_efforts_cdr(msg, topic, self._id_bytes, self._ix_cache,
+                                                  self.k, float(self.sim.t))
+            if fast is not None:
+                self._take_fleet(*fast)
+                return
+            try:
+                msg = deserialize_message(msg, FleetCommand)
+            except Exception as exc:  # noqa: BLE001 - any byte string may arrive raw
+                self._reject("fleet command", conv.MessageRejected(
+                    "cdr", f"{topic}: not a FleetCommand ({str(exc)[:80]})"))
+                return
         try:
             fast = conv.fleet_command_efforts(msg, topic, self.index, self.k,
                                               float(self.sim.t))
             if fast is not None:
-                ix, efforts = fast
-                # the trains' ATO answers the fleet state (see below)
-                self.fleet_driven[ix] = True
-                if efforts is not None:
-                    self.cmd_step[ix] = self.k
-                    self.cmd_effort[ix] = efforts
+                self._take_fleet(*fast)
                 return
             entries = conv.fleet_command_entries(msg, topic, self.index)
         except conv.MessageRejected as exc:
             self._reject("fleet command", exc)
             return
         # some entry breaks a rule: entry by entry, each rejection counted
+        self._take_entries(topic, entries)
+
+    def _take_fleet(self, ix: np.ndarray, efforts: np.ndarray | None) -> None:
+        """Take a whole fleet command: trains ``ix``, their efforts (None: a stale one)."""
+        # the trains' ATO answers the fleet state (see _take_entries)
+        self.fleet_driven[ix] = True
+        if efforts is not None:
+            self.cmd_step[ix] = self.k
+            self.cmd_effort[ix] = efforts
+
+    def _take_entries(self, topic: str, entries: list[tuple[int, Any]]) -> None:
+        """Take a fleet command entry by entry (some entry breaks a rule: each counted)."""
         for i, e in entries:
             try:
                 # an entry of an earlier step is a duplicate (an ATO's answer to a fleet
@@ -436,6 +521,7 @@ class LineSimulator(Node):
             reg = _REGULATOR_NAMES.get(int(regulator), f"code {regulator}")
             self.regulators[reg] = self.regulators.get(reg, 0) + 1
         self.dep_received[i, st] = True
+        self._dep_version += 1
 
     # ------------------------------------------------------------------ resume
     def _open_checkpoints(self, folder: Path) -> None:
@@ -493,10 +579,14 @@ class LineSimulator(Node):
             except (IndexError, ValueError, TypeError) as exc:
                 self.get_logger().error(f"journaled departure command {e} not applied: {exc}")
 
+    def checkpoint_due(self) -> bool:
+        """A checkpoint is written at the current step."""
+        return bool(self.checkpoint_dir and self.checkpoint_every) and self.k != 0 \
+            and self.k % self.checkpoint_every == 0 and self.k != self.resumed_from
+
     def save_checkpoint(self) -> None:
         """Write the checkpoint of the current step (atomically) if one is due."""
-        if not (self.checkpoint_dir and self.checkpoint_every) or self.k == 0 \
-                or self.k % self.checkpoint_every or self.k == self.resumed_from:
+        if not self.checkpoint_due():
             return
         holder = SimpleNamespace(line=self.sim, **{a: getattr(self, a) for a in NODE_STATE})
         try:
@@ -668,7 +758,8 @@ class LineSimulator(Node):
         """
         self.replay_departures()
         t = float(self.sim.t)
-        self.clock_pub.publish(conv.clock_msg(t))
+        if self.k % self.clock_every == 0:
+            self.clock_pub.publish(cdr.clock(t))
         active = np.asarray(self.sim.active_mask(), dtype=bool)
         states = self.sim.states()
         self._step_states = (self.k, states)
@@ -680,8 +771,9 @@ class LineSimulator(Node):
             per_train = self._state_read(per_train)
         idx = np.flatnonzero(active)
         self._echo_mask = per_train
-        self._fleet_msg = conv.fleet_state_msg(self.ids, idx, states, self.k, t,
-                                               per_train[idx])
+        self._active_idx, self._active_idx_k, self._active = idx, self.k, active
+        self._fleet_msg = conv.fleet_state_cdr(self._state_builder(idx), idx, states, self.k,
+                                               t, per_train[idx])
         self.fleet_pub.publish(self._fleet_msg)
         for i, m in conv.state_msgs(self.ids, np.flatnonzero(per_train), states, self.k, t):
             self.state_pubs[i].publish(m)
@@ -721,9 +813,30 @@ class LineSimulator(Node):
         if k != self.k or states is None or missing.size == 0:
             return
         self.fleet_resends += 1
-        self.fleet_pub.publish(conv.fleet_state_msg(self.ids, missing, states, self.k,
-                                                    float(self.sim.t),
+        self.fleet_pub.publish(conv.fleet_state_cdr(self._state_builder(missing), missing,
+                                                    states, self.k, float(self.sim.t),
                                                     self._echo_mask[missing]))
+
+    def _state_builder(self, idx: np.ndarray) -> cdr.FleetStateBuilder:
+        """The FleetState layout of the trains ``idx`` (cached per index list)."""
+        key = np.asarray(idx, dtype=np.int64).tobytes()
+        got = self._state_builders.get(key)
+        if got is None:
+            if len(self._state_builders) > 256:
+                self._state_builders.clear()
+            got = self._state_builders[key] = cdr.FleetStateBuilder(self._ids_block(idx),
+                                                                    len(idx))
+        return got
+
+    def _ids_block(self, idx: np.ndarray) -> bytes:
+        """The train ids of ``idx`` as a serialized string[] (cached per index list)."""
+        key = np.asarray(idx, dtype=np.int64).tobytes()
+        block = self._ids_blocks.get(key)
+        if block is None:
+            if len(self._ids_blocks) > 1024:
+                self._ids_blocks.clear()
+            block = self._ids_blocks[key] = cdr.string_seq([self.ids[i] for i in idx])
+        return block
 
     def commands_complete(self, active: np.ndarray) -> bool:
         """Check the lockstep barrier of step k.
@@ -731,10 +844,19 @@ class LineSimulator(Node):
         True when all active trains sent their command for step k and the ATS has decided
         the departure of every train dwelling at a station (lockstep on the ATS as well).
         """
-        return bool(np.all(self.cmd_step[active] >= self.k)) and not self.pending_departures()
+        idx = self._active_idx if self._active_idx_k == self.k else np.flatnonzero(active)
+        return (idx.size == 0 or int(self.cmd_step[idx].min()) >= self.k) \
+            and not self.pending_departures()
+
+    def waited_trains(self) -> np.ndarray:
+        """Active trains whose per-train command the lockstep waits on (no fleet answer yet)."""
+        return self._active & ~self.fleet_driven
 
     def pending_departures(self) -> list[tuple[int, int]]:
         """(train, station) pairs dwelling without an ATS departure command yet."""
+        key = (self.k, self._dep_version)
+        if self._pending[0] == key:
+            return self._pending[1]
         ck, dwell = self._dwelling
         if ck != self.k:  # mode, service and station change only in a step
             k, st = self._step_states
@@ -749,6 +871,7 @@ class LineSimulator(Node):
         for i, j in dwell:
             if 0 <= j < last and not self.dep_received[i, j] and not self.dep_given_up[i, j]:
                 out.append((int(i), j))
+        self._pending = (key, out)
         return out
 
     def advance(self, active: np.ndarray, timed_out: bool) -> None:
@@ -757,6 +880,7 @@ class LineSimulator(Node):
             missing = [self.ids[i] for i in np.flatnonzero(active & (self.cmd_step < self.k))]
             for i, j in self.pending_departures():
                 self.dep_given_up[i, j] = True
+                self._dep_version += 1
                 self.ats_misses += 1
                 missing.append(f"ATS for {self.ids[i]} at station {j} (timetable used)")
             self.lockstep_misses += 1
@@ -788,7 +912,9 @@ class LineSimulator(Node):
             self.status_pub.publish(conv.line_status_msg(self.kpis(), self.k, t, done))
         if done:
             self.finished = True
+            self.flush_sensors(force=True)
         else:
+            self.flush_sensors(force=self.checkpoint_due())
             self.save_checkpoint()
 
     def _log_watchdog(self, e: Any) -> None:
@@ -802,21 +928,21 @@ class LineSimulator(Node):
                                       "handing the train back")
 
     def publish_sensors(self, block: Any) -> None:
-        """Publish the step's brake sensor samples (all while braking, else at the idle period).
+        """Take the step's brake sensor samples (all while braking, else at the idle period).
 
         The UKF learns the pad friction only while the clamp force is applied; between brake
         applications a sparse heartbeat keeps the diagnosis alive at a fraction of the
-        message load (20 Hz x 30 trains would be ~600 messages per simulated second).
+        message load (20 Hz x 30 trains would be ~600 messages per simulated second).  The
+        samples wait for :meth:`flush_sensors` (``sensor_batch_period_s``).
         """
         if block is None:
             return
-        # plain Python floats and lists here: numpy scalar indexing per sample was most of
-        # the node's time with ~10 samples per step at the peak (issue 13)
+        # plain Python floats here: numpy scalar indexing per sample was most of the node's
+        # time with ~10 samples per step at the peak (issue 13)
         t = np.asarray(block.t, dtype=float).tolist()
-        # braked: some axle clamp force well above the sensor noise (50 N scale)
-        braking = np.nanmax(np.asarray(block.clamp, dtype=float), axis=2, initial=0.0) > 1000.0
-        omega = np.asarray(block.omega, dtype=np.float64)
         clamp = np.asarray(block.clamp, dtype=np.float64)
+        # braked: some axle clamp force well above the sensor noise (50 N scale)
+        braking = np.nanmax(clamp, axis=2, initial=0.0) > 1000.0
         idle = float(self.sensor_idle_period_s)
         tr_all = np.asarray(block.trains, dtype=np.int64)
         last = self.sensor_last_t[tr_all]
@@ -830,24 +956,46 @@ class LineSimulator(Node):
         self.sensor_last_t[tr_all] = last
         aa, bb = np.nonzero(take)  # instant-major: the samples in stamp order
         if aa.size:
-            key = tr_all.tobytes()
-            if key != self._sensor_ids[0]:
-                self._sensor_ids = (key, [self.ids[i] for i in tr_all])
-            self._send_samples(np.asarray(block.t, dtype=float)[aa], tr_all[bb], bb,
-                               self._sensor_ids[1], omega[aa, bb], clamp[aa, bb],
-                               np.asarray(block.accel, dtype=float)[aa, bb],
-                               np.asarray(block.vref, dtype=float)[aa, bb],
-                               np.asarray(block.car_mass, dtype=float)[bb], live=True)
+            self._sensor_pending.append(SensorBatch(
+                np.asarray(block.t, dtype=float)[aa], tr_all[bb],
+                np.asarray(block.omega, dtype=np.float64)[aa, bb], clamp[aa, bb],
+                np.asarray(block.accel, dtype=float)[aa, bb],
+                np.asarray(block.vref, dtype=float)[aa, bb],
+                np.asarray(block.car_mass, dtype=float)[bb]))
+
+    def flush_sensors(self, force: bool = False) -> None:
+        """Publish the pending samples as one FleetBrakeSensorData when the batch is due.
+
+        Due once ``sensor_batch_period_s`` of simulated time passed since the last one, or
+        ``force`` (a checkpoint: the samples of the steps before it are all out, a resumed
+        simulator makes the later ones again; the end of the run).  The published samples
+        are kept for a re-send; the kept ones older than :func:`sensor_keep_floor` dropped.
+        """
+        t = float(self.sim.t)
+        if not force and t < self._sensor_flush_t:
+            return
+        self._sensor_flush_t = t + float(self.sensor_batch_period_s) - 1e-9
+        pend = self._sensor_pending
+        if pend:
+            self._sensor_pending = []
+            batch = pend[0] if len(pend) == 1 else SensorBatch(
+                *(np.concatenate(parts) for parts in zip(*pend)))
+            self._send_samples(batch, live=True)
         log = self.sensor_log
-        floor = sensor_keep_floor(float(self.sim.t), self.sensor_resend_s, self.diag_ack_t,
-                                  self.sensor_last_t)
-        while log and log[0][0] < floor:
-            log.popleft()
-        if len(log) > self.sensor_keep_max:
-            extra = len(log) - int(self.sensor_keep_max)
-            for _ in range(extra):
-                log.popleft()
+        floor = sensor_keep_floor(t, self.sensor_resend_s, self.diag_ack_t, self.sensor_last_t)
+        while log and log[0].t[-1] < floor:
+            self._sensor_log_n -= log.popleft().t.size
+        extra = self._sensor_log_n - int(self.sensor_keep_max)
+        if extra > 0:
             self.sensor_dropped += extra
+            self._sensor_log_n -= extra
+            while extra > 0:
+                first = log[0]
+                if first.t.size <= extra:
+                    extra -= log.popleft().t.size
+                else:
+                    log[0] = SensorBatch(*(a[extra:] for a in first))
+                    extra = 0
             self._warn_rate_limited("sensor_keep_max", f"{self.sensor_dropped} kept brake "
                                     f"sensor samples dropped (sensor_keep_max="
                                     f"{self.sensor_keep_max}): a brake_diagnostic that is "
@@ -880,37 +1028,32 @@ class LineSimulator(Node):
                                    "reader")
         return sent
 
-    def _send_samples(self, ts: np.ndarray, trains: np.ndarray, which: np.ndarray,
-                      names: list[str], omega: np.ndarray, clamp: np.ndarray,
-                      accel: np.ndarray, vref: np.ndarray, mass: np.ndarray,
-                      live: bool) -> None:
+    def _send_samples(self, batch: SensorBatch, live: bool) -> None:
         """Publish samples (in order) as one FleetBrakeSensorData; keep the live ones.
 
-        ``ts`` [s], ``trains`` (train indices), ``which`` (indices into ``names``, the
-        message's train ids), ``omega`` [rad/s] and ``clamp`` [N] (samples x axles),
-        ``accel`` [m/s^2], ``vref`` [m/s], ``mass`` [kg] per sample.  Live samples also go
-        to the ``/<train>/brake_sensors`` that had a reader at the last check, and are kept
-        for a re-send (``sensor_resend_s``).
+        Live samples also go to the ``/<train>/brake_sensors`` that had a reader at the last
+        check, and are kept for a re-send (``sensor_resend_s``).
         """
-        self.fleet_sensor_pub.publish(conv.fleet_sensor_msg(
-            names, float(self.sim.t), which, ts, omega, clamp, accel, vref, mass,
-            out=self._fleet_sensor_out))
+        trains = batch.trains
+        names, which = np.unique(trains, return_inverse=True)
+        n = trains.size
+        omega = batch.omega.reshape(n, -1)
+        self.fleet_sensor_pub.publish(cdr.fleet_sensors(float(self.sim.t), self._ids_block(
+            names), (which, conv.stamps_ns(batch.t), np.full(n, omega.shape[1]), omega,
+                     batch.clamp, batch.accel, batch.vref, batch.mass)))
         if not live:
             return
         read = self._sensor_read
-        keep = self.sensor_resend_s > 0.0
-        if not (keep or read.any()):
-            return
-        tl, il = ts.tolist(), trains.tolist()
-        al, vl, ml = accel.tolist(), vref.tolist(), mass.tolist()
-        log = self.sensor_log
-        for j, i in enumerate(il):
-            sample = (tl[j], omega[j], clamp[j], al[j], vl[j], ml[j])
-            if read[i]:
+        if read.any():
+            for j in np.flatnonzero(read[trains]).tolist():
+                i = int(trains[j])
                 # one message object per train, refilled (publish copies it out at once)
-                self.sensor_pubs[i].publish(conv.fill_sensor_msg(self._sensor_out[i], *sample))
-            if keep:
-                log.append((tl[j], i, sample))
+                self.sensor_pubs[i].publish(conv.fill_sensor_msg(
+                    self._sensor_out[i], float(batch.t[j]), omega[j], batch.clamp[j],
+                    float(batch.accel[j]), float(batch.vref[j]), float(batch.mass[j])))
+        if self.sensor_resend_s > 0.0:
+            self.sensor_log.append(batch)
+            self._sensor_log_n += n
 
     def _publish_kept(self, trains: np.ndarray, after_t: np.ndarray) -> int:
         """Publish again the kept samples of ``trains`` newer than ``after_t`` (per train).
@@ -919,20 +1062,21 @@ class LineSimulator(Node):
         """
         if not trains.any():
             return 0
-        picked = [(i, sample) for ts, i, sample in self.sensor_log
-                  if trains[i] and ts > after_t[i]]
-        for n in range(0, len(picked), RESEND_BATCH):
+        parts = []
+        for b in self.sensor_log:
+            sel = trains[b.trains] & (b.t > after_t[b.trains])
+            if sel.any():
+                parts.append(SensorBatch(*(a[sel] for a in b)))
+        if not parts:
+            return 0
+        picked = SensorBatch(*(np.concatenate(p) for p in zip(*parts)))
+        total = picked.t.size
+        for n in range(0, total, RESEND_BATCH):
             if n:
                 time.sleep(RESEND_PAUSE_S)
-            part = picked[n:n + RESEND_BATCH]
-            tr = np.array([i for i, _ in part], dtype=np.int64)
-            self._send_samples(np.array([s[0] for _, s in part]), tr, tr, self.ids,
-                               np.array([s[1] for _, s in part]),
-                               np.array([s[2] for _, s in part]),
-                               np.array([s[3] for _, s in part]),
-                               np.array([s[4] for _, s in part]),
-                               np.array([s[5] for _, s in part]), live=False)
-        return len(picked)
+            self._send_samples(SensorBatch(*(a[n:n + RESEND_BATCH] for a in picked)),
+                               live=False)
+        return total
 
     def sensors_unacknowledged(self) -> np.ndarray:
         """Trains whose brake diagnosis (once heard) has not acknowledged their last sample."""
@@ -1050,38 +1194,50 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
     every wait is an executor spin.
     """
     log = sim.get_logger()
-    pollers: dict[bytes, tuple[SubscriptionPoller, SubscriptionPoller, SubscriptionPoller]] = {}
+    lock_pollers: dict[tuple[bytes, tuple[int, ...]], SubscriptionPoller] = {}
+    echo_pollers: dict[bytes, SubscriptionPoller] = {}
 
-    def poller_set() -> tuple[SubscriptionPoller, SubscriptionPoller, SubscriptionPoller]:
-        """Return the (lockstep, lockstep + departures, echo) pollers of the fleet-driven set.
+    def poller_set() -> tuple[SubscriptionPoller, SubscriptionPoller]:
+        """Return the (lockstep, echo) pollers of the trains waited for.
 
-        Made again when the set of fleet-driven trains changes. The lockstep waits on the
-        fleet commands and the per-train commands of trains no fleet command answered yet,
-        and on the departure commands while a train dwells without one (the barrier waits
-        for it); the per-train commands of fleet-driven
-        trains are echoes for outside tools (the fleet command carried them already),
-        drained every slow period with the speed profiles and the departure commands of
-        trains not waited for (sent before the train reached the station): each waited-on
-        subscription costs every wait, and waking for every echo cost more than the step
-        (issue 13).
+        The lockstep waits on the fleet commands, on the per-train commands of active
+        trains no fleet command answered yet, and on the departure commands of the trains
+        dwelling without one (the barrier waits for those).  Everything else (the
+        per-train commands of fleet-driven trains, echoes for outside tools that the fleet
+        command carried already; those of trains not in service; the speed profiles; the
+        other departure commands, sent before their train reached the station; the brake
+        diagnoses) is drained every slow period: each waited-on subscription costs every
+        wait, and waking for every echo cost more than the step (issue 13).  Made again
+        when those sets change (cached).
         """
-        key = sim.fleet_driven.tobytes()
-        got = pollers.get(key)
-        if got is None:
-            pollers.clear()
-            own = [s for i, s in enumerate(sim.cmd_subs) if not sim.fleet_driven[i]]
-            echo = [s for i, s in enumerate(sim.cmd_subs) if sim.fleet_driven[i]]
-            got = pollers[key] = (
-                SubscriptionPoller(sim.context, [sim.fleet_sub, *own]),
-                SubscriptionPoller(sim.context, [sim.fleet_sub, *own, *sim.dep_subs]),
-                SubscriptionPoller(sim.context, [*echo, *sim.profile_subs, *sim.dep_subs,
-                                                 *sim.diag_subs]))
-        return got
+        own = sim.waited_trains()
+        pend = tuple(sorted({i for i, _ in sim.pending_departures()}))
+        okey = own.tobytes()
+        lock = lock_pollers.get((okey, pend))
+        if lock is None:
+            if len(lock_pollers) > 256:
+                lock_pollers.clear()
+            lock = lock_pollers[(okey, pend)] = SubscriptionPoller(
+                sim.context, [sim.fleet_sub, *(sim.cmd_subs[i] for i in np.flatnonzero(own)),
+                              *(sim.dep_subs[i] for i in pend)])
+        return lock, echo_poller()
+
+    def echo_poller() -> SubscriptionPoller:
+        """Return the poller of everything the lockstep does not wait on (see poller_set)."""
+        own = sim.waited_trains()
+        okey = own.tobytes()
+        echo = echo_pollers.get(okey)
+        if echo is None:
+            if len(echo_pollers) > 64:
+                echo_pollers.clear()
+            echo = echo_pollers[okey] = SubscriptionPoller(
+                sim.context, [*(s for i, s in enumerate(sim.cmd_subs) if not own[i]),
+                              *sim.profile_subs, *sim.dep_subs, *sim.diag_subs])
+        return echo
 
     def wait(timeout_s: float) -> None:
         if fast_path:
-            lockstep, with_departures, _ = poller_set()
-            (with_departures if sim.pending_departures() else lockstep).poll(timeout_s)
+            poller_set()[0].poll(timeout_s)
             slow_path()
         else:
             executor.spin_once(timeout_sec=timeout_s)
@@ -1116,7 +1272,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
         now = time.monotonic()
         if force or now - last_slow >= ECHO_PERIOD_S:
             last_slow = now
-            poller_set()[2].poll(0.0)
+            echo_poller().poll(0.0)
             if force or now - last_executor >= EXECUTOR_PERIOD_S:
                 # parameter services and the /diagnostics timer: each spin rebuilds the
                 # executor's wait set from all ~100 entities of the node (~1 ms)
@@ -1168,6 +1324,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
             slow_path()
         else:
             executor.spin_once(timeout_sec=0.0)
+    sim.flush_sensors(force=True)  # stopped by a signal: what was sampled goes out
     if sim.wait_for_subscribers:
         sim.wait_acked()
     if not sim.finished:
