@@ -38,6 +38,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import struct
 import time
 from pathlib import Path
 from typing import Any, NamedTuple, Sequence
@@ -46,8 +47,10 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from metro_atc_msgs.msg import (DepartureCommand, FleetCommand, FleetState, SpeedProfile,
                                 TractionCommand)
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 
 from metro_atc.core.ato.coasting import warm_up_plan_kernel
 from metro_atc.core.ato.controller import TRACKERS
@@ -59,7 +62,9 @@ from metro_atc.core.bridge import timetable_for, track_for, train_for
 from metro_atc.core.journal import read_entries
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, StepWindow, bounds_for
+from metro_atc.nodes import cdr_fleet
 from metro_atc.nodes import conversions as conv
+from metro_atc.nodes.cdr import stamp_parts
 from metro_atc.nodes.common import (OK, QOS_LATCHED, QOS_LATCHED_IN, QOS_RELIABLE, WARN,
                                     NodeConfigError, RuntimeParams, bulk_publisher,
                                     bulk_subscription, declare, diag_status, run_nodes,
@@ -387,7 +392,7 @@ class AtoController(Node):
         effort, mode = conv.guarded(topic, self.control, s)
         self._remember(s, effort, mode)
         if self._journal is not None:
-            self._journal.write(json.dumps(s) + "\n")
+            self._journal.write(state_json(s) + "\n")
             if flush:
                 self.flush_journal()
         return self._last_cmd
@@ -406,6 +411,46 @@ class AtoController(Node):
         if planned is not None:
             self._publish_plan(planned)
         return u, mode
+
+
+_STATE_KEYS = ("step", "t_s", "x_m", "v_mps", "a_mps2", "current_station", "next_station",
+               "mode", "departure_time_s", "target_running_time_s", "supervision_speed_mps",
+               "movement_authority_m", "again")
+"""The keys of a validated state (:func:`conversions.state_from_msg`), in its order."""
+
+
+def _jf(x: float) -> str:
+    """A float as :func:`json.dumps` writes it (``float.__repr__``, NaN, +-Infinity)."""
+    if x != x:
+        return "NaN"
+    if x == math.inf:
+        return "Infinity"
+    if x == -math.inf:
+        return "-Infinity"
+    return float.__repr__(x)
+
+
+def state_json(s: dict[str, Any]) -> str:
+    """``json.dumps(s)`` of a validated state, written out (the same text; issue 13).
+
+    The journal writes one line per train and step; ``json.dumps`` walked the dict in
+    general.  Any other dict (keys, order or value types not a validated state's) goes to
+    ``json.dumps``.
+    """
+    if len(s) != 13 or tuple(s) != _STATE_KEYS:
+        return json.dumps(s)
+    k, t, x, v, a, cur, nxt, md, dep, tgt, sup, ma, again = s.values()
+    if not (type(k) is int and type(cur) is int and type(nxt) is int  # noqa: E721
+            and type(md) is int and type(again) is bool and type(t) is float
+            and type(x) is float and type(v) is float and type(a) is float
+            and type(dep) is float and type(tgt) is float and type(sup) is float
+            and type(ma) is float):
+        return json.dumps(s)
+    return (f'{{"step": {k}, "t_s": {_jf(t)}, "x_m": {_jf(x)}, "v_mps": {_jf(v)}, '
+            f'"a_mps2": {_jf(a)}, "current_station": {cur}, "next_station": {nxt}, '
+            f'"mode": {md}, "departure_time_s": {_jf(dep)}, '
+            f'"target_running_time_s": {_jf(tgt)}, "supervision_speed_mps": {_jf(sup)}, '
+            f'"movement_authority_m": {_jf(ma)}, "again": {"true" if again else "false"}}}')
 
 
 def _state_key(s: dict[str, Any]) -> str:
@@ -435,15 +480,34 @@ class FleetLink:
         self.nodes = {n.train_id: n for n in nodes}
         host = nodes[0]
         self.pub = bulk_publisher(host, FleetCommand, self.TOPIC_COMMAND, QOS_RELIABLE)
-        self.sub = bulk_subscription(host, FleetState, self.TOPIC_STATE, self.on_fleet_state,
-                                     QOS_RELIABLE)
+        # the CDR bytes, read by cdr_fleet (rclpy's message objects cost more than the
+        # answers, issue 13); the commands go out as CDR bytes too
+        self.sub = host.create_subscription(
+            FleetState, self.TOPIC_STATE, self.on_fleet_state, QOS_RELIABLE, raw=True,
+            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
         # the fast path checks all entries with one set of bounds (the hosted trains share
         # their scenario; otherwise every entry takes the per-train path)
         b = {n.bounds for n in nodes}
         self.bounds = next(iter(b)) if len(b) == 1 else None
 
-    def on_fleet_state(self, msg: FleetState) -> None:
-        """Answer the hosted trains of a fleet state (a malformed message: counted, dropped)."""
+    def on_fleet_state(self, data: "bytes | FleetState") -> None:
+        """Answer the hosted trains of a fleet state (a malformed message: counted, dropped).
+
+        ``data``: the message's CDR bytes (the subscription's) or a FleetState.  Bytes are
+        read by :func:`cdr_fleet.decode_fleet_state`; what it does not read exactly goes
+        through rclpy's deserialisation (then validated as before), and bytes rclpy cannot
+        read either are counted as a rejected fleet state (kind ``cdr``).
+        """
+        msg: Any = data
+        if isinstance(data, bytes):
+            msg = cdr_fleet.decode_fleet_state(data)
+            if msg is None:
+                try:
+                    msg = deserialize_message(data, FleetState)
+                except Exception as exc:  # noqa: BLE001 - any failure of rclpy's reader
+                    next(iter(self.nodes.values()))._reject("fleet state", conv.MessageRejected(
+                        "cdr", f"{self.TOPIC_STATE}: undecodable CDR ({exc})"))
+                    return
         topic = self.TOPIC_STATE
         checked = conv.fleet_states_checked(msg, topic, self.nodes, self.bounds) \
             if self.bounds is not None else None
@@ -483,7 +547,12 @@ class FleetLink:
                                                    cmd.effort, cmd.mode))
         if ids and step is not None and stamp is not None:
             stamp = conv.from_time(conv.to_time(stamp))  # as a TractionCommand carried it
-            self.pub.publish(conv.fleet_command_msg(step, stamp, ids, efforts, modes))
+            try:
+                out: Any = cdr_fleet.encode_fleet_command(stamp_parts(stamp), "line", step,
+                                                          ids, efforts, modes)
+            except (ValueError, struct.error):
+                out = conv.fleet_command_msg(step, stamp, ids, efforts, modes)  # rclpy decides
+            self.pub.publish(out)
 
 
 class _Lazy:
