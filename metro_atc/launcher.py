@@ -486,10 +486,16 @@ def _last_error_line(log: Path) -> str:
 PROGRESS_RE = re.compile(r"t=([0-9.]+) s: ([0-9]+) trains in service, ([0-9]+) lockstep "
                          r"misses, ([0-9.]+)x real time")
 """The simulator's progress log line (``line_simulator`` parameter ``progress_period_s``)."""
+MILESTONE_RE = re.compile(r"(graph ready after [0-9.]+ s|scenario finished at t=[0-9.]+ s "
+                          r"after [0-9]+ steps, [0-9.]+ s wall)")
+"""The simulator's start (every node connected) and end log lines, echoed as they come: a
+run shows a line within seconds of its start and one before its outputs are written."""
 
 
 class ProgressTail:
     """Echo the simulator's progress lines from its log file, with horizon and ETA.
+
+    Also its "graph ready" and "scenario finished" lines (:data:`MILESTONE_RE`).
 
     ETA = simulated seconds left / the real-time factor of the line [s of wall time].
     """
@@ -516,6 +522,12 @@ class ProgressTail:
         for ln in lines:
             m = PROGRESS_RE.search(ln)
             if m is None:
+                done = MILESTONE_RE.search(ln)
+                if done is not None:
+                    then = "stepping" if done[1].startswith("graph") else \
+                        "writing the outputs"
+                    print(f"metro_atc run: {done[1]}; {then}", file=self.stream, flush=True)
+                    n += 1
                 continue
             t, trains, misses, rtf = float(m[1]), int(m[2]), int(m[3]), float(m[4])
             left = max(self.horizon_s - t, 0.0) / rtf if rtf > 0 else math.inf
@@ -625,6 +637,8 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
                       f"(log: {log_dir / (label + '.log')})", file=sys.stderr)
                 code = EXIT_NODE_FAILED
             elif sim.poll() == 0:
+                if tail is not None:
+                    tail.poll()  # the lines since the last poll (a short run: all of them)
                 break
             elif time.monotonic() > deadline:
                 print(f"metro_atc run: error: wall-clock timeout after {a.timeout:g} s "

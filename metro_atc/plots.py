@@ -22,11 +22,13 @@ from __future__ import annotations
 import csv
 import json
 import math
+from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
+from metro_atc.forked import run_jobs
 from metro_atc.jsonsafe import json_safe
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -137,6 +139,49 @@ def _shade_incidents(ax: Any, sim: "LineSim", t_end_s: float) -> None:
                             color="tab:red", xytext=(4, 4), textcoords="offset points")
 
 
+LABEL_ROWS = 3
+"""Rows of train labels above the trains' last positions (the trains that end at the
+terminus end a headway apart: one row of labels overlapped, issue 13)."""
+
+
+def _end_labels(fig: Any, ax: Any, ends: list[tuple[float, float, str, Any]]) -> None:
+    """Label each train at its last position [min, km], rows staggered so none overlap.
+
+    A label goes to the lowest of :data:`LABEL_ROWS` rows (2, 10, 18 pt above the point)
+    whose previous label at about the same height (within 0.5 km) ends before it starts
+    (label widths estimated from the font size and the axes' width in points, known once
+    the x limits are set); with all rows taken, the row whose last label ends first.
+    """
+    if not ends:
+        return
+    x0, x1 = ax.get_xlim()
+    width_pt = ax.get_position().width * fig.get_figwidth() * 72.0
+    min_per_pt = (x1 - x0) / max(width_pt, 1.0)
+    top_pt = (-math.inf, 0.0)  # (km, points above it) of the highest label
+    free: list[list[float]] = []  # per height group: per row, where its last label ends
+    groups: list[float] = []
+    for t_min, y_km, text, col in sorted(ends, key=lambda e: e[0]):
+        g = next((n for n, y in enumerate(groups) if abs(y - y_km) <= 0.5), None)
+        if g is None:
+            groups.append(y_km)
+            free.append([-math.inf] * LABEL_ROWS)
+            g = len(groups) - 1
+        start = t_min + 2.0 * min_per_pt
+        rows = free[g]
+        row = next((r for r in range(LABEL_ROWS) if rows[r] < start),
+                   int(np.argmin(rows)))
+        rows[row] = start + (0.75 * 7.0 * len(text) + 3.0) * min_per_pt
+        ax.annotate(text, (t_min, y_km), fontsize=7, color=col, xytext=(2, 2 + 8 * row),
+                    textcoords="offset points", fontweight="bold")
+        top_pt = max(top_pt, (y_km, 12.0 + 8 * row))
+    # room above the highest labels (inside the axes, below the title)
+    y0, y1 = ax.get_ylim()
+    height_pt = ax.get_position().height * fig.get_figheight() * 72.0
+    need = top_pt[0] + top_pt[1] * (y1 - y0) / max(height_pt - top_pt[1], 1.0)
+    if need > y1:
+        ax.set_ylim(y0, need)
+
+
 def plot_train_graph(sim: "LineSim", path: Path) -> None:
     """Time-distance diagram of the trains that ran: planned (dashed) and actual (solid).
 
@@ -158,19 +203,19 @@ def plot_train_graph(sim: "LineSim", path: Path) -> None:
         xx = np.repeat(pos_km, 2)
         keep = np.isfinite(tt) & (tt <= t_end + 60.0)
         ax.plot(tt[keep] / 60.0, xx[keep], ls="--", lw=0.7, color=cols[i], alpha=0.7)
+    ends: list[tuple[float, float, str, Any]] = []
     for i in ran:
         xi = np.where(run[:, i] & (x[:, i] <= sim.x_end), x[:, i], np.nan) / 1000.0
         ax.plot(t / 60.0, xi, lw=1.4, color=cols[i])
         ok = np.flatnonzero(np.isfinite(xi))
         if ok.size:
             k = ok[-1]
-            ax.annotate(sim.train_ids[i].replace("train_", "T"), (t[k] / 60.0, xi[k]),
-                        fontsize=7, color=cols[i], xytext=(2, 2), textcoords="offset points",
-                        fontweight="bold")
+            ends.append((t[k] / 60.0, xi[k], sim.train_ids[i].replace("train_", "T"), cols[i]))
+    ax.set_xlim(0.0, max(t_end / 60.0, 1.0) * 1.05)
+    _end_labels(fig, ax, ends)
     ax.plot([], [], ls="--", lw=0.8, color="0.3", label="planned (timetable)")
     ax.plot([], [], lw=1.4, color="0.3", label="actual (one colour per train, T = train)")
     _shade_incidents(ax, sim, t_end)
-    ax.set_xlim(0.0, max(t_end / 60.0, 1.0) * 1.05)
     ax.set_xlabel("time [min]")
     ax.set_ylabel("station (chainage)")
     ax.set_title(f"{sim.scn.name}: train graph, {len(ran)} of {sim.n} trains ran "
@@ -324,17 +369,44 @@ def plot_energy(sim: "LineSim", path: Path) -> None:
     plt.close(fig)
 
 
+def output_jobs(sim: "LineSim", out: Path, speed_trains: list[int] | None = None,
+                planned: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] | None = None
+                ) -> list[tuple[Path, Callable[[], None]]]:
+    """The files of a run but ``kpis.json``: (path, a call that writes it).
+
+    The PNGs (train graph, speed profiles, energy) and the events CSV, in the order
+    :func:`write_outputs` lists them; ``speed_trains`` / ``planned`` as there.
+    """
+    ev = out / "events.csv"
+    jobs: list[tuple[Path, Callable[[], None]]] = [(ev, partial(write_events_csv, sim, ev))]
+    tg = out / "train_graph.png"
+    jobs.append((tg, partial(plot_train_graph, sim, tg)))
+    if speed_trains is None:
+        ran = ran_trains(sim) or [0]
+        speed_trains = sorted({ran[0], ran[len(ran) // 2], ran[-1]})
+    for i in speed_trains:
+        sp = out / f"speed_{sim.train_ids[i]}.png"
+        jobs.append((sp, partial(plot_speed_profile, sim, i, sp, (planned or {}).get(i))))
+    en = out / "energy.png"
+    jobs.append((en, partial(plot_energy, sim, en)))
+    return jobs[1:] + jobs[:1]  # the CSV last: dealt round-robin, it evens the shares
+
+
 def write_outputs(sim: "LineSim", out_dir: str | Path,
                   speed_trains: list[int] | None = None,
                   kpis: dict[str, Any] | None = None,
-                  planned: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] | None = None
-                  ) -> list[Path]:
+                  planned: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] | None = None,
+                  workers: int | None = None) -> list[Path]:
     """Write KPIs JSON, events CSV and the PNGs into ``out_dir``; returns the files written.
 
-    ``speed_trains`` selects the speed-profile trains (default: first, middle and last of
-    the trains that ran); ``kpis`` (default :meth:`LineSim.kpis`) is what ``kpis.json``
-    holds, written once; ``planned`` (train index -> departure station -> planned curve)
-    adds the ATO's plans to the speed plots.
+    Files: ``kpis.json``, ``events.csv``, ``train_graph.png``, ``speed_<train>.png``,
+    ``energy.png``.  ``speed_trains`` selects the speed-profile trains (default: first,
+    middle and last of the trains that ran); ``kpis`` (default :meth:`LineSim.kpis`) is
+    what ``kpis.json`` holds, written once; ``planned`` (train index -> departure
+    station -> planned curve) adds the ATO's plans to the speed plots.  The files are
+    written in parallel
+    (:func:`metro_atc.forked.run_jobs`, ``workers`` processes; default: the usable cores;
+    the six PNGs of a whole run took 5.3 s one after another, issue 13).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -343,20 +415,8 @@ def write_outputs(sim: "LineSim", out_dir: str | Path,
     kp.write_text(json.dumps(json_safe(kpis if kpis is not None else sim.kpis()), indent=2,
                              sort_keys=True, allow_nan=False), encoding="utf-8")
     files.append(kp)
-    ev = out / "events.csv"
-    write_events_csv(sim, ev)
-    files.append(ev)
-    tg = out / "train_graph.png"
-    plot_train_graph(sim, tg)
-    files.append(tg)
-    if speed_trains is None:
-        ran = ran_trains(sim) or [0]
-        speed_trains = sorted({ran[0], ran[len(ran) // 2], ran[-1]})
-    for i in speed_trains:
-        sp = out / f"speed_{sim.train_ids[i]}.png"
-        plot_speed_profile(sim, i, sp, (planned or {}).get(i))
-        files.append(sp)
-    en = out / "energy.png"
-    plot_energy(sim, en)
-    files.append(en)
+    jobs = output_jobs(sim, out, speed_trains, planned)
+    _plt()  # imported before the workers fork: they share it
+    run_jobs(jobs, workers)
+    files += [jobs[-1][0]] + [path for path, _ in jobs[:-1]]  # events.csv, then the PNGs
     return files

@@ -46,9 +46,12 @@ export AMENT_PREFIX_PATH="$VENV\${AMENT_PREFIX_PATH:+:\$AMENT_PREFIX_PATH}"
 EOS
 cp "$VENV/local_setup.bash" "$VENV/setup.bash"
 
-# 4. build (colcon skips nothing by itself, so compare sources with the last build)
+# 4. build (colcon skips nothing by itself, so compare sources with the last build);
+# __pycache__ is not source: a ROS-free run from the source tree (a test, a bench) writes
+# numba's caches there, which forced a rebuild and a precompile at every `make demo`
 SRC_SHA="$(find package.xml setup.py setup.cfg resource msg_defs metro_atc config launch \
-  -type f -not -name '*.pyc' -print0 2>/dev/null | sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1)"
+  -type f -not -name '*.pyc' -not -path '*/__pycache__/*' -print0 2>/dev/null | sort -z \
+  | xargs -0 sha256sum | sha256sum | cut -d' ' -f1)"
 BSTAMP="$ROOT/install/.metro_atc_build.sha"
 if [ "$(cat "$BSTAMP" 2>/dev/null || true)" != "$SRC_SHA" ]; then
   echo "[install] colcon build (metro_atc_msgs, metro_atc)"
@@ -68,12 +71,23 @@ fi
 # the plant's and the ATO's: ~20 s in the first run after an install): a short ROS-free
 # closed loop (metro_atc.core.precompile).
 # -P and the install space only: the installed modules are the ones the nodes load.
+# Done once per build: a stamp of the sources, the numba version and the CPU (numba's
+# caches are per CPU) skips it on a warm tree (~2 s of CPU for `make demo` / `make test`).
 SITE="$(ls -d "$ROOT"/install/metro_atc/lib/python3*/site-packages | head -1)"
-if PYTHONPATH="$SITE${PYTHONPATH:+:$PYTHONPATH}" "$VENV/bin/python" -P -c \
+KSTAMP="$ROOT/install/.metro_atc_kernels.sha"
+NUMBA_DIST="$(ls -d "$VENV"/lib/python3*/site-packages/numba-*.dist-info 2>/dev/null | head -1)"
+CPU_ID="$(uname -m) $(grep -m1 'model name' /proc/cpuinfo 2>/dev/null || true)"
+K_SHA="$(printf '%s\n' "$SRC_SHA" "$(basename "${NUMBA_DIST:-none}")" "$CPU_ID" | sha256sum \
+  | cut -d' ' -f1)"
+if [ "$(cat "$KSTAMP" 2>/dev/null || true)" = "$K_SHA" ]; then
+  echo "[install] numba kernels up to date"
+elif PYTHONPATH="$SITE${PYTHONPATH:+:$PYTHONPATH}" "$VENV/bin/python" -P -c \
     'from metro_atc.core.precompile import precompile_graph_kernels as f; assert f() == 3'
 then
+  echo "$K_SHA" > "$KSTAMP"
   echo "[install] numba kernels compiled (on-disk caches)"
 else
+  rm -f "$KSTAMP"
   echo "[install] numba kernels NOT precompiled: they compile at first use"
 fi
 echo "[install] done: source env.sh"

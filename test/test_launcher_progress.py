@@ -58,3 +58,21 @@ def test_progress_horizon_is_the_estimated_end_of_service() -> None:
     assert last + scn.line.turnback_s < end < float(scn.sim.duration_s)
     assert progress_horizon_s(scn, 900.0) == 900.0
     assert progress_horizon_s(scn, 1e9) == end
+
+
+def test_progress_echoes_start_and_end_of_the_run(tmp_path: Path) -> None:
+    """The simulator's 'graph ready' and 'scenario finished' lines are echoed as they come."""
+    log = tmp_path / "line_simulator.log"
+    out = io.StringIO()
+    tail = ProgressTail(log, 6000.0, out)
+    log.write_text("[INFO] [1.0] [line_simulator]: scenario 'x': 30 trains\n"
+                   "[INFO] [1.5] [line_simulator]: graph ready after 0.87 s\n")
+    assert tail.poll() == 1
+    assert out.getvalue().strip() == "metro_atc run: graph ready after 0.87 s; stepping"
+    with log.open("a") as fh:
+        fh.write("[INFO] [9.0] [line_simulator]: scenario finished at t=6337.0 s after "
+                 "25348 steps, 109.2 s wall\n")
+    assert tail.poll() == 1
+    assert out.getvalue().strip().splitlines()[-1] == (
+        "metro_atc run: scenario finished at t=6337.0 s after 25348 steps, 109.2 s wall; "
+        "writing the outputs")

@@ -29,7 +29,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import solve_discrete_lyapunov
 
 
 @dataclass(frozen=True)
@@ -53,6 +52,7 @@ class CostWeights:
 
 def terminal_matrix(a: np.ndarray, q: float) -> np.ndarray:
     """P_0 with P_0 = A^T P_0 A + q I: free-running tail cost of the linear model."""
+    from scipy.linalg import solve_discrete_lyapunov  # here: the ATS's start-up skips it
     n = a.shape[0]
     p = solve_discrete_lyapunov(a.T, q * np.eye(n))
     return 0.5 * (p + p.T)

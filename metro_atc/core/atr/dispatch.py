@@ -47,7 +47,6 @@ from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.fingerprint import line_hash
 from metro_atc.core.atr.node_core import KINDS, AtsRegulatorCore
 from metro_atc.core.atr.regulators import Regulator
-from metro_atc.core.atr.weights_store import find_weights
 from metro_atc.core.bridge import Timetable, atr_line_for, timetable_for
 from metro_atc.core.line.scenario import Scenario
 
@@ -199,6 +198,9 @@ def make_dispatcher(scn: Scenario, regulator: str = "none", weights_file: str = 
         w = cost if cost is not None else CostWeights()
         path: Optional[str] = weights_file or None
         if regulator in ("dhp", "aoc") and not path:
+            # here, not at the top: the weights store imports torch (~2 s of CPU), which
+            # the ATS with 'none' or 'lqr' never needs (issue 13)
+            from metro_atc.core.atr.weights_store import find_weights
             found = find_weights(regulator, line)
             if found is None:
                 raise ValueError(

@@ -18,18 +18,22 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any, Dict, Optional, Union
+from typing import TYPE_CHECKING, Any, Dict, Optional, Union
 
 import numpy as np
-import torch
-from scipy.linalg import solve_discrete_are
 
 from metro_atc.core.atr.blue_line import LineData
 from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.fingerprint import line_hash
-from metro_atc.core.atr.mlp import MLP
-from metro_atc.core.atr.problems import AtrProblem
-from metro_atc.core.atr.training import Agent
+from metro_atc.core.atr.traffic import linear_model
+
+if TYPE_CHECKING:
+    from metro_atc.core.atr.problems import AtrProblem
+    from metro_atc.core.atr.training import Agent
+
+# torch (~2 s of CPU to import) and scipy.linalg are imported by the regulators that use
+# them, not here: the ATS node with the default regulator 'none' loads neither (issue 13;
+# test/test_startup_imports.py)
 
 WEIGHTS_FORMAT = "metro_atc.atr.weights/1"
 MAX_WEIGHTS_BYTES = 50_000_000
@@ -40,6 +44,7 @@ DATA_DIR = Path(__file__).resolve().parents[2] / "data"
 
 def lqr_gain(a: np.ndarray, b: np.ndarray, q: float, r: float) -> np.ndarray:
     """Infinite-horizon discrete LQR gain K (u = -K x) for U = 1/2 q|x|^2 + 1/2 r|u|^2."""
+    from scipy.linalg import solve_discrete_are
     n, m = a.shape[0], b.shape[1]
     p = solve_discrete_are(a, b, q * np.eye(n), r * np.eye(m))
     return np.linalg.solve(r * np.eye(m) + b.T @ p @ b, b.T @ p @ a)
@@ -106,6 +111,7 @@ class NeuralRegulator(Regulator):
 
     def decide(self, x_s: np.ndarray, step: int = 0) -> np.ndarray:
         """Policy output in seconds (no gradient tape)."""
+        import torch
         x = self._check(x_s)
         batch = x.reshape(-1, self.n) / self._xs
         tau = max(self.problem.horizon - int(step), 0) / self.problem.horizon
@@ -124,6 +130,7 @@ def save_weights(path: Union[str, Path], agent: Agent, line: LineData, weights: 
     (:func:`metro_atc.core.atr.fingerprint.line_hash`): :func:`load_weights` refuses it on
     any other line.
     """
+    import torch
     blob = {
         "format": WEIGHTS_FORMAT,
         "method": agent.method,
@@ -147,6 +154,7 @@ def read_blob(path: Union[str, Path]) -> Dict[str, Any]:
     Raises FileNotFoundError or ValueError (one line) for a missing, oversized, unreadable
     or foreign file; the networks are not checked here (:func:`load_weights` does).
     """
+    import torch
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"ATR weights file not found: {p}")
@@ -169,6 +177,9 @@ def load_weights(path: Union[str, Path], line: LineData) -> NeuralRegulator:
     Refuses (ValueError) a file trained on another line: its traffic-model hash must be
     ``line``'s.
     """
+    from metro_atc.core.atr.mlp import MLP
+    from metro_atc.core.atr.problems import AtrProblem
+    from metro_atc.core.atr.training import Agent
     p = Path(path)
     blob = read_blob(p)
     if not isinstance(blob.get("n_stations"), int) or not isinstance(blob.get("cost"), dict):
@@ -221,8 +232,8 @@ def make_regulator(name: str, line: LineData, weights: Optional[CostWeights] = N
     if name == "none":
         return NoneRegulator(line.n_stations)
     if name == "lqr":
-        problem = AtrProblem(line, w)
-        return LqrRegulator(problem.a_np, problem.b_np, w)
+        a, b = linear_model(line.c())  # AtrProblem's a_np, b_np without its torch tensors
+        return LqrRegulator(a, b, w)
     if weights_path is not None:
         path = Path(weights_path)
     else:
