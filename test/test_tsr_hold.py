@@ -35,24 +35,44 @@ LIMITS_KMH = (25.0, 30.0, 40.0)
 CASES = list(itertools.product(SEEDS, SHIFTS_M, LIMITS_KMH))
 
 
+HOLD_CASES = [(50.0, 30.0), (150.0, 40.0), (250.0, 25.0)]
+"""(shift [m], limit [km/h]) of the hold-rule cases on gen_0039_inc."""
+
+
 def _row(case: tuple[int, float, float]) -> dict[str, Any]:
     return shifted_tsr_row(*case)
 
 
+def _hold_row(case: tuple[float, float]) -> dict[str, Any]:
+    """A hold-rule case: the run of gen_0039_inc with every plan made without the TSR (the
+    worker's ``onboard.tsrs_for_run`` replaced for this run only)."""
+    from metro_atc.core.ato import onboard
+    keep = onboard.tsrs_for_run
+    onboard.tsrs_for_run = lambda *args: ()
+    try:
+        return shifted_tsr_row(39, *case)
+    finally:
+        onboard.tsrs_for_run = keep
+
+
 @pytest.fixture(scope="module")
-def sweep_rows() -> dict[tuple[int, float, float], dict[str, Any]]:
-    """The 30 closed loops of the sweep, run on two worker processes (each ~1-3 s CPU;
-    spawned: the test process may hold DDS threads a fork would copy)."""
+def sweep_rows() -> dict[Any, dict[str, Any]]:
+    """The 30 closed loops of the sweep and the 3 hold-rule runs, on two worker processes
+    (each ~1-3 s CPU; spawned: the test process may hold DDS threads a fork would copy);
+    keys: the sweep's (seed, shift, limit), ``("hold", shift, limit)``."""
     ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=2, mp_context=ctx) as ex:
-        return dict(zip(CASES, ex.map(_row, CASES)))
+        hold = ex.map(_hold_row, HOLD_CASES)
+        rows: dict[Any, dict[str, Any]] = dict(zip(CASES, ex.map(_row, CASES)))
+        rows.update(zip((("hold", *c) for c in HOLD_CASES), hold))
+        return rows
 
 
 @pytest.mark.parametrize("seed", SEEDS)
 @pytest.mark.parametrize("shift_m", SHIFTS_M)
 @pytest.mark.parametrize("limit_kmh", LIMITS_KMH)
 def test_one_speed_minimum_per_tsr_approach(
-        sweep_rows: dict[tuple[int, float, float], dict[str, Any]], seed: int, shift_m: float,
+        sweep_rows: dict[Any, dict[str, Any]], seed: int, shift_m: float,
         limit_kmh: float) -> None:
     """0 violations, one speed minimum per TSR approach, the stops within 0.30 m."""
     row = sweep_rows[(seed, shift_m, limit_kmh)]
@@ -66,15 +86,13 @@ def test_one_speed_minimum_per_tsr_approach(
     assert row["atp_interventions"] == row["atp_interventions_at_tsr_notice"]
 
 
-@pytest.mark.parametrize("shift_m,limit_kmh", [(50.0, 30.0), (150.0, 40.0), (250.0, 25.0)])
+@pytest.mark.parametrize("shift_m,limit_kmh", HOLD_CASES)
 def test_hold_rule_alone_for_plans_made_without_the_tsr(
-        monkeypatch: pytest.MonkeyPatch, shift_m: float, limit_kmh: float) -> None:
+        sweep_rows: dict[Any, dict[str, Any]], shift_m: float, limit_kmh: float) -> None:
     """Plans made without the TSR (a TSR notified after the departure; here every plan):
     the ATO's hold rule alone keeps one speed minimum per approach on gen_0039_inc (main's
     ATO: two on these cases), by not motoring out of a speed dip before a known TSR."""
-    from metro_atc.core.ato import onboard
-    monkeypatch.setattr(onboard, "tsrs_for_run", lambda *args: ())
-    row = shifted_tsr_row(39, shift_m, limit_kmh)
+    row = sweep_rows[("hold", shift_m, limit_kmh)]
     assert row["atp_violations"] == 0
     assert row["tsr_approaches"] >= 3
     assert row["tsr_speed_minima_max"] == 1
