@@ -350,8 +350,9 @@ def two_graphs_one_domain(installed: Path, background_jobs: Any) -> dict[str, An
 def test_two_graphs_on_one_domain_are_refused(two_graphs_one_domain: dict[str, Any]) -> None:
     """Two ``run`` on one ROS domain would answer each other's lockstep (seen: ATOs following
     the other simulator's steps, 63 534 rejected commands, exit 0): a simulator that finds
-    another one on its domain stops its graph with one line naming the domain; it stays on
-    the domain 2 s before it exits, so both runs refuse."""
+    another one on its domain stops its graph with one line naming the domain; it says so on
+    ``/line/simulator_refused`` and stays on the domain until the other has refused too
+    (seen once: the other run did not see it within a fixed 2 s and ran to the end)."""
     codes, errs = two_graphs_one_domain["codes"], two_graphs_one_domain["stderr"]
     dom = two_graphs_one_domain["domain"]
     refused = [n for n, err in enumerate(errs) if "another line_simulator" in err

@@ -84,8 +84,15 @@ ALONE_CHECK_S = 10.0
 ``line_simulator`` publishing ``/line/fleet_state`` on its ROS domain (two graphs on one
 domain answer each other's lockstep: refused, not run).  A respawn skips the look: the killed
 process's endpoints stay in the discovery data until their lease expires."""
-ALONE_LINGER_S = 2.0
-"""Wall seconds a simulator that found another one stays on the domain before it exits."""
+ALONE_LINGER_S = 15.0
+"""Wall seconds at most that a simulator which found another one stays on the domain before
+it exits: it leaves as soon as every other simulator it sees has refused too (or left)."""
+REFUSED_TOPIC = "/line/simulator_refused"
+"""A refusing simulator publishes one DiagnosticStatus (ERROR, the refusal) here, latched: the
+other simulator of the domain sees that it was seen (the refusal handshake of
+:meth:`LineSimulatorNode.check_alone`)."""
+REFUSED_POLL_S = 0.1
+"""Wall seconds between two looks at the graph while a refusing simulator lingers."""
 DEPARTURE_JOURNAL = "line_simulator_departures.jsonl"
 """Departure commands applied, one JSON line each (step, train, station, values)."""
 RESEND_BATCH = 64
@@ -680,19 +687,34 @@ class LineSimulator(Node):
         """Raise :class:`NodeConfigError` when another simulator shares this ROS domain.
 
         Another ``line_simulator`` publishing the fleet state is a second graph: its ATOs
-        would answer this lockstep.
+        would answer this lockstep.  Discovery is not symmetric in time (one simulator may
+        see the other seconds before it is seen), so a refusing simulator says so on
+        :data:`REFUSED_TOPIC` and stays on the domain until every other simulator it sees
+        has refused too or left (at most :data:`ALONE_LINGER_S`): both runs refuse.
         """
-        infos = self.get_publishers_info_by_topic(self.fleet_pub.topic_name)
-        same = [i for i in infos if i.node_name == self.get_name()
-                and i.node_namespace == self.get_namespace()]
-        if len(same) > 1:
-            # stay visible a little longer: the other simulator (checking once a second)
-            # refuses too, instead of running on with this graph's ATOs having answered it
-            time.sleep(ALONE_LINGER_S)
-            raise NodeConfigError(
-                f"another {self.get_name()} publishes {self.fleet_pub.topic_name} on "
-                f"ROS_DOMAIN_ID={self.context.get_domain_id()}: a second graph on this domain; "
-                "give each run its own ROS_DOMAIN_ID")
+        if self._other_simulators(self.fleet_pub.topic_name) == 0:
+            return
+        reason = (f"another {self.get_name()} publishes {self.fleet_pub.topic_name} on "
+                  f"ROS_DOMAIN_ID={self.context.get_domain_id()}: a second graph on this "
+                  "domain; give each run its own ROS_DOMAIN_ID")
+        self.get_logger().error(reason)
+        refused = self.create_publisher(DiagnosticStatus, REFUSED_TOPIC, QOS_LATCHED)
+        refused.publish(DiagnosticStatus(level=DiagnosticStatus.ERROR, name=self.get_name(),
+                                         message=reason))
+        deadline = time.monotonic() + ALONE_LINGER_S
+        while time.monotonic() < deadline:
+            others = self._other_simulators(self.fleet_pub.topic_name)
+            if others == 0 or self._other_simulators(REFUSED_TOPIC) >= others:
+                break
+            time.sleep(REFUSED_POLL_S)
+        raise NodeConfigError(reason)
+
+    def _other_simulators(self, topic: str) -> int:
+        """Publishers of ``topic`` by a node of this simulator's name other than this one."""
+        same = [i for i in self.get_publishers_info_by_topic(topic)
+                if i.node_name == self.get_name() and i.node_namespace == self.get_namespace()]
+        own = 1 if any(p.topic_name == topic for p in self.publishers) else 0
+        return max(0, len(same) - own)
 
     def graph_ready(self) -> bool:
         """Every train has an ATO, the ATS and the brake diagnosis connected.
