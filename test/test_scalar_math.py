@@ -226,6 +226,72 @@ def test_brake_capability_matches_samples(blue: Any) -> None:
         assert ato._brake_capability(x, x2) == _brake_capability_numpy(ato, x, x2)
 
 
+def _cap_at_per_call(self: OnboardAto, ctx: tuple[Any, ...], x_at: Any,
+                     authority: bool) -> float:
+    """OnboardAto._cap_at as written before its calls were inlined (the reference).
+
+    One call each to AtpModel.static_sbi, OnboardAto._plan_decel and AtpModel.sbi_speed.
+    """
+    x, v, cap, ma, zones, a_w = ctx[:6]
+    if x_at is not None:
+        x = float(x_at)
+    atp = self.atp
+    c = atp.static_sbi(x, x + v * onb_mod.CAP_LOOKAHEAD_S + 1.0) - onb_mod.SPEED_MARGIN_MPS
+    if c < cap:
+        cap = c
+    b = self._plan_decel(x)
+    if authority and math.isfinite(ma):
+        d = ma - x - onb_mod.AUTHORITY_MARGIN_M
+        c = math.sqrt(2.0 * b * (0.0 if 0.0 > d else d))
+        if c < cap:
+            cap = c
+        c = atp.sbi_speed(d, v, a_w) - onb_mod.SPEED_MARGIN_MPS
+        if c < cap:
+            cap = c
+    if zones:
+        lead = self.core.limits.restriction_lead_m
+        rear = x - self.train.length_m
+        for z, lim in zones:
+            if rear >= z.end_m:
+                continue
+            d = z.start_m - lead - x
+            cap = min(cap, math.sqrt(lim * lim + 2.0 * b * max(d, 0.0)),
+                      atp.sbi_speed_to(z.start_m - x - v * onb_mod.CAP_LOOKAHEAD_S,
+                                       z.limit_mps) - onb_mod.SPEED_MARGIN_MPS)
+    return 0.0 if 0.0 > cap else cap
+
+
+def test_inlined_cap_equals_the_per_call_one(blue: Any) -> None:
+    """OnboardAto._cap_at (static SBI, planned deceleration and authority SBI speed written
+    out) gives the per-call construction's float on generated states: both directions'
+    runs planned and none, positions beyond the line's ends, speeds 0 to 25 m/s, finite and
+    infinite authorities (some behind the train), TSRs known and not."""
+    scn, train, track, limits, atp = blue
+    st = timetable_for(scn).station_positions_m
+    lo, hi = float(min(st)), float(max(st))
+    zones = [onb_mod.TsrZone(lo + 900.0, lo + 1300.0, 8.0, 0.0, 50.0, 500.0)]
+    n = 0
+    for plan in (None, (2, 110.0), (9, 95.0), (len(st) - 1, 100.0)):
+        ato = OnboardAto(train, track, st, limits=limits, atp=atp, tsrs=zones)
+        if plan is not None and plan[0] + 1 < len(st):
+            ato.plan(plan[0], plan[1], 0.0)
+        for _ in range(2500):
+            x = float(RNG.uniform(lo - 200.0, hi + 200.0))
+            s = {"x_m": x, "v_mps": float(RNG.choice([0.0, RNG.uniform(0.0, 25.0)])),
+                 "t_s": float(RNG.uniform(0.0, 700.0)),
+                 "supervision_speed_mps": float(RNG.choice([math.inf, RNG.uniform(0, 30)])),
+                 "movement_authority_m": float(RNG.choice(
+                     [math.inf, x + float(RNG.uniform(-60.0, 3000.0))]))}
+            ctx = ato._cap_context(s)
+            for x_at in (None, x + float(RNG.uniform(-10.0, 60.0)), x - 3.0):
+                for auth in (True, False):
+                    got = ato._cap_at(ctx, x_at, auth)
+                    want = _cap_at_per_call(ato, ctx, x_at, auth)
+                    assert got == want and math.copysign(1.0, got) == math.copysign(1.0, want)
+                    n += 1
+    assert n == 4 * 2500 * 6
+
+
 def _numpy_paths(mp: pytest.MonkeyPatch) -> None:
     """Route every fast path of the tracking back to the numpy function it replaces."""
     mp.setattr(ctl_mod, "resistance_force_at",
@@ -245,6 +311,7 @@ def _numpy_paths(mp: pytest.MonkeyPatch) -> None:
                lambda self, s: float(self.speed(np.asarray(s))))
     mp.setattr(fuzzy, "flc_output_at", lambda e, d: float(fuzzy.flc_output(e, d)))
     mp.setattr(OnboardAto, "_brake_capability", _brake_capability_numpy)
+    mp.setattr(OnboardAto, "_cap_at", _cap_at_per_call)
 
 
 def test_tracking_commands_identical_over_a_run(blue: Any) -> None:

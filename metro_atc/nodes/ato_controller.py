@@ -214,7 +214,9 @@ class AtoController(Node):
         tmp = self.journal_path.with_name(self.journal_path.name + ".tmp")
         tmp.write_text("".join(json.dumps(s) + "\n" for s in self.history))
         os.replace(tmp, self.journal_path)
-        self._journal = open(self.journal_path, "a", encoding="utf-8")
+        # unbuffered: each line is one write(2) to the OS as it is written (then it
+        # survives a SIGKILL; no text layer and no flush per line, issue 13)
+        self._journal = open(self.journal_path, "ab", buffering=0)
 
     def _replay(self, states: list[dict[str, Any]]) -> None:
         """A fresh on-board ATO driven through ``states`` (no publication)."""
@@ -392,15 +394,21 @@ class AtoController(Node):
         effort, mode = conv.guarded(topic, self.control, s)
         self._remember(s, effort, mode)
         if self._journal is not None:
-            self._journal.write(state_json(s) + "\n")
-            if flush:
-                self.flush_journal()
+            # an unbuffered file: the line is in the OS when write returns (``flush`` and
+            # :meth:`flush_journal` have nothing left to do; kept for the callers' contract)
+            line = (state_json(s) + "\n").encode()
+            n = self._journal.write(line)
+            while n is not None and n < len(line):  # a short write (rare): the rest
+                line = line[n:]
+                n = self._journal.write(line)
         return self._last_cmd
 
     def flush_journal(self) -> None:
         """Hand the journal's written lines to the OS (then they survive a SIGKILL).
 
-        Called before the command of the state leaves the process.
+        Called before the command of the state leaves the process.  The journal is an
+        unbuffered file (each line is written to the OS by :meth:`_act` itself): nothing
+        is pending, the call is kept for the contract of ``flush=False``.
         """
         if self._journal is not None:
             self._journal.flush()
@@ -417,6 +425,9 @@ _STATE_KEYS = ("step", "t_s", "x_m", "v_mps", "a_mps2", "current_station", "next
                "mode", "departure_time_s", "target_running_time_s", "supervision_speed_mps",
                "movement_authority_m", "again")
 """The keys of a validated state (:func:`conversions.state_from_msg`), in its order."""
+
+
+_isfinite = math.isfinite
 
 
 def _jf(x: float) -> str:
@@ -446,6 +457,14 @@ def state_json(s: dict[str, Any]) -> str:
             and type(dep) is float and type(tgt) is float and type(sup) is float
             and type(ma) is float):
         return json.dumps(s)
+    if _isfinite(t + x + v + a + dep + tgt + sup + ma):
+        # a finite sum: no NaN or infinity among them, each written as float.__repr__
+        # (``!r`` of a float; one format, no call per field)
+        return (f'{{"step": {k}, "t_s": {t!r}, "x_m": {x!r}, "v_mps": {v!r}, '
+                f'"a_mps2": {a!r}, "current_station": {cur}, "next_station": {nxt}, '
+                f'"mode": {md}, "departure_time_s": {dep!r}, '
+                f'"target_running_time_s": {tgt!r}, "supervision_speed_mps": {sup!r}, '
+                f'"movement_authority_m": {ma!r}, "again": {"true" if again else "false"}}}')
     return (f'{{"step": {k}, "t_s": {_jf(t)}, "x_m": {_jf(x)}, "v_mps": {_jf(v)}, '
             f'"a_mps2": {_jf(a)}, "current_station": {cur}, "next_station": {nxt}, '
             f'"mode": {md}, "departure_time_s": {_jf(dep)}, '

@@ -127,6 +127,9 @@ class AtoCore:
         self._fg_run: Optional[RunModel] = None
         self._fg_s = math.nan
         self._fg_v = 0.0
+        self._ce_run: Optional[RunModel] = None
+        self._ce_s = math.nan
+        self._ce_v = 0.0
         a_ref = max(train.a1_mps2, train.max_service_brake_mps2)
         self._du_max_per_s = self.limits.jerk_max_mps3 / max(a_ref, 1e-6)
         # jerk [m/s^3] at which the surplus traction can be taken off: the ATO's rate limit
@@ -362,6 +365,18 @@ class AtoCore:
         self._fg_run, self._fg_s, self._fg_v = run, s, f
         return f
 
+    def ceiling_e_at(self, run: RunModel, s: float) -> float:
+        """``run.ceiling_e_at(s)`` [m^2/s^2], kept for the last (run, s).
+
+        The on-board speed-dip check and :meth:`command_ex` ask for it at the same s in one
+        control step (issue 13; the same float, computed once).
+        """
+        if s == self._ce_s and run is self._ce_run:
+            return self._ce_v
+        e = run.ceiling_e_at(s)
+        self._ce_run, self._ce_s, self._ce_v = run, s, e
+        return e
+
     def reference_speed(self, x_m: float) -> float:
         """The planned reference r [m/s] at chainage x [m] (0 with no plan)."""
         if self.run is None or self._ref is None:
@@ -483,7 +498,7 @@ class AtoCore:
                 u, bounded = u_b, True
         if r_plan <= 0.0 and s >= run.length_m - BERTH_WINDOW_M:
             u = min(u, HOLD_BRAKE)  # at the stopping point: brake to rest, never creep
-        ceiling = sqrt_or_nan(2.0 * run.ceiling_e_at(min(max(s, 0.0), run.length_m)))
+        ceiling = sqrt_or_nan(2.0 * self.ceiling_e_at(run, min(max(s, 0.0), run.length_m)))
         reason = "tracking"
         if s >= run.pss_start_s:
             reason = "programmed station stopping"  # seed 001: PSS from 350 m

@@ -95,37 +95,47 @@ def flc_output(e_n: ArrayLike, d_n: ArrayLike) -> FloatArray:
 _RULES_FLAT = tuple(float(x) for x in RULE_MATRIX.ravel())
 
 
-def _tri1(x: float, a: float, b: float, c: float) -> float:
-    """:func:`triangle` of one finite float."""
-    up = (x - a) / (b - a)
-    down = (c - x) / (c - b)
-    m = up if up <= down else down
-    return 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
-
-
-def _ramp1(m: float) -> float:
-    return 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
-
-
-def _sum15(a: "list[float]") -> float:
-    """Sum 15 contiguous doubles as numpy does (8 pairwise partial sums, then the rest)."""
-    res = ((a[0] + a[1]) + (a[2] + a[3])) + ((a[4] + a[5]) + (a[6] + a[7]))
-    for k in range(8, 15):
-        res += a[k]
-    return res
-
-
 def flc_output_at(e_n: float, d_n: float) -> float:
     """:func:`flc_output` for one finite (e, d) pair (plain floats, the same IEEE result).
 
-    The per-train tracker runs it once per control step (issue 13, graph speed).
+    The per-train tracker runs it once per control step (issue 13, graph speed): the
+    memberships (:func:`triangle` / :func:`trapezoid` of the sets of :func:`e_memberships`
+    and :func:`d_memberships`, clipped), the 15 products and the two sums (numpy's pairwise
+    order for 15 contiguous doubles: 8 in pairs, then the rest one by one) are written
+    out, every operation as numpy does it (``test/test_scalar_math.py`` against numpy).
     """
-    me = (_ramp1((e_n - 0.5) / 0.5), _tri1(e_n, 0.0, 0.5, 1.0), _tri1(e_n, -0.5, 0.0, 0.5),
-          _tri1(e_n, -1.0, -0.5, 0.0), _ramp1((-0.5 - e_n) / 0.5))
-    md = (_ramp1((d_n - 0.0) / 1.0), _tri1(d_n, -1.0, 0.0, 1.0), _ramp1((0.0 - d_n) / 1.0))
-    w = [di * ej for di in md for ej in me]
-    den = _sum15(w)
-    num = _sum15([wk * rk for wk, rk in zip(w, _RULES_FLAT)])
+    # e: PB (ramp), P, Z, N (triangles: min of the two sides, clipped), NB (ramp)
+    m = (e_n - 0.5) / 0.5
+    e0 = 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
+    up, dn = (e_n - 0.0) / 0.5, (1.0 - e_n) / 0.5
+    m = up if up <= dn else dn
+    e1 = 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
+    up, dn = (e_n - -0.5) / 0.5, (0.5 - e_n) / 0.5
+    m = up if up <= dn else dn
+    e2 = 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
+    up, dn = (e_n - -1.0) / 0.5, (0.0 - e_n) / 0.5
+    m = up if up <= dn else dn
+    e3 = 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
+    m = (-0.5 - e_n) / 0.5
+    e4 = 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
+    # d: P (ramp), Z (triangle), N (ramp)
+    m = (d_n - 0.0) / 1.0
+    d0 = 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
+    up, dn = (d_n - -1.0) / 1.0, (1.0 - d_n) / 1.0
+    m = up if up <= dn else dn
+    d1 = 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
+    m = (0.0 - d_n) / 1.0
+    d2 = 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
+    w0, w1, w2, w3, w4 = d0 * e0, d0 * e1, d0 * e2, d0 * e3, d0 * e4
+    w5, w6, w7, w8, w9 = d1 * e0, d1 * e1, d1 * e2, d1 * e3, d1 * e4
+    w10, w11, w12, w13, w14 = d2 * e0, d2 * e1, d2 * e2, d2 * e3, d2 * e4
+    den = ((w0 + w1) + (w2 + w3)) + ((w4 + w5) + (w6 + w7))
+    den = den + w8 + w9 + w10 + w11 + w12 + w13 + w14
+    r = _RULES_FLAT
+    num = ((w0 * r[0] + w1 * r[1]) + (w2 * r[2] + w3 * r[3])) \
+        + ((w4 * r[4] + w5 * r[5]) + (w6 * r[6] + w7 * r[7]))
+    num = num + w8 * r[8] + w9 * r[9] + w10 * r[10] + w11 * r[11] + w12 * r[12] \
+        + w13 * r[13] + w14 * r[14]
     return num / (den if den >= 1e-12 else 1e-12)
 
 

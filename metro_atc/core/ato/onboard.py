@@ -241,7 +241,8 @@ class OnboardAto:
         if s["mode"] == MODE_DWELL or run is None:
             self._peak_mps = 0.0
             return False
-        c = math.sqrt(2.0 * max(run.ceiling_e_at(run.run_coordinate_at(float(s["x_m"]))), 0.0))
+        c = math.sqrt(2.0 * max(self.core.ceiling_e_at(run, run.run_coordinate_at(
+            float(s["x_m"]))), 0.0))
         if v >= c - JOIN_BAND_MPS or v > self._peak_mps:
             self._peak_mps = v
         return v < self._peak_mps - JOIN_BAND_MPS
@@ -364,27 +365,55 @@ class OnboardAto:
                       if z.known_s <= t < z.to_s)
         # the ATP's worst-case response acceleration at the state's speed (AtpModel.sbi_speed)
         a_w = max_traction_accel_at(self.atp.train, v) + self.atp.g_down
-        return x, v, cap, float(s["movement_authority_m"]), zones, a_w
+        return x, v, cap, float(s["movement_authority_m"]), zones, a_w, \
+            self.atp.sbi_terms(a_w)
 
     def _cap_at(self, ctx: tuple[Any, ...], x_at: Optional[float], authority: bool) -> float:
-        """:meth:`speed_cap` from a :meth:`_cap_context` (the same operations, in order)."""
-        x, v, cap, ma, zones, a_w = ctx
+        """:meth:`speed_cap` from a :meth:`_cap_context`, its calls written out (issue 13).
+
+        The static SBI minimum (:meth:`AtpModel.static_sbi`), the planned deceleration
+        (:meth:`_plan_decel`) and the authority's SBI speed (:meth:`AtpModel.sbi_speed`, its
+        constants at the state's speed taken once per state in the context) are evaluated
+        inline with the same operations in the same order; where a table is missing the
+        methods themselves are called.  Proven equal to the per-call construction on
+        generated states (``test/test_scalar_math.py``).
+        """
+        x, v, cap, ma, zones, a_w, terms = ctx
         if x_at is not None:
             x = float(x_at)
         atp = self.atp
-        # the static SBI curve a little ahead (the tracker needs time to follow it down);
-        # min / max of two floats written out as the builtins decide them (`b if b < a
-        # else a`, NaN included: the same floats without the calls, issue 13)
-        c = atp.static_sbi(x, x + v * CAP_LOOKAHEAD_S + 1.0) - SPEED_MARGIN_MPS
+        lst = atp._sbi_list
+        if lst is not None:
+            x0, dx = atp.grid_x0_m, atp.grid_dx_m
+            k0 = int((x - x0) / dx)
+            k1 = int((x + v * CAP_LOOKAHEAD_S + 1.0 - x0) / dx) + 1
+            n = len(lst)
+            k0 = 0 if k0 < 0 else (k0 if k0 < n else n - 1)
+            k1 = k0 + 1 if k1 < k0 + 1 else (k1 if k1 < n else n)
+            c = min(lst[k0:k1]) - atp.sbi_offset_mps - SPEED_MARGIN_MPS
+        else:
+            c = atp.static_sbi(x, x + v * CAP_LOOKAHEAD_S + 1.0) - SPEED_MARGIN_MPS
         if c < cap:
             cap = c
-        b = self._plan_decel(x)
+        run = self.core.run
+        if run is not None and self._b_run is run:
+            i = int((run.run_coordinate_at(x) + 50.0) / 10.0)
+            tab = self._b_list
+            n = len(tab)
+            b = tab[0 if i < 0 else (i if i < n else n - 1)]
+        else:
+            b = self._plan_decel(x)
         if authority and math.isfinite(ma):
             d = ma - x - AUTHORITY_MARGIN_M
             c = math.sqrt(2.0 * b * (0.0 if 0.0 > d else d))
             if c < cap:
                 cap = c
-            c = atp.sbi_speed(d, v, a_w) - SPEED_MARGIN_MPS
+            # AtpModel.sbi_speed -> ebi_speed_at(d - t_sbi v, 0, a_w, t_r, b_g), written out
+            c0, c2, two_b, t_sbi, off = terms
+            q = c0 + two_b * (d - t_sbi * v)
+            if q < 0.0:  # np.maximum(q, 0): NaN and -0.0 pass
+                q = 0.0
+            c = ((math.sqrt(q) if q == q else q) - c2) - off - SPEED_MARGIN_MPS
             if c < cap:
                 cap = c
         if zones:
@@ -394,8 +423,6 @@ class OnboardAto:
                 if rear >= z.end_m:
                     continue
                 d = z.start_m - lead - x
-                # the SBI curve a little ahead, as the static one: the tracker needs time
-                # to follow the falling cap down (jerk-limited brake build-up)
                 cap = min(cap, math.sqrt(lim * lim + 2.0 * b * max(d, 0.0)),
                           atp.sbi_speed_to(z.start_m - x - v * CAP_LOOKAHEAD_S, z.limit_mps)
                           - SPEED_MARGIN_MPS)
@@ -519,6 +546,17 @@ class AtpModel:
         k0 = min(max(k0, 0), tab.size - 1)
         k1 = min(max(k1, k0 + 1), tab.size)
         return float(tab[k0:k1].min()) - self.sbi_offset_mps
+
+    def sbi_terms(self, a_w: float) -> tuple[float, float, float, float, float]:
+        """The constants of :meth:`sbi_speed` at one ``a_w`` [m/s^2], as it computes them.
+
+        (``c0``, ``c2``, ``2 b_g``, ``t_sbi``, SBI offset) of
+        :func:`metro_atc.core.line.track.ebi_speed_at` with target 0: then
+        ``sbi_speed(d, v, a_w) = (sqrt(max(c0 + 2 b_g (d - t_sbi v), 0)) - c2) - offset``.
+        """
+        b, tr = float(self.b_g), float(self.t_r)
+        return ((b * tr) ** 2 + b * tr * tr * a_w, b * tr + tr * a_w, 2.0 * b,
+                self.t_sbi, self.sbi_offset_mps)
 
     def sbi_speed(self, dist_m: float, v_mps: float, a_w: Optional[float] = None) -> float:
         """ATP service-brake intervention speed [m/s] for a stop ``dist_m`` ahead at v.

@@ -18,6 +18,7 @@ reference of the same interface, with the seed 004 creep/brake tail for platform
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from dataclasses import dataclass
 from typing import Optional
 
@@ -194,7 +195,23 @@ class ProfileReference:
         """
         if not s == s:
             return float(self.speed(np.asarray(s)))
-        e = interp1(s, self._s_list, self._e_list)
+        # scalar_math.interp1(s, s_grid, v^2) written out (its operations, in order)
+        xp, fp = self._s_list, self._e_list
+        n = len(xp)
+        j = bisect_right(xp, s) - 1
+        if j < 0:
+            e = fp[0]
+        elif j >= n - 1:
+            e = fp[n - 1]
+        else:
+            x0 = xp[j]
+            if x0 == s:
+                e = fp[j]
+            else:
+                y0, y1 = fp[j], fp[j + 1]
+                e = (y1 - y0) / (xp[j + 1] - x0) * (s - x0) + y0
+                if e != e:
+                    e = interp1(s, xp, fp)  # its NaN fall-backs
         plan = math.sqrt(e) if e >= 0.0 else math.nan  # np.sqrt: NaN below 0
         # maximum1 / minimum1 / stop_tail_at written out (their operations, in order)
         length = self.length_m
