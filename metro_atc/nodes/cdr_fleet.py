@@ -165,11 +165,12 @@ def _decode_state_fast(b: bytes) -> Optional[FleetStateView]:
     if p + st.size > len(b):
         return None
     v = st.unpack_from(b, p)
-    if any(v[k] != n for k in where):
-        return None
+    for k in where:  # every count is n (a loop: no generator per message, issue 13)
+        if v[k] != n:
+            return None
     arrays = [v[k + 1:k + 1 + n] for k in where]
     echo = arrays[-1]
-    if any(x > 1 for x in echo):
+    if echo and max(echo) > 1:  # booleans are 0 or 1
         return None
     if 0 in frame_b:
         return None

@@ -893,7 +893,10 @@ def fleet_states_checked(msg: FleetState, topic: str, hosted: Mapping[str, Any],
         n = len(ids)
         arrays = [getattr(msg, f) for f in FLEET_STATE_FIELDS]
         echo = msg.echo
-        if any(len(a) != n for a in arrays) or len(echo) != n or len(set(ids)) != n:
+        for a in arrays:  # a loop: no generator per message (issue 13)
+            if len(a) != n:
+                return None
+        if len(echo) != n or len(set(ids)) != n:
             return None
         rows = [j for j, tid in enumerate(ids) if tid in hosted]
         if not rows:

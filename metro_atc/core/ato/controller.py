@@ -475,7 +475,7 @@ class AtoCore:
         u_ff = self._feedforward(s, v, r, cap_accel_mps2 if capped else None) \
             if self.feedforward else 0.0
         self._last_ff = u_ff
-        u = float(self.tracker.step(r, v, dt, u_ff))
+        u = self.tracker.step_float(r, v, dt, u_ff)
         bounded = False
         if u > 0.0 and v > APPROACH_MIN_SPEED_MPS:
             # approaching the reference from below: take the traction off in time (the

@@ -207,6 +207,14 @@ class FuzzyController:
             self._u = out
         return np.asarray(out, dtype=float)
 
+    def step_float(self, r_mps: float, v_mps: float, dt_s: float = 0.1,
+                   u_ff: float = 0.0) -> float:
+        """``float(step(...))`` (the same double) without the 0-d array for one train."""
+        if type(r_mps) is float and type(v_mps) is float and type(u_ff) is float \
+                and self.p.incremental:
+            return self._step_at(r_mps, v_mps, u_ff)
+        return float(self.step(r_mps, v_mps, dt_s, u_ff))
+
     def _step_at(self, r: float, v: float, ff: float) -> float:
         """:meth:`step` (incremental form) for one train given plain floats; the same result."""
         u_prev = self._u

@@ -121,6 +121,7 @@ class OnboardAto:
         self.train = train
         self.track = track
         self.stations = np.asarray(stations_m, dtype=float)
+        self._stations_list: list[float] = self.stations.tolist()  # read per step (floats)
         self.tsrs = tuple(tsrs)
         self.atp = atp if atp is not None else AtpModel(
             b_g=0.5 * train.emergency_brake_mps2, t_r=1.0, t_sbi=2.0,
@@ -131,6 +132,7 @@ class OnboardAto:
         self._b_run: Any = None
         self._b_tab = np.zeros(1)
         self._b_list: list[float] = [0.0]
+        self._b_n = 1
         self.planned_from = -1
         self.cur_station = -1
         self.last_mode = -1
@@ -235,8 +237,8 @@ class OnboardAto:
         tracker braked) and traction now would make a speed minimum here.
         """
         nxt = int(s["next_station"])
-        self._next_stop_m = float(self.stations[nxt]) if 0 <= nxt < len(self.stations) \
-            else math.inf
+        st = self._stations_list
+        self._next_stop_m = st[nxt] if 0 <= nxt < len(st) else math.inf
         run = self.core.run
         if s["mode"] == MODE_DWELL or run is None:
             self._peak_mps = 0.0
@@ -384,10 +386,9 @@ class OnboardAto:
         atp = self.atp
         lst = atp._sbi_list
         if lst is not None:
-            x0, dx = atp.grid_x0_m, atp.grid_dx_m
+            x0, dx, n = atp.grid_x0_m, atp.grid_dx_m, atp._sbi_n
             k0 = int((x - x0) / dx)
             k1 = int((x + v * CAP_LOOKAHEAD_S + 1.0 - x0) / dx) + 1
-            n = len(lst)
             k0 = 0 if k0 < 0 else (k0 if k0 < n else n - 1)
             k1 = k0 + 1 if k1 < k0 + 1 else (k1 if k1 < n else n)
             c = min(lst[k0:k1]) - atp.sbi_offset_mps - SPEED_MARGIN_MPS
@@ -399,7 +400,7 @@ class OnboardAto:
         if run is not None and self._b_run is run:
             i = int((run.run_coordinate_at(x) + 50.0) / 10.0)
             tab = self._b_list
-            n = len(tab)
+            n = self._b_n
             b = tab[0 if i < 0 else (i if i < n else n - 1)]
         else:
             b = self._plan_decel(x)
@@ -441,6 +442,7 @@ class OnboardAto:
             pad = np.concatenate((b, np.full(k, b[-1])))
             self._b_tab = np.lib.stride_tricks.sliding_window_view(pad, k + 1).min(axis=1)
             self._b_list = self._b_tab.tolist()  # the same floats, read without numpy
+            self._b_n = len(self._b_list)
             self._b_run = run
         i = int((run.run_coordinate_at(x) + 50.0) / 10.0)
         tab = self._b_list
@@ -458,7 +460,8 @@ class OnboardAto:
         bound = 1.0
         x, v = float(s["x_m"]), float(s["v_mps"])
         nxt = int(s["next_station"])
-        x_stop = float(self.stations[nxt]) if 0 <= nxt < len(self.stations) else math.inf
+        st = self._stations_list
+        x_stop = st[nxt] if 0 <= nxt < len(st) else math.inf
         bs = self.train.max_service_brake_mps2
         # the service brake's deceleration at the train's own position (its grade)
         b_ach = self._brake_capability(x, x)
@@ -501,6 +504,7 @@ class AtpModel:
     sbi_dist_m: float = 0.0
     _sbi_list: Optional[list[float]] = dataclasses.field(default=None, init=False, repr=False,
                                                          compare=False)
+    _sbi_n: int = dataclasses.field(default=0, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         """Keep the static SBI table as a list too (its minima without numpy; not with NaN)."""
@@ -509,6 +513,7 @@ class AtpModel:
         if tab is not None and not bool(np.isnan(np.asarray(tab, dtype=float)).any()):
             lst = np.asarray(tab, dtype=float).tolist()
         object.__setattr__(self, "_sbi_list", lst)
+        object.__setattr__(self, "_sbi_n", len(lst) if lst is not None else 0)
 
     def sbi_speed_to(self, dist_m: float, target_mps: float) -> float:
         """Static SBI speed [m/s] ``dist_m`` before a point where the limit is ``target``.

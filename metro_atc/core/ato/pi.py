@@ -60,3 +60,8 @@ class PIController:
         self._i = np.where(sat_hi | sat_lo, self._i, i_new)
         out = self.p.kp * e + self.p.ki * self._i + np.asarray(u_ff, dtype=float)
         return np.asarray(np.clip(out, -1.0, 1.0), dtype=float)
+
+    def step_float(self, r_mps: float, v_mps: float, dt_s: float = 0.1,
+                   u_ff: float = 0.0) -> float:
+        """``float(step(...))`` for one train (the fuzzy controller's interface)."""
+        return float(self.step(r_mps, v_mps, dt_s, u_ff))

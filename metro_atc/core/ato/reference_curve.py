@@ -182,6 +182,7 @@ class ProfileReference:
         self.departure_speed = float(departure_speed)
         self._s_list: list[float] = self.s_grid.tolist()
         self._e_list: list[float] = (self.v * self.v).tolist()
+        self._n = len(self._s_list)
         # the stop tail's region bounds as stop_tail_at computes them (the same floats, once)
         d, cv, _, bb = self.tail
         s_b = self.length_m - cv * cv / (2.0 * bb)
@@ -196,8 +197,7 @@ class ProfileReference:
         if not s == s:
             return float(self.speed(np.asarray(s)))
         # scalar_math.interp1(s, s_grid, v^2) written out (its operations, in order)
-        xp, fp = self._s_list, self._e_list
-        n = len(xp)
+        xp, fp, n = self._s_list, self._e_list, self._n
         j = bisect_right(xp, s) - 1
         if j < 0:
             e = fp[0]
