@@ -561,17 +561,32 @@ class FleetLink:
         # one flush per journal for the whole message, all before any command leaves
         for node in answered:
             node.flush_journal()
-        for node, cmd in echoes:
-            node.cmd_pub.publish(conv.traction_msg(node.train_id, cmd.step, cmd.t_s,
-                                                   cmd.effort, cmd.mode))
         if ids and step is not None and stamp is not None:
-            stamp = conv.from_time(conv.to_time(stamp))  # as a TractionCommand carried it
+            # from_time(to_time(stamp)), as a TractionCommand carried it (its integer parts
+            # without building a Time message)
+            sec, nsec = stamp_parts(stamp)
+            stamp = float(sec) + 1e-9 * float(nsec)
             try:
                 out: Any = cdr_fleet.encode_fleet_command(stamp_parts(stamp), "line", step,
                                                           ids, efforts, modes)
             except (ValueError, struct.error):
                 out = conv.fleet_command_msg(step, stamp, ids, efforts, modes)  # rclpy decides
             self.pub.publish(out)
+        # the per-train echoes after the fleet command: the simulator waits for the latter
+        # only (an echo arriving after the step is a stale duplicate to it, late_echo), so
+        # building and sending them is off the lockstep's critical path (issue 13)
+        for node, cmd in echoes:
+            node.cmd_pub.publish(echo_bytes(node.train_id, cmd))
+
+
+def echo_bytes(train_id: str, cmd: Cmd) -> Any:
+    """The ``/<train>/command`` echo of a command: CDR bytes (:mod:`cdr_fleet`), else the
+    message object (values its encoder refuses: rclpy's setters decide)."""
+    try:
+        return cdr_fleet.encode_traction_command(stamp_parts(cmd.t_s), "line", train_id,
+                                                 cmd.step, cmd.effort, cmd.mode)
+    except (ValueError, struct.error):
+        return conv.traction_msg(train_id, cmd.step, cmd.t_s, cmd.effort, cmd.mode)
 
 
 class _Lazy:
