@@ -580,8 +580,10 @@ class FleetLink:
 
 
 def echo_bytes(train_id: str, cmd: Cmd) -> Any:
-    """The ``/<train>/command`` echo of a command: CDR bytes (:mod:`cdr_fleet`), else the
-    message object (values its encoder refuses: rclpy's setters decide)."""
+    """The ``/<train>/command`` echo of a command as CDR bytes (:mod:`cdr_fleet`).
+
+    Values the encoder refuses give the message object (rclpy's setters decide).
+    """
     try:
         return cdr_fleet.encode_traction_command(stamp_parts(cmd.t_s), "line", train_id,
                                                  cmd.step, cmd.effort, cmd.mode)

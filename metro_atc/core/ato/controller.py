@@ -366,7 +366,7 @@ class AtoCore:
         return f
 
     def ceiling_e_at(self, run: RunModel, s: float) -> float:
-        """``run.ceiling_e_at(s)`` [m^2/s^2], kept for the last (run, s).
+        """The run's ceiling energy at run coordinate s [m^2/s^2], kept for the last (run, s).
 
         The on-board speed-dip check and :meth:`command_ex` ask for it at the same s in one
         control step (issue 13; the same float, computed once).
