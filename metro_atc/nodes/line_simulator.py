@@ -32,6 +32,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import threading
 import time
 from collections import deque
 from functools import partial
@@ -336,6 +337,10 @@ class LineSimulator(Node):
         self.sensor_dropped = 0
         """Kept samples dropped beyond ``sensor_keep_max``."""
         self._journal: Any = None
+        self._ck_writer: threading.Thread | None = None
+        """The thread writing the last checkpoint (:meth:`save_checkpoint`)."""
+        self._ck_failed: str | None = None
+        """Why the last checkpoint write failed (reported by :meth:`wait_checkpoint`)."""
         self.first_start = True
         """No earlier process of this run (see :data:`STARTED_MARKER`)."""
         if self.checkpoint_dir:
@@ -592,17 +597,47 @@ class LineSimulator(Node):
             and self.k % self.checkpoint_every == 0 and self.k != self.resumed_from
 
     def save_checkpoint(self) -> None:
-        """Write the checkpoint of the current step (atomically) if one is due."""
+        """Write the checkpoint of the current step (atomically) if one is due.
+
+        The state is captured here (copies: :func:`metro_atc.core.checkpoint.capture`); the
+        file is written by a thread while the lockstep goes on (~60 % of a checkpoint's
+        time: JSON, ``np.savez``, fsync), one file at a time.  Until it is renamed into place
+        the previous checkpoint stands: a kill in between resumes from that one (the
+        departure journal holds every command since), as a kill before this step would.
+        """
         if not self.checkpoint_due():
             return
         holder = SimpleNamespace(line=self.sim, **{a: getattr(self, a) for a in NODE_STATE})
         try:
             tree, arrays = capture(holder, static_parts(self.sim))
-            save_tree(Path(self.checkpoint_dir) / CHECKPOINT_FILE, tree, arrays,
-                      identity=self.identity, step=int(self.k), t=float(self.sim.t))
-        except (OSError, CheckpointError) as exc:
+        except CheckpointError as exc:
             self._warn_rate_limited("checkpoint", f"checkpoint of step {self.k} not "
                                     f"written: {exc}")
+            return
+        self.wait_checkpoint()
+        writer = threading.Thread(
+            target=self._write_checkpoint, name="checkpoint", daemon=False,
+            args=(Path(self.checkpoint_dir) / CHECKPOINT_FILE, tree, arrays, int(self.k),
+                  float(self.sim.t)))
+        self._ck_writer = writer
+        writer.start()
+
+    def _write_checkpoint(self, path: Path, tree: Any, arrays: list[np.ndarray], step: int,
+                          t: float) -> None:
+        """Write a captured checkpoint (the writer thread); a failure is kept for the loop."""
+        try:
+            save_tree(path, tree, arrays, identity=self.identity, step=step, t=t)
+        except Exception as exc:  # noqa: BLE001 - reported by wait_checkpoint, never raised
+            self._ck_failed = f"checkpoint of step {step} not written: {exc}"
+
+    def wait_checkpoint(self) -> None:
+        """Wait until the checkpoint being written (if any) is in place; log a failure."""
+        writer, self._ck_writer = self._ck_writer, None
+        if writer is not None:
+            writer.join()
+        failed, self._ck_failed = self._ck_failed, None
+        if failed:
+            self._warn_rate_limited("checkpoint", failed)
 
     def republish_history(self) -> None:
         """Publish the restored event history again (a restarted ATS replays it)."""
@@ -925,14 +960,16 @@ class LineSimulator(Node):
         progress line and ``/clock`` (in that order, as in :meth:`advance` then
         :meth:`publish_step`): those are made while the ATOs compute.  Every message and its
         content are the same; only the fleet and per-train states move ahead of the others
-        of the same step.  At the last step, at a checkpoint (it must describe the state
-        before the journaled departure commands of step k are replayed) and at a recorder
-        sync step the order is that of :meth:`advance` then the caller's
-        :meth:`publish_step`.  Returns the active mask of step k, or None when step k's
-        states were not published here (the caller publishes them, unless finished).
+        of the same step (publishing them changes no state a checkpoint holds).  At the
+        last step, at a checkpoint with journaled departure commands of step k to replay
+        (the checkpoint describes the state before them) and at a recorder sync step the
+        order is that of :meth:`advance` then the caller's :meth:`publish_step`.  Returns
+        the active mask of step k, or None when step k's states were not published here
+        (the caller publishes them, unless finished).
         """
         res, done = self.step_plant(active, timed_out)
-        if done or self.checkpoint_due() or (
+        replay_due = bool(self.replay) and int(self.replay[0]["k"]) <= self.k
+        if done or (replay_due and self.checkpoint_due()) or (
                 self.wait_for_subscribers and self.k % RECORDER_SYNC_STEPS == 0):
             self.publish_outputs(res, done)
             return None
@@ -1229,6 +1266,7 @@ class LineSimulator(Node):
 
     def close(self) -> None:
         """Write the run's outputs (events CSV, plots, KPIs JSON) if an out_dir is set."""
+        self.wait_checkpoint()
         if not self.out_dir:
             return
         out = Path(self.out_dir)
@@ -1408,6 +1446,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
         else:
             executor.spin_once(timeout_sec=0.0)
     sim.flush_sensors(force=True)  # stopped by a signal: what was sampled goes out
+    sim.wait_checkpoint()
     if sim.wait_for_subscribers:
         sim.wait_acked()
     if not sim.finished:
