@@ -341,7 +341,7 @@ class _CommandLayout(NamedTuple):
     ids: bytes
     effort_at: int
     count_at: int
-    count: bytes
+    mode_count: bytes
     n: int
     frame: str
     train_id_raw: tuple[bytes, ...]
@@ -361,8 +361,9 @@ def read_fleet_command(data: bytes) -> FleetCommandData | None:
     (~5x cheaper); anything else by :class:`Reader` field by field. Same result either way.
     """
     for lay in _LAYOUTS.get(len(data), ()):
+        c = lay.count_at
         if data[12:lay.step_at] == lay.head and data[lay.step_at + 8:lay.effort_at] == lay.ids \
-                and data[lay.count_at:lay.count_at + 4] == lay.count and data[:2] == b"\x00\x01":
+                and data[c:c + 4] == lay.mode_count and data[:2] == b"\x00\x01":
             sec, nsec = _STAMP.unpack_from(data, 4)
             return FleetCommandData(
                 sec, nsec, lay.frame, _U64.unpack_from(data, lay.step_at)[0],
