@@ -332,7 +332,7 @@ class _CommandLayout(NamedTuple):
     A writer sends the same frame and train ids every step: only the stamp, the step and
     the efforts and modes change, at the same offsets.  ``head``: the bytes from the end of
     the stamp to the step (frame_id and padding); ``ids``: from the end of the step to the
-    efforts (train ids, padding, effort count and padding); ``count``: the mode count.
+    efforts (train ids, padding, effort count and padding); ``mode_count``: the mode count.
     """
 
     size: int
