@@ -346,3 +346,47 @@ def test_fleet_command_cdr_takes_what_the_object_path_takes() -> None:
     assert answered > 1000 and declined > 100
     for junk in (b"", b"\x00\x01\x00\x00", b"\x00\x01\x00\x00" + b"\x07" * 40):
         assert conv.fleet_command_efforts_cdr(junk, topic, raw_index, cache, 0, 0.0) is None
+
+
+def test_fleet_command_layouts_read_as_the_reader_does() -> None:
+    """A FleetCommand laid out as one read before is read at the remembered offsets: equal
+    to rclpy's reading for new stamps, steps, efforts and modes; a message of the same size
+    with other ids, frame or counts is not read at that layout."""
+    rng = np.random.default_rng(RNG_SEED + 7)
+    cdr._LAYOUTS.clear()
+    for _ in range(200):
+        n = int(rng.integers(1, 16))
+        ids = [f"train_{int(x):02d}" for x in rng.choice(99, n, replace=False)]
+        base = FleetCommand(train_id=ids, effort=_floats(rng, n).tolist(),
+                            mode=[int(x) for x in rng.integers(0, 256, n)])
+        base.header.frame_id = "line" if rng.random() < 0.8 else _ids(rng, 1)[0]
+        cdr.read_fleet_command(serialize_message(base))  # remembered
+        for _ in range(3):
+            m = FleetCommand(header=base.header, train_id=ids,
+                             effort=_floats(rng, n).tolist(),
+                             mode=[int(x) for x in rng.integers(0, 256, n)])
+            m.header.stamp.sec, m.header.stamp.nanosec = _stamp(rng)
+            m.step = int(rng.integers(0, 2**63))
+            data = serialize_message(m)
+            assert any(len(data) == lay.size for lay in cdr._LAYOUTS.get(len(data), ()))
+            got = cdr.read_fleet_command(data)
+            assert got is not None and got.frame_id == m.header.frame_id
+            assert [cdr.text(b) for b in got.train_id_raw] == ids
+            assert (got.sec, got.nanosec, got.step) == (m.header.stamp.sec,
+                                                        m.header.stamp.nanosec, m.step)
+            assert _same(got.effort, m.effort)
+            assert _same(got.mode, np.frombuffer(m.mode, np.uint8))
+        # same size, another train (same id length): its own ids, not the layout's
+        other = list(ids)
+        other[-1] = "train_99" if ids[-1] != "train_99" else "train_98"
+        m = FleetCommand(header=base.header, train_id=other, effort=base.effort,
+                         mode=base.mode)
+        got = cdr.read_fleet_command(serialize_message(m))
+        assert got is not None and [cdr.text(b) for b in got.train_id_raw] == other
+        # fewer modes than efforts (same size as a full one with one more id byte): the
+        # reader's result, never the layout's
+        m = FleetCommand(header=base.header, train_id=ids, effort=base.effort,
+                         mode=base.mode[:-1])
+        got = cdr.read_fleet_command(serialize_message(m))
+        assert got is not None and got.mode.size == n - 1
+    assert sum(len(v) for v in cdr._LAYOUTS.values()) <= cdr._LAYOUTS_MAX

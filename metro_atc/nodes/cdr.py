@@ -326,21 +326,77 @@ class FleetCommandData(NamedTuple):
     mode: np.ndarray
 
 
+class _CommandLayout(NamedTuple):
+    """Where the values of a FleetCommand are, for messages whose other bytes are these.
+
+    A writer sends the same frame and train ids every step: only the stamp, the step and
+    the efforts and modes change, at the same offsets.  ``head``: the bytes from the end of
+    the stamp to the step (frame_id and padding); ``ids``: from the end of the step to the
+    efforts (train ids, padding, effort count and padding); ``mode_count``: the mode count.
+    """
+
+    size: int
+    head: bytes
+    step_at: int
+    ids: bytes
+    effort_at: int
+    count_at: int
+    mode_count: bytes
+    n: int
+    frame: str
+    train_id_raw: tuple[bytes, ...]
+
+
+_LAYOUTS: dict[int, list[_CommandLayout]] = {}
+"""FleetCommand layouts seen, by message size (a few per size: one per ATO process)."""
+_LAYOUTS_MAX = 64
+"""Layouts kept at most (a writer cycling through train lists: the oldest dropped)."""
+
+
 def read_fleet_command(data: bytes) -> FleetCommandData | None:
-    """Decode a FleetCommand (None when not a well-formed one, see the module docstring)."""
+    """Decode a FleetCommand (None when not a well-formed one, see the module docstring).
+
+    A message laid out as one read before (same size, and the same bytes everywhere but in
+    the stamp, the step, the efforts and the modes) is read at that layout's offsets
+    (~5x cheaper); anything else by :class:`Reader` field by field. Same result either way.
+    """
+    for lay in _LAYOUTS.get(len(data), ()):
+        c = lay.count_at
+        if data[12:lay.step_at] == lay.head and data[lay.step_at + 8:lay.effort_at] == lay.ids \
+                and data[c:c + 4] == lay.mode_count and data[:2] == b"\x00\x01":
+            sec, nsec = _STAMP.unpack_from(data, 4)
+            return FleetCommandData(
+                sec, nsec, lay.frame, _U64.unpack_from(data, lay.step_at)[0],
+                lay.train_id_raw, np.frombuffer(data, "<f8", lay.n, lay.effort_at),
+                np.frombuffer(data, "u1", lay.n, lay.count_at + 4))
     try:
         r = Reader(data)
         sec, nsec = r.stamp()
         frame = r.string()
         step = r.u64()
+        step_at = r.pos - 8
         ids = r.strings_raw()
         effort = r.array("<f8")
+        effort_end = r.pos
         mode = r.array("u1")
     except (ValueError, TypeError, struct.error):  # pragma: no cover - bounds checked above
         return None
     if not r.finished():
         return None
+    n = len(ids)
+    if n and effort.size == n and mode.size == n:
+        _remember(_CommandLayout(
+            len(data), bytes(data[12:step_at]), step_at,
+            bytes(data[step_at + 8:effort_end - 8 * n]), effort_end - 8 * n, effort_end,
+            bytes(data[effort_end:effort_end + 4]), n, frame, ids))
     return FleetCommandData(sec, nsec, frame, step, ids, effort, mode)
+
+
+def _remember(lay: _CommandLayout) -> None:
+    """Keep a FleetCommand layout (bounded: :data:`_LAYOUTS_MAX`)."""
+    if sum(len(v) for v in _LAYOUTS.values()) >= _LAYOUTS_MAX:
+        _LAYOUTS.clear()
+    _LAYOUTS.setdefault(lay.size, []).append(lay)
 
 
 # ------------------------------------------------------------------ FleetBrakeSensorData

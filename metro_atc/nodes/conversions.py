@@ -873,7 +873,8 @@ def fleet_command_efforts_cdr(data: bytes, topic: str, index: dict[bytes, int],
         check_stamp(topic, float(m.sec) + 1e-9 * float(m.nanosec), t_s)
     except Rejected:
         return FALLBACK
-    return ix, np.clip(e, -1.0, 1.0)
+    # np.minimum(np.maximum()) is np.clip's result (|e| <= 1 + 1e-9, no NaN) at ~1/5 the cost
+    return ix, np.minimum(np.maximum(e, -1.0), 1.0)
 
 
 def fleet_states_checked(msg: FleetState, topic: str, hosted: Mapping[str, Any],

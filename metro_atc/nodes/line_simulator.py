@@ -32,6 +32,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import threading
 import time
 from collections import deque
 from functools import partial
@@ -336,6 +337,10 @@ class LineSimulator(Node):
         self.sensor_dropped = 0
         """Kept samples dropped beyond ``sensor_keep_max``."""
         self._journal: Any = None
+        self._ck_writer: threading.Thread | None = None
+        """The thread writing the last checkpoint (:meth:`save_checkpoint`)."""
+        self._ck_failed: str | None = None
+        """Why the last checkpoint write failed (reported by :meth:`wait_checkpoint`)."""
         self.first_start = True
         """No earlier process of this run (see :data:`STARTED_MARKER`)."""
         if self.checkpoint_dir:
@@ -592,17 +597,47 @@ class LineSimulator(Node):
             and self.k % self.checkpoint_every == 0 and self.k != self.resumed_from
 
     def save_checkpoint(self) -> None:
-        """Write the checkpoint of the current step (atomically) if one is due."""
+        """Write the checkpoint of the current step (atomically) if one is due.
+
+        The state is captured here (copies: :func:`metro_atc.core.checkpoint.capture`); the
+        file is written by a thread while the lockstep goes on (~60 % of a checkpoint's
+        time: JSON, ``np.savez``, fsync), one file at a time.  Until it is renamed into place
+        the previous checkpoint stands: a kill in between resumes from that one (the
+        departure journal holds every command since), as a kill before this step would.
+        """
         if not self.checkpoint_due():
             return
         holder = SimpleNamespace(line=self.sim, **{a: getattr(self, a) for a in NODE_STATE})
         try:
             tree, arrays = capture(holder, static_parts(self.sim))
-            save_tree(Path(self.checkpoint_dir) / CHECKPOINT_FILE, tree, arrays,
-                      identity=self.identity, step=int(self.k), t=float(self.sim.t))
-        except (OSError, CheckpointError) as exc:
+        except CheckpointError as exc:
             self._warn_rate_limited("checkpoint", f"checkpoint of step {self.k} not "
                                     f"written: {exc}")
+            return
+        self.wait_checkpoint()
+        writer = threading.Thread(
+            target=self._write_checkpoint, name="checkpoint", daemon=False,
+            args=(Path(self.checkpoint_dir) / CHECKPOINT_FILE, tree, arrays, int(self.k),
+                  float(self.sim.t)))
+        self._ck_writer = writer
+        writer.start()
+
+    def _write_checkpoint(self, path: Path, tree: Any, arrays: list[np.ndarray], step: int,
+                          t: float) -> None:
+        """Write a captured checkpoint (the writer thread); a failure is kept for the loop."""
+        try:
+            save_tree(path, tree, arrays, identity=self.identity, step=step, t=t)
+        except Exception as exc:  # noqa: BLE001 - reported by wait_checkpoint, never raised
+            self._ck_failed = f"checkpoint of step {step} not written: {exc}"
+
+    def wait_checkpoint(self) -> None:
+        """Wait until the checkpoint being written (if any) is in place; log a failure."""
+        writer, self._ck_writer = self._ck_writer, None
+        if writer is not None:
+            writer.join()
+        failed, self._ck_failed = self._ck_failed, None
+        if failed:
+            self._warn_rate_limited("checkpoint", failed)
 
     def republish_history(self) -> None:
         """Publish the restored event history again (a restarted ATS replays it)."""
@@ -777,11 +812,25 @@ class LineSimulator(Node):
         """Publish /clock and the states of step k; return the active mask.
 
         After a resume, the journaled departure commands of step k are applied first.
+        :meth:`publish_clock` then :meth:`publish_lockstep` (the lockstep loop mostly calls
+        them apart: :meth:`step_and_publish`).
+        """
+        self.publish_clock()
+        return self.publish_lockstep()
+
+    def publish_clock(self) -> None:
+        """Publish /clock at the time of step k (every ``clock_every`` steps)."""
+        if self.k % self.clock_every == 0:
+            self.clock_pub.publish(cdr.clock(float(self.sim.t)))
+
+    def publish_lockstep(self) -> np.ndarray:
+        """Publish what the ATOs answer at step k: the fleet state, the per-train states.
+
+        After a resume, the journaled departure commands of step k are applied first (the
+        states carry the departure times). Returns the active mask.
         """
         self.replay_departures()
         t = float(self.sim.t)
-        if self.k % self.clock_every == 0:
-            self.clock_pub.publish(cdr.clock(t))
         active = np.asarray(self.sim.active_mask(), dtype=bool)
         states = self.sim.states()
         self._step_states = (self.k, states)
@@ -797,8 +846,10 @@ class LineSimulator(Node):
         self._fleet_msg = conv.fleet_state_cdr(self._state_builder(idx), idx, states, self.k,
                                                t, per_train[idx])
         self.fleet_pub.publish(self._fleet_msg)
-        for i, m in conv.state_msgs(self.ids, np.flatnonzero(per_train), states, self.k, t):
-            self.state_pubs[i].publish(m)
+        if per_train.any():
+            for i, m in conv.state_msgs(self.ids, np.flatnonzero(per_train), states, self.k,
+                                        t):
+                self.state_pubs[i].publish(m)
         return active
 
     def _state_read(self, mask: np.ndarray) -> np.ndarray:
@@ -898,6 +949,41 @@ class LineSimulator(Node):
 
     def advance(self, active: np.ndarray, timed_out: bool) -> None:
         """Apply the commands, step the core and publish its outputs."""
+        res, done = self.step_plant(active, timed_out)
+        self.publish_outputs(res, done)
+
+    def step_and_publish(self, active: np.ndarray, timed_out: bool) -> np.ndarray | None:
+        """Lockstep: :meth:`advance`, then :meth:`publish_step` of the new step k.
+
+        The fleet state and per-train states of step k (what the ATOs wait for) go out right
+        after the plant step, before the step's events, sensor samples, ``/line/status``,
+        progress line and ``/clock`` (in that order, as in :meth:`advance` then
+        :meth:`publish_step`): those are made while the ATOs compute.  Every message and its
+        content are the same; only the fleet and per-train states move ahead of the others
+        of the same step (publishing them changes no state a checkpoint holds).  At the
+        last step, at a checkpoint with journaled departure commands of step k to replay
+        (the checkpoint describes the state before them) and at a recorder sync step the
+        order is that of :meth:`advance` then the caller's :meth:`publish_step`.  Returns
+        the active mask of step k, or None when step k's states were not published here
+        (the caller publishes them, unless finished).
+        """
+        res, done = self.step_plant(active, timed_out)
+        replay_due = bool(self.replay) and int(self.replay[0]["k"]) <= self.k
+        if done or (replay_due and self.checkpoint_due()) or (
+                self.wait_for_subscribers and self.k % RECORDER_SYNC_STEPS == 0):
+            self.publish_outputs(res, done)
+            return None
+        nxt = self.publish_lockstep()
+        self.publish_outputs(res, done)
+        self.publish_clock()
+        return nxt
+
+    def step_plant(self, active: np.ndarray, timed_out: bool) -> tuple[Any, bool]:
+        """Apply the commands of step k and step the core (k -> k + 1).
+
+        Returns the core's step result and whether the run is done (scenario end or
+        ``max_sim_time_s``).
+        """
         if timed_out:
             missing = [self.ids[i] for i in np.flatnonzero(active & (self.cmd_step < self.k))]
             for i, j in self.pending_departures():
@@ -915,13 +1001,22 @@ class LineSimulator(Node):
             self._log_watchdog(e)
         res = self.sim.step(effort)
         self.k += 1
+        t = float(self.sim.t)
+        done = bool(self.sim.done) or (self.max_sim_time_s > 0 and t >= self.max_sim_time_s)
+        return res, done
+
+    def publish_outputs(self, res: Any, done: bool) -> None:
+        """Publish the outputs of the step that led to step k (:meth:`step_plant`).
+
+        Its events, brake sensor samples, progress line, ``/line/status``; at the end the
+        last sensor batch, else the batch and checkpoint when due.
+        """
         for ev in res.events:
             self.event_seq[ev.train_idx] += 1
             self.event_pub.publish(conv.event_msg(ev, self.ids, self.sim.station_names,
                                                   int(self.event_seq[ev.train_idx])))
         self.publish_sensors(res.sensor_arrays)
         t = float(self.sim.t)
-        done = bool(self.sim.done) or (self.max_sim_time_s > 0 and t >= self.max_sim_time_s)
         if t >= self._next_progress_t:
             self._next_progress_t += self.progress_period_s
             wall = time.monotonic() - self._wall0
@@ -1171,6 +1266,7 @@ class LineSimulator(Node):
 
     def close(self) -> None:
         """Write the run's outputs (events CSV, plots, KPIs JSON) if an out_dir is set."""
+        self.wait_checkpoint()
         if not self.out_dir:
             return
         out = Path(self.out_dir)
@@ -1301,15 +1397,17 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
                 last_executor = now
                 executor.spin_once(timeout_sec=0.0)
 
+    active: np.ndarray | None = None
     while not sim.finished and not stop_requested():
         if time.monotonic() >= next_sensor_check:
             next_sensor_check = time.monotonic() + 1.0
             sim.resend_sensors()
             if time.monotonic() < alone_until:
                 sim.check_alone()
-        if sim.wait_for_subscribers and sim.k > 0 and sim.k % RECORDER_SYNC_STEPS == 0:
-            sim.wait_acked(timeout_s=30.0)
-        active = sim.publish_step()
+        if active is None:  # else published with the step before (step_and_publish)
+            if sim.wait_for_subscribers and sim.k > 0 and sim.k % RECORDER_SYNC_STEPS == 0:
+                sim.wait_acked(timeout_s=30.0)
+            active = sim.publish_step()
         if sim.lockstep:
             deadline = time.monotonic() + sim.step_timeout_s
             resend = time.monotonic() + 0.5
@@ -1332,7 +1430,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
                         # killed ATO process whose successor matched between two checks
                         fleet_resend = time.monotonic() + FLEET_RESEND_S
                         sim.publish_fleet_again(active)
-            sim.advance(active, timed_out=not sim.commands_complete(active))
+            active = sim.step_and_publish(active, timed_out=not sim.commands_complete(active))
         else:
             target = wall0 + (float(sim.sim.t) + sim.sim.control_period_s - sim0) / sim.rtf
             while True:
@@ -1342,11 +1440,13 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
                 wait(min(rest, 0.01))
             wait(0.0)
             sim.advance(active, timed_out=False)
+            active = None
         if fast_path:
             slow_path()
         else:
             executor.spin_once(timeout_sec=0.0)
     sim.flush_sensors(force=True)  # stopped by a signal: what was sampled goes out
+    sim.wait_checkpoint()
     if sim.wait_for_subscribers:
         sim.wait_acked()
     if not sim.finished:

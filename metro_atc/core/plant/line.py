@@ -237,13 +237,13 @@ class LineSim:
 
     def _target_dep(self) -> FloatArray:
         """Commanded (else scheduled) departure time from the current station [s]."""
-        j = np.clip(self.fleet.cur_station, 0, self.n_st - 1)
+        j = np.minimum(np.maximum(self.fleet.cur_station, 0), self.n_st - 1)
         rows = np.arange(self.n)
         dep = self.stations.cmd_dep[rows, j]
         return np.where(np.isfinite(dep), dep, self.service.sched_dep[rows, j])
 
     def _target_rt(self) -> FloatArray:
-        j = np.clip(self.fleet.cur_station, 0, self.n_st - 2)
+        j = np.minimum(np.maximum(self.fleet.cur_station, 0), self.n_st - 2)
         rt = self.stations.cmd_rt[np.arange(self.n), j]
         return np.where(np.isfinite(rt), rt, self.service.sched_running_s[j])
 
