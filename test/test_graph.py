@@ -178,6 +178,38 @@ def test_lockstep_is_deterministic(two_runs: dict[str, Any]) -> None:
     assert two_runs["events"][0] == two_runs["events"][1]
 
 
+def _log_shape(text: str) -> list[str]:
+    """A node log's lines without their stamps and figures (what must not vary by run)."""
+    import re
+
+    return [re.sub(r"[0-9]+(\.[0-9]+)?", "#", ln) for ln in text.splitlines()]
+
+
+def test_forked_nodes_end_like_execd_ones(two_runs: dict[str, Any]) -> None:
+    """Run 0's nodes were forked by the zygote, run 1's exec'd: the zygote is reported only
+    in run 0, and both runs leave the same journals and logs of the same shape, complete to
+    their shutdown lines (a forked node ends with ``os._exit`` after its clean-up)."""
+    k0, k1 = two_runs["kpis"]
+    assert "zygote" in k0["node_cpu_s"] and "zygote" in k0["node_peak_rss_mb"]
+    assert "zygote" not in k1["node_cpu_s"]
+    out0, out1 = two_runs["out"]
+    journals = sorted(p.name for p in (out1 / "checkpoints").glob("*.jsonl"))
+    assert len(journals) >= 2 * k1["trains"]
+    assert journals == sorted(p.name for p in (out0 / "checkpoints").glob("*.jsonl"))
+    for name in journals:
+        assert (out0 / "checkpoints" / name).read_bytes() == \
+            (out1 / "checkpoints" / name).read_bytes(), name
+    logs = sorted(p.name for p in (out1 / "logs").glob("*.log"))
+    for name in logs:
+        if name == "line_simulator.log":
+            continue  # run 0 waits for its recorder
+        a, b = ((o / "logs" / name).read_text(errors="replace") for o in (out0, out1))
+        assert _log_shape(a) == _log_shape(b), name
+    brake = (out0 / "logs" / "brake_diagnostic.log").read_text().splitlines()
+    assert brake and all(f"train_{n:02d}: " in "\n".join(brake[-k0["trains"]:])
+                         for n in range(1, k0["trains"] + 1)), brake[-5:]
+
+
 def test_recorded_bag_reads_back(two_runs: dict[str, Any]) -> None:
     """The rosbag2 MCAP of the recorded run, read by ``rosbags``: every topic of the graph,
     one /clock and one state per train per step from step 0, no duplicate, a command for
