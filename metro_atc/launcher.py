@@ -716,15 +716,17 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
     except KeyboardInterrupt:
         code = 130
     finally:
-        _stop(procs)
-        signal.signal(signal.SIGTERM, old)
-        shutil.rmtree(plans, ignore_errors=True)
         if zygote is not None:
             if zygote.info and zygote.proc is not None:
                 if memory is not None:
                     memory["zygote"] = peak_rss_mb(zygote.proc.pid)
                 if cpu is not None:
                     cpu["zygote"] = cpu_seconds(zygote.proc.pid)
+            zygote.release()  # no respawn from here on: it ends while the nodes stop
+        _stop(procs)
+        signal.signal(signal.SIGTERM, old)
+        shutil.rmtree(plans, ignore_errors=True)
+        if zygote is not None:
             zygote.close()
     if code == 0:
         # the rest of the graph was stopped by SIGTERM: a node that then fails (or a recorder

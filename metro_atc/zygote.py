@@ -327,6 +327,16 @@ class Client:
         """CPU time [s] the zygote used (its preload), as the launcher reports per process."""
         return self.info.get("cpu_s") if self.info else None
 
+    def release(self) -> None:
+        """Tell the zygote to end (EOF on its stdin) without waiting; no more forks."""
+        self._ready = False
+        p = self.proc
+        if p is not None and p.stdin is not None and not p.stdin.closed:
+            try:
+                p.stdin.close()
+            except OSError:
+                pass
+
     def close(self) -> None:
         """End the zygote (EOF on its stdin; SIGKILL if it does not go within 5 s)."""
         p, self.proc = self.proc, None
@@ -334,7 +344,7 @@ class Client:
         if p is None:
             return
         try:
-            if p.stdin is not None:
+            if p.stdin is not None and not p.stdin.closed:
                 p.stdin.close()
             p.wait(timeout=5.0)
         except Exception:  # noqa: BLE001 - best effort: it must not outlive the run
