@@ -42,12 +42,19 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Sequence, Union
 
 import numpy as np
 
 from metro_atc.dds import config_dir, dds_defaults
 from metro_atc.process_watch import PARENT_PID_ENV
+from metro_atc.zygote import Client as Zygote
+from metro_atc.zygote import Forked
+
+Proc = Union["subprocess.Popen[bytes]", Forked]
+"""A node process: exec'd (``Popen``) or forked by the zygote (:class:`Forked`)."""
+ZYGOTE_ENV = "METRO_ATC_ZYGOTE"
+"""Environment variable: ``0`` makes ``run`` exec every node process (no fork server)."""
 
 NODE_EXECUTABLES = ("line_simulator", "ats_regulator", "ato_controller", "brake_diagnostic",
                     "bag_recorder")
@@ -281,7 +288,29 @@ def build_commands(a: argparse.Namespace, train_ids: Sequence[str],
             for p in processes_for(a, train_ids, out_dir, plan_store_dir)]
 
 
-def _stop(procs: list[tuple[str, subprocess.Popen[bytes]]], grace_s: float = 15.0) -> None:
+def node_env() -> dict[str, str]:
+    """The environment of the node processes (and of the zygote that forks them)."""
+    # PARENT_PID_ENV: the nodes stop themselves if this launcher dies (even by SIGKILL)
+    return dict(os.environ, RCUTILS_LOGGING_BUFFERED_STREAM="0", PYTHONUNBUFFERED="1",
+                **{PARENT_PID_ENV: str(os.getpid())})
+
+
+def forkable(argv: Sequence[str]) -> bool:
+    """True if ``argv`` runs an installed node executable (the zygote can fork it)."""
+    if not argv:
+        return False
+    name = os.path.basename(argv[0])
+    return name in NODE_EXECUTABLES and executable(name) == [argv[0]]
+
+
+def start_zygote(executables: Sequence[str]) -> Zygote | None:
+    """Start the fork server preloading ``executables`` (None when ``METRO_ATC_ZYGOTE=0``)."""
+    if os.environ.get(ZYGOTE_ENV, "1") == "0":
+        return None
+    return Zygote(list(executables), node_env())
+
+
+def _stop(procs: list[tuple[str, Proc]], grace_s: float = 15.0) -> None:
     for _, p in procs:
         if p.poll() is None:
             try:
@@ -324,6 +353,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run one scenario through the graph; print KPIs (``--json``: one JSON object)."""
     a = parse_args(argv)
     dds_defaults()
+    zygote = None
+    if not a.single_process:
+        # the fork server preloads while this process loads the scenario and checks options
+        names = [x for x in NODE_EXECUTABLES if x != RECORDER_NODE or a.record is not None]
+        if all(forkable(executable(x)) for x in names):
+            zygote = start_zygote(names)
+    try:
+        return _main(a, zygote)
+    finally:
+        if zygote is not None:
+            zygote.close()
+
+
+def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
     from metro_atc.core.line.scenario import ScenarioError, load_scenario
     try:
         scn = load_scenario(a.scenario)
@@ -366,7 +409,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         show = a.progress == "always" or (a.progress == "auto" and sys.stderr.isatty())
         horizon_s = progress_horizon_s(scn, a.duration) if show else None
-        code = _run_processes(a, train_ids, out_dir, horizon_s, memory, cpu)
+        code = _run_processes(a, train_ids, out_dir, horizon_s, memory, cpu, zygote)
     wall = time.monotonic() - t0
     kpi_file = out_dir / "kpis.json"
     if code != 0:
@@ -576,15 +619,20 @@ def own_peak_rss_mb() -> float | None:
 def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Path,
                    progress_horizon_s: float | None = None,
                    memory: dict[str, float | None] | None = None,
-                   cpu: dict[str, float | None] | None = None) -> int:
+                   cpu: dict[str, float | None] | None = None,
+                   zygote: Zygote | None = None) -> int:
     """Start the graph's processes, watch them, stop them; return an exit code.
 
     ``memory`` / ``cpu`` (filled if given): each process's peak resident memory [MiB] and
     CPU time [s], sampled once per second while it runs (the last sample before it exits).
+    The installed node executables are forked by ``zygote`` (started here if None and
+    :data:`ZYGOTE_ENV` is not ``0``; closed here), anything else (or everything, if the
+    zygote cannot serve) is exec'd; a forked node's CPU time does not include its imports,
+    which the zygote did once: its own CPU time and memory are reported as ``zygote``.
     """
     log_dir = Path(a.log_dir) if a.log_dir else out_dir / "logs"
     log_dir.mkdir(parents=True, exist_ok=True)
-    procs: list[tuple[str, subprocess.Popen[bytes]]] = []
+    procs: list[tuple[str, Proc]] = []
     code = 0
     tail = None if progress_horizon_s is None else \
         ProgressTail(log_dir / "line_simulator.log", progress_horizon_s)
@@ -593,15 +641,20 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
         raise KeyboardInterrupt
 
     old = signal.signal(signal.SIGTERM, on_term)
-    # PARENT_PID_ENV: the nodes stop themselves if this launcher dies (even by SIGKILL)
-    env = dict(os.environ, RCUTILS_LOGGING_BUFFERED_STREAM="0", PYTHONUNBUFFERED="1",
-               **{PARENT_PID_ENV: str(os.getpid())})
+    env = node_env()
     # the ATO processes plan each run and target once between them (deleted at the end)
     plans = tempfile.mkdtemp(prefix="metro_atc_plans_")
     commands = dict(build_commands(a, train_ids, out_dir, plans))
     respawns = {label: 0 for label in commands}
+    forks = {label for label, argv in commands.items() if forkable(argv)}
+    if zygote is None and forks:
+        zygote = start_zygote(sorted({os.path.basename(commands[x][0]) for x in forks}))
 
-    def start(label: str, mode: str = "wb") -> subprocess.Popen[bytes]:
+    def start(label: str, mode: str = "wb") -> Proc:
+        if zygote is not None and label in forks:
+            forked = zygote.spawn(commands[label], str(log_dir / f"{label}.log"), mode)
+            if forked is not None:
+                return forked
         with open(log_dir / f"{label}.log", mode) as log:
             return subprocess.Popen(commands[label], stdout=log, stderr=subprocess.STDOUT,
                                     start_new_session=True, env=env)
@@ -618,8 +671,9 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
         while code == 0:
             sim = procs[0][1]
             # any exit is a failure but the simulator's normal end
-            failed = [(n, label, p.returncode) for n, (label, p) in enumerate(procs)
-                      if p.poll() is not None and (n > 0 or p.returncode != 0)]
+            ended = [(n, label, p.poll()) for n, (label, p) in enumerate(procs)]
+            failed = [(n, label, rc) for n, label, rc in ended
+                      if rc is not None and (n > 0 or rc != 0)]
             if failed:
                 n, label, rc = failed[0]
                 why = f"killed by {signal.Signals(-rc).name}" if rc < 0 and \
@@ -662,23 +716,32 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
     except KeyboardInterrupt:
         code = 130
     finally:
+        if zygote is not None:
+            if zygote.info and zygote.proc is not None:
+                if memory is not None:
+                    memory["zygote"] = peak_rss_mb(zygote.proc.pid)
+                if cpu is not None:
+                    cpu["zygote"] = cpu_seconds(zygote.proc.pid)
+            zygote.release()  # no respawn from here on: it ends while the nodes stop
         _stop(procs)
         signal.signal(signal.SIGTERM, old)
         shutil.rmtree(plans, ignore_errors=True)
+        if zygote is not None:
+            zygote.close()
     if code == 0:
         # the rest of the graph was stopped by SIGTERM: a node that then fails (or a recorder
         # that could not close its bag) still fails the run
         bad = [(label, p.returncode) for label, p in procs[1:]
                if p.returncode not in (0, -signal.SIGTERM, -signal.SIGKILL)]
         if bad:
-            label, rc = bad[0]
-            print(f"metro_atc run: error: {label} exited with {rc} at shutdown: "
+            label, end_rc = bad[0]
+            print(f"metro_atc run: error: {label} exited with {end_rc} at shutdown: "
                   f"{_last_error_line(log_dir / f'{label}.log')}", file=sys.stderr)
             code = EXIT_NODE_FAILED
     return code
 
 
-def write_pids(log_dir: Path, procs: Sequence[tuple[str, subprocess.Popen[bytes]]]) -> None:
+def write_pids(log_dir: Path, procs: Sequence[tuple[str, Proc]]) -> None:
     """``LOG_DIR/pids.json``: label -> process id of the running graph (atomically)."""
     tmp = log_dir / ".pids.json.tmp"
     tmp.write_text(json.dumps({label: p.pid for label, p in procs}, indent=1))

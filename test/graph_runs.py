@@ -72,7 +72,9 @@ def mini_graph_runs(tmp: Path) -> dict[str, Any]:
 
     One ATO process per train (``--ato-per-process 1``): each train is followed by its own
     ATO node in its own OS process. Run 0 is recorded (``--record``: the recorder must not
-    change the run); run 1 is not. Lists indexed by run: ``kpis``, ``stderr``, ``out``
+    change the run), its nodes forked by the launcher's zygote; run 1 is not recorded and
+    execs its nodes (``METRO_ATC_ZYGOTE=0``): forked and exec'd nodes must give one run.
+    Lists indexed by run: ``kpis``, ``stderr``, ``out``
     (the ``--out`` directory: kpis.json, events.csv, logs/), and what the probes received:
     ``events`` (tuples), ``clock`` (s), ``profiles``, ``states``, ``sensors``.
     """
@@ -104,7 +106,8 @@ def mini_graph_runs(tmp: Path) -> dict[str, Any]:
                 out = tmp / f"run{k}"
                 out.mkdir()
                 results["out"].append(out)
-                env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
+                env = dict(os.environ, ROS_DOMAIN_ID=str(dom),
+                           METRO_ATC_ZYGOTE=str(1 - k))
                 procs.append(start_graph(env, out, "--ato-per-process", "1",
                                          "--step-timeout", str(STEP_TIMEOUT_S),
                                          *(["--record"] if k == 0 else [])))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -176,6 +177,40 @@ def test_lockstep_is_deterministic(two_runs: dict[str, Any]) -> None:
     assert {k: v for k, v in a.items() if k not in skip} == \
         {k: v for k, v in b.items() if k not in skip}
     assert two_runs["events"][0] == two_runs["events"][1]
+
+
+def _log_shape(text: str) -> list[str]:
+    """A node log's lines without their stamps and figures (what must not vary by run)."""
+    return [re.sub(r"[0-9]+(\.[0-9]+)?", "#", ln) for ln in text.splitlines()]
+
+
+def test_forked_nodes_end_like_execd_ones(two_runs: dict[str, Any]) -> None:
+    """Run 0's nodes were forked by the zygote, run 1's exec'd: the zygote is reported only
+    in run 0, and both runs leave the same journals and logs of the same shape, complete to
+    their shutdown lines (a forked node ends with ``os._exit`` after its clean-up)."""
+    k0, k1 = two_runs["kpis"]
+    assert "zygote" in k0["node_cpu_s"] and "zygote" in k0["node_peak_rss_mb"]
+    assert "zygote" not in k1["node_cpu_s"]
+    out0, out1 = two_runs["out"]
+    journals = sorted(p.name for p in (out1 / "checkpoints").glob("*.jsonl"))
+    assert len(journals) >= 2 * k1["trains"]
+    assert journals == sorted(p.name for p in (out0 / "checkpoints").glob("*.jsonl"))
+    for name in journals:
+        a, b = ((o / "checkpoints" / name).read_text() for o in (out0, out1))
+        if name == "line_simulator_departures.jsonl":
+            # "k", the step a departure command was taken at, is the wall clock's: run 0
+            # waits for its recorder before step 0, so the ATS's first commands come earlier
+            a, b = (re.sub(r'"k": [0-9]+', '"k"', x) for x in (a, b))
+        assert a == b, name
+    logs = sorted(p.name for p in (out1 / "logs").glob("*.log"))
+    for name in logs:
+        if name == "line_simulator.log":
+            continue  # run 0 waits for its recorder
+        a, b = ((o / "logs" / name).read_text(errors="replace") for o in (out0, out1))
+        assert _log_shape(a) == _log_shape(b), name
+    brake = (out0 / "logs" / "brake_diagnostic.log").read_text().splitlines()
+    assert brake and all(f"train_{n:02d}: " in "\n".join(brake[-k0["trains"]:])
+                         for n in range(1, k0["trains"] + 1)), brake[-5:]
 
 
 def test_recorded_bag_reads_back(two_runs: dict[str, Any]) -> None:

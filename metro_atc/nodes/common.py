@@ -463,6 +463,12 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
                     print(f"shutdown: {exc}", file=sys.stderr)
             n.destroy_node()
         rclpy.try_shutdown()
+        try:
+            # the DDS participant (and its shared-memory segments) goes now, not in the
+            # interpreter's teardown: a forked node ends with os._exit (metro_atc.zygote)
+            rclpy.get_default_context().destroy()
+        except Exception as exc:  # noqa: BLE001 - best effort at shutdown
+            print(f"shutdown: {exc}", file=sys.stderr)
     return code
 
 

@@ -1455,10 +1455,28 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
     log.info(f"scenario finished at t={sim.sim.t:.1f} s after {sim.k} steps, "
              f"{time.monotonic() - t0:.1f} s wall")
     sim.drain_sensors(lambda timeout_s: executor.spin_once(timeout_sec=timeout_s))
-    # let the last events/status reach late subscribers before the process exits
-    end = time.monotonic() + 0.3
-    while time.monotonic() < end:
-        executor.spin_once(timeout_sec=0.05)
+    executor.spin_once(timeout_sec=0.0)
+    linger(sim, LINGER_S)
+
+
+LINGER_S = 0.3
+"""Most wall time [s] the simulator waits at its end for its last samples to be delivered."""
+
+
+def linger(node: Node, limit_s: float) -> bool:
+    """Wait until every matched reader acknowledged the node's samples; True if all did.
+
+    The last events and statuses reach their subscribers before the process exits (a
+    reliable writer destroyed earlier takes its unacknowledged samples with it); at most
+    ``limit_s`` [s] of wall time (a reader that stopped acknowledging). Best-effort writers
+    have nothing to wait for. This used to be a fixed 0.3 s of executor spinning.
+    """
+    end = time.monotonic() + float(limit_s)
+    for pub in node.publishers:
+        left = end - time.monotonic()
+        if left <= 0.0 or not pub.wait_for_all_acked(Duration(seconds=left)):
+            return False
+    return True
 
 
 def main(args: Sequence[str] | None = None) -> int:
