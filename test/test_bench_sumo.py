@@ -232,3 +232,23 @@ def test_sumo_runs_the_mini_line_to_the_end(tmp_path: Path) -> None:
     # what SUMO models less (traction curve, jerk); not an order of magnitude off
     assert 0.8 * sched < c["middle_train_run_time_s"] < 1.05 * sched
     assert math.isfinite(r["sim_time_s"]) and r["sim_time_s"] > tt.arrival_s[-1, -1]
+
+
+@needs_sumo
+def test_bench_end_to_end_60_s(capsys: Any, tmp_path: Path) -> None:
+    """The command: one pair over 60 simulated s (no graph), one JSON, then the table."""
+    import json
+    assert bs.main(["--json", "--pairs", "1", "--duration", "60", "--no-graph",
+                    "--out", str(tmp_path)]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["sim_time_s"]["sumo"] == 60.0 and res["sim_time_s"]["core"] == 60.0
+    assert res["trains"] == 30 and res["pairs"] == len(res["runs"]) == 1
+    for key in ("sumo_standalone", "sumo_traci", "core_with_sensors"):
+        assert res["median_rtf"][key] > 0.0 and res["median_rtf_cpu"][key] > 0.0
+    assert res["median_rtf"]["graph"] is None
+    run = res["runs"][0]
+    assert res["ratios_ours_over_sumo"]["core_vs_sumo"] == pytest.approx(
+        run["core"]["rtf"] / run["sumo"]["rtf"], rel=1e-2)
+    assert bs.main(["--pairs", "1", "--duration", "60", "--no-graph"]) == 0
+    out = capsys.readouterr().out
+    assert "SUMO standalone" in out and "our core with sensors" in out

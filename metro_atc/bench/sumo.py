@@ -584,6 +584,9 @@ def compare(scenario: str, pairs: int, duration_s: Optional[float], graph_durati
         "core_vs_traci": _median([_ratio(r["core"]["rtf"], r["traci"]["rtf"]) for r in rows]),
         "graph_vs_traci": _median([_ratio(r["graph"]["rtf"], r["traci_graph_window"]["rtf"])
                                    for r in rows if "graph" in r]) if graph else None,
+        "graph_vs_traci_process": _median([
+            _ratio(r["graph"]["rtf"], r["traci_graph_window"]["rtf_process"])
+            for r in rows if "graph" in r]) if graph else None,
         "core_vs_sumo_cpu": _median([_ratio(r["core"]["rtf_cpu"], r["sumo"]["rtf_cpu"])
                                      for r in rows]),
         "graph_vs_traci_cpu": _median([_ratio(r["graph"]["rtf_cpu"],
@@ -600,6 +603,8 @@ def compare(scenario: str, pairs: int, duration_s: Optional[float], graph_durati
         "median_rtf": {"sumo_standalone": med("sumo"), "sumo_standalone_process":
                        med("sumo", "rtf_process"), "sumo_traci": med("traci"),
                        "sumo_traci_graph_window": med("traci_graph_window") if graph else None,
+                       "sumo_traci_graph_window_process":
+                       med("traci_graph_window", "rtf_process") if graph else None,
                        "core_with_sensors": med("core"),
                        "graph": med("graph") if graph else None},
         "median_rtf_cpu": {"sumo_standalone": med("sumo", "rtf_cpu"),
@@ -660,6 +665,7 @@ def main(argv: Optional[list[str]] = None) -> int:
         print(json.dumps(res))
         return 0
     m, r, c = res["median_rtf"], res["ratios_ours_over_sumo"], res["check"]
+    mc = res["median_rtf_cpu"]
 
     def f(x: Optional[float], d: int = 0) -> str:
         return "-" if x is None else f"{x:.{d}f}"
@@ -667,14 +673,18 @@ def main(argv: Optional[list[str]] = None) -> int:
     print(f"SUMO side by side -- {res['scenario']}, {res['sumo_version']}, {res['trains']} "
           f"trains, step {res['step_length_s']} s, {res['pairs']} alternating pairs, "
           f"load {res['load_1min']} on {res['cpus']} CPUs")
-    print(f"  SUMO standalone        {f(m['sumo_standalone'])}x "
-          f"(whole process {f(m['sumo_standalone_process'])}x)")
-    print(f"  SUMO + TraCI ({res['traci_reads']})    {f(m['sumo_traci'], 1)}x")
-    print(f"  our core with sensors  {f(m['core_with_sensors'])}x   "
-          f"= {f(r['core_vs_sumo'], 2)} x SUMO standalone")
-    print(f"  our graph ({f(res['sim_time_s']['graph'])} s)     {f(m['graph'], 1)}x   "
-          f"= {f(r['graph_vs_traci'], 2)} x SUMO + TraCI over the same window "
-          f"({f(m['sumo_traci_graph_window'], 1)}x)")
+    print("  real-time factors, medians (wall clock; per CPU second in brackets)")
+    print(f"  SUMO standalone        {f(m['sumo_standalone'])}x ({f(mc['sumo_standalone'])}x;"
+          f" whole process {f(m['sumo_standalone_process'])}x)")
+    print(f"  SUMO + TraCI ({res['traci_reads']})    {f(m['sumo_traci'], 1)}x "
+          f"({f(mc['sumo_traci'], 1)}x)")
+    print(f"  our core with sensors  {f(m['core_with_sensors'])}x "
+          f"({f(mc['core_with_sensors'])}x) = {f(r['core_vs_sumo'], 2)} x SUMO standalone "
+          f"({f(r['core_vs_sumo_cpu'], 2)} x)")
+    print(f"  our graph ({f(res['sim_time_s']['graph'])} s)     {f(m['graph'], 1)}x "
+          f"({f(mc['graph'], 1)}x) = {f(r['graph_vs_traci'], 2)} x SUMO + TraCI over the "
+          f"same window ({f(m['sumo_traci_graph_window'], 1)}x; "
+          f"{f(r['graph_vs_traci_process'], 2)} x its whole process)")
     print(f"  SUMO ran: {c['arrived']}/{c['trains']} arrived, {c['stops_served']}/"
           f"{c['stops_expected']} stops; {c['middle_train']} end to end "
           f"{f(c['middle_train_run_time_s'])} s in SUMO, "
