@@ -681,10 +681,13 @@ def main(argv: Optional[list[str]] = None) -> int:
     print(f"  our core with sensors  {f(m['core_with_sensors'])}x "
           f"({f(mc['core_with_sensors'])}x) = {f(r['core_vs_sumo'], 2)} x SUMO standalone "
           f"({f(r['core_vs_sumo_cpu'], 2)} x)")
-    print(f"  our graph ({f(res['sim_time_s']['graph'])} s)     {f(m['graph'], 1)}x "
-          f"({f(mc['graph'], 1)}x) = {f(r['graph_vs_traci'], 2)} x SUMO + TraCI over the "
-          f"same window ({f(m['sumo_traci_graph_window'], 1)}x; "
-          f"{f(r['graph_vs_traci_process'], 2)} x its whole process)")
+    if res["sim_time_s"]["graph"] is None:
+        print("  our graph              skipped (--no-graph)")
+    else:
+        print(f"  our graph ({f(res['sim_time_s']['graph'])} s)     {f(m['graph'], 1)}x "
+              f"({f(mc['graph'], 1)}x) = {f(r['graph_vs_traci'], 2)} x SUMO + TraCI over the "
+              f"same window ({f(m['sumo_traci_graph_window'], 1)}x; "
+              f"{f(r['graph_vs_traci_process'], 2)} x its whole process)")
     print(f"  SUMO ran: {c['arrived']}/{c['trains']} arrived, {c['stops_served']}/"
           f"{c['stops_expected']} stops; {c['middle_train']} end to end "
           f"{f(c['middle_train_run_time_s'])} s in SUMO, "
