@@ -181,6 +181,27 @@ def test_missing_sumo_is_one_clear_line(monkeypatch: Any, tmp_path: Path,
     assert "eclipse-sumo" in err
 
 
+def test_traci_errors_become_one_line_runtime_errors() -> None:
+    """A failed TraCI connection ends the bench with its message, not a traceback."""
+    import types
+
+    class Fatal(Exception):
+        pass
+
+    class Plain(Exception):
+        pass
+
+    fake = types.SimpleNamespace(exceptions=types.SimpleNamespace(FatalTraCIError=Fatal,
+                                                                  TraCIException=Plain))
+    for exc in (Fatal("connection closed by SUMO"), Plain("unknown vehicle")):
+        with pytest.raises(RuntimeError, match=f"TraCI: {type(exc).__name__}: {exc}"):
+            with bs._traci_errors(fake):
+                raise exc
+    with pytest.raises(KeyError):  # anything else is a bug: not hidden
+        with bs._traci_errors(fake):
+            raise KeyError("x")
+
+
 def test_bad_arguments_are_refused() -> None:
     with pytest.raises(SystemExit):
         bs.main(["--pairs", "0"])

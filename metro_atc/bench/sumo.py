@@ -58,7 +58,7 @@ import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Iterator, Optional
 
 from metro_atc.bench.progress import progress_enabled
 from metro_atc.core.line.rolling_stock import KMH, train_params_for
@@ -376,6 +376,15 @@ def _import_traci(inst: SumoInstall) -> Any:
     return traci
 
 
+@contextlib.contextmanager
+def _traci_errors(traci: Any) -> Iterator[None]:
+    """TraCI's own exceptions as a one-line :class:`RuntimeError`."""
+    try:
+        yield
+    except (traci.exceptions.FatalTraCIError, traci.exceptions.TraCIException) as exc:
+        raise RuntimeError(f"TraCI: {type(exc).__name__}: {exc}") from None
+
+
 def run_traci(inst: SumoInstall, sc: SumoScenario, end_s: float, reads: str = "get"
               ) -> dict[str, Any]:
     """(b) SUMO driven step by step by a Python controller over TraCI (module docstring).
@@ -396,7 +405,8 @@ def run_traci(inst: SumoInstall, sc: SumoScenario, end_s: float, reads: str = "g
     c0, p0 = _children_cpu_s(), time.process_time()
     w0 = time.perf_counter()
     end_arg = [] if math.isinf(end_s) else ["--end", _fmt(end_s)]
-    with contextlib.redirect_stdout(sys.stderr):  # traci prints its connection retries
+    with contextlib.redirect_stdout(sys.stderr), _traci_errors(traci):
+        # (traci prints its connection retries on stdout)
         traci.start([inst.sumo, "-c", str(sc.files["config"]), "--no-warnings", "true",
                      *end_arg, "--tripinfo-output",
                      str(sc.directory / "tripinfo_traci.xml")], label=label,
@@ -407,36 +417,37 @@ def run_traci(inst: SumoInstall, sc: SumoScenario, end_s: float, reads: str = "g
     l0 = time.perf_counter()
     t = 0.0
     sub = (tc.VAR_ROAD_ID, tc.VAR_LANEPOSITION, tc.VAR_SPEED)
-    try:
-        while t < end_s - 1e-9 and conn.simulation.getMinExpectedNumber() > 0:
-            conn.simulationStep()
-            steps += 1
-            t = conn.simulation.getTime()
-            if reads == "subscribe":
-                for vid in conn.simulation.getDepartedIDList():
-                    veh.subscribe(vid, sub)
-                states = [(vid, r[tc.VAR_ROAD_ID], r[tc.VAR_LANEPOSITION], r[tc.VAR_SPEED])
-                          for vid, r in veh.getAllSubscriptionResults().items()]
-            else:
-                states = [(vid, veh.getRoadID(vid), veh.getLanePosition(vid),
-                           veh.getSpeed(vid)) for vid in veh.getIDList()]
-            for vid, road, pos, _speed in states:
-                if road not in start:
-                    continue  # between edges (no internal links: not expected)
-                x = start[road] + pos
-                j = nxt.get(vid, 0)
-                while j < len(stop_x) and x >= stop_x[j] - AT_STOP_M:
-                    j += 1
-                nxt[vid] = j
-                target = limit[road] - COMMAND_MARGIN_MPS
-                if j < len(stop_x):
-                    target = min(target, max(math.sqrt(2.0 * sc.decel_mps2 * (stop_x[j] - x)),
-                                             MIN_COMMAND_MPS))
-                veh.setSpeed(vid, max(target, MIN_COMMAND_MPS))
-                commands += 1
-        loop = time.perf_counter() - l0
-    finally:
-        conn.close()  # waits for SUMO to exit: its CPU time is then counted
+    with _traci_errors(traci):
+        try:
+            while t < end_s - 1e-9 and conn.simulation.getMinExpectedNumber() > 0:
+                conn.simulationStep()
+                steps += 1
+                t = conn.simulation.getTime()
+                if reads == "subscribe":
+                    for vid in conn.simulation.getDepartedIDList():
+                        veh.subscribe(vid, sub)
+                    states = [(vid, r[tc.VAR_ROAD_ID], r[tc.VAR_LANEPOSITION], r[tc.VAR_SPEED])
+                              for vid, r in veh.getAllSubscriptionResults().items()]
+                else:
+                    states = [(vid, veh.getRoadID(vid), veh.getLanePosition(vid),
+                               veh.getSpeed(vid)) for vid in veh.getIDList()]
+                for vid, road, pos, _speed in states:
+                    if road not in start:
+                        continue  # between edges (no internal links: not expected)
+                    x = start[road] + pos
+                    j = nxt.get(vid, 0)
+                    while j < len(stop_x) and x >= stop_x[j] - AT_STOP_M:
+                        j += 1
+                    nxt[vid] = j
+                    target = limit[road] - COMMAND_MARGIN_MPS
+                    if j < len(stop_x):
+                        target = min(target, max(math.sqrt(2.0 * sc.decel_mps2 * (stop_x[j] - x)),
+                                                 MIN_COMMAND_MPS))
+                    veh.setSpeed(vid, max(target, MIN_COMMAND_MPS))
+                    commands += 1
+            loop = time.perf_counter() - l0
+        finally:
+            conn.close()  # waits for SUMO to exit: its CPU time is then counted
     wall = time.perf_counter() - w0
     cpu_sumo, cpu_ctl = _children_cpu_s() - c0, time.process_time() - p0
     return {"sim_time_s": t, "loop_wall_s": loop, "process_wall_s": wall, "steps": steps,
