@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib
 import json
 import math
 import os
@@ -260,8 +261,8 @@ class SumoInstall:
 
 def _home_from_package() -> Optional[str]:
     """``SUMO_HOME`` of the ``sumo`` Python package (eclipse-sumo), if importable."""
-    try:
-        import sumo  # type: ignore[import-not-found]
+    try:  # an optional tool found at run time, not a dependency (no package.xml key)
+        sumo = importlib.import_module("sumo")
     except Exception:  # noqa: BLE001 - any import failure means "not there"
         return None
     return str(getattr(sumo, "SUMO_HOME", "")) or None
@@ -372,8 +373,7 @@ def _import_traci(inst: SumoInstall) -> Any:
     """The ``traci`` module (installed, else ``$SUMO_HOME/tools``)."""
     if inst.home and str(Path(inst.home) / "tools") not in sys.path:
         sys.path.append(str(Path(inst.home) / "tools"))
-    import traci  # type: ignore[import-not-found]
-    return traci
+    return importlib.import_module("traci")  # optional, found at run time (not a dependency)
 
 
 @contextlib.contextmanager
