@@ -8,6 +8,7 @@ import os
 import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -394,6 +395,56 @@ def test_two_graphs_on_one_domain_are_refused(two_graphs_one_domain: dict[str, A
                and f"ROS_DOMAIN_ID={dom}" in err]
     print(f"\nexit codes {codes}; refused: {refused}")
     assert refused == [0, 1] and codes == [3, 3], [err[-1500:] for err in errs]
+
+
+FAKE_REFUSAL = """
+import time
+import rclpy
+from diagnostic_msgs.msg import DiagnosticStatus
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile
+rclpy.init()
+node = Node("line_simulator")
+pub = node.create_publisher(DiagnosticStatus, "/line/simulator_refused", QoSProfile(
+    depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+pub.publish(DiagnosticStatus(level=DiagnosticStatus.ERROR, name="line_simulator"))
+end = time.monotonic() + 60.0
+while time.monotonic() < end:
+    rclpy.spin_once(node, timeout_sec=0.1)
+"""
+"""A second ``line_simulator`` that announces its refusal (the handshake's topic) and stays."""
+
+
+def test_a_late_refusal_stops_the_run(installed: Path, ros_env: dict[str, str],
+                                      tmp_path: Path) -> None:
+    """A simulator past its first 10 s (its own look for another one over) still stops its
+    graph when another simulator of the domain refuses because of it: seen in CI, the other
+    run refused and this one ran to the end."""
+    dom = ros_env["ROS_DOMAIN_ID"]
+    out = tmp_path / "o"
+    run = [sys.executable, "-m", "metro_atc", "run", "--scenario", SCENARIO, "--no-plots",
+           "--free-run", "--rtf", "20", "--timeout", "120", "--out", str(out)]
+    p = subprocess.Popen(run, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True, cwd=tmp_path)
+    fake = None
+    try:
+        log = out / "logs" / "line_simulator.log"
+        deadline = time.monotonic() + 90.0
+        while time.monotonic() < deadline and p.poll() is None and \
+                not (log.is_file() and "graph ready" in log.read_text(errors="replace")):
+            time.sleep(0.2)
+        assert p.poll() is None, p.communicate()
+        time.sleep(11.0)  # past ALONE_CHECK_S (10 s from the simulator's start)
+        assert p.poll() is None, "the run ended before the refusal (mini at 20x: ~30 s)"
+        fake = subprocess.Popen([sys.executable, "-c", FAKE_REFUSAL], env=ros_env)
+        _, err = p.communicate(timeout=60)
+    finally:
+        for q in (p, fake):
+            if q is not None and q.poll() is None:
+                q.kill()
+                q.communicate()
+    assert p.returncode == 3, err[-1500:]
+    assert "refused to run beside this one" in err and f"ROS_DOMAIN_ID={dom}" in err, err
 
 
 @job("single_process_kpis")

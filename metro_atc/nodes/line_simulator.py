@@ -744,6 +744,21 @@ class LineSimulator(Node):
             time.sleep(REFUSED_POLL_S)
         raise NodeConfigError(reason)
 
+    def check_not_refused(self) -> None:
+        """Raise :class:`NodeConfigError` when another simulator refused to run beside this one.
+
+        Checked once a wall second after :data:`ALONE_CHECK_S`: a loaded machine may let
+        the other simulator see this one only after this one's own look ended (seen once
+        in CI: the other refused, this one ran to the end).
+        """
+        if self._other_simulators(REFUSED_TOPIC) == 0:
+            return
+        raise NodeConfigError(
+            f"another {self.get_name()} on ROS_DOMAIN_ID={self.context.get_domain_id()} "
+            f"refused to run beside this one (it found this one publishing "
+            f"{self.fleet_pub.topic_name}): a second graph on this domain; give each run "
+            "its own ROS_DOMAIN_ID")
+
     def _other_simulators(self, topic: str) -> int:
         """Publishers of ``topic`` by a node of this simulator's name other than this one."""
         same = [i for i in self.get_publishers_info_by_topic(topic)
@@ -1404,6 +1419,8 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
             sim.resend_sensors()
             if time.monotonic() < alone_until:
                 sim.check_alone()
+            else:
+                sim.check_not_refused()
         if active is None:  # else published with the step before (step_and_publish)
             if sim.wait_for_subscribers and sim.k > 0 and sim.k % RECORDER_SYNC_STEPS == 0:
                 sim.wait_acked(timeout_s=30.0)
