@@ -27,7 +27,7 @@ ARGUMENTS = {
     "duration": ("0.0", "stop after this much simulated time [s] (0: scenario end)"),
     "out_dir": ("", "directory for kpis.json, events.csv and plots ('' : none)"),
     "plots": ("true", "write PNG plots into out_dir"),
-    "ato_per_process": ("15", "ATO nodes composed per OS process"),
+    "ato_per_process": ("30", "ATO nodes composed per OS process"),
     "record": ("", "record every topic to this rosbag2 MCAP directory ('' : no)"),
     "checkpoints": ("false", "keep resume checkpoints/journals in out_dir/checkpoints (a "
                     "respawned node takes up where the run was); clear that directory "
