@@ -145,8 +145,9 @@ def test_launch_file_starts_what_run_starts(monkeypatch: pytest.MonkeyPatch,
             + [{k: v for k, v in p.params.items() if k not in resume}])
            for p in launcher.processes_for(a, ids, Path("/tmp/x"))]
     assert launched == run
-    # 30 trains, 15 per ATO process: 2 ATO processes, not 30
-    assert sum(1 for e, _ in launched if e == "ato_controller") == 2
+    # 30 trains, 30 per ATO process by default: 1 ATO process, not 30
+    assert a.ato_per_process == 30 and len(ids) == 30
+    assert sum(1 for e, _ in launched if e == "ato_controller") == 1
     assert ("bag_recorder" in [e for e, _ in launched]) == bool(record)
     # the graph goes down when the simulator exits
     handlers = [a for a in actions if type(a).__name__ == "RegisterEventHandler"]
