@@ -65,6 +65,9 @@ EXIT_TIMEOUT = 124
 """Exit code of a run stopped by the wall-clock ``--timeout`` (as coreutils ``timeout``)."""
 EXIT_NODE_FAILED = 3
 """Exit code of a run stopped because a node process failed."""
+POLL_S = 0.05
+"""Wall period at which ``run`` looks at its processes [s] (the simulator's end is seen at
+most this late; a look costs one ``waitpid`` per process)."""
 
 
 def executable(name: str) -> list[str]:
@@ -161,14 +164,16 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
                     weights_file: str = "", checkpoint_dir: str = "",
                     checkpoint_period_s: float = 60.0,
                     step_timeout_s: float = 0.0,
-                    plan_store_dir: str = "") -> list[ProcessSpec]:
+                    plan_store_dir: str = "", finished_file: str = "") -> list[ProcessSpec]:
     """The processes of a run, as ``run`` starts them and the launch file declares them.
 
     ``weights_file``: the aoc/dhp weights the ATS loads ('' : it looks them up itself).
     ``checkpoint_dir`` ('' : none): where the simulator checkpoints every
     ``checkpoint_period_s`` simulated seconds and the ATOs keep their state journals.
     ``plan_store_dir``: a directory the ATO processes share their finished plans in
-    (:mod:`metro_atc.core.ato.plan_store`; '' : none).
+    (:mod:`metro_atc.core.ato.plan_store`; '' : none). ``finished_file``: the file the
+    simulator creates when its run is over ('' : none; ``run`` then stops the other nodes
+    while the simulator writes its outputs; the launch file stops them at its exit).
     """
     cfg = cfg or config_dir()
     base: dict[str, Any] = {"use_sim_time": True, "scenario": scenario}
@@ -178,6 +183,8 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
                max_sim_time_s=float(duration_s))
     if waits:
         sim["wait_for_subscribers"] = waits
+    if finished_file:
+        sim["finished_file"] = str(finished_file)
     resume: dict[str, Any] = {"checkpoint_dir": str(checkpoint_dir)} if checkpoint_dir else {}
     if checkpoint_dir:
         sim.update(resume, checkpoint_period_s=float(checkpoint_period_s))
@@ -233,7 +240,8 @@ def record_dir(a: argparse.Namespace, out_dir: Path) -> str | None:
 
 
 def processes_for(a: argparse.Namespace, train_ids: Sequence[str],
-                  out_dir: Path, plan_store_dir: str = "") -> list[ProcessSpec]:
+                  out_dir: Path, plan_store_dir: str = "",
+                  finished_file: str = "") -> list[ProcessSpec]:
     """:func:`graph_processes` for the parsed ``run`` options."""
     return graph_processes(
         a.scenario, train_ids, regulator=a.regulator, seed=a.seed, lockstep=not a.free_run,
@@ -242,7 +250,8 @@ def processes_for(a: argparse.Namespace, train_ids: Sequence[str],
         wait_for=[x for x in a.wait_for_subscribers.split(",") if x],
         weights_file=getattr(a, "weights_file", ""),
         checkpoint_dir=str(checkpoint_dir(out_dir)), checkpoint_period_s=a.checkpoint_period,
-        step_timeout_s=a.step_timeout, plan_store_dir=plan_store_dir)
+        step_timeout_s=a.step_timeout, plan_store_dir=plan_store_dir,
+        finished_file=finished_file)
 
 
 def checkpoint_dir(out_dir: Path) -> Path:
@@ -282,11 +291,12 @@ def ros_param_value(v: Any) -> str:
 
 
 def build_commands(a: argparse.Namespace, train_ids: Sequence[str],
-                   out_dir: Path, plan_store_dir: str = "") -> list[tuple[str, list[str]]]:
+                   out_dir: Path, plan_store_dir: str = "",
+                   finished_file: str = "") -> list[tuple[str, list[str]]]:
     """The process list of a run: (label, argv)."""
     return [(p.label, executable(p.executable)
              + _ros_args(p.params, Path(p.params_file) if p.params_file else None))
-            for p in processes_for(a, train_ids, out_dir, plan_store_dir)]
+            for p in processes_for(a, train_ids, out_dir, plan_store_dir, finished_file)]
 
 
 def node_env() -> dict[str, str]:
@@ -311,13 +321,18 @@ def start_zygote(executables: Sequence[str]) -> Zygote | None:
     return Zygote(list(executables), node_env())
 
 
-def _stop(procs: list[tuple[str, Proc]], grace_s: float = 15.0) -> None:
+def _signal_all(procs: Sequence[tuple[str, Proc]], sig: int = signal.SIGTERM) -> None:
+    """Send ``sig`` to the process group of every process still running."""
     for _, p in procs:
         if p.poll() is None:
             try:
-                os.killpg(p.pid, signal.SIGTERM)
+                os.killpg(p.pid, sig)
             except ProcessLookupError:
                 pass
+
+
+def _stop(procs: list[tuple[str, Proc]], grace_s: float = 15.0) -> None:
+    _signal_all(procs)
     deadline = time.monotonic() + grace_s
     for _, p in procs:
         try:
@@ -402,6 +417,7 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
     t0 = time.monotonic()
     memory: dict[str, float | None] = {}
     cpu: dict[str, float | None] = {}
+    timing: dict[str, float] = {}
     if a.single_process:
         from metro_atc.nodes.graph import run_single_process
         code = run_single_process(a, train_ids, out_dir)
@@ -410,7 +426,7 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
     else:
         show = a.progress == "always" or (a.progress == "auto" and sys.stderr.isatty())
         horizon_s = progress_horizon_s(scn, a.duration) if show else None
-        code = _run_processes(a, train_ids, out_dir, horizon_s, memory, cpu, zygote)
+        code = _run_processes(a, train_ids, out_dir, horizon_s, memory, cpu, zygote, timing)
     wall = time.monotonic() - t0
     kpi_file = out_dir / "kpis.json"
     if code != 0:
@@ -424,6 +440,11 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
     kpis["wall_time_s"] = round(wall, 3)
     sim_t = float(kpis.get("sim_time_s", 0.0))
     kpis["real_time_factor"] = round(sim_t / wall, 2) if wall > 0 else math.nan
+    if timing:
+        # the stepping loop alone (start-up and end left out), as a co-simulation times its
+        # own loop (bench sumo)
+        kpis["loop_wall_s"] = round(timing["loop_wall_s"], 3)
+        kpis["loop_real_time_factor"] = round(timing["loop_sim_s"] / timing["loop_wall_s"], 2)
     seen = kpis.get("regulators_seen") or {}
     kpis["regulator"] = ",".join(sorted(seen)) if seen else "none (no departure commands)"
     kpis["planner"] = ",".join(kpis.get("planners_seen") or []) or "none"
@@ -621,7 +642,8 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
                    progress_horizon_s: float | None = None,
                    memory: dict[str, float | None] | None = None,
                    cpu: dict[str, float | None] | None = None,
-                   zygote: Zygote | None = None) -> int:
+                   zygote: Zygote | None = None,
+                   timing: dict[str, float] | None = None) -> int:
     """Start the graph's processes, watch them, stop them; return an exit code.
 
     ``memory`` / ``cpu`` (filled if given): each process's peak resident memory [MiB] and
@@ -630,6 +652,7 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
     :data:`ZYGOTE_ENV` is not ``0``; closed here), anything else (or everything, if the
     zygote cannot serve) is exec'd; a forked node's CPU time does not include its imports,
     which the zygote did once: its own CPU time and memory are reported as ``zygote``.
+    ``timing`` (filled if given): the simulator's stepping loop, :func:`read_finished`.
     """
     log_dir = Path(a.log_dir) if a.log_dir else out_dir / "logs"
     log_dir.mkdir(parents=True, exist_ok=True)
@@ -645,7 +668,10 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
     env = node_env()
     # the ATO processes plan each run and target once between them (deleted at the end)
     plans = tempfile.mkdtemp(prefix="metro_atc_plans_")
-    commands = dict(build_commands(a, train_ids, out_dir, plans))
+    # the simulator creates it when its run is over: the other nodes are stopped then,
+    # while it writes its outputs (their shutdown no longer follows its own, issue 13)
+    finished = Path(plans) / "line_simulator.finished"
+    commands = dict(build_commands(a, train_ids, out_dir, plans, str(finished)))
     respawns = {label: 0 for label in commands}
     forks = {label for label, argv in commands.items() if forkable(argv)}
     if zygote is None and forks:
@@ -669,10 +695,19 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
                   file=sys.stderr, flush=True)
         deadline = time.monotonic() + a.timeout
         next_poll = 0.0
+        stopping = False  # the simulator finished: the others were sent SIGTERM
         while code == 0:
             sim = procs[0][1]
-            # any exit is a failure but the simulator's normal end
-            ended = [(n, label, p.poll()) for n, (label, p) in enumerate(procs)]
+            if not stopping and finished.exists():
+                stopping = True
+                if timing is not None:
+                    timing.update(read_finished(finished))
+                early = [(label, p) for label, p in procs[1:] if label != RECORDER_NODE]
+                _signal_all(early)  # the recorder stops after the simulator, as before
+            # any exit is a failure but the simulator's normal end (and, once it finished,
+            # the others' ends: judged by their exit codes after the loop)
+            ended = [(n, label, p.poll()) for n, (label, p) in enumerate(procs)
+                     if n == 0 or not stopping]
             failed = [(n, label, rc) for n, label, rc in ended
                       if rc is not None and (n > 0 or rc != 0)]
             if failed:
@@ -713,7 +748,7 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
                                 if c is not None:
                                     cpu[label] = c
                     next_poll = time.monotonic() + 1.0
-                time.sleep(0.1)
+                time.sleep(POLL_S)
     except KeyboardInterrupt:
         code = 130
     finally:
@@ -742,6 +777,21 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
     return code
 
 
+def read_finished(path: Path) -> dict[str, float]:
+    """The simulator's ``finished_file``: its loop's ``loop_wall_s`` and ``loop_sim_s`` [s].
+
+    Empty when the file is not the simulator's JSON (then no loop figures are reported).
+    """
+    try:
+        d = json.loads(path.read_text())
+        wall, sim_s = float(d["loop_wall_s"]), float(d["loop_sim_s"])
+    except (OSError, ValueError, TypeError, KeyError):
+        return {}
+    if not (math.isfinite(wall) and wall > 0.0 and math.isfinite(sim_s) and sim_s >= 0.0):
+        return {}
+    return {"loop_wall_s": wall, "loop_sim_s": sim_s}
+
+
 def write_pids(log_dir: Path, procs: Sequence[tuple[str, Proc]]) -> None:
     """``LOG_DIR/pids.json``: label -> process id of the running graph (atomically)."""
     tmp = log_dir / ".pids.json.tmp"
@@ -753,7 +803,8 @@ def _print_table(k: dict[str, Any]) -> None:
     keys = ("trains", "completed_trains", "atp_violations", "atp_interventions",
             "min_separation_m", "energy_kwh", "max_delay_s", "recovery_time_s",
             "late_departures", "passengers_left_behind", "sim_time_s", "wall_time_s",
-            "real_time_factor", "lockstep_misses", "regulator", "planner", "out_dir", "bag")
+            "real_time_factor", "loop_wall_s", "loop_real_time_factor", "lockstep_misses",
+            "regulator", "planner", "out_dir", "bag")
     width = max(len(x) for x in keys)
     for key in keys:
         if key in k:

@@ -174,7 +174,8 @@ def test_clock_is_monotonic(two_runs: dict[str, Any]) -> None:
 def test_lockstep_is_deterministic(two_runs: dict[str, Any]) -> None:
     """Two lockstep runs of the same scenario give identical events and KPIs."""
     a, b = two_runs["kpis"]
-    skip = {"wall_time_s", "real_time_factor", "out_dir", "bag", "node_peak_rss_mb", "node_cpu_s"}
+    skip = {"wall_time_s", "real_time_factor", "out_dir", "bag", "node_peak_rss_mb", "node_cpu_s",
+            "loop_wall_s", "loop_real_time_factor"}
     assert {k: v for k, v in a.items() if k not in skip} == \
         {k: v for k, v in b.items() if k not in skip}
     assert two_runs["events"][0] == two_runs["events"][1]
@@ -465,7 +466,7 @@ def test_single_process_matches(two_runs: dict[str, Any], single_process_kpis: d
     """``--single-process`` runs the same nodes and gives the same KPIs as the graph."""
     k = single_process_kpis
     skip = {"wall_time_s", "real_time_factor", "out_dir", "mode", "bag", "node_peak_rss_mb",
-            "node_cpu_s"}
+            "node_cpu_s", "loop_wall_s", "loop_real_time_factor"}
     assert {x: v for x, v in k.items() if x not in skip} == \
         {x: v for x, v in two_runs["kpis"][0].items() if x not in skip}
 
@@ -757,7 +758,8 @@ def test_fuzz_every_subscribed_topic(two_runs: dict[str, Any], fuzzed_run: dict[
     fuzzed = json.loads(r.stdout.strip().splitlines()[-1])
     clean = two_runs["kpis"][0]
     skip = {"wall_time_s", "real_time_factor", "out_dir", "rejected_messages", "node_peak_rss_mb",
-            "node_cpu_s", "rejected_by_kind", "scenario", "bag"}
+            "node_cpu_s", "rejected_by_kind", "scenario", "bag", "loop_wall_s",
+            "loop_real_time_factor"}
     assert fuzzed["scenario"] == str(scn_path)
     assert {k: v for k, v in fuzzed.items() if k not in skip} == \
         {k: v for k, v in clean.items() if k not in skip}

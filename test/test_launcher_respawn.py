@@ -27,8 +27,8 @@ def _run(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, node: list[str],
          limit: int, capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
     """Run the stand-in graph; (exit code, stderr)."""
     monkeypatch.setattr(launcher, "build_commands",
-                        lambda a, ids, out, plans="": [("line_simulator", SIM),
-                                                       ("ats_regulator", node)])
+                        lambda a, ids, out, plans="", finished="": [
+                            ("line_simulator", SIM), ("ats_regulator", node)])
     a = launcher._parser().parse_args(["--out", str(tmp_path), "--respawn-limit", str(limit),
                                        "--timeout", "60"])
     code = launcher._run_processes(a, ["train_01"], tmp_path)
@@ -85,10 +85,60 @@ def test_a_simulator_crash_is_respawned_too(monkeypatch: pytest.MonkeyPatch, tmp
                 f"if not m.exists():\n"
                 f"    m.write_text('x'); raise SystemExit(1)\n"
                 f"time.sleep(2.0)\n")
-    monkeypatch.setattr(launcher, "build_commands", lambda a, ids, out, plans="": [
+    monkeypatch.setattr(launcher, "build_commands", lambda a, ids, out, plans="", finished="": [
         ("line_simulator", sim), ("ats_regulator", _node("import time; time.sleep(30)"))])
     a = launcher._parser().parse_args(["--out", str(tmp_path), "--timeout", "60"])
     code = launcher._run_processes(a, ["train_01"], tmp_path)
     err = capsys.readouterr().err
     assert code == 0, err
     assert "line_simulator exited with 1" in err and "(1 of 3)" in err, err
+
+
+def test_the_other_nodes_stop_when_the_simulator_finished(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Once the simulator created its ``finished_file`` the other nodes get SIGTERM while it
+    still runs (writing its outputs); their ends then are no failure and no respawn."""
+    stopped = tmp_path / "ats_stopped"
+    seen = tmp_path / "seen_by_sim"
+    ats = _node(f"import pathlib, signal, sys, time\n"
+                f"def bye(*_):\n"
+                f"    pathlib.Path({str(stopped)!r}).write_text('x'); sys.exit(0)\n"
+                f"signal.signal(signal.SIGTERM, bye)\n"
+                f"time.sleep(30)\n")
+
+    def commands(a: Any, ids: Any, out: Any, plans: str = "",
+                 finished: str = "") -> list[tuple[str, list[str]]]:
+        assert finished, "run passes the simulator a finished_file"
+        sim = _node(f"import pathlib, time\n"
+                    f"time.sleep(1.0)\n"
+                    f"pathlib.Path({finished!r}).touch()\n"
+                    f"t0 = time.monotonic()\n"
+                    f"while time.monotonic() - t0 < 5.0 and not pathlib.Path("
+                    f"{str(stopped)!r}).exists():\n"
+                    f"    time.sleep(0.02)\n"
+                    f"pathlib.Path({str(seen)!r}).write_text(str(pathlib.Path("
+                    f"{str(stopped)!r}).exists()))\n")
+        return [("line_simulator", sim), ("ats_regulator", ats)]
+
+    monkeypatch.setattr(launcher, "build_commands", commands)
+    a = launcher._parser().parse_args(["--out", str(tmp_path), "--timeout", "60"])
+    code = launcher._run_processes(a, ["train_01"], tmp_path)
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert seen.read_text() == "True", "the ATS was stopped while the simulator still ran"
+    assert "restarting" not in err, err
+
+
+@pytest.mark.parametrize("text, expected", [
+    ('{"loop_wall_s": 10.5, "loop_sim_s": 1800.0}', {"loop_wall_s": 10.5, "loop_sim_s": 1800.0}),
+    ("", {}), ("[1, 2]", {}), ('{"loop_wall_s": 0.0, "loop_sim_s": 1800.0}', {}),
+    ('{"loop_wall_s": "x", "loop_sim_s": 1}', {}), ('{"loop_wall_s": NaN, "loop_sim_s": 1}', {}),
+    ('{"loop_wall_s": 1.0}', {}), ('{"loop_wall_s": 1.0, "loop_sim_s": -5}', {})])
+def test_read_finished_takes_only_the_simulators_figures(tmp_path: Path, text: str,
+                                                         expected: dict[str, float]) -> None:
+    """The finished file's loop figures, or nothing (no loop real-time factor reported)."""
+    f = tmp_path / "line_simulator.finished"
+    f.write_text(text)
+    assert launcher.read_finished(f) == expected
+    assert launcher.read_finished(tmp_path / "missing") == {}

@@ -102,12 +102,22 @@ SLOW_PERIOD_S = 0.2
 """The executor (parameter services, the /diagnostics timer) is spun this often [s, wall]:
 each spin rebuilds rclpy's wait set in Python (~1 ms); a parameter request waits at most
 this long.  The sample wait itself is at most ``POLL_S``."""
-POLL_S = 0.1
+POLL_S = 0.05
 """Longest wait for samples [s, wall] (the stop flag is checked in between)."""
 
 ACK_PERIOD_S = 0.5
 """Wall period of the acknowledgement: a train whose newest sample is newer than the stamp
 of its last BrakeDiagnosis gets one within this time."""
+IDLE_ACK_S = 0.02
+"""Wall time without a new sample after which the samples received are acknowledged at
+once (not at the next :data:`ACK_PERIOD_S` tick) [s]: the end of a run, where the simulator
+waits for the acknowledgement of its last samples before it writes its outputs (issue 13:
+up to ~0.6 s of every run's end).  A running lockstep sends a batch every simulated second
+(~10 ms of wall time at 100x), so this adds no acknowledgement while samples flow; a
+slower stream is acknowledged at most every :data:`IDLE_ACK_GAP_S`."""
+IDLE_ACK_GAP_S = 0.1
+"""Least wall time between two idle acknowledgements (:data:`IDLE_ACK_S`) [s]: at most 10
+BrakeDiagnosis per train and wall second besides the :data:`ACK_PERIOD_S` ones."""
 
 
 class BrakeDiagnostic(Node):
@@ -143,6 +153,10 @@ class BrakeDiagnostic(Node):
         """Stamp of the newest sample this process received per train, rejected ones too
         [s] (what the acknowledgement covers besides the observer's newest sample)."""
         self._pub_stamp = {t: math.nan for t in self.ids}
+        self._sample_count = 0
+        """Samples handled (:meth:`_on_sample`), rejected ones included."""
+        self._acked_count = 0
+        """:attr:`_sample_count` at the last acknowledgement (:meth:`acknowledge_pending`)."""
         """Stamp of each train's last BrakeDiagnosis [s] (the acknowledged sample)."""
         self._pub_key: dict[str, tuple[Any, ...]] = {}
         """What each train's last BrakeDiagnosis was built from (its watch's generation,
@@ -310,6 +324,7 @@ class BrakeDiagnostic(Node):
     def _on_sample(self, train_id: str, s: dict[str, Any] | conv.MessageRejected) -> None:
         """Run the observer on one validated sample (or count its rejection)."""
         topic = FLEET_SENSOR_TOPIC
+        self._sample_count += 1
         try:
             if isinstance(s, conv.MessageRejected):
                 raise s
@@ -409,8 +424,16 @@ class BrakeDiagnostic(Node):
         t = max(self.watch[train_id].t_last, self._recv_t[train_id])
         return t if math.isfinite(t) else 0.0
 
+    def acknowledge_pending(self) -> bool:
+        """:meth:`_acknowledge` if a sample came since the last acknowledgement; True if so."""
+        if self._acked_count == self._sample_count:
+            return False
+        self._acknowledge()
+        return True
+
     def _acknowledge(self) -> None:
         """Publish the BrakeDiagnosis of every train with a sample newer than its last one."""
+        self._acked_count = self._sample_count
         for t in self.ids:
             stamp = self._train_stamp(t)
             if stamp != self._pub_stamp[t]:
@@ -554,10 +577,20 @@ def sample_loop(executor: SingleThreadedExecutor, nodes: Sequence[Node]) -> None
     ctx = nodes[0].context if nodes else executor.context
     poller = SubscriptionPoller(ctx, [s for n in diag for s in n.fast_subs])
     last_slow = 0.0
+    idle_s = POLL_S
+    last_idle_ack = -math.inf
     while ctx.ok() and not stop_requested():
-        poller.poll(POLL_S)
+        got = poller.poll(idle_s)
         for n in diag:
             n.flush()
+        if got:
+            idle_s = IDLE_ACK_S  # samples came: acknowledge once the stream pauses
+        elif idle_s == IDLE_ACK_S and time.monotonic() - last_idle_ack >= IDLE_ACK_GAP_S:
+            # (within IDLE_ACK_GAP_S of the last one: polled again, acknowledged after it)
+            idle_s = POLL_S
+            last_idle_ack = time.monotonic()
+            for n in diag:
+                n.acknowledge_pending()
         now = time.monotonic()
         if now - last_slow >= SLOW_PERIOD_S:
             last_slow = now

@@ -195,6 +195,11 @@ class SubscriptionPoller:
         return n
 
 
+STOP_POLL_S = 0.05
+"""Longest wait for messages of a node's fast loop [s, wall]: a SIGTERM (which does not
+interrupt a DDS wait) is seen at most this late (the end of every run waits for it)."""
+
+
 def spin_fast(executor: SingleThreadedExecutor, nodes: Sequence[Node],
               fast_subs: Sequence[Subscription], slow_period_s: float = 0.05,
               until: Callable[[], bool] | None = None) -> None:
@@ -205,8 +210,9 @@ def spin_fast(executor: SingleThreadedExecutor, nodes: Sequence[Node],
     ctx = nodes[0].context if nodes else executor.context
     poller = SubscriptionPoller(ctx, fast_subs)
     last_slow = 0.0
+    wait_s = min(slow_period_s, STOP_POLL_S)
     while ctx.ok() and not stop_requested() and not (until is not None and until()):
-        poller.poll(slow_period_s)
+        poller.poll(wait_s)
         now = time.monotonic()
         if now - last_slow >= slow_period_s:
             last_slow = now

@@ -200,6 +200,11 @@ class LineSimulator(Node):
         self.plots = static(self, "plots", True, "write PNG plots into out_dir")
         self.exit_on_finish = static(self, "exit_on_finish", True,
                                      "shut the node down when the scenario ends")
+        self.finished_file = static(
+            self, "finished_file", "",
+            "a file created once the run finished and its last samples were delivered, "
+            "before the outputs are written ('' : none; python -m metro_atc run then stops "
+            "the other nodes while this one writes its outputs)")
         self.train_state_period_s = static(
             self, "train_state_period_s", 1.0,
             "simulated time between the per-train /<train>/state messages of trains whose "
@@ -292,6 +297,10 @@ class LineSimulator(Node):
         self._next_status_t = 0.0
         self.finished = False
         self.started = False
+        self.loop_wall_s: float | None = None
+        """Wall time of the stepping loop from its first step to the end [s] (None before)."""
+        self.loop_sim_s = 0.0
+        """Simulated time that loop ran [s]."""
         self.regulators: dict[str, int] = {}
         self.planners: dict[str, int] = {}
         self.planned: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
@@ -1263,6 +1272,26 @@ class LineSimulator(Node):
                 self.resend_sensors()
                 self.resend_tail(pending)
 
+    def announce_finished(self) -> None:
+        """Write ``finished_file`` (if set): the run is over, its last samples delivered.
+
+        The launcher then stops the other nodes while this one writes its outputs (issue
+        13: their shutdown no longer follows this node's). The file holds the stepping
+        loop's wall and simulated time, ``{"loop_wall_s": s, "loop_sim_s": s}`` (its speed
+        without its start-up and end: the figure to set beside a co-simulation's own loop;
+        wall times stay out of kpis.json, which two runs write identically). A file that
+        cannot be written is logged; the launcher then stops the nodes after this one.
+        """
+        if not self.finished_file:
+            return
+        try:
+            tmp = Path(self.finished_file + ".tmp")
+            tmp.write_text(json.dumps({"loop_wall_s": self.loop_wall_s,
+                                       "loop_sim_s": self.loop_sim_s}))
+            tmp.replace(self.finished_file)  # seen whole or not at all
+        except OSError as exc:
+            self.get_logger().warning(f"finished_file {self.finished_file}: {exc}")
+
     def kpis(self) -> dict[str, Any]:
         """The core's KPIs plus the node's lockstep/rejection counters."""
         k = dict(self.sim.kpis())
@@ -1280,8 +1309,22 @@ class LineSimulator(Node):
         return k
 
     def close(self) -> None:
-        """Write the run's outputs (events CSV, plots, KPIs JSON) if an out_dir is set."""
+        """Write the run's outputs (events CSV, plots, KPIs JSON) if an out_dir is set.
+
+        At the end of a finished run, then wait (:func:`linger`, at most ``LINGER_S``) until
+        the readers acknowledged the last samples (a reliable reader acknowledges on the
+        writer's heartbeat: waited for before the outputs, that was most of ``LINGER_S`` at
+        the end of every run, issue 13).
+        """
         self.wait_checkpoint()
+        try:
+            self._write_outputs()
+        finally:
+            if self.finished:
+                linger(self, LINGER_S)
+
+    def _write_outputs(self) -> None:
+        """The outputs of :meth:`close`."""
         if not self.out_dir:
             return
         out = Path(self.out_dir)
@@ -1396,6 +1439,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
     sim.new_fleet_subscribers()
     wall0, sim0 = time.monotonic(), float(sim.sim.t)
     sim._wall0 = wall0
+    k0 = int(sim.k)  # the first step of this loop (a resumed run's is not 0)
     last_slow = time.monotonic()
 
     last_executor = time.monotonic()
@@ -1469,11 +1513,14 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
     if not sim.finished:
         log.info(f"stopped by a signal at t={sim.sim.t:.1f} s, step {sim.k}")
         return
+    sim.loop_wall_s, sim.loop_sim_s = time.monotonic() - wall0, float(sim.sim.t) - sim0
     log.info(f"scenario finished at t={sim.sim.t:.1f} s after {sim.k} steps, "
-             f"{time.monotonic() - t0:.1f} s wall")
+             f"{time.monotonic() - t0:.1f} s wall ({sim.loop_wall_s:.1f} s from step {k0})")
     sim.drain_sensors(lambda timeout_s: executor.spin_once(timeout_sec=timeout_s))
     executor.spin_once(timeout_sec=0.0)
-    linger(sim, LINGER_S)
+    # the other nodes may stop now (the launcher's finished_file), while this one writes
+    # its outputs; the last samples' acknowledgements are awaited after those (close)
+    sim.announce_finished()
 
 
 LINGER_S = 0.3
