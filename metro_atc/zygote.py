@@ -93,6 +93,20 @@ def fork_safety() -> str | None:
     return None
 
 
+def warm_caller_lookup() -> None:
+    """Fill :mod:`inspect`'s file -> module tables for every module loaded so far.
+
+    rclpy's logger looks up its caller (``inspect.getframeinfo``) at a node's first log
+    call, and :func:`inspect.getmodule` then resolves the real path of every loaded module
+    once per process (~900 modules: ~0.035 s of CPU in each node, measured on a loaded
+    2-core machine); done here once, the forked nodes inherit the tables and only look up
+    modules loaded after the fork.
+    """
+    import inspect
+
+    inspect.getframeinfo(sys._getframe())
+
+
 def preload(executables: Sequence[str]) -> dict[str, Any]:
     """Import rclpy and the given node executables' modules; set up numba's CPU target.
 
@@ -113,6 +127,7 @@ def preload(executables: Sequence[str]) -> dict[str, Any]:
         # (numba.np.arraymath and friends, ~0.2-0.45 s of CPU); once here for all children
         from numba.core.registry import cpu_target
         cpu_target.target_context.refresh()
+    warm_caller_lookup()
     pkg = importlib.import_module("metro_atc")
     return {"cpu_s": round(time.process_time(), 3), "wall_s": round(time.monotonic() - t0, 3),
             "modules": loaded, "package": os.path.dirname(os.path.abspath(pkg.__file__ or ""))}

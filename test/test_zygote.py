@@ -123,3 +123,28 @@ def test_zygote_switch(monkeypatch: pytest.MonkeyPatch, value: str, expect: bool
     monkeypatch.setattr(launcher, "Zygote", Fake)
     z = launcher.start_zygote(["line_simulator"])
     assert (z is not None) == expect and len(started) == int(expect)
+
+
+@pytest.mark.parametrize("warm", [True, False])
+def test_caller_lookup_is_warmed_for_the_children(warm: bool) -> None:
+    """After :func:`zygote.warm_caller_lookup` a caller lookup (rclpy's first log call in a
+    forked node) resolves no module path again; without it, one per loaded module."""
+    code = (
+        "import inspect, os.path, sys\n"
+        "import numpy, metro_atc.zygote as z\n"
+        f"if {warm}: z.warm_caller_lookup()\n"
+        "n = [0]\n"
+        "real = os.path.realpath\n"
+        "def counted(*a, **k):\n"
+        "    n[0] += 1\n"
+        "    return real(*a, **k)\n"
+        "os.path.realpath = counted\n"
+        "inspect.getframeinfo(sys._getframe())\n"
+        "print(n[0], len(sys.modules))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.split()
+    lookups, modules = int(out[0]), int(out[1])
+    if warm:
+        assert lookups <= 2, lookups
+    else:
+        assert lookups >= modules // 2, (lookups, modules)
