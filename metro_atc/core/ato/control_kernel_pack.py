@@ -98,7 +98,19 @@ def pack_line(sbi: FloatArray, grade_starts: FloatArray, grades: FloatArray,
                            np.asarray(grades, dtype=float), np.asarray(stations, dtype=float)])
 
 
+_LOADED: list[bool] = []
+
+
 def control_step_fn():  # type: ignore[no-untyped-def]
-    """The compiled :func:`.control_kernel_step.control_step` (imported on first use)."""
+    """The compiled :func:`.control_kernel_step.control_step` (imported on first use).
+
+    Its one type signature is loaded from the on-disk cache (compiled at install) here,
+    once per process, so that a node pays it while it starts, not in its first step.
+    """
     from metro_atc.core.ato.control_kernel_step import control_step
+    if not _LOADED and hasattr(control_step, "compile"):
+        from numba import types
+        arr = types.float64[::1]
+        control_step.compile((arr, arr, arr, arr) + (types.float64,) * 5 + (types.int64,))
+        _LOADED.append(True)
     return control_step

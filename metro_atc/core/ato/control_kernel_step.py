@@ -62,7 +62,10 @@ def cap_at(c, p, ln, x, v, cap, ma, c0, c2, authority):  # type: ignore[no-untyp
 
 @jit
 def brake_capability(c, ln, x):  # type: ignore[no-untyped-def]
-    """``OnboardAto._brake_capability(x, x)``; nan when its sampled path would be needed."""
+    """The service deceleration OnboardAto's brake capability gives at x alone [m/s^2].
+
+    nan when the Python path would sample the grades (more than two pieces under the train).
+    """
     ns, ng = int(ln[0]), int(ln[1])
     so = N_LH + ns
     lo, hi = x - c[C_LEN], pmax(x, x) + 1.0

@@ -436,8 +436,10 @@ class AtoCore:
         return out
 
     def kernel_state(self) -> Optional[list[float]]:
-        """The per-train state the compiled step reads (``control_kernel.S_HAS_T`` ..
-        ``S_TU``); None when the tracker's state is not a plain one-train state."""
+        """The per-train state the compiled step reads (``control_kernel.S_HAS_T`` .. ``S_TU``).
+
+        None when the tracker's state is not a plain one-train state.
+        """
         ts = self.tracker.scalar_state() if isinstance(self.tracker, FuzzyController) \
             else None
         if ts is None:

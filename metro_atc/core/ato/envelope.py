@@ -167,8 +167,11 @@ class RunModel:
         return tab
 
     def point_tables(self) -> tuple[list[float], ...]:
-        """(grade breakpoints [m], grades [-], grade-force integral [N m], envelope s [m],
-        ceiling energy [m^2/s^2]): the tables of the one-point methods (compiled ATO step)."""
+        """The tables of the one-point methods (for the compiled ATO step).
+
+        (grade breakpoints [m], grades [-], grade-force integral [N m], envelope s [m],
+        ceiling energy [m^2/s^2]).
+        """
         return self._tables()
 
     def run_coordinate_at(self, x: float) -> float:

@@ -173,8 +173,11 @@ class FuzzyController:
             else np.asarray(u0, dtype=float)
 
     def scalar_state(self) -> Optional[tuple[bool, float, float]]:
-        """(has a previous error, previous error [m/s], effort state [-]) of a one-train
-        incremental controller with plain-float state; None otherwise (compiled ATO step)."""
+        """The state of a one-train incremental controller with plain floats, else None.
+
+        (has a previous error, previous error [m/s], effort state [-]): what the compiled
+        ATO step reads.
+        """
         e_prev, u = self._e_prev, self._u
         if not self.p.incremental or type(u) is not float \
                 or (e_prev is not None and type(e_prev) is not float):

@@ -281,7 +281,11 @@ class OnboardAto:
             self._plan_decel(float(s["x_m"]))  # builds the run's deceleration table
         if self._kplan[0] is not kp or self._kplan[1] is not self._b_list:
             self._kplan = (kp, self._b_list,
-                           pack_plan(*kp, np.asarray(self._b_list, dtype=float)))
+                           pack_plan(kp[0], kp[1], kp[2], kp[3], kp[4], kp[5], kp[6],
+                                     np.asarray(self._b_list, dtype=float)))
+        nxt = int(s["next_station"])
+        if not -2 ** 62 < nxt < 2 ** 62:
+            return None
         ma = self._ma_prev
         st = np.array(ks + [0.0 if ma is None else 1.0, 0.0 if ma is None else ma[0],
                             0.0 if ma is None else ma[1], self.authority_speed_mps,
@@ -289,7 +293,7 @@ class OnboardAto:
         u, code = self._kstep(self._kconst, self._kplan[2], self._kline, st, t,
                               float(s["x_m"]), float(s["v_mps"]),
                               float(s["supervision_speed_mps"]),
-                              float(s["movement_authority_m"]), int(s["next_station"]))
+                              float(s["movement_authority_m"]), nxt)
         if code < 0:
             return None
         vals = st.tolist()
