@@ -12,7 +12,7 @@ from types import ModuleType
 
 from numba.core.registry import CPUDispatcher
 
-from metro_atc.core.ato import step_kernel, switching_kernel
+from metro_atc.core.ato import control_kernel, control_kernel_step, step_kernel, switching_kernel
 from metro_atc.core.brake import metro_kernel
 from metro_atc.core.closed_loop import run_closed_loop
 from metro_atc.core.line.scenario import load_scenario
@@ -21,7 +21,8 @@ from metro_atc.core.plant.line import LineSim
 from metro_atc.core.precompile import precompile_graph_kernels
 
 MODULES: tuple[ModuleType, ...] = (kernel, kernel_aux, kernel_step, kernel_run, step_kernel,
-                                   switching_kernel, metro_kernel)
+                                   switching_kernel, metro_kernel, control_kernel,
+                                   control_kernel_step)
 
 
 def _signatures() -> dict[str, int]:
@@ -40,6 +41,8 @@ def test_warm_up_compiles_what_a_taipei_blue_run_calls() -> None:
     assert any("kernel_step" in k for k in used), before
     assert any("metro_kernel" in k for k in used), before
     assert "metro_atc.core.plant.kernel_run.run_rows" in used, before
+    # the compiled ATO control step ran in the warm-up's closed loop
+    assert "metro_atc.core.ato.control_kernel_step.control_step" in used, before
     row = run_closed_loop(load_scenario("taipei_blue"), duration_s=120.0, brake=True).row()
     assert row["atp_violations"] == 0
     assert _signatures() == before

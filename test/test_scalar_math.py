@@ -100,6 +100,13 @@ def test_fuzzy_scalar_matches_numpy() -> None:
         v = max(v + 0.4 * u_fast + float(RNG.normal(0.0, 0.05)), 0.0)
 
 
+@pytest.fixture(autouse=True)
+def python_ato_path(monkeypatch: pytest.MonkeyPatch) -> None:
+    """These tests prove the Python path against numpy: the compiled ATO step stays off
+    (it is proven against the Python path in ``test/test_ato_control_kernel.py``)."""
+    monkeypatch.setenv("METRO_ATC_ATO_KERNEL", "python")
+
+
 @pytest.fixture(scope="module")
 def blue() -> Any:
     """The Blue line scenario with its train, track, limits and ATP model."""

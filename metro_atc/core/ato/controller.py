@@ -130,6 +130,7 @@ class AtoCore:
         self._ce_run: Optional[RunModel] = None
         self._ce_s = math.nan
         self._ce_v = 0.0
+        self._kplan: Optional[tuple[Any, Any, tuple[Any, ...]]] = None
         a_ref = max(train.a1_mps2, train.max_service_brake_mps2)
         self._du_max_per_s = self.limits.jerk_max_mps3 / max(a_ref, 1e-6)
         # jerk [m/s^3] at which the surplus traction can be taken off: the ATO's rate limit
@@ -397,6 +398,67 @@ class AtoCore:
         f = max_traction_force_at(tr, v_mps) - resistance_force_at(tr, v_mps) \
             - self._grade_force(run, s)
         return min(max(f / tr.effective_mass_kg, 0.0), self.limits.accel_max_mps2)
+
+    # ------------------------------------------------------------------ compiled step
+    def kernel_constants(self) -> Optional[list[float]]:
+        """The controller constants of the compiled ATO step (``control_kernel_pack``).
+
+        (period [s], swing [s], effort rate [1/s], brake share [-], approach jerk [m/s^3],
+        feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-]); None when the
+        tracker is not the incremental fuzzy controller (the kernel does not cover it).
+        """
+        tr = self.tracker
+        if not isinstance(tr, FuzzyController) or not tr.p.incremental:
+            return None
+        return [self.period, self.swing_s, self._du_max_per_s, self._brake_share,
+                self.approach_jerk, 1.0 if self.feedforward else 0.0, tr.p.e_scale_mps,
+                tr.p.d_scale_mps, tr.p.gain]
+
+    def kernel_plan(self) -> Optional[tuple[Any, ...]]:
+        """The plan's tables for the compiled step, the same object while the plan holds.
+
+        (head: x_start [m], direction, run length [m], PSS start [m], tail brake [m/s^2],
+        then :meth:`ProfileReference.kernel_tables`' head; ref s, ref v^2, grade
+        breakpoints, grade-force integral, envelope s, ceiling energy); None with no plan.
+        """
+        run, ref = self.run, self._ref
+        if run is None or ref is None:
+            return None
+        kp = self._kplan
+        if kp is not None and kp[0] is run and kp[1] is ref:
+            return kp[2]
+        rh, rs, re = ref.kernel_tables()
+        bp, _, cum, s_env, e_ceil = run.point_tables()
+        head = [run.x_start_m, run.direction, run.length_m, run.pss_start_s,
+                self._tail_brake] + rh
+        out = (head, rs, re, bp, cum, s_env, e_ceil)
+        self._kplan = (run, ref, out)
+        return out
+
+    def kernel_state(self) -> Optional[list[float]]:
+        """The per-train state the compiled step reads (``control_kernel.S_HAS_T`` .. ``S_TU``).
+
+        None when the tracker's state is not a plain one-train state.
+        """
+        ts = self.tracker.scalar_state() if isinstance(self.tracker, FuzzyController) \
+            else None
+        if ts is None:
+            return None
+        lt = self._last_t
+        return [0.0 if lt is None else 1.0, 0.0 if lt is None else lt, self._last_u,
+                self._last_ff, 1.0 if self._arrived else 0.0, self._still_s,
+                1.0 if ts[0] else 0.0, ts[1], ts[2]]
+
+    def set_kernel_state(self, st: list[float], reason: str) -> None:
+        """Take the state back from the compiled step (:meth:`kernel_state`'s layout)."""
+        self._last_t = st[1] if st[0] != 0.0 else None
+        self._last_u = st[2]
+        self._last_ff = st[3]
+        self._arrived = st[4] != 0.0
+        self._still_s = st[5]
+        assert isinstance(self.tracker, FuzzyController)
+        self.tracker.set_scalar_state(st[6] != 0.0, st[7], st[8])
+        self.last_reason = reason
 
     @property
     def last_effort(self) -> float:

@@ -166,6 +166,14 @@ class RunModel:
             self._scalar_tables = tab
         return tab
 
+    def point_tables(self) -> tuple[list[float], ...]:
+        """The tables of the one-point methods (for the compiled ATO step).
+
+        (grade breakpoints [m], grades [-], grade-force integral [N m], envelope s [m],
+        ceiling energy [m^2/s^2]).
+        """
+        return self._tables()
+
     def run_coordinate_at(self, x: float) -> float:
         """:meth:`run_coordinate` of one chainage x [m] (a float) [m]."""
         return self.direction * (x - self.x_start_m)

@@ -172,6 +172,23 @@ class FuzzyController:
         self._u: "FloatArray | float" = u0 if type(u0) is float \
             else np.asarray(u0, dtype=float)
 
+    def scalar_state(self) -> Optional[tuple[bool, float, float]]:
+        """The state of a one-train incremental controller with plain floats, else None.
+
+        (has a previous error, previous error [m/s], effort state [-]): what the compiled
+        ATO step reads.
+        """
+        e_prev, u = self._e_prev, self._u
+        if not self.p.incremental or type(u) is not float \
+                or (e_prev is not None and type(e_prev) is not float):
+            return None
+        return e_prev is not None, (e_prev if e_prev is not None else 0.0), u
+
+    def set_scalar_state(self, has_e: bool, e_prev: float, u: float) -> None:
+        """Set the state :meth:`scalar_state` returns (after a compiled step)."""
+        self._e_prev = e_prev if has_e else None
+        self._u = u
+
     def set_output(self, u: ArrayLike, u_ff: ArrayLike = 0.0) -> None:
         """Align the effort state with the effort u actually applied (after rate limits).
 

@@ -37,6 +37,9 @@ import numpy as np
 
 from metro_atc.core.ato.controller import (JOIN_BAND_MPS, JOIN_MIN_SPEED_MPS, PREVIEW_PERIODS,
                                            AtoCore)
+from metro_atc.core.ato.control_kernel import REASONS
+from metro_atc.core.ato.control_kernel_pack import (control_step_fn, pack_constants, pack_line,
+                                                    pack_plan, resolve_ato_kernel)
 from metro_atc.core.ato.envelope import OperatingLimits
 from metro_atc.core.ato.planner import Profile
 from metro_atc.core.ato.tsr_plan import tsrs_for_run
@@ -113,8 +116,12 @@ class OnboardAto:
                  limits: Optional[OperatingLimits] = None,
                  shared: Optional[dict[str, Any]] = None,
                  tsrs: Sequence[TsrZone] = (), atp: Optional["AtpModel"] = None,
-                 **planner_params: Any) -> None:
-        """Build the :class:`AtoCore` and the guard state."""
+                 kernel: Optional[str] = None, **planner_params: Any) -> None:
+        """Build the :class:`AtoCore` and the guard state.
+
+        ``kernel``: ``auto``, ``numba`` or ``python`` for the per-step control
+        (:mod:`metro_atc.core.ato.control_kernel`; None: ``METRO_ATC_ATO_KERNEL``, else auto).
+        """
         self.core = AtoCore(train, track, planner=planner, tracker=tracker,
                             control_period_s=control_period_s, limits=limits, shared=shared,
                             **planner_params)
@@ -142,6 +149,14 @@ class OnboardAto:
         self._peak_mps = 0.0
         self._next_stop_m = math.inf
         self._held_mps = 0.0
+        self.kernel = resolve_ato_kernel(kernel)
+        """``numba`` (the compiled control step where it applies) or ``python``."""
+        self._kstep: Any = control_step_fn() if self.kernel == "numba" else None
+        self._kconst: Any = None
+        self._kline: Any = None
+        self._kplan: Any = (None, None, None)
+        self.kernel_steps = 0
+        """Control steps the compiled kernel took (the others ran the Python path)."""
 
     # ------------------------------------------------------------------ planning
     def on_departure(self, station: int, departure_s: float, running_s: float,
@@ -187,6 +202,10 @@ class OnboardAto:
         elif self.planned_from != cur and 0 <= cur == nxt - 1:
             # started mid-run (e.g. the node was restarted): plan from here
             planned = self.plan(cur, float(s["target_running_time_s"]), float(s["t_s"]))
+        if self._kstep is not None:
+            out = self._kernel_control(s)
+            if out is not None:
+                return out[0], out[1], planned
         # caps at the tracker's preview position and a little beyond (their slope is the
         # feedforward acceleration while a cap sets the reference)
         v = float(s["v_mps"])
@@ -226,6 +245,67 @@ class OnboardAto:
             self.core.applied(u)
         mode = MODE_ACCELERATE if u > 0.05 else (MODE_BRAKE if u < -0.05 else MODE_COAST)
         return u, mode, planned
+
+    def _kernel_control(self, s: dict[str, Any]) -> Optional[tuple[float, int]]:
+        """The rest of :meth:`control` by the compiled step; None: run the Python path.
+
+        The kernel takes the state from (and gives it back to) this object, its core and
+        tracker at every step, so either path continues where the other stopped.
+        """
+        t = float(s["t_s"])
+        for z in self.tsrs:
+            if z.known_s <= t < z.to_s:
+                return None  # a TSR known: its holds and curves stay in Python
+        atp = self.atp
+        core = self.core
+        kp = core.kernel_plan()
+        if kp is None or atp._sbi_list is None:
+            return None
+        ks = core.kernel_state()
+        if ks is None:
+            return None
+        if self._kconst is None:
+            cc = core.kernel_constants()
+            if cc is None:
+                self._kstep = None
+                return None
+            b, tr = float(atp.b_g), float(atp.t_r)
+            self._kconst = pack_constants(
+                self.train, atp.train, cc,
+                [atp.g_down, atp.sbi_offset_mps, (b * tr) ** 2, b * tr, b * tr * tr, tr,
+                 2.0 * b, atp.t_sbi, atp.grid_x0_m, atp.grid_dx_m])
+            self._kline = pack_line(np.asarray(atp._sbi_list, dtype=float),
+                                    np.asarray(self._grade_lists[0], dtype=float),
+                                    np.asarray(self._grade_lists[1], dtype=float), self.stations)
+        if self._b_run is not core.run:
+            self._plan_decel(float(s["x_m"]))  # builds the run's deceleration table
+        if self._kplan[0] is not kp or self._kplan[1] is not self._b_list:
+            self._kplan = (kp, self._b_list,
+                           pack_plan(kp[0], kp[1], kp[2], kp[3], kp[4], kp[5], kp[6],
+                                     np.asarray(self._b_list, dtype=float)))
+        nxt = int(s["next_station"])
+        if not -2 ** 62 < nxt < 2 ** 62:
+            return None
+        ma = self._ma_prev
+        st = np.array(ks + [0.0 if ma is None else 1.0, 0.0 if ma is None else ma[0],
+                            0.0 if ma is None else ma[1], self.authority_speed_mps,
+                            self._peak_mps, self._next_stop_m, self._held_mps])
+        u, code = self._kstep(self._kconst, self._kplan[2], self._kline, st, t,
+                              float(s["x_m"]), float(s["v_mps"]),
+                              float(s["supervision_speed_mps"]),
+                              float(s["movement_authority_m"]), nxt)
+        if code < 0:
+            return None
+        vals = st.tolist()
+        core.set_kernel_state(vals[:9], REASONS[code])
+        self._ma_prev = (vals[10], vals[11])
+        self.authority_speed_mps = vals[12]
+        self._peak_mps = vals[13]
+        self._next_stop_m = vals[14]
+        self._held_mps = 0.0
+        self.kernel_steps += 1
+        mode = MODE_ACCELERATE if u > 0.05 else (MODE_BRAKE if u < -0.05 else MODE_COAST)
+        return u, mode
 
     def _speed_dip(self, s: dict[str, Any], v: float) -> bool:
         """Whether the speed has fallen since its last peak off the run's envelope (issue 11).

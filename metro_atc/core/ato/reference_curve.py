@@ -188,6 +188,15 @@ class ProfileReference:
         s_b = self.length_m - cv * cv / (2.0 * bb)
         self._tail_at = (s_b - creep_len, s_b, cv * cv, 2.0 * d, 2.0 * bb)
 
+    def kernel_tables(self) -> tuple[list[float], list[float], list[float]]:
+        """What :meth:`speed_at` reads, for the compiled ATO step (the same floats).
+
+        ([length [m], departure speed [m/s], creep start [m], brake start [m], cv^2,
+        2 decel, 2 brake, creep speed [m/s]], the s grid [m], v^2 [m^2/s^2]).
+        """
+        return ([self.length_m, self.departure_speed, *self._tail_at, self.tail[1]],
+                self._s_list, self._e_list)
+
     def speed_at(self, s: float) -> float:
         """:meth:`speed` at one run coordinate s [m] (a float; the same IEEE result) [m/s].
 

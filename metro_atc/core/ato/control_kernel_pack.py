@@ -1,0 +1,116 @@
+"""Selection and packing of the compiled ATO control step (:mod:`.control_kernel_step`).
+
+``METRO_ATC_ATO_KERNEL=auto|numba|python`` (or the ``kernel`` argument of
+:class:`metro_atc.core.ato.onboard.OnboardAto`): ``auto`` takes the numba kernel when numba
+is importable, ``python`` keeps the Python path for every step.  The vectors the kernel reads
+are packed here from plain floats and arrays the objects hand over through their public
+methods (``AtoCore.kernel_constants`` / ``kernel_plan``, ``OnboardAto``'s own tables).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Optional, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from metro_atc.core.ato import control_kernel as ck
+from metro_atc.core.ato.step_kernel import numba_available
+from metro_atc.core.line.vehicle import TrainParams
+
+FloatArray = NDArray[np.float64]
+
+KERNEL_ENV = "METRO_ATC_ATO_KERNEL"
+"""Environment variable selecting the ATO control step when the caller does not."""
+KERNELS = ("auto", "numba", "python")
+"""Accepted names."""
+
+
+def resolve_ato_kernel(name: Optional[str] = None) -> str:
+    """``numba`` or ``python`` for the requested kernel (argument, else env, else auto)."""
+    req = (name or os.environ.get(KERNEL_ENV, "") or "auto").strip().lower()
+    if req not in KERNELS:
+        raise ValueError(f"ATO kernel must be one of {KERNELS}, got {req!r}")
+    if req == "python":
+        return "python"
+    if not numba_available():
+        if req == "numba":
+            raise RuntimeError("ATO kernel 'numba' requested but numba is not installed")
+        return "python"
+    return "numba"
+
+
+def traction_terms(train: TrainParams) -> list[float]:
+    """(a1, v1, v2, a2, a3, b2, b3) of ``max_traction_accel_at`` (the same floats)."""
+    return [train.a1_mps2, train.v1_mps, train.v2_mps, train.a2, train.a3, train.b2_mps,
+            train.b3_mps]
+
+
+def pack_constants(train: TrainParams, atp_train: TrainParams, core: Sequence[float],
+                   atp: Sequence[float]) -> FloatArray:
+    """The ``C_*`` vector.
+
+    ``core``: (period [s], swing [s], effort rate [1/s], brake share [-], approach jerk
+    [m/s^3], feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-]);
+    ``atp``: (g_down [m/s^2], SBI offset [m/s], (b_g t_r)^2, b_g t_r, b_g t_r t_r, t_r [s],
+    2 b_g, t_sbi [s], grid x0 [m], grid dx [m]).
+    """
+    c = np.zeros(ck.N_C)
+    c[ck.C_MASS] = train.mass_kg
+    c[ck.C_MEFF] = train.effective_mass_kg
+    c[ck.C_DA] = train.davis_a_n
+    c[ck.C_DB] = train.davis_b_n_per_mps
+    c[ck.C_DC] = train.davis_c_n_per_mps2
+    c[ck.C_A1:ck.C_A1 + 7] = traction_terms(train)
+    c[ck.C_BS] = train.max_service_brake_mps2
+    c[ck.C_LEN] = train.length_m
+    c[ck.C_WA1:ck.C_WA1 + 7] = traction_terms(atp_train)
+    c[ck.C_GDOWN:ck.C_GDOWN + 10] = [float(a) for a in atp]
+    c[ck.C_PERIOD:ck.C_PERIOD + 9] = [float(a) for a in core]
+    c[ck.C_TWO] = 2.0
+    c[ck.C_THREE] = 3.0
+    return c
+
+
+def pack_plan(head: Sequence[float], ref_s: FloatArray, ref_e: FloatArray,
+              grade_bp: FloatArray, grade_cum: FloatArray, s_env: FloatArray,
+              e_ceiling: FloatArray, b_tab: FloatArray) -> FloatArray:
+    """The plan vector: ``head`` (``P_X0`` .. ``P_CV``), the counts, then the tables."""
+    tabs = (ref_s, ref_e, grade_bp, grade_cum, s_env, e_ceiling, b_tab)
+    hdr = [float(a) for a in head] + [float(len(ref_s)), float(len(grade_bp)),
+                                      float(len(s_env)), float(len(b_tab))]
+    if len(hdr) != ck.N_PH or len(ref_s) != len(ref_e) or len(grade_bp) != len(grade_cum) \
+            or len(s_env) != len(e_ceiling) or min(len(ref_s), len(grade_bp), len(s_env),
+                                                   len(b_tab)) < 1:
+        raise ValueError("inconsistent ATO kernel plan tables")
+    return np.concatenate([np.asarray(hdr, dtype=float)]
+                          + [np.asarray(a, dtype=float).ravel() for a in tabs])
+
+
+def pack_line(sbi: FloatArray, grade_starts: FloatArray, grades: FloatArray,
+              stations: FloatArray) -> FloatArray:
+    """The line vector: counts, static SBI table [m/s], grade starts [m], grades, stops [m]."""
+    if len(sbi) < 1 or len(grades) < 1 or len(grade_starts) != len(grades):
+        raise ValueError("inconsistent ATO kernel line tables")
+    return np.concatenate([np.asarray([len(sbi), len(grades), len(stations)], dtype=float),
+                           np.asarray(sbi, dtype=float), np.asarray(grade_starts, dtype=float),
+                           np.asarray(grades, dtype=float), np.asarray(stations, dtype=float)])
+
+
+_LOADED: list[bool] = []
+
+
+def control_step_fn():  # type: ignore[no-untyped-def]
+    """The compiled :func:`.control_kernel_step.control_step` (imported on first use).
+
+    Its one type signature is loaded from the on-disk cache (compiled at install) here,
+    once per process, so that a node pays it while it starts, not in its first step.
+    """
+    from metro_atc.core.ato.control_kernel_step import control_step
+    if not _LOADED and hasattr(control_step, "compile"):
+        from numba import types
+        arr = types.float64[::1]
+        control_step.compile((arr, arr, arr, arr) + (types.float64,) * 5 + (types.int64,))
+        _LOADED.append(True)
+    return control_step
