@@ -1480,7 +1480,11 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
             deadline = time.monotonic() + sim.step_timeout_s
             resend = time.monotonic() + 0.5
             fleet_resend = time.monotonic() + FLEET_RESEND_S
-            while not sim.commands_complete(active) and time.monotonic() < deadline:
+            while True:
+                # the barrier (looked at once per wake: nothing arrives between two looks)
+                complete = sim.commands_complete(active)
+                if complete or time.monotonic() >= deadline:
+                    break
                 if stop_requested():
                     return
                 wait(0.02)
@@ -1498,7 +1502,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
                         # killed ATO process whose successor matched between two checks
                         fleet_resend = time.monotonic() + FLEET_RESEND_S
                         sim.publish_fleet_again(active)
-            active = sim.step_and_publish(active, timed_out=not sim.commands_complete(active))
+            active = sim.step_and_publish(active, timed_out=not complete)
         else:
             target = wall0 + (float(sim.sim.t) + sim.sim.control_period_s - sim0) / sim.rtf
             while True:
