@@ -141,8 +141,11 @@ class Fleet:
 
 def mode_of(v: FloatArray, acc: FloatArray, a_d: FloatArray, atp: BoolArray,
             dwelling: BoolArray, run: BoolArray) -> IntArray:
-    """Operating mode (MODE_* values) of trains at speed ``v`` [m/s], acceleration ``acc``
-    and demand ``a_d`` [m/s^2], ATP braking ``atp``, ``dwelling`` and in service ``run``."""
+    """Operating mode (MODE_* values) of trains, per entry.
+
+    ``v`` speed [m/s], ``acc`` acceleration and ``a_d`` demand [m/s^2], ``atp`` ATP braking,
+    ``dwelling``, ``run`` in service.
+    """
     m = np.full(v.shape, MODE_BRAKE)
     m = np.where(a_d > 0.02, np.where(acc > 0.05, MODE_ACCEL, MODE_CRUISE), m)
     m = np.where(np.abs(a_d) <= 0.02, MODE_COAST, m)
