@@ -59,6 +59,10 @@ class AtoWatchdog:
         act = np.asarray(active, dtype=bool)
         got = np.asarray(received, dtype=bool) & act
         miss = act & ~got
+        if not miss.any() and not self.lost.any():
+            # every active ATO answered, none lost (nearly every step): their counters reset
+            self.missed[got] = 0
+            return np.array(effort, dtype=float, copy=True), []
         events: list[WatchdogEvent] = []
         for i in np.flatnonzero(got & self.lost):
             events.append(WatchdogEvent(int(i), "back", int(step), int(self.missed[i])))

@@ -712,11 +712,26 @@ def fleet_state_cdr(builder: cdr.FleetStateBuilder, idx: np.ndarray,
     layout of the train ids of ``idx`` (:class:`cdr.FleetStateBuilder`); ``echo`` per entry
     of ``idx``.
     """
-    n = idx.size
-    arrays: list[Any] = []
-    for field, key in zip(FLEET_STATE_FIELDS, _FLEET_STATE_KEYS):
+    rows = {}
+    for key in _FLEET_STATE_KEYS:
         a = states.get(key)
-        arrays.append(math.nan if a is None else np.asarray(a)[idx])
+        if a is not None:
+            rows[key] = np.asarray(a)[idx]
+    return fleet_state_rows_cdr(builder, idx.size, rows, step, t_s, echo)
+
+
+def fleet_state_rows_cdr(builder: cdr.FleetStateBuilder, n: int,
+                         rows: Mapping[str, np.ndarray], step: int, t_s: float,
+                         echo: np.ndarray) -> bytes:
+    """:func:`fleet_state_cdr` of state arrays taken at its ``n`` trains already.
+
+    ``rows``: the core state arrays of the trains of the message, entry by entry (e.g.
+    :func:`metro_atc.core.plant.views.fleet_state_rows`); a key missing is NaN.
+    """
+    arrays: list[Any] = []
+    for key in _FLEET_STATE_KEYS:
+        a = rows.get(key)
+        arrays.append(math.nan if a is None else a)
     arrays.append(np.asarray(echo, dtype=bool))
     if builder.n != n:
         raise ValueError(f"a FleetState layout of {builder.n} trains for {n}")

@@ -58,6 +58,7 @@ from metro_atc.core.checkpoint import CheckpointError, capture, content_hash, re
 from metro_atc.core.journal import read_entries
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.plant.snapshot import scenario_hash, static_parts
+from metro_atc.core.plant.views import dwelling_in_service, fleet_state_rows
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.jsonsafe import json_safe
@@ -376,14 +377,15 @@ class LineSimulator(Node):
         """Trains whose per-train state was published at step k too (fleet ``echo``)."""
         self.fleet_resends = 0
         """Fleet states published again for trains that did not answer in time."""
-        self._step_states: tuple[int, Any] = (-1, None)
+        self._step_rows: tuple[int, np.ndarray, dict[str, np.ndarray]] = (-1, np.zeros(0), {})
+        """(k, the active trains, their fleet-state arrays published at step k): a re-send
+        (:meth:`publish_fleet_again`) takes them again."""
         self._dwelling: tuple[int, list[tuple[int, int]]] = (-1, [])
+        """(k, (train, station) of the trains dwelling in service at step k)."""
         self._dep_version = 0
         """Bumped whenever a departure is received or given up (dep_received/dep_given_up)."""
         self._pending: tuple[tuple[int, int], list[tuple[int, int]]] = ((-1, -1), [])
         """((k, _dep_version), pending_departures()) of the last look."""
-        """(k, (train, station) of the trains dwelling in service at step k)."""
-        """(k, core states published at step k): the lockstep barrier reads them again."""
         self.state_every = max(1, int(round(self.train_state_period_s
                                             / float(self.sim.control_period_s))))
         """Steps between per-train states of fleet-driven trains."""
@@ -856,8 +858,6 @@ class LineSimulator(Node):
         self.replay_departures()
         t = float(self.sim.t)
         active = np.asarray(self.sim.active_mask(), dtype=bool)
-        states = self.sim.states()
-        self._step_states = (self.k, states)
         per_train = active if self.k % self.state_every == 0 else active & ~self.fleet_driven
         if per_train.any():
             # a topic nobody reads is not published (outside tools that subscribe get it at
@@ -867,13 +867,19 @@ class LineSimulator(Node):
         idx = np.flatnonzero(active)
         self._echo_mask = per_train
         self._active_idx, self._active_idx_k, self._active = idx, self.k, active
-        self._fleet_msg = conv.fleet_state_cdr(self._state_builder(idx), idx, states, self.k,
-                                               t, per_train[idx])
+        # the fleet state's arrays of the active trains only (not every state array of
+        # every train: the lockstep's critical path, issue 13), the same values
+        rows = fleet_state_rows(self.sim, idx)
+        self._step_rows = (self.k, idx, rows)
+        self._fleet_msg = conv.fleet_state_rows_cdr(self._state_builder(idx), idx.size, rows,
+                                                    self.k, t, per_train[idx])
         self.fleet_pub.publish(self._fleet_msg)
         if per_train.any():
-            for i, m in conv.state_msgs(self.ids, np.flatnonzero(per_train), states, self.k,
-                                        t):
+            for i, m in conv.state_msgs(self.ids, np.flatnonzero(per_train), self.sim.states(),
+                                        self.k, t):
                 self.state_pubs[i].publish(m)
+        # the trains dwelling at step k (mode, service and station change only in a step)
+        self._dwelling = (self.k, dwelling_in_service(self.sim))
         return active
 
     def _state_read(self, mask: np.ndarray) -> np.ndarray:
@@ -905,14 +911,20 @@ class LineSimulator(Node):
             if self._fleet_msg is not None:
                 self.fleet_pub.publish(self._fleet_msg)
             return
-        k, states = self._step_states
+        k, idx, rows = self._step_rows
         missing = np.flatnonzero(active & (self.cmd_step < self.k))
-        if k != self.k or states is None or missing.size == 0:
+        if k != self.k or missing.size == 0:
             return
+        # the entries published at step k (``active`` is step k's active mask)
+        at = np.searchsorted(idx, missing)
+        if int(at.max()) < idx.size and np.array_equal(idx[at], missing):
+            again = {key: a[at] for key, a in rows.items()}
+        else:  # not one of them (never in the loop): their states now
+            again = fleet_state_rows(self.sim, missing)
         self.fleet_resends += 1
-        self.fleet_pub.publish(conv.fleet_state_cdr(self._state_builder(missing), missing,
-                                                    states, self.k, float(self.sim.t),
-                                                    self._echo_mask[missing]))
+        self.fleet_pub.publish(conv.fleet_state_rows_cdr(
+            self._state_builder(missing), missing.size, again, self.k, float(self.sim.t),
+            self._echo_mask[missing]))
 
     def _state_builder(self, idx: np.ndarray) -> cdr.FleetStateBuilder:
         """The FleetState layout of the trains ``idx`` (cached per index list)."""
@@ -956,12 +968,7 @@ class LineSimulator(Node):
             return self._pending[1]
         ck, dwell = self._dwelling
         if ck != self.k:  # mode, service and station change only in a step
-            k, st = self._step_states
-            if k != self.k or st is None:
-                st = self.sim.states()
-            at = np.flatnonzero((st["mode"] == TrainState.MODE_DWELL)
-                                & np.asarray(st["in_service"], dtype=bool))
-            dwell = [(int(i), int(st["current_station"][i])) for i in at]
+            dwell = dwelling_in_service(self.sim)
             self._dwelling = (self.k, dwell)
         last = len(self.sim.station_names) - 1
         out = []
@@ -1473,7 +1480,11 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
             deadline = time.monotonic() + sim.step_timeout_s
             resend = time.monotonic() + 0.5
             fleet_resend = time.monotonic() + FLEET_RESEND_S
-            while not sim.commands_complete(active) and time.monotonic() < deadline:
+            while True:
+                # the barrier (looked at once per wake: nothing arrives between two looks)
+                complete = sim.commands_complete(active)
+                if complete or time.monotonic() >= deadline:
+                    break
                 if stop_requested():
                     return
                 wait(0.02)
@@ -1491,7 +1502,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
                         # killed ATO process whose successor matched between two checks
                         fleet_resend = time.monotonic() + FLEET_RESEND_S
                         sim.publish_fleet_again(active)
-            active = sim.step_and_publish(active, timed_out=not sim.commands_complete(active))
+            active = sim.step_and_publish(active, timed_out=not complete)
         else:
             target = wall0 + (float(sim.sim.t) + sim.sim.control_period_s - sim0) / sim.rtf
             while True:

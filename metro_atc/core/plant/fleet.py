@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from enum import IntEnum
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -126,13 +127,29 @@ class Fleet:
             nxt = min(nxt, float(self.broken_until[self.broken].min()))
         return nxt
 
-    def modes(self, eb: BoolArray, sb: BoolArray) -> IntArray:
-        """Operating mode per train from the last step (MODE_* values)."""
-        v, acc, a_d = self.v, self.acc, self.a_dem
-        m = np.full(self.n, MODE_BRAKE)
-        m = np.where(a_d > 0.02, np.where(acc > 0.05, MODE_ACCEL, MODE_CRUISE), m)
-        m = np.where(np.abs(a_d) <= 0.02, MODE_COAST, m)
-        m = np.where((a_d < -0.02) & (np.abs(acc) < 0.05) & (v > 0.5), MODE_CRUISE, m)
-        m = np.where(eb | sb, MODE_ATP, m)
-        m = np.where(self.dwelling, MODE_DWELL, m)
-        return np.asarray(np.where(self.run, m, MODE_OUT))
+    def modes(self, eb: BoolArray, sb: BoolArray, rows: Any = None) -> IntArray:
+        """Operating mode per train from the last step (MODE_* values).
+
+        ``rows`` (train indices): the modes of those trains only, in that order (the same
+        values as the full array's entries).
+        """
+        if rows is None:
+            return mode_of(self.v, self.acc, self.a_dem, eb | sb, self.dwelling, self.run)
+        return mode_of(self.v[rows], self.acc[rows], self.a_dem[rows], eb[rows] | sb[rows],
+                       self.dwelling[rows], self.run[rows])
+
+
+def mode_of(v: FloatArray, acc: FloatArray, a_d: FloatArray, atp: BoolArray,
+            dwelling: BoolArray, run: BoolArray) -> IntArray:
+    """Operating mode (MODE_* values) of trains, per entry.
+
+    ``v`` speed [m/s], ``acc`` acceleration and ``a_d`` demand [m/s^2], ``atp`` ATP braking,
+    ``dwelling``, ``run`` in service.
+    """
+    m = np.full(v.shape, MODE_BRAKE)
+    m = np.where(a_d > 0.02, np.where(acc > 0.05, MODE_ACCEL, MODE_CRUISE), m)
+    m = np.where(np.abs(a_d) <= 0.02, MODE_COAST, m)
+    m = np.where((a_d < -0.02) & (np.abs(acc) < 0.05) & (v > 0.5), MODE_CRUISE, m)
+    m = np.where(atp, MODE_ATP, m)
+    m = np.where(dwelling, MODE_DWELL, m)
+    return np.asarray(np.where(run, m, MODE_OUT))

@@ -35,13 +35,14 @@ from .energy import EnergyMeter
 from .fast import FastSensors, NumbaStepper, resolve_kernel
 from .fast_run import DrivenRun, run_compiled
 from .fleet import (DONE, MODE_ACCEL, MODE_ATP, MODE_BRAKE, MODE_COAST, MODE_CRUISE,
-                    MODE_DWELL, MODE_OUT, RUN, WAIT, Fleet, Status)
+                    MODE_DWELL, MODE_OUT, RUN, Fleet, Status)
 from .incidents import Incidents
 from .kpi import RunLog, compute_kpis
 from .physics import advance_numpy
 from .sensors import BrakeSensorSample, SensorBlock, Sensors, StepResult
 from .stations import Stations, TrainEvent
 from .tables import VehicleTables
+from .views import plant_states
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -215,37 +216,7 @@ class LineSim:
 
     def states(self) -> dict[str, Any]:
         """Per-train state arrays (copies); ``mode`` uses the TrainState.MODE_* values."""
-        fl, atp = self.fleet, self.atp
-        run = fl.run
-        return {
-            "x_m": np.where(fl.status == DONE, fl.x_done, fl.x),
-            "v_mps": fl.v.copy(), "a_mps2": fl.acc.copy(),
-            "mode": fl.modes(atp.eb, atp.sb), "current_station": fl.cur_station.copy(),
-            "next_station": np.where(run | (fl.status == WAIT),
-                                     np.where(fl.next_stop < self.n_st, fl.next_stop, -1),
-                                     -1),
-            "traction_energy_j": self.energy.e_trac.copy(),
-            "regen_energy_j": self.energy.e_regen.copy(),
-            "atp_limit_mps": np.maximum(atp.atp_limit, 0.0),
-            "movement_authority_m": atp.eoa.copy(),
-            "speed_code_mps": atp.speed_code.copy(),
-            "atp_interventions": atp.interventions.copy(), "load_pax": fl.load.copy(),
-            "in_service": run.copy(),
-            "target_running_time_s": self._target_rt(),
-            "departure_time_s": self._target_dep(),
-        }
-
-    def _target_dep(self) -> FloatArray:
-        """Commanded (else scheduled) departure time from the current station [s]."""
-        j = np.minimum(np.maximum(self.fleet.cur_station, 0), self.n_st - 1)
-        rows = np.arange(self.n)
-        dep = self.stations.cmd_dep[rows, j]
-        return np.where(np.isfinite(dep), dep, self.service.sched_dep[rows, j])
-
-    def _target_rt(self) -> FloatArray:
-        j = np.minimum(np.maximum(self.fleet.cur_station, 0), self.n_st - 2)
-        rt = self.stations.cmd_rt[np.arange(self.n), j]
-        return np.where(np.isfinite(rt), rt, self.service.sched_running_s[j])
+        return plant_states(self)
 
     def event_log(self) -> list[TrainEvent]:
         """All events so far in time order."""
