@@ -128,3 +128,40 @@ def test_journal_of_one_sample_per_line_is_read(make_node: Any, tmp_path: Path) 
         (old / f.name).write_text("".join(json.dumps(e) + "\n" for e in entries))
     b = make_node(old)
     assert _state(b) == _state(a)
+
+
+@pytest.mark.parametrize("seed", [-1, 1])
+def test_decoder_rows_are_the_samples_bit_for_bit(seed: int) -> None:
+    """The decoder's packed rows read back as its sample dicts (every float's bits)."""
+    import base64
+    import struct
+    from types import SimpleNamespace
+
+    from metro_atc.core.line.scenario import load_scenario
+    from metro_atc.core.validate import bounds_for
+    from metro_atc.nodes import conversions as conv
+    from metro_atc.nodes.brake_diagnostic import PACKED_KEY, unpacked_entries
+
+    scn = load_scenario("mini_pad_fault")
+    index = {t: i for i, t in enumerate(scn.train_ids)}
+    batches = br.load_batches(BATCHES)
+    if seed >= 0:
+        batches = br.perturbed(batches, seed)
+    n = 0
+    for b in batches:
+        rows: list[bytes] = []
+        items = conv.fleet_sensor_samples(SimpleNamespace(**b), "/x", index, 4,
+                                          bounds_for(scn), lists=True, rows=rows)
+        assert len(rows) == len(items)
+        for (_, _, s), row in zip(items, rows):
+            if not isinstance(s, dict):
+                continue
+            e = unpacked_entries([{PACKED_KEY: base64.b64encode(row).decode("ascii")}])[0][0]
+            flat = [s["t_s"], *s["omega"], *s["clamp"], s["accel"], s["ref_speed"],
+                    s["car_mass"]]
+            got = [e["t_s"], *e["omega"], *e["clamp"], e["accel"], e["ref_speed"],
+                   e["car_mass"]]
+            assert all(type(v) is float for v in flat)
+            assert struct.pack("<12d", *got) == struct.pack("<12d", *flat)
+            n += 1
+    assert n > 4000

@@ -279,12 +279,16 @@ class BrakeDiagnostic(Node):
                                   "journal")
         return True
 
-    def _journal(self, train_id: str, entry: dict[str, Any]) -> None:
-        """Keep ``entry`` in the train's journal (written to the file by :meth:`flush`)."""
+    def _journal(self, train_id: str, entry: dict[str, Any], row: bytes = b"") -> None:
+        """Keep ``entry`` in the train's journal (written to the file by :meth:`flush`).
+
+        ``row``: the sample's values packed (the decoder's ``rows``), written instead of
+        the entry's JSON.
+        """
         j = self.journals.get(train_id)
         if j is not None:
             j.entries.append(entry)
-            self._unwritten.setdefault(train_id, []).append(entry)
+            self._unwritten.setdefault(train_id, []).append(row or entry)
 
     def flush(self) -> None:
         """Write the journal entries of the samples handled since the last call.
@@ -299,7 +303,7 @@ class BrakeDiagnostic(Node):
             return
         pending, self._unwritten = self._unwritten, {}
         for train_id, entries in pending.items():
-            self.journals[train_id].append_all(packed_entries(entries))
+            self.journals[train_id].append_all(_journal_lines(entries))
 
     # ------------------------------------------------------------------ samples
     def _on_batch(self, msg: FleetBrakeSensorData) -> None:
@@ -309,9 +313,10 @@ class BrakeDiagnostic(Node):
         message that cannot be attributed sample by sample is one rejection (kind
         ``length``), a sample of an unknown train one of kind ``train_id``.
         """
+        rows: list[bytes] = []  # each sample's values packed, for the journal
         try:
             items = conv.fleet_sensor_samples(msg, FLEET_SENSOR_TOPIC, self.index, N_AXLES,
-                                              self.bounds, lists=True)
+                                              self.bounds, lists=True, rows=rows)
         except conv.MessageRejected as exc:
             self.rejections.add(exc.kind)
             self._log_bounded("", exc.kind, f"skipped sample batch ({exc.kind}): {exc}")
@@ -321,7 +326,9 @@ class BrakeDiagnostic(Node):
             self._log_bounded("", "error", f"skipped sample batch: {type(exc).__name__}: {exc}")
             return
         recv, watch, levels = self._recv_t, self.watch, self._levels
-        for train_id, stamp, s in items:
+        if len(rows) != len(items):
+            rows = [b""] * len(items)  # (never: then each sample a JSON line)
+        for (train_id, stamp, s), row in zip(items, rows):
             if train_id is None:
                 assert isinstance(s, conv.MessageRejected)
                 self.rejections.add(s.kind)
@@ -336,14 +343,18 @@ class BrakeDiagnostic(Node):
                 w = watch[train_id]
                 if w.feed_paused(s["t_s"], s["ref_speed"], s["car_mass"]):
                     self._sample_count += 1
-                    self._journal(train_id, s)
+                    self._journal(train_id, s, row)
                     if w.level() != levels[train_id]:
                         self._publish_train(train_id, s["t_s"])
                     continue
-            self._on_sample(train_id, s)
+            self._on_sample(train_id, s, row)
 
-    def _on_sample(self, train_id: str, s: dict[str, Any] | conv.MessageRejected) -> None:
-        """Run the observer on one validated sample (or count its rejection)."""
+    def _on_sample(self, train_id: str, s: dict[str, Any] | conv.MessageRejected,
+                   row: bytes = b"") -> None:
+        """Run the observer on one validated sample (or count its rejection).
+
+        ``row``: the sample's values packed for the journal (see :meth:`_journal`).
+        """
         topic = FLEET_SENSOR_TOPIC
         self._sample_count += 1
         try:
@@ -353,7 +364,7 @@ class BrakeDiagnostic(Node):
                 return  # nothing new (a re-send of what the topic may have lost)
             self._rewind(train_id, s)
             w = self.watch[train_id]
-            self._journal(train_id, s)  # float lists: its own journal entry
+            self._journal(train_id, s, row)  # float lists: its own journal entry
             what = conv.guarded(topic, w.feed, s)
         except conv.MessageRejected as exc:
             w = self.watch[train_id]
@@ -587,6 +598,32 @@ def _pack_rows(rows: list[tuple[Any, ...]], out: list[dict[str, Any]]) -> None:
                     "clamp": list(r[1 + N_AXLES:1 + 2 * N_AXLES]), "accel": r[-3],
                     "ref_speed": r[-2], "car_mass": r[-1]} for r in rows)
     rows.clear()
+
+
+def _journal_lines(items: Sequence[dict[str, Any] | bytes]) -> list[dict[str, Any]]:
+    """Journal lines of entries (dicts) and samples already packed (the decoder's rows).
+
+    Consecutive packed samples make one line; the dicts go through :func:`packed_entries`.
+    """
+    out: list[dict[str, Any]] = []
+    run: list[bytes] = []
+    dicts: list[dict[str, Any]] = []
+    for it in items:
+        if it.__class__ is bytes:
+            if dicts:
+                out += packed_entries(dicts)
+                dicts = []
+            run.append(it)  # type: ignore[arg-type]
+        else:
+            if run:
+                out.append({PACKED_KEY: base64.b64encode(b"".join(run)).decode("ascii")})
+                run = []
+            dicts.append(it)  # type: ignore[arg-type]
+    if dicts:
+        out += packed_entries(dicts)
+    if run:
+        out.append({PACKED_KEY: base64.b64encode(b"".join(run)).decode("ascii")})
+    return out
 
 
 def unpacked_entries(entries: Sequence[dict[str, Any]]) -> tuple[list[dict[str, Any]], bool]:
