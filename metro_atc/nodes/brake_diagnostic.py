@@ -26,10 +26,12 @@ those figures.  On Taipei Blue the used samples are few at any instant (0.4 trai
 sample instant on average over 1 800 s), so batching the filters across trains would
 batch nothing; the per-sample costs are cut instead: one message per step for all trains,
 validated in one vectorised pass (:func:`metro_atc.nodes.conversions.fleet_sensor_samples`,
-its samples as float lists that are their own journal entries), the journal lines formatted
-directly and written once per burst, the per-axle arithmetic of the watch and
-the observer done on plain floats (issue 13: ``test/brake_replay.py`` replays a run's
-batches bit for bit against the code before).
+its samples as float lists that are their own journal entries, and their values packed),
+a burst's samples of a train one journal line (:func:`packed_entries`) written once, a
+standing or slow train's sample (most of them) counted by
+:meth:`TrainBrakeWatch.feed_paused`, the per-axle arithmetic of the watch and the observer
+done on plain floats (issue 13: ``test/brake_replay.py`` replays a run's batches bit for
+bit against the code before).
 The Taipei Blue scenario at 20 Hz needs at most 30 x 20 = 600 updates per simulated
 second (every train braking at once), and the simulator sends the full rate only while a
 car brakes (a 1 Hz heartbeat otherwise); one process per train would cost 30 Python
