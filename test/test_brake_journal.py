@@ -165,3 +165,21 @@ def test_decoder_rows_are_the_samples_bit_for_bit(seed: int) -> None:
             assert struct.pack("<12d", *got) == struct.pack("<12d", *flat)
             n += 1
     assert n > 4000
+
+
+def test_journal_text_does_not_depend_on_the_bursts(make_node: Any, tmp_path: Path) -> None:
+    """Written after every batch or once: the same journal files (two runs compare them)."""
+    msgs = _msgs(1)[:400]
+    a = make_node(tmp_path / "a")
+    _feed(a, msgs)
+    b = make_node(tmp_path / "b")
+    for n, m in enumerate(msgs):
+        b._on_batch(m)
+        if n % 37 == 0:
+            b.flush()
+    b.flush()
+    names = sorted(p.name for p in (tmp_path / "a").glob("brake_*.jsonl"))
+    assert names and names == sorted(p.name for p in (tmp_path / "b").glob("brake_*.jsonl"))
+    for name in names:
+        text = (tmp_path / "a" / name).read_text()
+        assert text and text == (tmp_path / "b" / name).read_text(), name

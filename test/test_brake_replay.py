@@ -71,7 +71,7 @@ def test_batches_round_trip(tmp_path: Path) -> None:
 
 
 def test_packed_journal_lines_give_the_entries_back() -> None:
-    """The node's journal lines (runs of samples packed) read back as the entries, exactly.
+    """The node's journal lines (samples packed) read back as the entries, exactly.
 
     Any float (NaN, infinities, -0.0, subnormals) comes back bit for bit; a rejection, a
     sample of another axle count or with a value that is not a float (never from the
@@ -83,7 +83,8 @@ def test_packed_journal_lines_give_the_entries_back() -> None:
 
     import numpy as np
 
-    from metro_atc.nodes.brake_diagnostic import PACKED_KEY, packed_entries, unpacked_entries
+    from metro_atc.nodes.brake_diagnostic import (PACKED_KEY, _journal_lines, _line_json,
+                                                  packed_entries, unpacked_entries)
 
     rnd = random.Random(0)
     special = [0.0, -0.0, 1e-300, 1e300, math.nan, math.inf, -math.inf, 35000.0, 5e-324]
@@ -117,8 +118,14 @@ def test_packed_journal_lines_give_the_entries_back() -> None:
             e["t_s"] = rnd.randint(0, 100)
         entries.append(e)
     lines = packed_entries(entries)
-    assert sum(1 for x in lines if PACKED_KEY in x) > 100  # runs were packed
-    assert len(lines) < len(entries) / 2  # (a run ends at every other entry)
+    assert sum(1 for x in lines if PACKED_KEY in x) > 2000  # the samples of floats
+    assert len(lines) == len(entries)  # one line each (as main: independent of bursts)
+    assert all(_line_json(x) == json.dumps(x) for x in lines)
+    # the node's path: samples the decoder packed (bytes) give the same lines
+    rows = [struct.pack("<12d", e["t_s"], *e["omega"], *e["clamp"], e["accel"],
+                        e["ref_speed"], e["car_mass"])
+            if PACKED_KEY in x else e for e, x in zip(entries, lines)]
+    assert _journal_lines(rows) == lines
     # through the file's JSON text, as Journal writes and reads it
     back, whole = unpacked_entries([json.loads(json.dumps(x)) for x in lines])
     assert whole

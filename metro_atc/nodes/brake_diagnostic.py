@@ -75,10 +75,10 @@ from __future__ import annotations
 import base64
 import json
 import math
+import struct
 import sys
 import time
 from functools import partial
-from itertools import chain
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence
 
@@ -305,7 +305,7 @@ class BrakeDiagnostic(Node):
             return
         pending, self._unwritten = self._unwritten, {}
         for train_id, entries in pending.items():
-            self.journals[train_id].append_all(_journal_lines(entries))
+            self.journals[train_id].append_all(_journal_lines(entries), _line_json)
 
     # ------------------------------------------------------------------ samples
     def _on_batch(self, msg: FleetBrakeSensorData) -> None:
@@ -559,73 +559,69 @@ _SAMPLE_KEYS = {"t_s": 0, "omega": 0, "clamp": 0, "accel": 0, "ref_speed": 0,
 
 
 PACKED_KEY = "f64x12"
-"""Key of a journal line holding several samples: the base64 text of their 12 float64 each,
+"""Key of a journal line holding a sample packed: the base64 text of its 12 float64,
 little-endian (t_s, omega x4, clamp x4, accel, ref_speed, car_mass).  Exact (every bit of
-every float, NaN included) and ~5x cheaper to write than a JSON line per sample (a float's
-``repr`` is ~0.7 us; issue 13).  Lines of one sample each (what main wrote) are read too."""
+every float, NaN included) and several times cheaper to write than the sample's JSON (a
+float's ``repr`` is ~0.7 us; issue 13).  Still one line per sample: the journal's text does
+not depend on how samples were grouped into bursts (two runs leave the same journals).
+Lines of the sample's JSON (what main wrote) are read too, and lines of several packed
+samples."""
 _PACKED_WIDTH = 4 + 2 * N_AXLES
 """Floats per packed sample."""
+_PACKED_CHARS = 4 * _PACKED_WIDTH * 8 // 3
+"""base64 characters of one packed sample (its 96 bytes: no padding, so the base64 of
+several samples is theirs end to end)."""
 
 
 def packed_entries(entries: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Journal lines of ``entries``: runs of 4-axle sample entries packed into one line each.
+    """Journal lines of ``entries``, one each: a 4-axle sample entry of floats packed.
 
     Every other entry (a rejection, a sample of another axle count or with a value that is
-    not a number) is its own line, in order.  :func:`unpacked_entries` gives ``entries``
-    back (the sample values as Python floats, their arrays as float lists).
+    not a float: never from the decoder) is its JSON.  :func:`unpacked_entries` gives
+    ``entries`` back (the sample values as Python floats, their arrays as float lists).
     """
     out: list[dict[str, Any]] = []
-    rows: list[tuple[Any, ...]] = []
     for e in entries:
         if e.keys() == _SAMPLE_KEYS:
             om, cl = e["omega"], e["clamp"]
             if len(om) == N_AXLES and len(cl) == N_AXLES:
-                rows.append((e["t_s"], *om, *cl, e["accel"], e["ref_speed"], e["car_mass"]))
-                continue
-        _pack_rows(rows, out)
+                row = (e["t_s"], *om, *cl, e["accel"], e["ref_speed"], e["car_mass"])
+                if set(map(type, row)) == {float}:
+                    data = struct.pack(f"<{_PACKED_WIDTH}d", *row)
+                    out.append({PACKED_KEY: base64.b64encode(data).decode("ascii")})
+                    continue
         out.append(e)
-    _pack_rows(rows, out)
     return out
-
-
-def _pack_rows(rows: list[tuple[Any, ...]], out: list[dict[str, Any]]) -> None:
-    """Append the packed line of ``rows`` (sample values) to ``out`` and empty ``rows``."""
-    if not rows:
-        return
-    if set(map(type, chain.from_iterable(rows))) == {float}:
-        data = np.array(rows, dtype="<f8").tobytes()
-        out.append({PACKED_KEY: base64.b64encode(data).decode("ascii")})
-    else:  # not plain floats (never from the decoder): one JSON line per sample
-        out.extend({"t_s": r[0], "omega": list(r[1:1 + N_AXLES]),
-                    "clamp": list(r[1 + N_AXLES:1 + 2 * N_AXLES]), "accel": r[-3],
-                    "ref_speed": r[-2], "car_mass": r[-1]} for r in rows)
-    rows.clear()
 
 
 def _journal_lines(items: Sequence[dict[str, Any] | bytes]) -> list[dict[str, Any]]:
-    """Journal lines of entries (dicts) and samples already packed (the decoder's rows).
+    """Journal lines, one per item: entries (dicts) and samples already packed (bytes).
 
-    Consecutive packed samples make one line; the dicts go through :func:`packed_entries`.
+    The packed ones are base64-encoded together and cut per sample.
     """
     out: list[dict[str, Any]] = []
     run: list[bytes] = []
-    dicts: list[dict[str, Any]] = []
-    for it in items:
+    k = _PACKED_CHARS
+    for it in [*items, {}]:
         if it.__class__ is bytes:
-            if dicts:
-                out += packed_entries(dicts)
-                dicts = []
             run.append(it)  # type: ignore[arg-type]
-        else:
-            if run:
-                out.append({PACKED_KEY: base64.b64encode(b"".join(run)).decode("ascii")})
-                run = []
-            dicts.append(it)  # type: ignore[arg-type]
-    if dicts:
-        out += packed_entries(dicts)
-    if run:
-        out.append({PACKED_KEY: base64.b64encode(b"".join(run)).decode("ascii")})
+            continue
+        if run:
+            text = base64.b64encode(b"".join(run)).decode("ascii")
+            out += [{PACKED_KEY: text[i:i + k]} for i in range(0, len(text), k)]
+            run = []
+        if it:
+            out += packed_entries([it])  # type: ignore[list-item]
     return out
+
+
+def _line_json(e: dict[str, Any]) -> str:
+    """``json.dumps(e)`` of a journal line (a packed sample's formatted directly)."""
+    if len(e) == 1:
+        text = e.get(PACKED_KEY)
+        if text.__class__ is str:
+            return '{"%s": "%s"}' % (PACKED_KEY, text)
+    return json.dumps(e)
 
 
 def unpacked_entries(entries: Sequence[dict[str, Any]]) -> tuple[list[dict[str, Any]], bool]:
