@@ -178,7 +178,7 @@ class BrakeDiagnostic(Node):
                         "directory of the per-train sample journals ('' : none): a restarted "
                         "node replays them, a simulator resumed behind is followed back")
         self.journals: dict[str, Journal] = {}
-        self._unwritten: dict[str, list[dict[str, Any]]] = {}
+        self._unwritten: dict[str, list[dict[str, Any] | bytes]] = {}
         """Journal entries not written yet (written by :meth:`flush`)."""
         self._kv: dict[str, dict[str, KeyValue]] = {t: {} for t in self.ids}
         """The /diagnostics key-values of each train (reused: only their values change)."""
