@@ -70,13 +70,21 @@ def test_batches_round_trip(tmp_path: Path) -> None:
             assert x[k].tolist() == y[k].tolist()
 
 
-def test_entry_json_is_json_dumps() -> None:
-    """The node's journal line of a sample is ``json.dumps`` of it, for any values."""
+def test_packed_journal_lines_give_the_entries_back() -> None:
+    """The node's journal lines (samples packed) read back as the entries, exactly.
+
+    Any float (NaN, infinities, -0.0, subnormals) comes back bit for bit; a rejection, a
+    sample of another axle count or with a value that is not a float (never from the
+    decoder) stays a JSON line of its own, in order; lines written by main (one sample
+    each) are read as they are.
+    """
     import random
+    import struct
 
     import numpy as np
 
-    from metro_atc.nodes.brake_diagnostic import _entry_json
+    from metro_atc.nodes.brake_diagnostic import (PACKED_KEY, _journal_lines, _line_json,
+                                                  packed_entries, unpacked_entries)
 
     rnd = random.Random(0)
     special = [0.0, -0.0, 1e-300, 1e300, math.nan, math.inf, -math.inf, 35000.0, 5e-324]
@@ -86,15 +94,54 @@ def test_entry_json_is_json_dumps() -> None:
             return rnd.choice(special)
         return rnd.uniform(-1e6, 1e6) * 10.0 ** rnd.randint(-12, 12)
 
-    for i in range(20000):
+    def bits(e: Any) -> Any:
+        """Each float as its 8 bytes (NaN == NaN), lists and dicts walked."""
+        if isinstance(e, dict):
+            return {k: bits(v) for k, v in e.items()}
+        if isinstance(e, list):
+            return [bits(v) for v in e]
+        if isinstance(e, float):
+            return (type(e).__name__, struct.pack("<d", e))
+        return e
+
+    entries: list[dict[str, Any]] = []
+    for i in range(3000):
+        if i % 13 == 0:
+            entries.append({"rejected": "range"})
+            continue
         e: dict[str, Any] = {"t_s": pick(), "omega": [pick() for _ in range(4)],
                              "clamp": [pick() for _ in range(4)], "accel": pick(),
                              "ref_speed": pick(), "car_mass": pick()}
-        if i % 17 == 0:
-            e["accel"] = np.float64(e["accel"])
-        if i % 19 == 0:
-            e["t_s"] = rnd.randint(0, 100)
-        if i % 23 == 0:
+        if i % 29 == 0:
             e["omega"] = e["omega"][:3]
-        assert _entry_json(e) == json.dumps(e), e
-    assert _entry_json({"rejected": "range"}) == json.dumps({"rejected": "range"})
+        if i % 31 == 0:
+            e["t_s"] = rnd.randint(0, 100)
+        entries.append(e)
+    lines = packed_entries(entries)
+    assert sum(1 for x in lines if PACKED_KEY in x) > 2000  # the samples of floats
+    assert len(lines) == len(entries)  # one line each (as main: independent of bursts)
+    assert all(_line_json(x) == json.dumps(x) for x in lines)
+    # the node's path: samples the decoder packed (bytes) give the same lines
+    rows = [struct.pack("<12d", e["t_s"], *e["omega"], *e["clamp"], e["accel"],
+                        e["ref_speed"], e["car_mass"])
+            if PACKED_KEY in x else e for e, x in zip(entries, lines)]
+    assert _journal_lines(rows) == lines
+    # through the file's JSON text, as Journal writes and reads it
+    back, whole = unpacked_entries([json.loads(json.dumps(x)) for x in lines])
+    assert whole
+    # JSON lines keep their ints; packed samples come back as Python floats
+    assert bits(back) == bits(json.loads(json.dumps(entries)))
+    assert all(type(v) is float for e in back if "omega" in e and len(e["omega"]) == 4
+               and not isinstance(e["t_s"], int) for v in (e["t_s"], *e["omega"]))
+    # main's lines (one sample each) are read as they are
+    assert unpacked_entries(entries) == (entries, True)
+    # a damaged packed line ends the entries before it, like a torn line
+    cut = next(n for n, x in enumerate(lines) if PACKED_KEY in x and n > 3)
+    bad = [dict(x) for x in lines]
+    bad[cut] = {PACKED_KEY: bad[cut][PACKED_KEY][:-7]}
+    got, whole = unpacked_entries(bad)
+    want, _ = unpacked_entries(lines[:cut])
+    assert not whole and bits(got) == bits(want)
+    assert unpacked_entries([{PACKED_KEY: 3}]) == ([], False)
+    assert unpacked_entries([{PACKED_KEY: "!!!!"}]) == ([], False)
+    del np

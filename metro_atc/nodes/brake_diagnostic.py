@@ -26,10 +26,12 @@ those figures.  On Taipei Blue the used samples are few at any instant (0.4 trai
 sample instant on average over 1 800 s), so batching the filters across trains would
 batch nothing; the per-sample costs are cut instead: one message per step for all trains,
 validated in one vectorised pass (:func:`metro_atc.nodes.conversions.fleet_sensor_samples`,
-its samples as float lists that are their own journal entries), the journal lines formatted
-directly and written once per burst, the per-axle arithmetic of the watch and
-the observer done on plain floats (issue 13: ``test/brake_replay.py`` replays a run's
-batches bit for bit against the code before).
+its samples as float lists that are their own journal entries, and their values packed),
+a burst's samples of a train one journal line (:func:`packed_entries`) written once, a
+standing or slow train's sample (most of them) counted by
+:meth:`TrainBrakeWatch.feed_paused`, the per-axle arithmetic of the watch and the observer
+done on plain floats (issue 13: ``test/brake_replay.py`` replays a run's batches bit for
+bit against the code before).
 The Taipei Blue scenario at 20 Hz needs at most 30 x 20 = 600 updates per simulated
 second (every train braking at once), and the simulator sends the full rate only while a
 car brakes (a 1 Hz heartbeat otherwise); one process per train would cost 30 Python
@@ -58,18 +60,22 @@ state this node runs, also used by the ROS-free closed loop).
 
 **Restart.**  With ``checkpoint_dir`` every sample handed to a train's observer (and every
 rejected one, for the counters) is appended to ``<checkpoint_dir>/brake_<train>.jsonl``
-(:class:`metro_atc.core.journal.Journal`).  A restarted node replays the journals into fresh
-observers: the UKF, the decision logic and the counters are where they were.  When the
-simulator resumes from a checkpoint and sends again a sample the journal holds (same stamp,
-same channels), the train's observer is rebuilt from the journal up to that sample; the
-newest sample sent again (the simulator's end-of-run re-send of what may have been lost) is
-skipped.
+(:class:`metro_atc.core.journal.Journal`; the samples of a burst in one line,
+:func:`packed_entries`: their floats in binary, base64, ~5x cheaper than a JSON line per
+sample; lines of one JSON sample each are read too).  A restarted node replays the journals
+into fresh observers: the UKF, the decision logic and the counters are where they were.
+When the simulator resumes from a checkpoint and sends again a sample the journal holds
+(same stamp, same channels), the train's observer is rebuilt from the journal up to that
+sample; the newest sample sent again (the simulator's end-of-run re-send of what may have
+been lost) is skipped.
 """
 
 from __future__ import annotations
 
+import base64
 import json
 import math
+import struct
 import sys
 import time
 from functools import partial
@@ -172,7 +178,7 @@ class BrakeDiagnostic(Node):
                         "directory of the per-train sample journals ('' : none): a restarted "
                         "node replays them, a simulator resumed behind is followed back")
         self.journals: dict[str, Journal] = {}
-        self._unwritten: dict[str, list[dict[str, Any]]] = {}
+        self._unwritten: dict[str, list[dict[str, Any] | bytes]] = {}
         """Journal entries not written yet (written by :meth:`flush`)."""
         self._kv: dict[str, dict[str, KeyValue]] = {t: {} for t in self.ids}
         """The /diagnostics key-values of each train (reused: only their values change)."""
@@ -182,6 +188,11 @@ class BrakeDiagnostic(Node):
         if ck_dir:
             for t in self.ids:
                 j = self.journals[t] = Journal(Path(ck_dir) / f"brake_{t}.jsonl")
+                entries, whole = unpacked_entries(j.entries)
+                if not whole:  # a damaged packed line: read up to it, like a torn line
+                    self.get_logger().error(f"{t}: journal read up to a damaged line")
+                    j.reset(entries)
+                j.entries = entries
                 if j.entries:
                     self._replay(t, j.entries)
                     self.get_logger().warning(f"restarted: replayed {len(j.entries)} journaled "
@@ -270,12 +281,16 @@ class BrakeDiagnostic(Node):
                                   "journal")
         return True
 
-    def _journal(self, train_id: str, entry: dict[str, Any]) -> None:
-        """Keep ``entry`` in the train's journal (written to the file by :meth:`flush`)."""
+    def _journal(self, train_id: str, entry: dict[str, Any], row: bytes = b"") -> None:
+        """Keep ``entry`` in the train's journal (written to the file by :meth:`flush`).
+
+        ``row``: the sample's values packed (the decoder's ``rows``), written instead of
+        the entry's JSON.
+        """
         j = self.journals.get(train_id)
         if j is not None:
             j.entries.append(entry)
-            self._unwritten.setdefault(train_id, []).append(entry)
+            self._unwritten.setdefault(train_id, []).append(row or entry)
 
     def flush(self) -> None:
         """Write the journal entries of the samples handled since the last call.
@@ -290,7 +305,7 @@ class BrakeDiagnostic(Node):
             return
         pending, self._unwritten = self._unwritten, {}
         for train_id, entries in pending.items():
-            self.journals[train_id].append_all(entries, _entry_json)
+            self.journals[train_id].append_all(_journal_lines(entries), _line_json)
 
     # ------------------------------------------------------------------ samples
     def _on_batch(self, msg: FleetBrakeSensorData) -> None:
@@ -300,9 +315,10 @@ class BrakeDiagnostic(Node):
         message that cannot be attributed sample by sample is one rejection (kind
         ``length``), a sample of an unknown train one of kind ``train_id``.
         """
+        rows: list[bytes] = []  # each sample's values packed, for the journal
         try:
             items = conv.fleet_sensor_samples(msg, FLEET_SENSOR_TOPIC, self.index, N_AXLES,
-                                              self.bounds, lists=True)
+                                              self.bounds, lists=True, rows=rows)
         except conv.MessageRejected as exc:
             self.rejections.add(exc.kind)
             self._log_bounded("", exc.kind, f"skipped sample batch ({exc.kind}): {exc}")
@@ -311,18 +327,36 @@ class BrakeDiagnostic(Node):
             self.rejections.add("error")
             self._log_bounded("", "error", f"skipped sample batch: {type(exc).__name__}: {exc}")
             return
-        for train_id, stamp, s in items:
+        recv, watch, levels = self._recv_t, self.watch, self._levels
+        if len(rows) != len(items):
+            rows = [b""] * len(items)  # (never: then each sample a JSON line)
+        for (train_id, stamp, s), row in zip(items, rows):
             if train_id is None:
                 assert isinstance(s, conv.MessageRejected)
                 self.rejections.add(s.kind)
                 self._log_bounded("", s.kind, f"skipped sample ({s.kind}): {s}")
                 continue
-            if stamp > self._recv_t[train_id]:  # rejected ones count too
-                self._recv_t[train_id] = stamp
-            self._on_sample(train_id, s)
+            if stamp > recv[train_id]:  # rejected ones count too
+                recv[train_id] = stamp
+            if s.__class__ is dict:
+                # a slow or standing train's sample after the last one (most samples):
+                # what _on_sample does with it (neither a re-send nor behind the stream:
+                # nothing to rewind), without the observer's sample handling
+                w = watch[train_id]
+                if w.feed_paused(s["t_s"], s["ref_speed"], s["car_mass"]):
+                    self._sample_count += 1
+                    self._journal(train_id, s, row)
+                    if w.level() != levels[train_id]:
+                        self._publish_train(train_id, s["t_s"])
+                    continue
+            self._on_sample(train_id, s, row)
 
-    def _on_sample(self, train_id: str, s: dict[str, Any] | conv.MessageRejected) -> None:
-        """Run the observer on one validated sample (or count its rejection)."""
+    def _on_sample(self, train_id: str, s: dict[str, Any] | conv.MessageRejected,
+                   row: bytes = b"") -> None:
+        """Run the observer on one validated sample (or count its rejection).
+
+        ``row``: the sample's values packed for the journal (see :meth:`_journal`).
+        """
         topic = FLEET_SENSOR_TOPIC
         self._sample_count += 1
         try:
@@ -332,7 +366,7 @@ class BrakeDiagnostic(Node):
                 return  # nothing new (a re-send of what the topic may have lost)
             self._rewind(train_id, s)
             w = self.watch[train_id]
-            self._journal(train_id, s)  # float lists: its own journal entry
+            self._journal(train_id, s, row)  # float lists: its own journal entry
             what = conv.guarded(topic, w.feed, s)
         except conv.MessageRejected as exc:
             w = self.watch[train_id]
@@ -524,29 +558,98 @@ _SAMPLE_KEYS = {"t_s": 0, "omega": 0, "clamp": 0, "accel": 0, "ref_speed": 0,
 """The keys of a validated sample (see :func:`_sample_entry`)."""
 
 
-def _entry_json(e: dict[str, Any]) -> str:
-    """``json.dumps(e)`` of a journal entry, a 4-axle sample's formatted directly.
+PACKED_KEY = "f64x12"
+"""Key of a journal line holding a sample packed: the base64 text of its 12 float64,
+little-endian (t_s, omega x4, clamp x4, accel, ref_speed, car_mass).  Exact (every bit of
+every float, NaN included) and several times cheaper to write than the sample's JSON (a
+float's ``repr`` is ~0.7 us; issue 13).  Still one line per sample: the journal's text does
+not depend on how samples were grouped into bursts (two runs leave the same journals).
+Lines of the sample's JSON (what main wrote) are read too, and lines of several packed
+samples."""
+_PACKED_WIDTH = 4 + 2 * N_AXLES
+"""Floats per packed sample."""
+_PACKED_CHARS = 4 * _PACKED_WIDTH * 8 // 3
+"""base64 characters of one packed sample (its 96 bytes: no padding, so the base64 of
+several samples is theirs end to end)."""
 
-    ``json`` writes a float as its ``repr``; the template gives the same text for a sample
-    of :func:`_sample_entry`'s keys (one ``%`` instead of the encoder's walk, issue 13)
-    when every value is a finite float (their ``repr`` has no ``n``: ``nan``, ``inf`` and
-    any non-float such as ``np.float64(...)`` do, and neither the template's keys nor a
-    finite float's digits, point, sign or exponent do); anything else goes through
-    ``json.dumps``.
+
+def packed_entries(entries: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Journal lines of ``entries``, one each: a 4-axle sample entry of floats packed.
+
+    Every other entry (a rejection, a sample of another axle count or with a value that is
+    not a float: never from the decoder) is its JSON.  :func:`unpacked_entries` gives
+    ``entries`` back (the sample values as Python floats, their arrays as float lists).
     """
-    if e.keys() == _SAMPLE_KEYS:
-        om, cl = e["omega"], e["clamp"]
-        if len(om) == 4 and len(cl) == 4:
-            text = _ENTRY_TEMPLATE % (e["t_s"], *om, *cl, e["accel"], e["ref_speed"],
-                                      e["car_mass"])
-            if "n" not in text:
-                return text
+    out: list[dict[str, Any]] = []
+    for e in entries:
+        if e.keys() == _SAMPLE_KEYS:
+            om, cl = e["omega"], e["clamp"]
+            if len(om) == N_AXLES and len(cl) == N_AXLES:
+                row = (e["t_s"], *om, *cl, e["accel"], e["ref_speed"], e["car_mass"])
+                if set(map(type, row)) == {float}:
+                    data = struct.pack(f"<{_PACKED_WIDTH}d", *row)
+                    out.append({PACKED_KEY: base64.b64encode(data).decode("ascii")})
+                    continue
+        out.append(e)
+    return out
+
+
+def _journal_lines(items: Sequence[dict[str, Any] | bytes]) -> list[dict[str, Any]]:
+    """Journal lines, one per item: entries (dicts) and samples already packed (bytes).
+
+    The packed ones are base64-encoded together and cut per sample.
+    """
+    out: list[dict[str, Any]] = []
+    run: list[bytes] = []
+    k = _PACKED_CHARS
+    for it in [*items, {}]:
+        if it.__class__ is bytes:
+            run.append(it)  # type: ignore[arg-type]
+            continue
+        if run:
+            text = base64.b64encode(b"".join(run)).decode("ascii")
+            out += [{PACKED_KEY: text[i:i + k]} for i in range(0, len(text), k)]
+            run = []
+        if it:
+            out += packed_entries([it])  # type: ignore[list-item]
+    return out
+
+
+def _line_json(e: dict[str, Any]) -> str:
+    """``json.dumps(e)`` of a journal line (a packed sample's formatted directly)."""
+    if len(e) == 1:
+        text = e.get(PACKED_KEY)
+        if text.__class__ is str:
+            return '{"%s": "%s"}' % (PACKED_KEY, text)
     return json.dumps(e)
 
 
-_ENTRY_TEMPLATE = ('{"t_s": %r, "omega": [%r, %r, %r, %r], "clamp": [%r, %r, %r, %r], '
-                   '"accel": %r, "ref_speed": %r, "car_mass": %r}')
-"""The JSON text of a finite 4-axle sample entry (``%r`` of a float: its ``repr``)."""
+def unpacked_entries(entries: Sequence[dict[str, Any]]) -> tuple[list[dict[str, Any]], bool]:
+    """The journal entries of journal lines (:func:`packed_entries` undone).
+
+    Returns (entries, whole): ``whole`` is False when a packed line is damaged (not base64
+    of whole samples); the entries then end before it.
+    """
+    out: list[dict[str, Any]] = []
+    n = _PACKED_WIDTH
+    for e in entries:
+        text = e.get(PACKED_KEY) if len(e) == 1 else None
+        if text is None:
+            out.append(e)
+            continue
+        try:
+            if not isinstance(text, str):
+                raise ValueError("not a string")
+            raw = base64.b64decode(text, validate=True)
+            if not raw or len(raw) % (8 * n):
+                raise ValueError("not whole samples")
+        except ValueError:  # binascii.Error too
+            return out, False
+        k = N_AXLES
+        out.extend({"t_s": r[0], "omega": r[1:1 + k], "clamp": r[1 + k:1 + 2 * k],
+                    "accel": r[n - 3], "ref_speed": r[n - 2], "car_mass": r[n - 1]}
+                   for r in np.frombuffer(raw, dtype="<f8").reshape(-1, n).tolist())
+    return out, True
 
 
 def _floats(v: Any) -> list[float]:

@@ -443,7 +443,8 @@ def _f64(values: Any) -> np.ndarray:
 
 
 def fleet_sensor_samples(msg: FleetBrakeSensorData, topic: str, index: Mapping[str, int],
-                         n_axles: int, b: Bounds, lists: bool = False
+                         n_axles: int, b: Bounds, lists: bool = False,
+                         rows: list[bytes] | None = None
                          ) -> list[tuple[str | None, float, dict[str, Any] | Rejected]]:
     """Validate a FleetBrakeSensorData; return per sample ``(train, stamp, sample)``.
 
@@ -460,7 +461,10 @@ def fleet_sensor_samples(msg: FleetBrakeSensorData, topic: str, index: Mapping[s
     those too).  The sample dicts are those of :func:`sensor_from_msg` (``omega``, ``clamp``
     float arrays of ``n_axles``; ``car_mass`` NaN when not finite).  With ``lists`` they
     are float lists instead (a sample dict is then its own JSON round trip: the
-    ``brake_diagnostic`` node journals it as it is, issue 13).
+    ``brake_diagnostic`` node journals it as it is, issue 13).  ``rows``: a list that gets
+    each sample's values in binary, one ``bytes`` per returned entry (little-endian float64
+    ``t_s``, ``omega``, ``clamp``, ``accel``, ``ref_speed``, ``car_mass``, the sample dict's
+    values bit for bit; meaningless for a rejected sample): the node's packed journal lines.
     """
     ns = np.frombuffer(msg.stamp_ns, dtype=np.int64) if isinstance(msg.stamp_ns, array.array) \
         else np.asarray(msg.stamp_ns, dtype=np.int64).reshape(-1)
@@ -519,6 +523,16 @@ def fleet_sensor_samples(msg: FleetBrakeSensorData, topic: str, index: Mapping[s
     tl, al, vl = t.tolist(), acc.tolist(), vref.tolist()
     ml = np.where(np.isfinite(mass), mass, np.nan).tolist()
     badl, whichl = bad.tolist(), which.tolist()
+    if rows is not None:
+        full = np.empty((n, 4 + 2 * n_axles), dtype="<f8")
+        full[:, 0] = t
+        full[:, 1:1 + 2 * n_axles] = x[:, :2 * n_axles]
+        full[:, -3] = acc
+        full[:, -2] = vref
+        full[:, -1] = np.where(np.isfinite(mass), mass, np.nan)
+        data = full.tobytes()
+        k = full.shape[1] * 8
+        rows.extend([data[i:i + k] for i in range(0, n * k, k)])
     for s in range(n):
         j = whichl[s]
         tid = ids[j]

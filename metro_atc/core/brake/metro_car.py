@@ -41,7 +41,7 @@ from numpy.typing import ArrayLike
 
 from metro_atc.core.brake import diagnosis as dg
 from metro_atc.core.brake.metro_kernel import MetroUKF, kernel_enabled
-from metro_atc.core.brake.ukf import UKF, BatchUKF
+from metro_atc.core.brake.ukf import UKF, BatchUKF, symmetrize
 from metro_atc.core.line.adhesion import AdhesionCurve
 
 G = 9.80665
@@ -736,13 +736,13 @@ class MetroBrakeObserver:
             self.ukf = self._ukf_template = make(self.p, self.dt, v0, self.tuning, self.noise,
                                                  omega0)
         else:  # the same filter as make_metro_ukf builds, its models and weights reused
-            if self._p0 is None:
-                self._p0 = metro_prior(self.p, self.tuning, v0, omega0)[1]
+            if self._p0 is None:  # (symmetrised once: restarted takes it as it is)
+                self._p0 = symmetrize(metro_prior(self.p, self.tuning, v0, omega0)[1])
             x0 = np.zeros(M_NX)  # metro_prior's mean (its covariance does not change)
             x0[M_IV] = v0
             x0[M_IW] = v0 / self.p.r_w if omega0 is None else omega0
             x0[M_IMUB] = self.p.mu_b
-            self.ukf = self._ukf_template.restarted(x0, self._p0)
+            self.ukf = self._ukf_template.restarted(x0, self._p0, symmetric=True)
         self.decision.restart()
         self.counters.resets += 1
 

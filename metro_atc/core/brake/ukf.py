@@ -28,7 +28,6 @@ All quantities are in the caller's SI units.
 """
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
 from typing import Callable, Optional
 
@@ -183,16 +182,18 @@ class UKF:
         self.p_max_diag = None if p_max_diag is None else np.asarray(p_max_diag, dtype=float)
         self.n_rejected = 0
 
-    def restarted(self, x0: FloatArray, p0: FloatArray) -> "UKF":
+    def restarted(self, x0: FloatArray, p0: FloatArray, symmetric: bool = False) -> "UKF":
         """A new filter at ``(x0, P0)`` with this one's models, noises, weights and caps.
 
         Equal to constructing a :class:`UKF` with the same arguments (the weights and the
         sigma-point selector depend on L and the UT parameters only), without recomputing
-        them; this filter is not changed.
+        them; this filter is not changed.  ``symmetric``: ``p0`` is already its own
+        :func:`symmetrize` (copied as it is; issue 13: a restart per 1 Hz heartbeat sample).
         """
-        new = copy.copy(self)
+        new = object.__new__(type(self))  # copy.copy's shallow copy, without its protocol
+        new.__dict__.update(self.__dict__)
         new.x = np.array(x0, dtype=float)
-        new.p = symmetrize(np.array(p0, dtype=float))
+        new.p = np.array(p0, dtype=float) if symmetric else symmetrize(np.array(p0, dtype=float))
         new.n_rejected = 0
         return new
 
