@@ -146,7 +146,7 @@ def test_kernel_selection(monkeypatch: pytest.MonkeyPatch) -> None:
         resolve_kernel("fortran")
     monkeypatch.setenv(KERNEL_ENV, "auto")
     assert resolve_kernel() == ("numba" if numba_available() else "numpy")
-    monkeypatch.setattr("metro_atc.core.plant.fast.numba_available", lambda: False)
+    monkeypatch.setattr("metro_atc.core.kernel_choice.numba_available", lambda: False)
     assert resolve_kernel("auto") == "numpy"
     with pytest.raises(RuntimeError):
         resolve_kernel("numba")

@@ -31,9 +31,6 @@ Profile systems (seed 002 Sec. 1):
 
 from __future__ import annotations
 
-import functools
-import importlib.util
-import os
 import weakref
 from dataclasses import dataclass, field
 from typing import Optional
@@ -43,6 +40,7 @@ from numpy.typing import NDArray
 
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, OperatingLimits, RunModel
 from metro_atc.core.ato.strategy import strategy_step
+from metro_atc.core.kernel_choice import resolve_kernel
 from metro_atc.core.line.vehicle import TrainParams
 
 FloatArray = NDArray[np.float64]
@@ -72,27 +70,13 @@ PLAN_KERNEL_ENV = "METRO_ATC_PLAN_KERNEL"
 """Environment variable selecting the kernel of :func:`simulate_switching`."""
 
 
-@functools.lru_cache(maxsize=1)
-def _numba_installed() -> bool:
-    return importlib.util.find_spec("numba") is not None
-
-
 def resolve_plan_kernel(name: Optional[str] = None) -> str:
     """``numba`` or ``numpy`` for the requested kernel (argument, else env, else auto).
 
     ``auto``: the compiled loop of :mod:`metro_atc.core.ato.switching_kernel` when numba is
     installed, else the numpy reference (:func:`simulate_switching_numpy`).
     """
-    req = (name or os.environ.get(PLAN_KERNEL_ENV, "") or "auto").strip().lower()
-    if req not in PLAN_KERNELS:
-        raise ValueError(f"plan kernel must be one of {PLAN_KERNELS}, got {req!r}")
-    if req == "numpy":
-        return "numpy"
-    if not _numba_installed():
-        if req == "numba":
-            raise RuntimeError("plan kernel 'numba' requested but numba is not installed")
-        return "numpy"
-    return "numba"
+    return resolve_kernel(name, PLAN_KERNEL_ENV, "numpy", "plan kernel")
 
 
 @dataclass(frozen=True)

@@ -9,14 +9,13 @@ methods (``AtoCore.kernel_constants`` / ``kernel_plan``, ``OnboardAto``'s own ta
 
 from __future__ import annotations
 
-import os
 from typing import Optional, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from metro_atc.core.ato import control_kernel as ck
-from metro_atc.core.ato.step_kernel import numba_available
+from metro_atc.core.kernel_choice import resolve_kernel
 from metro_atc.core.line.vehicle import TrainParams
 
 FloatArray = NDArray[np.float64]
@@ -29,16 +28,7 @@ KERNELS = ("auto", "numba", "python")
 
 def resolve_ato_kernel(name: Optional[str] = None) -> str:
     """``numba`` or ``python`` for the requested kernel (argument, else env, else auto)."""
-    req = (name or os.environ.get(KERNEL_ENV, "") or "auto").strip().lower()
-    if req not in KERNELS:
-        raise ValueError(f"ATO kernel must be one of {KERNELS}, got {req!r}")
-    if req == "python":
-        return "python"
-    if not numba_available():
-        if req == "numba":
-            raise RuntimeError("ATO kernel 'numba' requested but numba is not installed")
-        return "python"
-    return "numba"
+    return resolve_kernel(name, KERNEL_ENV, "python", "ATO kernel")
 
 
 def traction_terms(train: TrainParams) -> list[float]:

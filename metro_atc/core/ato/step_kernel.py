@@ -14,7 +14,6 @@ Compiled with numba when it is installed (:func:`jit`), plain Python otherwise.
 
 from __future__ import annotations
 
-import importlib.util
 import math
 from typing import Any, Callable
 
@@ -22,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from metro_atc.core.ato.envelope import MODE_COAST, MODE_CRUISE, OperatingLimits
+from metro_atc.core.kernel_choice import numba_available
 from metro_atc.core.line.vehicle import TrainParams
 
 FloatArray = NDArray[np.float64]
@@ -30,11 +30,6 @@ FloatArray = NDArray[np.float64]
  N_CONST) = range(14)
 
 TINY = 1e-12
-
-
-def numba_available() -> bool:
-    """True when numba can be imported (else the kernels run as plain Python)."""
-    return importlib.util.find_spec("numba") is not None
 
 
 def jit(fn: Callable[..., Any]) -> Callable[..., Any]:

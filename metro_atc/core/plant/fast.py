@@ -11,14 +11,14 @@ reference the compiled one is tested against (golden traces, generated lines).
 from __future__ import annotations
 
 import copy
-import importlib.util
-import os
 import time
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from metro_atc.core.kernel_choice import numba_available
+from metro_atc.core.kernel_choice import resolve_kernel as choose_kernel
 from metro_atc.core.line.rolling_stock import KMH
 
 from .atp import CIVIL_TOL_MPS
@@ -38,23 +38,9 @@ KERNEL_ENV = "METRO_ATC_PLANT_KERNEL"
 """Environment variable selecting the kernel when ``LineSim`` is not told."""
 
 
-def numba_available() -> bool:
-    """True when numba can be imported."""
-    return importlib.util.find_spec("numba") is not None
-
-
 def resolve_kernel(name: str | None = None) -> str:
     """``numba`` or ``numpy`` for the requested kernel (argument, else env, else auto)."""
-    req = (name or os.environ.get(KERNEL_ENV, "") or "auto").strip().lower()
-    if req not in KERNELS:
-        raise ValueError(f"plant kernel must be one of {KERNELS}, got {req!r}")
-    if req == "numpy":
-        return "numpy"
-    if not numba_available():
-        if req == "numba":
-            raise RuntimeError("plant kernel 'numba' requested but numba is not installed")
-        return "numpy"
-    return "numba"
+    return choose_kernel(name, KERNEL_ENV, "numpy", "plant kernel")
 
 
 class FastSensors(Sensors):
