@@ -21,10 +21,11 @@ from metro_atc.core.ato import control_kernel_pack as pack
 from metro_atc.core.ato.onboard import OnboardAto, atp_model_for, envelope_limits, tsr_zones
 from metro_atc.core.bridge import timetable_for, track_for, train_for
 from metro_atc.core.closed_loop import run_closed_loop
+from metro_atc.core.kernel_choice import numba_available
 from metro_atc.core.line.scenario import Scenario, load_scenario
 from metro_atc.core.linegen import load_generated
 
-pytestmark = pytest.mark.skipif(not pack.numba_available(), reason="numba not installed")
+pytestmark = pytest.mark.skipif(not numba_available(), reason="numba not installed")
 
 
 def _record(scn: Scenario, kernel: str, duration_s: float,
