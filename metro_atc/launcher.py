@@ -321,12 +321,12 @@ def start_zygote(executables: Sequence[str]) -> Zygote | None:
     return Zygote(list(executables), node_env())
 
 
-def _signal_all(procs: Sequence[tuple[str, Proc]], sig: int = signal.SIGTERM) -> None:
-    """Send ``sig`` to the process group of every process still running."""
+def _signal_all(procs: Sequence[tuple[str, Proc]]) -> None:
+    """Send SIGTERM to the process group of every process still running."""
     for _, p in procs:
         if p.poll() is None:
             try:
-                os.killpg(p.pid, sig)
+                os.killpg(p.pid, signal.SIGTERM)
             except ProcessLookupError:
                 pass
 

@@ -27,8 +27,8 @@ sample instant on average over 1 800 s), so batching the filters across trains w
 batch nothing; the per-sample costs are cut instead: one message per step for all trains,
 validated in one vectorised pass (:func:`metro_atc.nodes.conversions.fleet_sensor_samples`,
 its samples as float lists that are their own journal entries, and their values packed),
-a burst's samples of a train one journal line (:func:`packed_entries`) written once, a
-standing or slow train's sample (most of them) counted by
+each sample one packed journal line (:func:`packed_entries`), a train's lines of a burst
+written at once, a standing or slow train's sample (most of them) counted by
 :meth:`TrainBrakeWatch.feed_paused`, the per-axle arithmetic of the watch and the observer
 done on plain floats (issue 13: ``test/brake_replay.py`` replays a run's batches bit for
 bit against the code before).
@@ -60,9 +60,9 @@ state this node runs, also used by the ROS-free closed loop).
 
 **Restart.**  With ``checkpoint_dir`` every sample handed to a train's observer (and every
 rejected one, for the counters) is appended to ``<checkpoint_dir>/brake_<train>.jsonl``
-(:class:`metro_atc.core.journal.Journal`; the samples of a burst in one line,
-:func:`packed_entries`: their floats in binary, base64, ~5x cheaper than a JSON line per
-sample; lines of one JSON sample each are read too).  A restarted node replays the journals
+(:class:`metro_atc.core.journal.Journal`; one line per sample, :func:`packed_entries`:
+its floats in binary, base64, ~5x cheaper than its JSON; lines of a JSON sample each, and
+lines of several packed samples, are read too).  A restarted node replays the journals
 into fresh observers: the UKF, the decision logic and the counters are where they were.
 When the simulator resumes from a checkpoint and sends again a sample the journal holds
 (same stamp, same channels), the train's observer is rebuilt from the journal up to that

@@ -878,8 +878,6 @@ class LineSimulator(Node):
             for i, m in conv.state_msgs(self.ids, np.flatnonzero(per_train), self.sim.states(),
                                         self.k, t):
                 self.state_pubs[i].publish(m)
-        # the trains dwelling at step k (mode, service and station change only in a step)
-        self._dwelling = (self.k, dwelling_in_service(self.sim))
         return active
 
     def _state_read(self, mask: np.ndarray) -> np.ndarray:

@@ -23,47 +23,42 @@ FLEET_KEYS = ("x_m", "v_mps", "a_mps2", "current_station", "next_station", "mode
 """The keys of :func:`plant_states` that :func:`fleet_state_rows` gives."""
 
 
-def target_departure(sim: Any, rows: Any = None) -> NDArray[np.float64]:
-    """Commanded (else scheduled) departure time from each train's current station [s].
+def target_departure(sim: Any, rows: NDArray[np.intp]) -> NDArray[np.float64]:
+    """Commanded (else scheduled) departure time from the current station [s].
 
-    ``rows``: those trains only (indices), in that order; None: every train.
+    ``rows``: the trains (indices), in that order.
     """
-    cur = sim.fleet.cur_station if rows is None else sim.fleet.cur_station[rows]
-    j = np.minimum(np.maximum(cur, 0), sim.n_st - 1)
-    r = np.arange(sim.n) if rows is None else rows
-    dep = sim.stations.cmd_dep[r, j]
-    return np.where(np.isfinite(dep), dep, sim.service.sched_dep[r, j])
+    j = np.minimum(np.maximum(sim.fleet.cur_station[rows], 0), sim.n_st - 1)
+    dep = sim.stations.cmd_dep[rows, j]
+    return np.where(np.isfinite(dep), dep, sim.service.sched_dep[rows, j])
 
 
-def target_running_time(sim: Any, rows: Any = None) -> NDArray[np.float64]:
-    """Commanded (else scheduled) running time to each train's next station [s]."""
-    cur = sim.fleet.cur_station if rows is None else sim.fleet.cur_station[rows]
-    j = np.minimum(np.maximum(cur, 0), sim.n_st - 2)
-    r = np.arange(sim.n) if rows is None else rows
-    rt = sim.stations.cmd_rt[r, j]
+def target_running_time(sim: Any, rows: NDArray[np.intp]) -> NDArray[np.float64]:
+    """Commanded (else scheduled) running time to the next station of trains ``rows`` [s]."""
+    j = np.minimum(np.maximum(sim.fleet.cur_station[rows], 0), sim.n_st - 2)
+    rt = sim.stations.cmd_rt[rows, j]
     return np.where(np.isfinite(rt), rt, sim.service.sched_running_s[j])
 
 
 def plant_states(sim: Any) -> dict[str, Any]:
-    """Per-train state arrays (copies); ``mode`` uses the TrainState.MODE_* values."""
+    """Per-train state arrays (copies); ``mode`` uses the TrainState.MODE_* values.
+
+    The :data:`FLEET_KEYS` arrays are :func:`fleet_state_rows` of every train (one formula
+    for both); the others are copies of the components' arrays.
+    """
     fl, atp = sim.fleet, sim.atp
-    run = fl.run
+    f = fleet_state_rows(sim, np.arange(sim.n))
     return {
-        "x_m": np.where(fl.status == DONE, fl.x_done, fl.x),
-        "v_mps": fl.v.copy(), "a_mps2": fl.acc.copy(),
-        "mode": fl.modes(atp.eb, atp.sb), "current_station": fl.cur_station.copy(),
-        "next_station": np.where(run | (fl.status == WAIT),
-                                 np.where(fl.next_stop < sim.n_st, fl.next_stop, -1),
-                                 -1),
+        "x_m": f["x_m"], "v_mps": f["v_mps"], "a_mps2": f["a_mps2"], "mode": f["mode"],
+        "current_station": f["current_station"], "next_station": f["next_station"],
         "traction_energy_j": sim.energy.e_trac.copy(),
         "regen_energy_j": sim.energy.e_regen.copy(),
-        "atp_limit_mps": np.maximum(atp.atp_limit, 0.0),
-        "movement_authority_m": atp.eoa.copy(),
+        "atp_limit_mps": f["atp_limit_mps"], "movement_authority_m": f["movement_authority_m"],
         "speed_code_mps": atp.speed_code.copy(),
         "atp_interventions": atp.interventions.copy(), "load_pax": fl.load.copy(),
-        "in_service": run.copy(),
-        "target_running_time_s": target_running_time(sim),
-        "departure_time_s": target_departure(sim),
+        "in_service": fl.run.copy(),
+        "target_running_time_s": f["target_running_time_s"],
+        "departure_time_s": f["departure_time_s"],
     }
 
 
