@@ -628,12 +628,35 @@ def _fuzz_value(rng: Any, kind: str, train: str) -> Any:
     raise AssertionError(kind)
 
 
+_GRID_NS = 250_000_000
+"""The mini line's control period [ns]: every lockstep time is a multiple of it."""
+
+
+def _off_grid_ns(rng: Any) -> int:
+    """A random nanosecond field at least 5 ms away from every multiple of 0.25 s.
+
+    A fuzz message is hostile input: it must break a rule the nodes check.  With a stamp on
+    the step grid (once: stamp 0, step 0, a valid train, mode and effort) a fuzzed command
+    was a valid command for step 0 -- which the simulator cannot tell from its ATO's (DDS
+    does not authenticate writers), and the last stop's CI run took it (energy and
+    separation changed at round-off).  A command or fleet state carries its time twice (the
+    stamp and the step, agreeing to 1e-6 relative: 3 ms at the largest random second, 3 000
+    s), so an off-grid stamp breaks that rule whatever the other fields draw; a departure or
+    event must agree with its own time field, drawn continuously (a match: < 1e-7 per
+    message).  The other fields stay fully random.
+    """
+    while True:
+        ns = int(rng.integers(0, 10 ** 9))
+        if min(ns % _GRID_NS, _GRID_NS - ns % _GRID_NS) >= 5_000_000:
+            return ns
+
+
 def _fuzz_msg(rng: Any, msg_type: Any, fields: dict[str, str], train: str) -> Any:
     from builtin_interfaces.msg import Time
 
     m = msg_type()
     sec = int(_pick(rng, [0, 1, -2 ** 31, 2 ** 31 - 1, int(rng.integers(0, 3000))]))
-    nsec = int(_pick(rng, [0, 2 ** 32 - 1, int(rng.integers(0, 10 ** 9))]))
+    nsec = int(_pick(rng, [2 ** 32 - 1, _off_grid_ns(rng)]))
     m.header.stamp = Time(sec=sec, nanosec=nsec)
     for name, kind in fields.items():
         setattr(m, name, _fuzz_value(rng, kind, train))

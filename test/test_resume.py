@@ -280,7 +280,13 @@ def test_brake_diagnosis_equals_the_uninterrupted_run(runs: dict[str, Any]) -> N
     ref = _brake_summary(runs["results"]["reference"]["logs"]["brake_diagnostic"])
     text = runs["results"]["brake_ats"]["logs"]["brake_diagnostic"]
     assert "restarted: replayed" in text, text
-    assert "observer rebuilt from the journal" in text, text
+    # the simulator sent its kept samples again to the new reader; whether they reach back
+    # into what the killed node had journaled (then "observer rebuilt from the journal") or
+    # start after it depends on where the kill fell between a journal write and its
+    # acknowledgement (CI once saw the latter): the rebuild itself is proven in process,
+    # test_brake_journal::test_a_resend_overlapping_the_journal_rebuilds_to_the_same_state
+    sim = runs["results"]["brake_ats"]["logs"]["line_simulator"]
+    assert "kept brake sensor samples again to a new reader" in sim, sim
     assert "out of order" not in text, text
     got = _brake_summary(text)
     assert ref and set(ref) == set(got), (ref, got)
