@@ -46,7 +46,7 @@ from typing import Any, Sequence, Union
 
 import numpy as np
 
-from metro_atc.dds import config_dir, dds_defaults
+from metro_atc.dds import clean_killed_shm, config_dir, dds_defaults
 from metro_atc.process_watch import PARENT_PID_ENV
 from metro_atc.zygote import Client as Zygote
 from metro_atc.zygote import Forked
@@ -673,6 +673,7 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
     finished = Path(plans) / "line_simulator.finished"
     commands = dict(build_commands(a, train_ids, out_dir, plans, str(finished)))
     respawns = {label: 0 for label in commands}
+    killed = 0  # processes that died by SIGKILL (their DDS shared memory stays behind)
     forks = {label for label, argv in commands.items() if forkable(argv)}
     if zygote is None and forks:
         zygote = start_zygote(sorted({os.path.basename(commands[x][0]) for x in forks}))
@@ -714,6 +715,8 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
                 n, label, rc = failed[0]
                 why = f"killed by {signal.Signals(-rc).name}" if rc < 0 and \
                     -rc in signal.valid_signals() else _last_error_line(log_dir / f"{label}.log")
+                if rc == -signal.SIGKILL:
+                    killed += 1
                 if respawns[label] < a.respawn_limit and rc != 2:
                     respawns[label] += 1
                     print(f"metro_atc run: {label} exited with {rc} ({why}); restarting it "
@@ -764,6 +767,11 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
         shutil.rmtree(plans, ignore_errors=True)
         if zygote is not None:
             zygote.close()
+        if killed or any(p.returncode == -signal.SIGKILL for _, p in procs):
+            cleaned = clean_killed_shm()
+            if cleaned:
+                print(f"metro_atc run: removed {cleaned} Fast DDS shared-memory segments of "
+                      "killed processes (fastdds shm clean)", file=sys.stderr)
     if code == 0:
         # the rest of the graph was stopped by SIGTERM: a node that then fails (or a recorder
         # that could not close its bag) still fails the run

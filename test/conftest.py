@@ -48,6 +48,13 @@ def background_jobs(request: pytest.FixtureRequest, tmp_path_factory: pytest.Tem
         _JOB_SUMMARIES.extend(sched.close())
 
 
+def pytest_sessionfinish(session: Any, exitstatus: int) -> None:
+    """Remove the Fast DDS shared memory of the node processes the tests killed."""
+    from metro_atc.dds import clean_killed_shm
+
+    clean_killed_shm()
+
+
 def pytest_terminal_summary(terminalreporter: Any) -> None:
     """With ``-v`` or ``--durations``: how each background job ran."""
     cfg = terminalreporter.config

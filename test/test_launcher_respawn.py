@@ -44,10 +44,14 @@ def test_a_killed_node_is_restarted_once(monkeypatch: pytest.MonkeyPatch, tmp_pa
                  f"if not m.exists():\n"
                  f"    m.write_text('x'); os.kill(os.getpid(), signal.SIGKILL)\n"
                  f"time.sleep(30)\n")
+    cleans: list[int] = []
+    monkeypatch.setattr(launcher, "clean_killed_shm", lambda: cleans.append(1) or 3)
     code, err = _run(monkeypatch, tmp_path, node, 2, capsys)
     assert code == 0, err
     assert err.count("restarting it") == 1, err
     assert "ats_regulator exited with -9 (killed by SIGKILL); restarting it (1 of 2)" in err
+    # the killed process's DDS shared memory is cleaned once, at the end
+    assert cleans == [1] and "removed 3 Fast DDS shared-memory segments" in err, err
     pids: dict[str, Any] = json.loads((tmp_path / "logs" / "pids.json").read_text())
     assert set(pids) == {"line_simulator", "ats_regulator"}
 
@@ -56,6 +60,7 @@ def test_beyond_the_limit_the_run_fails(monkeypatch: pytest.MonkeyPatch, tmp_pat
                                         capsys: pytest.CaptureFixture[str]) -> None:
     """A node that always crashes is restarted ``limit`` times, then the run exits 3."""
     node = _node("print('error: boom'); raise SystemExit(1)")
+    monkeypatch.setattr(launcher, "clean_killed_shm", lambda: pytest.fail("nothing killed"))
     code, err = _run(monkeypatch, tmp_path, node, 2, capsys)
     assert code == launcher.EXIT_NODE_FAILED, err
     assert "(1 of 2)" in err and "(2 of 2)" in err and "(3 of 2)" not in err, err
