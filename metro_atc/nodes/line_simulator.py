@@ -68,10 +68,12 @@ from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_EVENTS,
                                     QOS_FLEET_SENSOR, QOS_LATCHED, QOS_LATCHED_IN,
                                     QOS_RELIABLE, QOS_SENSOR, OK, WARN, NodeConfigError,
                                     RuntimeParams,
-                                    SubscriptionPoller, bulk_publisher, bulk_subscription,
+                                    bulk_publisher, bulk_subscription,
                                     subscriber_gids,
                                     diag_status, run_nodes, spin_until_stopped, static,
                                     stop_requested)
+from metro_atc.nodes.sim_domain import LINGER_S, linger
+from metro_atc.nodes.sim_lockstep import RECORDER_SYNC_STEPS, lockstep_loop
 
 
 _REGULATOR_NAMES = {code: name for name, code in conv.REGULATOR_CODES.items()}
@@ -81,20 +83,6 @@ CHECKPOINT_FILE = "line_simulator.npz"
 """The simulator's checkpoint in ``checkpoint_dir`` (replaced atomically)."""
 STARTED_MARKER = "line_simulator.started"
 """Written in ``checkpoint_dir`` at the first start: a process that finds it is a respawn."""
-ALONE_CHECK_S = 10.0
-"""Wall seconds after its first start in which the simulator looks for another
-``line_simulator`` publishing ``/line/fleet_state`` on its ROS domain (two graphs on one
-domain answer each other's lockstep: refused, not run).  A respawn skips the look: the killed
-process's endpoints stay in the discovery data until their lease expires."""
-ALONE_LINGER_S = 15.0
-"""Wall seconds at most that a simulator which found another one stays on the domain before
-it exits: it leaves as soon as every other simulator it sees has refused too (or left)."""
-REFUSED_TOPIC = "/line/simulator_refused"
-"""A refusing simulator publishes one DiagnosticStatus (ERROR, the refusal) here, latched: the
-other simulator of the domain sees that it was seen (the refusal handshake of
-:meth:`LineSimulatorNode.check_alone`)."""
-REFUSED_POLL_S = 0.1
-"""Wall seconds between two looks at the graph while a refusing simulator lingers."""
 DEPARTURE_JOURNAL = "line_simulator_departures.jsonl"
 """Departure commands applied, one JSON line each (step, train, station, values)."""
 RESEND_BATCH = 64
@@ -108,21 +96,6 @@ sample (a live, idle reader: its periodic diagnosis came again with that stamp) 
 sensor readers stayed the same, before the samples after it are published again (the last
 samples of a best-effort stream can be lost). A reader busy catching up publishes nothing;
 a dead one neither."""
-RECORDER_SYNC_STEPS = 250
-"""While a recorder is waited for (``wait_for_subscribers``), every this many steps the
-lockstep waits until every reliable reader acknowledged what was published: half the
-500-state writer history, so a recorder slower than the graph loses no state (issue 13:
-with the fast tracker the graph outruns a recording node)."""
-ECHO_PERIOD_S = 0.25
-"""Wall period of the poll of the per-train command echoes, speed profiles, brake diagnoses
-and the departure commands the lockstep does not wait for [s] (none is on the lockstep's
-path: a departure command becomes waited for once its train dwells)."""
-EXECUTOR_PERIOD_S = 0.25
-"""Wall period of the executor spin in the node's own process (parameter services, the
-/diagnostics timer) [s]."""
-FLEET_RESEND_S = 2.0
-"""Lockstep: wall time without every command of the step before the fleet-state entries
-of the trains not answered are published again [s] (a state lost with a killed ATO)."""
 NODE_STATE = ("k", "cmd_step", "cmd_effort", "lockstep_misses", "rejected", "rejections",
               "event_seq", "sensor_last_t", "dep_received", "dep_given_up", "ats_misses",
               "_next_status_t", "_next_progress_t", "regulators", "planners", "planned",
@@ -269,7 +242,7 @@ class LineSimulator(Node):
             "on /line/brake_sensors (0: one message per step with samples; the last batch "
             "goes out at a checkpoint and at the end of the run)", 0.0, 3600.0)
         self._next_progress_t = self.progress_period_s
-        self._wall0 = time.monotonic()
+        self.wall0 = time.monotonic()
         try:
             scn = load_scenario(self.scenario_name)
         except ScenarioError as exc:
@@ -729,54 +702,6 @@ class LineSimulator(Node):
             "trains_in_service": int(np.count_nonzero(self.sim.active_mask()))})]
 
     # ------------------------------------------------------------------ stepping
-    def check_alone(self) -> None:
-        """Raise :class:`NodeConfigError` when another simulator shares this ROS domain.
-
-        Another ``line_simulator`` publishing the fleet state is a second graph: its ATOs
-        would answer this lockstep.  Discovery is not symmetric in time (one simulator may
-        see the other seconds before it is seen), so a refusing simulator says so on
-        :data:`REFUSED_TOPIC` and stays on the domain until every other simulator it sees
-        has refused too or left (at most :data:`ALONE_LINGER_S`): both runs refuse.
-        """
-        if self._other_simulators(self.fleet_pub.topic_name) == 0:
-            return
-        reason = (f"another {self.get_name()} publishes {self.fleet_pub.topic_name} on "
-                  f"ROS_DOMAIN_ID={self.context.get_domain_id()}: a second graph on this "
-                  "domain; give each run its own ROS_DOMAIN_ID")
-        self.get_logger().error(reason)
-        refused = self.create_publisher(DiagnosticStatus, REFUSED_TOPIC, QOS_LATCHED)
-        refused.publish(DiagnosticStatus(level=DiagnosticStatus.ERROR, name=self.get_name(),
-                                         message=reason))
-        deadline = time.monotonic() + ALONE_LINGER_S
-        while time.monotonic() < deadline:
-            others = self._other_simulators(self.fleet_pub.topic_name)
-            if others == 0 or self._other_simulators(REFUSED_TOPIC) >= others:
-                break
-            time.sleep(REFUSED_POLL_S)
-        raise NodeConfigError(reason)
-
-    def check_not_refused(self) -> None:
-        """Raise :class:`NodeConfigError` when another simulator refused to run beside this one.
-
-        Checked once a wall second after :data:`ALONE_CHECK_S`: a loaded machine may let
-        the other simulator see this one only after this one's own look ended (seen once
-        in CI: the other refused, this one ran to the end).
-        """
-        if self._other_simulators(REFUSED_TOPIC) == 0:
-            return
-        raise NodeConfigError(
-            f"another {self.get_name()} on ROS_DOMAIN_ID={self.context.get_domain_id()} "
-            f"refused to run beside this one (it found this one publishing "
-            f"{self.fleet_pub.topic_name}): a second graph on this domain; give each run "
-            "its own ROS_DOMAIN_ID")
-
-    def _other_simulators(self, topic: str) -> int:
-        """Publishers of ``topic`` by a node of this simulator's name other than this one."""
-        same = [i for i in self.get_publishers_info_by_topic(topic)
-                if i.node_name == self.get_name() and i.node_namespace == self.get_namespace()]
-        own = 1 if any(p.topic_name == topic for p in self.publishers) else 0
-        return max(0, len(same) - own)
-
     def graph_ready(self) -> bool:
         """Every train has an ATO, the ATS and the brake diagnosis connected.
 
@@ -1048,7 +973,7 @@ class LineSimulator(Node):
         t = float(self.sim.t)
         if t >= self._next_progress_t:
             self._next_progress_t += self.progress_period_s
-            wall = time.monotonic() - self._wall0
+            wall = time.monotonic() - self.wall0
             self.get_logger().info(
                 f"t={t:.0f} s: {int(np.count_nonzero(self.sim.active_mask()))} trains in "
                 f"service, {self.lockstep_misses} lockstep misses, "
@@ -1361,195 +1286,6 @@ def _nan_key(key: tuple[Any, ...]) -> tuple[Any, ...]:
 def _read_journal(path: Path) -> list[dict[str, Any]]:
     """The departure journal's entries (a torn or foreign line ends it)."""
     return read_entries(path, lambda e, _: bool((_journal_key(e), int(e["k"]))))
-
-
-def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
-                  fast_path: bool = True) -> None:
-    """Drive the simulator: lockstep on commands, or free-run paced at the real-time factor.
-
-    With ``fast_path`` (the node's own process) commands and departure commands are taken by
-    a :class:`SubscriptionPoller`, the per-train command echoes and the speed profiles by
-    another every :data:`ECHO_PERIOD_S` of wall time; everything else on ``executor``
-    (parameter services, the /diagnostics timer) is spun every :data:`EXECUTOR_PERIOD_S`.
-    Without it (the single-process graph, where other nodes' callbacks share the executor)
-    every wait is an executor spin.
-    """
-    log = sim.get_logger()
-    lock_pollers: dict[tuple[bytes, tuple[int, ...]], SubscriptionPoller] = {}
-    echo_pollers: dict[bytes, SubscriptionPoller] = {}
-
-    def poller_set() -> tuple[SubscriptionPoller, SubscriptionPoller]:
-        """Return the (lockstep, echo) pollers of the trains waited for.
-
-        The lockstep waits on the fleet commands, on the per-train commands of active
-        trains no fleet command answered yet, and on the departure commands of the trains
-        dwelling without one (the barrier waits for those).  Everything else (the
-        per-train commands of fleet-driven trains, echoes for outside tools that the fleet
-        command carried already; those of trains not in service; the speed profiles; the
-        other departure commands, sent before their train reached the station; the brake
-        diagnoses) is drained every slow period: each waited-on subscription costs every
-        wait, and waking for every echo cost more than the step (issue 13).  Made again
-        when those sets change (cached).
-        """
-        own = sim.waited_trains()
-        pend = tuple(sorted({i for i, _ in sim.pending_departures()}))
-        okey = own.tobytes()
-        lock = lock_pollers.get((okey, pend))
-        if lock is None:
-            if len(lock_pollers) > 256:
-                lock_pollers.clear()
-            lock = lock_pollers[(okey, pend)] = SubscriptionPoller(
-                sim.context, [sim.fleet_sub, *(sim.cmd_subs[i] for i in np.flatnonzero(own)),
-                              *(sim.dep_subs[i] for i in pend)])
-        return lock, echo_poller()
-
-    def echo_poller() -> SubscriptionPoller:
-        """Return the poller of everything the lockstep does not wait on (see poller_set)."""
-        own = sim.waited_trains()
-        okey = own.tobytes()
-        echo = echo_pollers.get(okey)
-        if echo is None:
-            if len(echo_pollers) > 64:
-                echo_pollers.clear()
-            echo = echo_pollers[okey] = SubscriptionPoller(
-                sim.context, [*(s for i, s in enumerate(sim.cmd_subs) if not own[i]),
-                              *sim.profile_subs, *sim.dep_subs, *sim.diag_subs])
-        return echo
-
-    def wait(timeout_s: float) -> None:
-        if fast_path:
-            poller_set()[0].poll(timeout_s)
-            slow_path()
-        else:
-            executor.spin_once(timeout_sec=timeout_s)
-
-    t0 = time.monotonic()
-    alone_until = t0 + ALONE_CHECK_S if sim.first_start else t0
-    next_alone = t0  # the graph query costs: once a second, as in the stepping loop
-    while not sim.graph_ready() and time.monotonic() - t0 < sim.startup_timeout_s:
-        if stop_requested():
-            return
-        executor.spin_once(timeout_sec=0.05)
-        now = time.monotonic()
-        if next_alone <= now < alone_until:
-            next_alone = now + 1.0
-            sim.check_alone()
-    if not sim.graph_ready():
-        log.warning("startup: not every ATO/ATS endpoint was discovered; starting anyway")
-    log.info(f"graph ready after {time.monotonic() - t0:.2f} s")
-    sim.started = True
-    sim.new_subscribers(np.ones(len(sim.ids), dtype=bool))
-    sim.resend_sensors()  # the readers of step 0: nothing kept yet, nothing sent
-    next_sensor_check = time.monotonic() + 1.0
-    sim.new_fleet_subscribers()
-    wall0, sim0 = time.monotonic(), float(sim.sim.t)
-    sim._wall0 = wall0
-    k0 = int(sim.k)  # the first step of this loop (a resumed run's is not 0)
-    last_slow = time.monotonic()
-
-    last_executor = time.monotonic()
-
-    def slow_path(force: bool = False) -> None:
-        nonlocal last_slow, last_executor
-        now = time.monotonic()
-        if force or now - last_slow >= ECHO_PERIOD_S:
-            last_slow = now
-            echo_poller().poll(0.0)
-            if force or now - last_executor >= EXECUTOR_PERIOD_S:
-                # parameter services and the /diagnostics timer: each spin rebuilds the
-                # executor's wait set from all ~100 entities of the node (~1 ms)
-                last_executor = now
-                executor.spin_once(timeout_sec=0.0)
-
-    active: np.ndarray | None = None
-    while not sim.finished and not stop_requested():
-        if time.monotonic() >= next_sensor_check:
-            next_sensor_check = time.monotonic() + 1.0
-            sim.resend_sensors()
-            if time.monotonic() < alone_until:
-                sim.check_alone()
-            else:
-                sim.check_not_refused()
-        if active is None:  # else published with the step before (step_and_publish)
-            if sim.wait_for_subscribers and sim.k > 0 and sim.k % RECORDER_SYNC_STEPS == 0:
-                sim.wait_acked(timeout_s=30.0)
-            active = sim.publish_step()
-        if sim.lockstep:
-            deadline = time.monotonic() + sim.step_timeout_s
-            resend = time.monotonic() + 0.5
-            fleet_resend = time.monotonic() + FLEET_RESEND_S
-            while True:
-                # the barrier (looked at once per wake: nothing arrives between two looks)
-                complete = sim.commands_complete(active)
-                if complete or time.monotonic() >= deadline:
-                    break
-                if stop_requested():
-                    return
-                wait(0.02)
-                if time.monotonic() > resend and not sim.commands_complete(active):
-                    # a state may have been published before a late (or restarted) ATO
-                    # matched: only then, and only to that train, is it sent again
-                    resend = time.monotonic() + 0.5
-                    again = sim.new_subscribers(active)
-                    if again.any():
-                        sim.publish_states(again)
-                    if sim.new_fleet_subscribers():
-                        sim.publish_fleet_again()
-                    elif time.monotonic() >= fleet_resend:
-                        # no answer for a while: the state may have been lost with a
-                        # killed ATO process whose successor matched between two checks
-                        fleet_resend = time.monotonic() + FLEET_RESEND_S
-                        sim.publish_fleet_again(active)
-            active = sim.step_and_publish(active, timed_out=not complete)
-        else:
-            target = wall0 + (float(sim.sim.t) + sim.sim.control_period_s - sim0) / sim.rtf
-            while True:
-                rest = target - time.monotonic()
-                if rest <= 0:
-                    break
-                wait(min(rest, 0.01))
-            wait(0.0)
-            sim.advance(active, timed_out=False)
-            active = None
-        if fast_path:
-            slow_path()
-        else:
-            executor.spin_once(timeout_sec=0.0)
-    sim.flush_sensors(force=True)  # stopped by a signal: what was sampled goes out
-    sim.wait_checkpoint()
-    if sim.wait_for_subscribers:
-        sim.wait_acked()
-    if not sim.finished:
-        log.info(f"stopped by a signal at t={sim.sim.t:.1f} s, step {sim.k}")
-        return
-    sim.loop_wall_s, sim.loop_sim_s = time.monotonic() - wall0, float(sim.sim.t) - sim0
-    log.info(f"scenario finished at t={sim.sim.t:.1f} s after {sim.k} steps, "
-             f"{time.monotonic() - t0:.1f} s wall ({sim.loop_wall_s:.1f} s from step {k0})")
-    sim.drain_sensors(lambda timeout_s: executor.spin_once(timeout_sec=timeout_s))
-    executor.spin_once(timeout_sec=0.0)
-    # the other nodes may stop now (the launcher's finished_file), while this one writes
-    # its outputs; the last samples' acknowledgements are awaited after those (close)
-    sim.announce_finished()
-
-
-LINGER_S = 0.3
-"""Most wall time [s] the simulator waits at its end for its last samples to be delivered."""
-
-
-def linger(node: Node, limit_s: float) -> bool:
-    """Wait until every matched reader acknowledged the node's samples; True if all did.
-
-    The last events and statuses reach their subscribers before the process exits (a
-    reliable writer destroyed earlier takes its unacknowledged samples with it); at most
-    ``limit_s`` [s] of wall time (a reader that stopped acknowledging). Best-effort writers
-    have nothing to wait for. This used to be a fixed 0.3 s of executor spinning.
-    """
-    end = time.monotonic() + float(limit_s)
-    for pub in node.publishers:
-        left = end - time.monotonic()
-        if left <= 0.0 or not pub.wait_for_all_acked(Duration(seconds=left)):
-            return False
-    return True
 
 
 def main(args: Sequence[str] | None = None) -> int:
