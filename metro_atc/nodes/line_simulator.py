@@ -34,11 +34,10 @@ import math
 import os
 import threading
 import time
-from collections import deque
 from functools import partial
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any, NamedTuple, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -68,12 +67,11 @@ from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_EVENTS,
                                     QOS_FLEET_SENSOR, QOS_LATCHED, QOS_LATCHED_IN,
                                     QOS_RELIABLE, QOS_SENSOR, OK, WARN, NodeConfigError,
                                     RuntimeParams,
-                                    bulk_publisher, bulk_subscription,
-                                    subscriber_gids,
-                                    diag_status, run_nodes, spin_until_stopped, static,
-                                    stop_requested)
+                                    bulk_publisher, bulk_subscription, diag_status,
+                                    run_nodes, spin_until_stopped, static)
 from metro_atc.nodes.sim_domain import LINGER_S, linger
 from metro_atc.nodes.sim_lockstep import RECORDER_SYNC_STEPS, lockstep_loop
+from metro_atc.nodes.sim_sensors import SensorOutbox
 
 
 _REGULATOR_NAMES = {code: name for name, code in conv.REGULATOR_CODES.items()}
@@ -85,64 +83,11 @@ STARTED_MARKER = "line_simulator.started"
 """Written in ``checkpoint_dir`` at the first start: a process that finds it is a respawn."""
 DEPARTURE_JOURNAL = "line_simulator_departures.jsonl"
 """Departure commands applied, one JSON line each (step, train, station, values)."""
-RESEND_BATCH = 64
-"""Kept sensor samples re-sent per FleetBrakeSensorData (a pause after each)."""
-RESEND_PAUSE_S = 0.005
-"""Pause between re-sent batches [s] (wall): a reader catching up is not flooded beyond the
-reliable writer's history of 1 000 batches."""
-TAIL_RESEND_S = 3.0
-"""End of a run: wall seconds a train's diagnosis must have kept acknowledging the same
-sample (a live, idle reader: its periodic diagnosis came again with that stamp) while its
-sensor readers stayed the same, before the samples after it are published again (the last
-samples of a best-effort stream can be lost). A reader busy catching up publishes nothing;
-a dead one neither."""
 NODE_STATE = ("k", "cmd_step", "cmd_effort", "lockstep_misses", "rejected", "rejections",
               "event_seq", "sensor_last_t", "dep_received", "dep_given_up", "ats_misses",
               "_next_status_t", "_next_progress_t", "regulators", "planners", "planned",
               "watchdog")
 """Node attributes saved with the plant in a checkpoint."""
-
-
-class SensorBatch(NamedTuple):
-    """Brake sensor samples in stamp order.
-
-    ``t`` [s], ``trains`` (train indices), ``omega`` [rad/s] and ``clamp`` [N] (samples x
-    axles), ``accel`` [m/s^2], ``vref`` [m/s], ``mass`` [kg] per sample.
-    """
-
-    t: np.ndarray
-    trains: np.ndarray
-    omega: np.ndarray
-    clamp: np.ndarray
-    accel: np.ndarray
-    vref: np.ndarray
-    mass: np.ndarray
-
-
-def unacknowledged(ack_t: np.ndarray, last_t: np.ndarray) -> np.ndarray:
-    """Trains whose brake diagnosis has not acknowledged their newest sensor sample.
-
-    ``ack_t``: the acknowledged stamp [s] (-inf: no diagnosis heard yet, not pending);
-    ``last_t``: the newest sample's stamp [s].
-    """
-    return np.isfinite(ack_t) & (last_t > ack_t + 1e-6)
-
-
-def sensor_keep_floor(now_s: float, resend_s: float, ack_t: np.ndarray,
-                      last_t: np.ndarray) -> float:
-    """Oldest stamp [s] of the brake sensor samples the simulator must still keep.
-
-    At least the last ``resend_s`` (for a reader that is new), and back to the
-    acknowledgement ``ack_t`` of every train whose newest sample ``last_t`` is not yet
-    acknowledged (a restarted reader catches up on all it missed, however long it was down).
-    A train whose samples are all acknowledged (one out of service included) holds nothing
-    back; a train never acknowledged (``-inf``) only the ``resend_s`` window.
-    """
-    floor = now_s - resend_s
-    pending = unacknowledged(ack_t, last_t)
-    if pending.any():
-        floor = min(floor, float(ack_t[pending].min()))
-    return floor
 
 
 class LineSimulator(Node):
@@ -262,7 +207,6 @@ class LineSimulator(Node):
         self.lockstep_misses = 0
         self.rejected = 0
         self.event_seq = np.zeros(n, dtype=np.int64)
-        self.sensor_last_t = np.full(n, -np.inf)
         n_st = len(self.sim.station_names)
         self.dep_received = np.zeros((n, n_st), dtype=bool)
         self.dep_given_up = np.zeros((n, n_st), dtype=bool)
@@ -290,35 +234,6 @@ class LineSimulator(Node):
         self.journaled: set[tuple[Any, ...]] = set()
         """Departure commands of the journal (a late copy from the ATS is not re-applied)."""
         self.resumed_from = -1
-        self.sensor_log: deque[SensorBatch] = deque()
-        """Recent brake sensor samples, batch by batch as published, for a restarted
-        reader."""
-        self._sensor_log_n = 0
-        """Samples in :attr:`sensor_log`."""
-        self._sensor_pending: list[SensorBatch] = []
-        """Samples of the steps since the last fleet sensor message (not yet published)."""
-        self._sensor_flush_t = -math.inf
-        """Simulated time [s] from which the pending samples are published."""
-        self._sensor_out = [conv.sensor_sample_msg(t, 0.0, [], [], math.nan, math.nan,
-                                                   math.nan) for t in self.ids]
-        """The BrakeSensorData of each train, refilled for every sample published."""
-        self._sensor_readers: set[bytes] = set()
-        """Endpoint GIDs of the fleet sensor topic's readers seen so far."""
-        self._sensor_read = np.zeros(n, dtype=bool)
-        """Trains whose ``/<train>/brake_sensors`` had a reader at the last check (only
-        those are published: a topic nobody reads costs nothing)."""
-        self._resend_due = np.zeros(n, dtype=bool)
-        self._readers_known = False
-        self.diag_ack_t = np.full(n, -np.inf)
-        """Per train: the newest sensor sample its BrakeDiagnosis acknowledged [s] (-inf: no
-        diagnosis heard). Samples after it are kept for a re-send however old."""
-        self._ack_wall = np.full(n, -np.inf)
-        """Wall time the acknowledgement of each train last changed, or its sensor topic
-        gained a reader (monotonic) [s]."""
-        self._ack_seen_wall = np.full(n, -np.inf)
-        """Wall time a diagnosis of each train was last received (monotonic) [s]."""
-        self.sensor_dropped = 0
-        """Kept samples dropped beyond ``sensor_keep_max``."""
         self._journal: Any = None
         self._ck_writer: threading.Thread | None = None
         """The thread writing the last checkpoint (:meth:`save_checkpoint`)."""
@@ -326,8 +241,6 @@ class LineSimulator(Node):
         """Why the last checkpoint write failed (reported by :meth:`wait_checkpoint`)."""
         self.first_start = True
         """No earlier process of this run (see :data:`STARTED_MARKER`)."""
-        if self.checkpoint_dir:
-            self._open_checkpoints(Path(self.checkpoint_dir))
         self.fleet_driven = np.zeros(n, dtype=bool)
         """Trains whose ATO answered a fleet state (their per-train state is decimated)."""
         self._fleet_matched = 0
@@ -377,10 +290,12 @@ class LineSimulator(Node):
         self.fleet_sub = self.create_subscription(
             FleetCommand, "/line/fleet_command", self._on_fleet_command, QOS_RELIABLE,
             raw=True, event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
-        self.fleet_sensor_pub = bulk_publisher(self, FleetBrakeSensorData, FLEET_SENSOR_TOPIC,
-                                               QOS_FLEET_SENSOR)
-        self.sensor_pubs = [bulk_publisher(self, BrakeSensorData, f"/{t}/brake_sensors",
-                                           QOS_SENSOR) for t in self.ids]
+        self.sensors = SensorOutbox(
+            self, self.ids,
+            bulk_publisher(self, FleetBrakeSensorData, FLEET_SENSOR_TOPIC, QOS_FLEET_SENSOR),
+            [bulk_publisher(self, BrakeSensorData, f"/{t}/brake_sensors", QOS_SENSOR)
+             for t in self.ids], self, self._ids_block, self._warn_rate_limited)
+        """The brake sensor outbox (:mod:`metro_atc.nodes.sim_sensors`)."""
         self.cmd_subs = [bulk_subscription(self, TractionCommand, f"/{t}/command",
                                            partial(self._on_command, i), QOS_RELIABLE)
                          for i, t in enumerate(self.ids)]
@@ -394,6 +309,8 @@ class LineSimulator(Node):
         self.diag_subs = [bulk_subscription(self, BrakeDiagnosis, f"/{t}/brake_diagnosis",
                                             partial(self._on_diagnosis, i), QOS_LATCHED)
                           for i, t in enumerate(self.ids)]
+        if self.checkpoint_dir:
+            self._open_checkpoints(Path(self.checkpoint_dir))
         if self.resumed_from >= 0:
             self.republish_history()
         self.get_logger().info(
@@ -531,13 +448,11 @@ class LineSimulator(Node):
         if ck.is_file():
             try:
                 head, arrays = read(ck, identity=self.identity)
-                holder = SimpleNamespace(line=self.sim, **{a: getattr(self, a)
-                                                           for a in NODE_STATE})
+                holder = SimpleNamespace(line=self.sim, **self._node_state())
                 restore(holder, head["tree"], arrays, static_parts(self.sim))
             except (CheckpointError, KeyError, TypeError, ValueError, IndexError) as exc:
                 raise NodeConfigError(f"cannot resume from {ck}: {str(exc)[:200]}") from None
-            for a in NODE_STATE:
-                setattr(self, a, getattr(holder, a))
+            self._set_node_state(holder)
             self.resumed_from = int(self.k)
             self.get_logger().warning(
                 f"resuming from the checkpoint of step {self.k} (t={self.sim.t:.2f} s) in "
@@ -555,6 +470,19 @@ class LineSimulator(Node):
         tmp.write_text("".join(json.dumps(e) + "\n" for e in entries))
         os.replace(tmp, journal)
         self._journal = open(journal, "a", encoding="utf-8")
+
+    def _node_state(self) -> dict[str, Any]:
+        """The node's part of a checkpoint (:data:`NODE_STATE`), by name."""
+        return {a: (self.sensors.last_t if a == "sensor_last_t" else getattr(self, a))
+                for a in NODE_STATE}
+
+    def _set_node_state(self, holder: Any) -> None:
+        """Take the :data:`NODE_STATE` values of a restored checkpoint ``holder``."""
+        for a in NODE_STATE:
+            if a == "sensor_last_t":
+                self.sensors.last_t = getattr(holder, a)
+            else:
+                setattr(self, a, getattr(holder, a))
 
     def _journal_write(self, key: tuple[Any, ...]) -> None:
         """Append an applied departure command (and the step) to the journal."""
@@ -591,7 +519,7 @@ class LineSimulator(Node):
         """
         if not self.checkpoint_due():
             return
-        holder = SimpleNamespace(line=self.sim, **{a: getattr(self, a) for a in NODE_STATE})
+        holder = SimpleNamespace(line=self.sim, **self._node_state())
         try:
             tree, arrays = capture(holder, static_parts(self.sim))
         except CheckpointError as exc:
@@ -650,12 +578,7 @@ class LineSimulator(Node):
         except conv.MessageRejected as exc:
             self._reject(f"/{self.ids[i]}/brake_diagnosis", exc)
             return
-        now = time.monotonic()
-        self._ack_seen_wall[i] = now
-        if t != self.diag_ack_t[i]:
-            # the latest, not the largest: a restarted diagnosis acknowledges less
-            self.diag_ack_t[i] = t
-            self._ack_wall[i] = now
+        self.sensors.acknowledge(i, t)
 
     def _set_progress_period(self, value: float) -> None:
         self.progress_period_s = float(value)
@@ -715,11 +638,11 @@ class LineSimulator(Node):
         ready = self.fleet_pub.get_subscription_count() > 0 and \
             all(s.get_publisher_count() > 0 for s in self.cmd_subs) and \
             all(s.get_publisher_count() > 0 for s in self.dep_subs) and \
-            self.fleet_sensor_pub.get_subscription_count() > 0
+            self.sensors.fleet_pub.get_subscription_count() > 0
         if not ready or not self.wait_for_subscribers:
             return ready
         pubs = [self.clock_pub, self.event_pub, self.status_pub, *self.state_pubs,
-                self.fleet_sensor_pub]
+                self.sensors.fleet_pub]
         for p in pubs:
             names = {i.node_name for i in self.get_subscriptions_info_by_topic(p.topic_name)}
             if not all(w in names for w in self.wait_for_subscribers):
@@ -738,7 +661,7 @@ class LineSimulator(Node):
         """
         end = time.monotonic() + timeout_s
         for p in (self.clock_pub, self.event_pub, self.status_pub, *self.state_pubs,
-                  self.fleet_sensor_pub):
+                  self.sensors.fleet_pub):
             rest = end - time.monotonic()
             if rest <= 0.0 or not p.wait_for_all_acked(Duration(seconds=rest)):
                 self.get_logger().warning(f"{p.topic_name}: not every reader acknowledged "
@@ -969,7 +892,7 @@ class LineSimulator(Node):
             self.event_seq[ev.train_idx] += 1
             self.event_pub.publish(conv.event_msg(ev, self.ids, self.sim.station_names,
                                                   int(self.event_seq[ev.train_idx])))
-        self.publish_sensors(res.sensor_arrays)
+        self.sensors.take(res.sensor_arrays)
         t = float(self.sim.t)
         if t >= self._next_progress_t:
             self._next_progress_t += self.progress_period_s
@@ -983,9 +906,9 @@ class LineSimulator(Node):
             self.status_pub.publish(conv.line_status_msg(self.kpis(), self.k, t, done))
         if done:
             self.finished = True
-            self.flush_sensors(force=True)
+            self.sensors.flush(t, force=True)
         else:
-            self.flush_sensors(force=self.checkpoint_due())
+            self.sensors.flush(t, force=self.checkpoint_due())
             self.save_checkpoint()
 
     def _log_watchdog(self, e: Any) -> None:
@@ -997,210 +920,6 @@ class LineSimulator(Node):
         else:
             self.get_logger().warning(f"ATO of {t} back after {e.missed} missed steps; "
                                       "handing the train back")
-
-    def publish_sensors(self, block: Any) -> None:
-        """Take the step's brake sensor samples (all while braking, else at the idle period).
-
-        The UKF learns the pad friction only while the clamp force is applied; between brake
-        applications a sparse heartbeat keeps the diagnosis alive at a fraction of the
-        message load (20 Hz x 30 trains would be ~600 messages per simulated second).  The
-        samples wait for :meth:`flush_sensors` (``sensor_batch_period_s``).
-        """
-        if block is None:
-            return
-        # plain Python floats here: numpy scalar indexing per sample was most of the node's
-        # time with ~10 samples per step at the peak (issue 13)
-        t = np.asarray(block.t, dtype=float).tolist()
-        clamp = np.asarray(block.clamp, dtype=np.float64)
-        # braked: some axle clamp force well above the sensor noise (50 N scale)
-        braking = np.nanmax(clamp, axis=2, initial=0.0) > 1000.0
-        idle = float(self.sensor_idle_period_s)
-        tr_all = np.asarray(block.trains, dtype=np.int64)
-        last = self.sensor_last_t[tr_all]
-        # the sample instants of the step in order, all trains at once: braking trains
-        # every instant, the others once per idle period (the first instant due)
-        take = np.empty(braking.shape, dtype=bool)
-        for a, ts in enumerate(t):
-            due = braking[a] | (idle <= 0.0) | (ts - last >= idle - 1e-9)
-            take[a] = due
-            last = np.where(due, ts, last)
-        self.sensor_last_t[tr_all] = last
-        aa, bb = np.nonzero(take)  # instant-major: the samples in stamp order
-        if aa.size:
-            self._sensor_pending.append(SensorBatch(
-                np.asarray(block.t, dtype=float)[aa], tr_all[bb],
-                np.asarray(block.omega, dtype=np.float64)[aa, bb], clamp[aa, bb],
-                np.asarray(block.accel, dtype=float)[aa, bb],
-                np.asarray(block.vref, dtype=float)[aa, bb],
-                np.asarray(block.car_mass, dtype=float)[bb]))
-
-    def flush_sensors(self, force: bool = False) -> None:
-        """Publish the pending samples as one FleetBrakeSensorData when the batch is due.
-
-        Due once ``sensor_batch_period_s`` of simulated time passed since the last one, or
-        ``force`` (a checkpoint: the samples of the steps before it are all out, a resumed
-        simulator makes the later ones again; the end of the run).  The published samples
-        are kept for a re-send; the kept ones older than :func:`sensor_keep_floor` dropped.
-        """
-        t = float(self.sim.t)
-        if not force and t < self._sensor_flush_t:
-            return
-        self._sensor_flush_t = t + float(self.sensor_batch_period_s) - 1e-9
-        pend = self._sensor_pending
-        if pend:
-            self._sensor_pending = []
-            batch = pend[0] if len(pend) == 1 else SensorBatch(
-                *(np.concatenate(parts) for parts in zip(*pend)))
-            self._send_samples(batch, live=True)
-        log = self.sensor_log
-        floor = sensor_keep_floor(t, self.sensor_resend_s, self.diag_ack_t, self.sensor_last_t)
-        while log and log[0].t[-1] < floor:
-            self._sensor_log_n -= log.popleft().t.size
-        extra = self._sensor_log_n - int(self.sensor_keep_max)
-        if extra > 0:
-            self.sensor_dropped += extra
-            self._sensor_log_n -= extra
-            while extra > 0:
-                first = log[0]
-                if first.t.size <= extra:
-                    extra -= log.popleft().t.size
-                else:
-                    log[0] = SensorBatch(*(a[extra:] for a in first))
-                    extra = 0
-            self._warn_rate_limited("sensor_keep_max", f"{self.sensor_dropped} kept brake "
-                                    f"sensor samples dropped (sensor_keep_max="
-                                    f"{self.sensor_keep_max}): a brake_diagnostic that is "
-                                    "down cannot catch up on them")
-
-    def resend_sensors(self) -> int:
-        """Send the kept samples of every train again when the fleet sensor topic gained a reader.
-
-        A restarted ``brake_diagnostic`` misses what was published while it was down
-        (volatile); it takes the samples it already has as the point to rebuild its
-        observer from, then the ones it missed.  A reader is new when its endpoint GID was
-        not seen before (a count can stay the same: the dead reader's lease expiring while
-        the new one matches); the samples are sent at the next call (about 1 s later), once
-        the new reader had time to match.  Also notes which ``/<train>/brake_sensors`` have
-        a reader (only those are published).  Returns the number of samples re-sent.
-        """
-        due = self._resend_due
-        self._resend_due = np.zeros(len(self.ids), dtype=bool)
-        gids = subscriber_gids(self, self.fleet_sensor_pub)
-        if gids - self._sensor_readers and self._readers_known:
-            self._resend_due[:] = True
-            self._ack_wall[:] = time.monotonic()  # no tail re-send for a while
-        self._sensor_readers |= gids
-        self._sensor_read = np.array([p.get_subscription_count() > 0
-                                      for p in self.sensor_pubs], dtype=bool)
-        self._readers_known = self.started  # the readers at step 0 are not new
-        sent = self._publish_kept(due, np.full(len(self.ids), -np.inf))
-        if sent:
-            self.get_logger().info(f"sent {sent} kept brake sensor samples again to a new "
-                                   "reader")
-        return sent
-
-    def _send_samples(self, batch: SensorBatch, live: bool) -> None:
-        """Publish samples (in order) as one FleetBrakeSensorData; keep the live ones.
-
-        Live samples also go to the ``/<train>/brake_sensors`` that had a reader at the last
-        check, and are kept for a re-send (``sensor_resend_s``).
-        """
-        trains = batch.trains
-        names, which = np.unique(trains, return_inverse=True)
-        n = trains.size
-        omega = batch.omega.reshape(n, -1)
-        self.fleet_sensor_pub.publish(cdr.fleet_sensors(float(self.sim.t), self._ids_block(
-            names), (which, conv.stamps_ns(batch.t), np.full(n, omega.shape[1]), omega,
-                     batch.clamp, batch.accel, batch.vref, batch.mass)))
-        if not live:
-            return
-        read = self._sensor_read
-        if read.any():
-            for j in np.flatnonzero(read[trains]).tolist():
-                i = int(trains[j])
-                # one message object per train, refilled (publish copies it out at once)
-                self.sensor_pubs[i].publish(conv.fill_sensor_msg(
-                    self._sensor_out[i], float(batch.t[j]), omega[j], batch.clamp[j],
-                    float(batch.accel[j]), float(batch.vref[j]), float(batch.mass[j])))
-        if self.sensor_resend_s > 0.0:
-            self.sensor_log.append(batch)
-            self._sensor_log_n += n
-
-    def _publish_kept(self, trains: np.ndarray, after_t: np.ndarray) -> int:
-        """Publish again the kept samples of ``trains`` newer than ``after_t`` (per train).
-
-        In batches of :data:`RESEND_BATCH` samples on the fleet topic, paused in between.
-        """
-        if not trains.any():
-            return 0
-        parts = []
-        for b in self.sensor_log:
-            sel = trains[b.trains] & (b.t > after_t[b.trains])
-            if sel.any():
-                parts.append(SensorBatch(*(a[sel] for a in b)))
-        if not parts:
-            return 0
-        picked = SensorBatch(*(np.concatenate(p) for p in zip(*parts)))
-        total = picked.t.size
-        for n in range(0, total, RESEND_BATCH):
-            if n:
-                time.sleep(RESEND_PAUSE_S)
-            self._send_samples(SensorBatch(*(a[n:n + RESEND_BATCH] for a in picked)),
-                               live=False)
-        return total
-
-    def sensors_unacknowledged(self) -> np.ndarray:
-        """Trains whose brake diagnosis (once heard) has not acknowledged their last sample."""
-        return unacknowledged(self.diag_ack_t, self.sensor_last_t)
-
-    def resend_tail(self, pending: np.ndarray) -> int:
-        """Publish again the kept samples after each pending train's acknowledgement.
-
-        Only for a train whose diagnosis kept acknowledging the same sample for
-        :data:`TAIL_RESEND_S` (a live reader that has taken all it got) while its readers
-        stayed the same (a new reader gets the whole re-send of :meth:`resend_sensors`, and
-        restarts ``_ack_wall``); they are samples the reader lost (a keep-last
-        history of 1 000 batches overrun). Returns the
-        number of samples sent.
-        """
-        due = pending & (self._ack_seen_wall - self._ack_wall >= TAIL_RESEND_S) \
-            & ~self._resend_due
-        if due.any():
-            self._ack_wall[due] = time.monotonic()  # once per TAIL_RESEND_S
-        return self._publish_kept(due, self.diag_ack_t + 1e-6)
-
-    def drain_sensors(self, spin: Any) -> bool:
-        """End of a run: wait until every train's brake diagnosis acknowledged its last sample.
-
-        A ``brake_diagnostic`` killed near the end of a fast run comes back after the
-        simulator finished: without this wait it would never get the samples it missed.
-        Bounded by ``sensor_drain_timeout_s`` (wall); new readers get the kept samples
-        (:meth:`resend_sensors`), a train whose acknowledgement stands still gets the samples
-        after it again (:meth:`resend_tail`). ``spin(timeout_s)`` serves the subscriptions.
-        True when everything was acknowledged (or no diagnosis was ever heard).
-        """
-        t0 = time.monotonic()
-        end = t0 + float(self.sensor_drain_timeout_s)
-        next_check = t0 + 1.0
-        while True:
-            pending = self.sensors_unacknowledged()
-            now = time.monotonic()
-            if not pending.any():
-                if now - t0 > 2.0:
-                    self.get_logger().info(f"every brake diagnosis acknowledged its last "
-                                           f"sensor sample after {now - t0:.1f} s")
-                return True
-            if now >= end or stop_requested():
-                names = ", ".join(self.ids[i] for i in np.flatnonzero(pending))
-                self.get_logger().warning(
-                    f"brake diagnosis of {names} did not acknowledge the last sensor samples "
-                    f"within {self.sensor_drain_timeout_s:g} s (brake_diagnostic down?)")
-                return False
-            spin(0.05)
-            if now >= next_check:
-                next_check = now + 1.0
-                self.resend_sensors()
-                self.resend_tail(pending)
 
     def announce_finished(self) -> None:
         """Write ``finished_file`` (if set): the run is over, its last samples delivered.

@@ -111,7 +111,8 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
     log.info(f"graph ready after {time.monotonic() - t0:.2f} s")
     sim.started = True
     sim.new_subscribers(np.ones(len(sim.ids), dtype=bool))
-    sim.resend_sensors()  # the readers of step 0: nothing kept yet, nothing sent
+    sim.sensors.resend_new_readers(float(sim.sim.t), sim.started)  # the readers of step 0:
+    # nothing kept yet, nothing sent
     next_sensor_check = time.monotonic() + 1.0
     sim.new_fleet_subscribers()
     wall0, sim0 = time.monotonic(), float(sim.sim.t)
@@ -137,7 +138,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
     while not sim.finished and not stop_requested():
         if time.monotonic() >= next_sensor_check:
             next_sensor_check = time.monotonic() + 1.0
-            sim.resend_sensors()
+            sim.sensors.resend_new_readers(float(sim.sim.t), sim.started)
             if time.monotonic() < alone_until:
                 check_alone(sim, sim.fleet_pub.topic_name)
             else:
@@ -187,7 +188,8 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
             slow_path()
         else:
             executor.spin_once(timeout_sec=0.0)
-    sim.flush_sensors(force=True)  # stopped by a signal: what was sampled goes out
+    sim.sensors.flush(float(sim.sim.t), force=True)  # stopped by a signal: what was
+    # sampled goes out
     sim.wait_checkpoint()
     if sim.wait_for_subscribers:
         sim.wait_acked()
@@ -197,7 +199,8 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
     sim.loop_wall_s, sim.loop_sim_s = time.monotonic() - wall0, float(sim.sim.t) - sim0
     log.info(f"scenario finished at t={sim.sim.t:.1f} s after {sim.k} steps, "
              f"{time.monotonic() - t0:.1f} s wall ({sim.loop_wall_s:.1f} s from step {k0})")
-    sim.drain_sensors(lambda timeout_s: executor.spin_once(timeout_sec=timeout_s))
+    sim.sensors.drain(float(sim.sim.t),
+                      lambda timeout_s: executor.spin_once(timeout_sec=timeout_s))
     executor.spin_once(timeout_sec=0.0)
     # the other nodes may stop now (the launcher's finished_file), while this one writes
     # its outputs; the last samples' acknowledgements are awaited after those (close)
