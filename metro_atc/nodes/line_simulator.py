@@ -31,12 +31,9 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import threading
 import time
 from functools import partial
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any, Sequence
 
 import numpy as np
@@ -52,11 +49,9 @@ from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 
 from metro_atc.core.ato_watchdog import AtoWatchdog
-from metro_atc.core.checkpoint import CheckpointError, capture, content_hash, read, restore, \
-    save_tree
-from metro_atc.core.journal import read_entries
+from metro_atc.core.checkpoint import content_hash
 from metro_atc.core.plant.line import LineSim
-from metro_atc.core.plant.snapshot import scenario_hash, static_parts
+from metro_atc.core.plant.snapshot import scenario_hash
 from metro_atc.core.plant.views import dwelling_in_service, fleet_state_rows
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, bounds_for
@@ -69,6 +64,7 @@ from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_EVENTS,
                                     RuntimeParams,
                                     bulk_publisher, bulk_subscription, diag_status,
                                     run_nodes, spin_until_stopped, static)
+from metro_atc.nodes.sim_checkpoints import Checkpoints, journal_key
 from metro_atc.nodes.sim_domain import LINGER_S, linger
 from metro_atc.nodes.sim_lockstep import RECORDER_SYNC_STEPS, lockstep_loop
 from metro_atc.nodes.sim_sensors import SensorOutbox
@@ -77,12 +73,6 @@ from metro_atc.nodes.sim_sensors import SensorOutbox
 _REGULATOR_NAMES = {code: name for name, code in conv.REGULATOR_CODES.items()}
 """DepartureCommand.regulator codes -> regulator names (what ran, for the KPIs)."""
 
-CHECKPOINT_FILE = "line_simulator.npz"
-"""The simulator's checkpoint in ``checkpoint_dir`` (replaced atomically)."""
-STARTED_MARKER = "line_simulator.started"
-"""Written in ``checkpoint_dir`` at the first start: a process that finds it is a respawn."""
-DEPARTURE_JOURNAL = "line_simulator_departures.jsonl"
-"""Departure commands applied, one JSON line each (step, train, station, values)."""
 NODE_STATE = ("k", "cmd_step", "cmd_effort", "lockstep_misses", "rejected", "rejections",
               "event_seq", "sensor_last_t", "dep_received", "dep_given_up", "ats_misses",
               "_next_status_t", "_next_progress_t", "regulators", "planners", "planned",
@@ -224,23 +214,6 @@ class LineSimulator(Node):
         self.planned: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
         self._health_last = (time.monotonic(), 0.0, 0, 0)
         self._matched = np.zeros(n, dtype=np.int64)
-        self.identity = content_hash(scenario_hash(self.sim), bool(self.lockstep),
-                                     int(self.ato_lost_steps), float(self.max_sim_time_s))
-        """What a checkpoint must have been made for (scenario content, seed, parameters)."""
-        period = float(self.checkpoint_period_s) / self.sim.control_period_s
-        self.checkpoint_every = max(int(round(period)), 1) if period > 0 else 0
-        self.replay: list[dict[str, Any]] = []
-        """Journaled departure commands still to re-apply after a resume (in order)."""
-        self.journaled: set[tuple[Any, ...]] = set()
-        """Departure commands of the journal (a late copy from the ATS is not re-applied)."""
-        self.resumed_from = -1
-        self._journal: Any = None
-        self._ck_writer: threading.Thread | None = None
-        """The thread writing the last checkpoint (:meth:`save_checkpoint`)."""
-        self._ck_failed: str | None = None
-        """Why the last checkpoint write failed (reported by :meth:`wait_checkpoint`)."""
-        self.first_start = True
-        """No earlier process of this run (see :data:`STARTED_MARKER`)."""
         self.fleet_driven = np.zeros(n, dtype=bool)
         """Trains whose ATO answered a fleet state (their per-train state is decimated)."""
         self._fleet_matched = 0
@@ -309,9 +282,16 @@ class LineSimulator(Node):
         self.diag_subs = [bulk_subscription(self, BrakeDiagnosis, f"/{t}/brake_diagnosis",
                                             partial(self._on_diagnosis, i), QOS_LATCHED)
                           for i, t in enumerate(self.ids)]
-        if self.checkpoint_dir:
-            self._open_checkpoints(Path(self.checkpoint_dir))
-        if self.resumed_from >= 0:
+        identity = content_hash(scenario_hash(self.sim), bool(self.lockstep),
+                                int(self.ato_lost_steps), float(self.max_sim_time_s))
+        # what a checkpoint must have been made for (scenario content, seed, parameters)
+        self.checkpoints = Checkpoints(self.checkpoint_dir, identity, self.checkpoint_period_s,
+                                       self.sim.control_period_s, self.get_logger(),
+                                       self._warn_rate_limited)
+        """Checkpoints and the departure journal (:mod:`metro_atc.nodes.sim_checkpoints`)."""
+        restored = self.checkpoints.open(self.sim, self._node_state())
+        if restored is not None:
+            self._set_node_state(restored)
             self.republish_history()
         self.get_logger().info(
             f"scenario '{self.scenario_name}': {n} trains, {len(self.sim.station_names)} "
@@ -417,11 +397,11 @@ class LineSimulator(Node):
         try:
             st, dep, run, dwell = conv.departure_from_msg(msg, topic, self.ids[i], self.bounds)
             key = (i, st, dep, run, dwell, int(msg.regulator))
-            if _nan_key(key) in self.journaled:
+            if self.checkpoints.is_journaled(key):
                 return  # applied (or to be applied) from the journal at its original step
             # journaled first: a kill between the two replays it at this step on resume
             # (applied first, a kill in between would lose the step it was applied at)
-            self._journal_write(key)
+            self.checkpoints.journal(self.k, key)
             conv.guarded(topic, self._apply_departure, *key)
         except conv.MessageRejected as exc:
             self._reject("departure command", exc)
@@ -437,40 +417,6 @@ class LineSimulator(Node):
         self._dep_version += 1
 
     # ------------------------------------------------------------------ resume
-    def _open_checkpoints(self, folder: Path) -> None:
-        """Resume from ``folder``'s checkpoint if there is one; open the departure journal."""
-        folder.mkdir(parents=True, exist_ok=True)
-        marker = folder / STARTED_MARKER
-        self.first_start = not marker.exists()
-        marker.touch()
-        ck = folder / CHECKPOINT_FILE
-        journal = folder / DEPARTURE_JOURNAL
-        if ck.is_file():
-            try:
-                head, arrays = read(ck, identity=self.identity)
-                holder = SimpleNamespace(line=self.sim, **self._node_state())
-                restore(holder, head["tree"], arrays, static_parts(self.sim))
-            except (CheckpointError, KeyError, TypeError, ValueError, IndexError) as exc:
-                raise NodeConfigError(f"cannot resume from {ck}: {str(exc)[:200]}") from None
-            self._set_node_state(holder)
-            self.resumed_from = int(self.k)
-            self.get_logger().warning(
-                f"resuming from the checkpoint of step {self.k} (t={self.sim.t:.2f} s) in "
-                f"{folder}")
-        for tmp in folder.glob(f".{CHECKPOINT_FILE}.*.tmp"):
-            tmp.unlink(missing_ok=True)  # a checkpoint being written when the node died
-        entries = _read_journal(journal)
-        if entries:
-            # resumed, or restarted before the first checkpoint (then from step 0): the
-            # departure commands since are re-applied at their steps, not taken again
-            self.journaled = {_nan_key(_journal_key(e)) for e in entries}
-            self.replay = [e for e in entries if int(e["k"]) >= max(self.resumed_from, 0)]
-        # rewrite the journal with the entries kept (a torn last line is dropped)
-        tmp = journal.with_name(journal.name + ".tmp")
-        tmp.write_text("".join(json.dumps(e) + "\n" for e in entries))
-        os.replace(tmp, journal)
-        self._journal = open(journal, "a", encoding="utf-8")
-
     def _node_state(self) -> dict[str, Any]:
         """The node's part of a checkpoint (:data:`NODE_STATE`), by name."""
         return {a: (self.sensors.last_t if a == "sensor_last_t" else getattr(self, a))
@@ -484,72 +430,13 @@ class LineSimulator(Node):
             else:
                 setattr(self, a, getattr(holder, a))
 
-    def _journal_write(self, key: tuple[Any, ...]) -> None:
-        """Append an applied departure command (and the step) to the journal."""
-        if self._journal is None:
-            return
-        i, st, dep, run, dwell, reg = key
-        self._journal.write(json.dumps({"k": int(self.k), "i": int(i), "st": int(st),
-                                        "dep": dep, "run": run, "dwell": dwell,
-                                        "reg": int(reg)}) + "\n")
-        self._journal.flush()  # in the OS: survives a SIGKILL of this process
-
-    def replay_departures(self) -> None:
+    def _replay_departures(self) -> None:
         """Re-apply the journaled departure commands of the current step (after a resume)."""
-        while self.replay and int(self.replay[0]["k"]) <= self.k:
-            e = self.replay.pop(0)
+        for e in self.checkpoints.take_replay(self.k):
             try:
-                self._apply_departure(*_journal_key(e))
+                self._apply_departure(*journal_key(e))
             except (IndexError, ValueError, TypeError) as exc:
                 self.get_logger().error(f"journaled departure command {e} not applied: {exc}")
-
-    def checkpoint_due(self) -> bool:
-        """A checkpoint is written at the current step."""
-        return bool(self.checkpoint_dir and self.checkpoint_every) and self.k != 0 \
-            and self.k % self.checkpoint_every == 0 and self.k != self.resumed_from
-
-    def save_checkpoint(self) -> None:
-        """Write the checkpoint of the current step (atomically) if one is due.
-
-        The state is captured here (copies: :func:`metro_atc.core.checkpoint.capture`); the
-        file is written by a thread while the lockstep goes on (~60 % of a checkpoint's
-        time: JSON, ``np.savez``, fsync), one file at a time.  Until it is renamed into place
-        the previous checkpoint stands: a kill in between resumes from that one (the
-        departure journal holds every command since), as a kill before this step would.
-        """
-        if not self.checkpoint_due():
-            return
-        holder = SimpleNamespace(line=self.sim, **self._node_state())
-        try:
-            tree, arrays = capture(holder, static_parts(self.sim))
-        except CheckpointError as exc:
-            self._warn_rate_limited("checkpoint", f"checkpoint of step {self.k} not "
-                                    f"written: {exc}")
-            return
-        self.wait_checkpoint()
-        writer = threading.Thread(
-            target=self._write_checkpoint, name="checkpoint", daemon=False,
-            args=(Path(self.checkpoint_dir) / CHECKPOINT_FILE, tree, arrays, int(self.k),
-                  float(self.sim.t)))
-        self._ck_writer = writer
-        writer.start()
-
-    def _write_checkpoint(self, path: Path, tree: Any, arrays: list[np.ndarray], step: int,
-                          t: float) -> None:
-        """Write a captured checkpoint (the writer thread); a failure is kept for the loop."""
-        try:
-            save_tree(path, tree, arrays, identity=self.identity, step=step, t=t)
-        except Exception as exc:  # noqa: BLE001 - reported by wait_checkpoint, never raised
-            self._ck_failed = f"checkpoint of step {step} not written: {exc}"
-
-    def wait_checkpoint(self) -> None:
-        """Wait until the checkpoint being written (if any) is in place; log a failure."""
-        writer, self._ck_writer = self._ck_writer, None
-        if writer is not None:
-            writer.join()
-        failed, self._ck_failed = self._ck_failed, None
-        if failed:
-            self._warn_rate_limited("checkpoint", failed)
 
     def republish_history(self) -> None:
         """Publish the restored event history again (a restarted ATS replays it)."""
@@ -703,7 +590,8 @@ class LineSimulator(Node):
         After a resume, the journaled departure commands of step k are applied first (the
         states carry the departure times). Returns the active mask.
         """
-        self.replay_departures()
+        if self.checkpoints.replay:
+            self._replay_departures()
         t = float(self.sim.t)
         active = np.asarray(self.sim.active_mask(), dtype=bool)
         per_train = active if self.k % self.state_every == 0 else active & ~self.fleet_driven
@@ -845,8 +733,8 @@ class LineSimulator(Node):
         (the caller publishes them, unless finished).
         """
         res, done = self.step_plant(active, timed_out)
-        replay_due = bool(self.replay) and int(self.replay[0]["k"]) <= self.k
-        if done or (replay_due and self.checkpoint_due()) or (
+        ck = self.checkpoints
+        if done or (ck.replay_due(self.k) and ck.due(self.k)) or (
                 self.wait_for_subscribers and self.k % RECORDER_SYNC_STEPS == 0):
             self.publish_outputs(res, done)
             return None
@@ -908,8 +796,10 @@ class LineSimulator(Node):
             self.finished = True
             self.sensors.flush(t, force=True)
         else:
-            self.sensors.flush(t, force=self.checkpoint_due())
-            self.save_checkpoint()
+            due = self.checkpoints.due(self.k)
+            self.sensors.flush(t, force=due)
+            if due:
+                self.checkpoints.save(self.k, t, self.sim, self._node_state())
 
     def _log_watchdog(self, e: Any) -> None:
         """Log a lost ATO (error) or its return (warning)."""
@@ -965,7 +855,7 @@ class LineSimulator(Node):
         writer's heartbeat: waited for before the outputs, that was most of ``LINGER_S`` at
         the end of every run, issue 13).
         """
-        self.wait_checkpoint()
+        self.checkpoints.wait()
         try:
             self._write_outputs()
         finally:
@@ -989,22 +879,6 @@ class LineSimulator(Node):
         except Exception as exc:  # noqa: BLE001 - outputs must not hide the KPIs
             self.get_logger().error(f"writing outputs to {out} failed: {exc}")
         (out / "kpis.json").write_text(json.dumps(json_safe(k), indent=2, sort_keys=True))
-
-
-def _journal_key(e: dict[str, Any]) -> tuple[Any, ...]:
-    """(train, station, departure, running time, dwell limit, regulator) of a journal line."""
-    return (int(e["i"]), int(e["st"]), float(e["dep"]), float(e["run"]), float(e["dwell"]),
-            int(e["reg"]))
-
-
-def _nan_key(key: tuple[Any, ...]) -> tuple[Any, ...]:
-    """A hashable key where NaN equals NaN (NaN marks an unset value)."""
-    return tuple("nan" if isinstance(x, float) and math.isnan(x) else x for x in key)
-
-
-def _read_journal(path: Path) -> list[dict[str, Any]]:
-    """The departure journal's entries (a torn or foreign line ends it)."""
-    return read_entries(path, lambda e, _: bool((_journal_key(e), int(e["k"]))))
 
 
 def main(args: Sequence[str] | None = None) -> int:

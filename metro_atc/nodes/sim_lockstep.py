@@ -96,7 +96,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
             executor.spin_once(timeout_sec=timeout_s)
 
     t0 = time.monotonic()
-    alone_until = t0 + ALONE_CHECK_S if sim.first_start else t0
+    alone_until = t0 + ALONE_CHECK_S if sim.checkpoints.first_start else t0
     next_alone = t0  # the graph query costs: once a second, as in the stepping loop
     while not sim.graph_ready() and time.monotonic() - t0 < sim.startup_timeout_s:
         if stop_requested():
@@ -190,7 +190,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
             executor.spin_once(timeout_sec=0.0)
     sim.sensors.flush(float(sim.sim.t), force=True)  # stopped by a signal: what was
     # sampled goes out
-    sim.wait_checkpoint()
+    sim.checkpoints.wait()
     if sim.wait_for_subscribers:
         sim.wait_acked()
     if not sim.finished:
