@@ -61,12 +61,12 @@ from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_EVENTS,
                                     QOS_FLEET_SENSOR, QOS_LATCHED, QOS_LATCHED_IN,
                                     QOS_RELIABLE, QOS_SENSOR, OK, WARN, NodeConfigError,
-                                    RuntimeParams,
                                     bulk_publisher, bulk_subscription, diag_status,
-                                    run_nodes, spin_until_stopped, static)
+                                    run_nodes, spin_until_stopped)
 from metro_atc.nodes.sim_checkpoints import Checkpoints, journal_key
 from metro_atc.nodes.sim_domain import LINGER_S, linger
 from metro_atc.nodes.sim_lockstep import RECORDER_SYNC_STEPS, lockstep_loop
+from metro_atc.nodes.sim_params import SimParams
 from metro_atc.nodes.sim_sensors import SensorOutbox
 
 
@@ -86,107 +86,19 @@ class LineSimulator(Node):
     def __init__(self, **kwargs: Any) -> None:
         """Declare parameters, load the scenario, create the publishers and subscriptions."""
         super().__init__("line_simulator", **kwargs)
-        self.scenario_name = static(self, "scenario", "taipei_blue",
-                                    "embedded scenario name or path to a scenario YAML")
-        self.seed = static(self, "seed", 0, "random seed of disturbances and noise",
-                           0, 2**31 - 1)
-        self.lockstep = static(self, "lockstep", True,
-                               "deterministic lockstep (true) or free-run at real_time_factor")
-        self.rtf = static(self, "real_time_factor", 10.0,
-                          "free-run pacing: simulated seconds per wall second", 0.01, 10000.0)
-        self.startup_timeout_s = static(self, "startup_timeout_s", 60.0,
-                                        "wall time to wait for ATO/ATS discovery [s]",
-                                        0.0, 3600.0)
-        self.wait_for_subscribers = [x for x in static(
-            self, "wait_for_subscribers", [""],
-            "node names (e.g. a recorder) that must subscribe to every topic of the "
-            "simulator before step 0") if x]
-        self.max_sim_time_s = static(self, "max_sim_time_s", 0.0,
-                                     "stop after this simulated time [s]; 0: scenario end",
-                                     0.0, 1e7)
-        self.out_dir = static(self, "out_dir", "",
-                              "directory for kpis.json, events.csv and plots ('' : none)")
-        self.plots = static(self, "plots", True, "write PNG plots into out_dir")
-        self.exit_on_finish = static(self, "exit_on_finish", True,
-                                     "shut the node down when the scenario ends")
-        self.finished_file = static(
-            self, "finished_file", "",
-            "a file created once the run finished and its last samples were delivered, "
-            "before the outputs are written ('' : none; python -m metro_atc run then stops "
-            "the other nodes while this one writes its outputs)")
-        self.train_state_period_s = static(
-            self, "train_state_period_s", 1.0,
-            "simulated time between the per-train /<train>/state messages of trains whose "
-            "ATO answers /line/fleet_state (the lockstep carrier, every step); 0: every step",
-            0.0, 3600.0)
-        self.clock_period_s = static(
-            self, "clock_period_s", 0.0,
-            "simulated time between /clock messages [s] (0: every step; -1: "
-            "train_state_period_s); nothing in the graph steps on /clock (the lockstep "
-            "carries the time), but outside tools see a lockstep hold on it", -1.0, 3600.0)
-        self.rt = RuntimeParams(self, self.health)
-        self.step_timeout_s = self.rt.dynamic(
-            "step_timeout_s", 10.0, "lockstep: wall time to wait for all commands [s]",
-            partial(setattr, self, "step_timeout_s"), 0.01, 600.0)
-        self.status_period_s = self.rt.dynamic(
-            "status_period_s", 10.0,
-            "simulated time between /line/status messages [s] (each computes the run's "
-            "KPIs so far: ~3 ms on the Blue line peak, more than a physics step)",
-            partial(setattr, self, "status_period_s"), 0.01, 3600.0)
-        self.sensor_idle_period_s = self.rt.dynamic(
-            "sensor_idle_period_s", 1.0,
-            "brake sensors: samples are published at the scenario rate while the instrumented "
-            "car brakes, and every this many simulated seconds otherwise (0: every sample)",
-            partial(setattr, self, "sensor_idle_period_s"), 0.0, 3600.0)
-        self.progress_period_s = self.rt.dynamic(
-            "progress_period_s", 600.0, "simulated time between progress log lines [s]",
-            self._set_progress_period, 1.0, 1e6)
-        self.min_rtf = self.rt.dynamic(
-            "min_real_time_factor", 1.0,
-            "/diagnostics: WARN when the simulated seconds per wall second over the last "
-            "diagnostics period fall below this", partial(setattr, self, "min_rtf"),
-            0.0, 1e6)
-        self.ato_lost_steps = static(
-            self, "ato_lost_steps", 8,
-            "a train whose ATO misses this many consecutive steps is braked to a stop "
-            "(CBTC fault) until its ATO answers again", 1, 1_000_000)
-        self.checkpoint_dir = static(
-            self, "checkpoint_dir", "",
-            "directory of the resume checkpoint and departure journal ('' : none); a "
-            "checkpoint found there at start-up is resumed from")
-        self.sensor_resend_s = static(
-            self, "sensor_resend_s", 120.0,
-            "brake sensors: the samples of this many simulated seconds are kept and sent "
-            "again when a new reader matches (a restarted brake_diagnostic catches up)",
-            0.0, 1e5)
-        self.sensor_keep_max = static(
-            self, "sensor_keep_max", 200_000,
-            "brake sensors: at most this many samples are kept for a re-send (the oldest "
-            "beyond it are dropped, counted and logged)", 0, 100_000_000)
-        self.sensor_drain_timeout_s = static(
-            self, "sensor_drain_timeout_s", 60.0,
-            "end of a run: wall seconds to wait until every train's brake diagnosis "
-            "acknowledged its last sensor sample (a restarted brake_diagnostic catching up; "
-            "0: no wait)", 0.0, 3600.0)
-        self.checkpoint_period_s = static(
-            self, "checkpoint_period_s", 60.0,
-            "simulated time between checkpoints [s] (0: none)", 0.0, 1e7)
-        self.sensor_batch_period_s = static(
-            self, "sensor_batch_period_s", 1.0,
-            "brake sensors: simulated time whose samples go out in one FleetBrakeSensorData "
-            "on /line/brake_sensors (0: one message per step with samples; the last batch "
-            "goes out at a checkpoint and at the end of the run)", 0.0, 3600.0)
-        self._next_progress_t = self.progress_period_s
+        self.params = SimParams(self, self.health, self._set_progress_period)
+        """The node's parameters (:mod:`metro_atc.nodes.sim_params`)."""
+        self._next_progress_t = self.params.progress_period_s
         self.wall0 = time.monotonic()
         try:
-            scn = load_scenario(self.scenario_name)
+            scn = load_scenario(self.params.scenario_name)
         except ScenarioError as exc:
             raise NodeConfigError(str(exc)) from None
-        self.sim = LineSim(scn, seed=int(self.seed))
+        self.sim = LineSim(scn, seed=int(self.params.seed))
         self.bounds = bounds_for(scn)
         self.rejections = Rejections()
         """Rejected input messages per kind (:mod:`metro_atc.core.validate`)."""
-        self.watchdog = AtoWatchdog(len(self.sim.train_ids), int(self.ato_lost_steps))
+        self.watchdog = AtoWatchdog(len(self.sim.train_ids), int(self.params.ato_lost_steps))
         """Lost-ATO decision (:mod:`metro_atc.core.ato_watchdog`)."""
         self.ids: list[str] = list(self.sim.train_ids)
         self.index = {tid: i for i, tid in enumerate(self.ids)}
@@ -245,11 +157,11 @@ class LineSimulator(Node):
         """Bumped whenever a departure is received or given up (dep_received/dep_given_up)."""
         self._pending: tuple[tuple[int, int], list[tuple[int, int]]] = ((-1, -1), [])
         """((k, _dep_version), pending_departures()) of the last look."""
-        self.state_every = max(1, int(round(self.train_state_period_s
+        self.state_every = max(1, int(round(self.params.train_state_period_s
                                             / float(self.sim.control_period_s))))
         """Steps between per-train states of fleet-driven trains."""
-        clock_period = float(self.train_state_period_s if self.clock_period_s < 0
-                             else self.clock_period_s)
+        clock_period = float(self.params.train_state_period_s
+                             if self.params.clock_period_s < 0 else self.params.clock_period_s)
         self.clock_every = max(1, int(round(clock_period / float(self.sim.control_period_s))))
         """Steps between /clock messages."""
 
@@ -267,7 +179,7 @@ class LineSimulator(Node):
             self, self.ids,
             bulk_publisher(self, FleetBrakeSensorData, FLEET_SENSOR_TOPIC, QOS_FLEET_SENSOR),
             [bulk_publisher(self, BrakeSensorData, f"/{t}/brake_sensors", QOS_SENSOR)
-             for t in self.ids], self, self._ids_block, self._warn_rate_limited)
+             for t in self.ids], self.params, self._ids_block, self._warn_rate_limited)
         """The brake sensor outbox (:mod:`metro_atc.nodes.sim_sensors`)."""
         self.cmd_subs = [bulk_subscription(self, TractionCommand, f"/{t}/command",
                                            partial(self._on_command, i), QOS_RELIABLE)
@@ -282,10 +194,11 @@ class LineSimulator(Node):
         self.diag_subs = [bulk_subscription(self, BrakeDiagnosis, f"/{t}/brake_diagnosis",
                                             partial(self._on_diagnosis, i), QOS_LATCHED)
                           for i, t in enumerate(self.ids)]
-        identity = content_hash(scenario_hash(self.sim), bool(self.lockstep),
-                                int(self.ato_lost_steps), float(self.max_sim_time_s))
+        p = self.params
+        identity = content_hash(scenario_hash(self.sim), bool(p.lockstep),
+                                int(p.ato_lost_steps), float(p.max_sim_time_s))
         # what a checkpoint must have been made for (scenario content, seed, parameters)
-        self.checkpoints = Checkpoints(self.checkpoint_dir, identity, self.checkpoint_period_s,
+        self.checkpoints = Checkpoints(p.checkpoint_dir, identity, p.checkpoint_period_s,
                                        self.sim.control_period_s, self.get_logger(),
                                        self._warn_rate_limited)
         """Checkpoints and the departure journal (:mod:`metro_atc.nodes.sim_checkpoints`)."""
@@ -294,9 +207,9 @@ class LineSimulator(Node):
             self._set_node_state(restored)
             self.republish_history()
         self.get_logger().info(
-            f"scenario '{self.scenario_name}': {n} trains, {len(self.sim.station_names)} "
+            f"scenario '{self.params.scenario_name}': {n} trains, {len(self.sim.station_names)} "
             f"stations, control period {self.sim.control_period_s} s, "
-            f"{'lockstep' if self.lockstep else f'free-run x{self.rtf}'}")
+            f"{'lockstep' if self.params.lockstep else f'free-run x{self.params.rtf}'}")
 
     # ------------------------------------------------------------------ inputs
     def _warn_rate_limited(self, key: str, text: str) -> None:
@@ -468,9 +381,9 @@ class LineSimulator(Node):
         self.sensors.acknowledge(i, t)
 
     def _set_progress_period(self, value: float) -> None:
-        self.progress_period_s = float(value)
-        self._next_progress_t = float(self.sim.t) + self.progress_period_s \
-            if hasattr(self, "sim") else self.progress_period_s
+        self.params.progress_period_s = float(value)
+        self._next_progress_t = float(self.sim.t) + self.params.progress_period_s \
+            if hasattr(self, "sim") else self.params.progress_period_s
 
     # ------------------------------------------------------------------ health
     def health(self) -> list[DiagnosticStatus]:
@@ -489,7 +402,7 @@ class LineSimulator(Node):
         steps = self.k - k0
         misses = self.lockstep_misses - m0
         level, msg = OK, "running"
-        want = self.min_rtf if self.lockstep else 0.9 * self.rtf
+        want = self.params.min_rtf if self.params.lockstep else 0.9 * self.params.rtf
         if not self.started:
             msg = "waiting for the graph before step 0"
         elif self.finished:
@@ -502,7 +415,7 @@ class LineSimulator(Node):
             "step": self.k, "sim_time_s": t, "steps_per_s": steps / dw,
             "real_time_factor": rtf,
             "step_time_ms": 1e3 * dw / steps if steps else float("nan"),
-            "lockstep": self.lockstep, "lockstep_misses": self.lockstep_misses,
+            "lockstep": self.params.lockstep, "lockstep_misses": self.lockstep_misses,
             "fleet_state_resends": self.fleet_resends,
             "lockstep_misses_in_period": misses, "ats_timeouts": self.ats_misses,
             "rejected_messages": self.rejected,
@@ -526,13 +439,13 @@ class LineSimulator(Node):
             all(s.get_publisher_count() > 0 for s in self.cmd_subs) and \
             all(s.get_publisher_count() > 0 for s in self.dep_subs) and \
             self.sensors.fleet_pub.get_subscription_count() > 0
-        if not ready or not self.wait_for_subscribers:
+        if not ready or not self.params.wait_for_subscribers:
             return ready
         pubs = [self.clock_pub, self.event_pub, self.status_pub, *self.state_pubs,
                 self.sensors.fleet_pub]
         for p in pubs:
             names = {i.node_name for i in self.get_subscriptions_info_by_topic(p.topic_name)}
-            if not all(w in names for w in self.wait_for_subscribers):
+            if not all(w in names for w in self.params.wait_for_subscribers):
                 return False
         return True
 
@@ -735,7 +648,7 @@ class LineSimulator(Node):
         res, done = self.step_plant(active, timed_out)
         ck = self.checkpoints
         if done or (ck.replay_due(self.k) and ck.due(self.k)) or (
-                self.wait_for_subscribers and self.k % RECORDER_SYNC_STEPS == 0):
+                self.params.wait_for_subscribers and self.k % RECORDER_SYNC_STEPS == 0):
             self.publish_outputs(res, done)
             return None
         nxt = self.publish_lockstep()
@@ -767,7 +680,8 @@ class LineSimulator(Node):
         res = self.sim.step(effort)
         self.k += 1
         t = float(self.sim.t)
-        done = bool(self.sim.done) or (self.max_sim_time_s > 0 and t >= self.max_sim_time_s)
+        end = self.params.max_sim_time_s
+        done = bool(self.sim.done) or (end > 0 and t >= end)
         return res, done
 
     def publish_outputs(self, res: Any, done: bool) -> None:
@@ -783,14 +697,14 @@ class LineSimulator(Node):
         self.sensors.take(res.sensor_arrays)
         t = float(self.sim.t)
         if t >= self._next_progress_t:
-            self._next_progress_t += self.progress_period_s
+            self._next_progress_t += self.params.progress_period_s
             wall = time.monotonic() - self.wall0
             self.get_logger().info(
                 f"t={t:.0f} s: {int(np.count_nonzero(self.sim.active_mask()))} trains in "
                 f"service, {self.lockstep_misses} lockstep misses, "
                 f"{t / wall if wall > 0 else 0.0:.1f}x real time")
         if t >= self._next_status_t or done:
-            self._next_status_t = t + self.status_period_s
+            self._next_status_t = t + self.params.status_period_s
             self.status_pub.publish(conv.line_status_msg(self.kpis(), self.k, t, done))
         if done:
             self.finished = True
@@ -821,15 +735,15 @@ class LineSimulator(Node):
         wall times stay out of kpis.json, which two runs write identically). A file that
         cannot be written is logged; the launcher then stops the nodes after this one.
         """
-        if not self.finished_file:
+        if not self.params.finished_file:
             return
         try:
-            tmp = Path(self.finished_file + ".tmp")
+            tmp = Path(self.params.finished_file + ".tmp")
             tmp.write_text(json.dumps({"loop_wall_s": self.loop_wall_s,
                                        "loop_sim_s": self.loop_sim_s}))
-            tmp.replace(self.finished_file)  # seen whole or not at all
+            tmp.replace(self.params.finished_file)  # seen whole or not at all
         except OSError as exc:
-            self.get_logger().warning(f"finished_file {self.finished_file}: {exc}")
+            self.get_logger().warning(f"finished_file {self.params.finished_file}: {exc}")
 
     def kpis(self) -> dict[str, Any]:
         """The core's KPIs plus the node's lockstep/rejection counters."""
@@ -841,8 +755,8 @@ class LineSimulator(Node):
         k["ato_losses"] = int(self.watchdog.losses)
         k["ato_stop_steps"] = int(self.watchdog.stop_steps)
         k["steps"] = int(self.k)
-        k["scenario"] = self.scenario_name
-        k["lockstep"] = bool(self.lockstep)
+        k["scenario"] = self.params.scenario_name
+        k["lockstep"] = bool(self.params.lockstep)
         k["regulators_seen"] = dict(sorted(self.regulators.items()))
         k["planners_seen"] = sorted(self.planners)  # names only: latched, depth-1 reader
         return k
@@ -864,15 +778,15 @@ class LineSimulator(Node):
 
     def _write_outputs(self) -> None:
         """The outputs of :meth:`close`."""
-        if not self.out_dir:
+        if not self.params.out_dir:
             return
-        out = Path(self.out_dir)
+        out = Path(self.params.out_dir)
         out.mkdir(parents=True, exist_ok=True)
         k = self.kpis()
         k["finished"] = bool(self.finished)
         try:
             from metro_atc import plots
-            if self.plots:
+            if self.params.plots:
                 plots.write_outputs(self.sim, out, kpis=k, planned=self.planned)
                 return
             plots.write_events_csv(self.sim, out / "events.csv")
@@ -887,7 +801,7 @@ def main(args: Sequence[str] | None = None) -> int:
         node = nodes[0]
         assert isinstance(node, LineSimulator)
         lockstep_loop(executor, node)
-        if not node.exit_on_finish:
+        if not node.params.exit_on_finish:
             spin_until_stopped(executor)
 
     return run_nodes(lambda: [LineSimulator()], loop, args)

@@ -47,6 +47,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
     every wait is an executor spin.
     """
     log = sim.get_logger()
+    params = sim.params
     lock_pollers: dict[tuple[bytes, tuple[int, ...]], SubscriptionPoller] = {}
     echo_pollers: dict[bytes, SubscriptionPoller] = {}
 
@@ -98,7 +99,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
     t0 = time.monotonic()
     alone_until = t0 + ALONE_CHECK_S if sim.checkpoints.first_start else t0
     next_alone = t0  # the graph query costs: once a second, as in the stepping loop
-    while not sim.graph_ready() and time.monotonic() - t0 < sim.startup_timeout_s:
+    while not sim.graph_ready() and time.monotonic() - t0 < params.startup_timeout_s:
         if stop_requested():
             return
         executor.spin_once(timeout_sec=0.05)
@@ -144,11 +145,11 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
             else:
                 check_not_refused(sim, sim.fleet_pub.topic_name)
         if active is None:  # else published with the step before (step_and_publish)
-            if sim.wait_for_subscribers and sim.k > 0 and sim.k % RECORDER_SYNC_STEPS == 0:
+            if params.wait_for_subscribers and sim.k > 0 and sim.k % RECORDER_SYNC_STEPS == 0:
                 sim.wait_acked(timeout_s=30.0)
             active = sim.publish_step()
-        if sim.lockstep:
-            deadline = time.monotonic() + sim.step_timeout_s
+        if params.lockstep:
+            deadline = time.monotonic() + params.step_timeout_s
             resend = time.monotonic() + 0.5
             fleet_resend = time.monotonic() + FLEET_RESEND_S
             while True:
@@ -175,7 +176,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
                         sim.publish_fleet_again(active)
             active = sim.step_and_publish(active, timed_out=not complete)
         else:
-            target = wall0 + (float(sim.sim.t) + sim.sim.control_period_s - sim0) / sim.rtf
+            target = wall0 + (float(sim.sim.t) + sim.sim.control_period_s - sim0) / params.rtf
             while True:
                 rest = target - time.monotonic()
                 if rest <= 0:
@@ -191,7 +192,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
     sim.sensors.flush(float(sim.sim.t), force=True)  # stopped by a signal: what was
     # sampled goes out
     sim.checkpoints.wait()
-    if sim.wait_for_subscribers:
+    if params.wait_for_subscribers:
         sim.wait_acked()
     if not sim.finished:
         log.info(f"stopped by a signal at t={sim.sim.t:.1f} s, step {sim.k}")
