@@ -52,11 +52,9 @@ from metro_atc.core.ato_watchdog import AtoWatchdog
 from metro_atc.core.checkpoint import content_hash
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.plant.snapshot import scenario_hash
-from metro_atc.core.plant.views import dwelling_in_service, fleet_state_rows
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.jsonsafe import json_safe
-from metro_atc.nodes import cdr
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_EVENTS,
                                     QOS_FLEET_SENSOR, QOS_LATCHED, QOS_LATCHED_IN,
@@ -64,7 +62,9 @@ from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_EVENTS,
                                     bulk_publisher, bulk_subscription, diag_status,
                                     run_nodes, spin_until_stopped)
 from metro_atc.nodes.sim_checkpoints import Checkpoints, journal_key
+from metro_atc.nodes.sim_departures import DepartureBook
 from metro_atc.nodes.sim_domain import LINGER_S, linger
+from metro_atc.nodes.sim_fleet import FleetStatePublisher
 from metro_atc.nodes.sim_lockstep import RECORDER_SYNC_STEPS, lockstep_loop
 from metro_atc.nodes.sim_params import SimParams
 from metro_atc.nodes.sim_sensors import SensorOutbox
@@ -78,6 +78,13 @@ NODE_STATE = ("k", "cmd_step", "cmd_effort", "lockstep_misses", "rejected", "rej
               "_next_status_t", "_next_progress_t", "regulators", "planners", "planned",
               "watchdog")
 """Node attributes saved with the plant in a checkpoint."""
+_STATE_ELSEWHERE = {"sensor_last_t": ("sensors", "last_t"),
+                    "dep_received": ("departures", "received"),
+                    "dep_given_up": ("departures", "given_up"),
+                    "ats_misses": ("departures", "ats_misses"),
+                    "regulators": ("departures", "regulators")}
+"""The :data:`NODE_STATE` values a collaborator holds: name -> (node attribute, its
+attribute)."""
 
 
 class LineSimulator(Node):
@@ -109,10 +116,8 @@ class LineSimulator(Node):
         self.lockstep_misses = 0
         self.rejected = 0
         self.event_seq = np.zeros(n, dtype=np.int64)
-        n_st = len(self.sim.station_names)
-        self.dep_received = np.zeros((n, n_st), dtype=bool)
-        self.dep_given_up = np.zeros((n, n_st), dtype=bool)
-        self.ats_misses = 0
+        self.departures = DepartureBook(n, len(self.sim.station_names))
+        """Departure commands received or given up (:mod:`metro_atc.nodes.sim_departures`)."""
         self._last_warn: dict[str, float] = {}
         self._next_status_t = 0.0
         self.finished = False
@@ -121,56 +126,30 @@ class LineSimulator(Node):
         """Wall time of the stepping loop from its first step to the end [s] (None before)."""
         self.loop_sim_s = 0.0
         """Simulated time that loop ran [s]."""
-        self.regulators: dict[str, int] = {}
         self.planners: dict[str, int] = {}
         self.planned: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
         self._health_last = (time.monotonic(), 0.0, 0, 0)
-        self._matched = np.zeros(n, dtype=np.int64)
         self.fleet_driven = np.zeros(n, dtype=bool)
         """Trains whose ATO answered a fleet state (their per-train state is decimated)."""
-        self._fleet_matched = 0
-        self._fleet_msg: bytes | None = None
-        """The serialized fleet state of step k (published again to a late ATO process)."""
         self._id_bytes = {tid.encode("utf-8"): i for i, tid in enumerate(self.ids)}
         """Train id (UTF-8) -> index, for the serialized fleet commands."""
         self._ix_cache: dict[tuple[bytes, ...], np.ndarray] = {}
         """Train indices of each fleet command train list seen (bounded)."""
-        self._ids_blocks: dict[bytes, bytes] = {}
-        self._state_builders: dict[bytes, cdr.FleetStateBuilder] = {}
-        """FleetState layouts by the train indices' bytes."""
-        """Serialized train id lists (cdr.string_seq) by the train indices' bytes."""
-        self._echo_mask = np.zeros(n, dtype=bool)
-        self._active = np.zeros(n, dtype=bool)
-        """Active trains of the last step published."""
-        self._active_idx = np.zeros(0, dtype=np.intp)
-        self._active_idx_k = -1
-        """Their indices, and the step they are of."""
-        """Trains whose per-train state was published at step k too (fleet ``echo``)."""
-        self.fleet_resends = 0
-        """Fleet states published again for trains that did not answer in time."""
-        self._step_rows: tuple[int, np.ndarray, dict[str, np.ndarray]] = (-1, np.zeros(0), {})
-        """(k, the active trains, their fleet-state arrays published at step k): a re-send
-        (:meth:`publish_fleet_again`) takes them again."""
-        self._dwelling: tuple[int, list[tuple[int, int]]] = (-1, [])
-        """(k, (train, station) of the trains dwelling in service at step k)."""
-        self._dep_version = 0
-        """Bumped whenever a departure is received or given up (dep_received/dep_given_up)."""
-        self._pending: tuple[tuple[int, int], list[tuple[int, int]]] = ((-1, -1), [])
-        """((k, _dep_version), pending_departures()) of the last look."""
-        self.state_every = max(1, int(round(self.params.train_state_period_s
-                                            / float(self.sim.control_period_s))))
-        """Steps between per-train states of fleet-driven trains."""
-        clock_period = float(self.params.train_state_period_s
-                             if self.params.clock_period_s < 0 else self.params.clock_period_s)
-        self.clock_every = max(1, int(round(clock_period / float(self.sim.control_period_s))))
-        """Steps between /clock messages."""
-
-        self.clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK)
+        p = self.params
+        dt = float(self.sim.control_period_s)
+        clock_period = float(p.train_state_period_s if p.clock_period_s < 0
+                             else p.clock_period_s)
+        clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK)
         self.event_pub = self.create_publisher(TrainEvent, "/line/events", QOS_EVENTS)
         self.status_pub = self.create_publisher(LineStatus, "/line/status", QOS_LATCHED)
-        self.state_pubs = [bulk_publisher(self, TrainState, f"/{t}/state", QOS_RELIABLE)
-                           for t in self.ids]
-        self.fleet_pub = bulk_publisher(self, FleetState, "/line/fleet_state", QOS_RELIABLE)
+        state_pubs = [bulk_publisher(self, TrainState, f"/{t}/state", QOS_RELIABLE)
+                      for t in self.ids]
+        self.fleet = FleetStatePublisher(
+            self.ids, self.sim,
+            bulk_publisher(self, FleetState, "/line/fleet_state", QOS_RELIABLE), state_pubs,
+            clock_pub, state_every=max(1, int(round(p.train_state_period_s / dt))),
+            clock_every=max(1, int(round(clock_period / dt))))
+        """The fleet state, per-train states and /clock (:mod:`metro_atc.nodes.sim_fleet`)."""
         # raw: the commands are read from their CDR bytes (conv.fleet_command_efforts_cdr)
         self.fleet_sub = self.create_subscription(
             FleetCommand, "/line/fleet_command", self._on_fleet_command, QOS_RELIABLE,
@@ -179,7 +158,7 @@ class LineSimulator(Node):
             self, self.ids,
             bulk_publisher(self, FleetBrakeSensorData, FLEET_SENSOR_TOPIC, QOS_FLEET_SENSOR),
             [bulk_publisher(self, BrakeSensorData, f"/{t}/brake_sensors", QOS_SENSOR)
-             for t in self.ids], self.params, self._ids_block, self._warn_rate_limited)
+             for t in self.ids], self.params, self.fleet.ids_block, self._warn_rate_limited)
         """The brake sensor outbox (:mod:`metro_atc.nodes.sim_sensors`)."""
         self.cmd_subs = [bulk_subscription(self, TractionCommand, f"/{t}/command",
                                            partial(self._on_command, i), QOS_RELIABLE)
@@ -194,7 +173,6 @@ class LineSimulator(Node):
         self.diag_subs = [bulk_subscription(self, BrakeDiagnosis, f"/{t}/brake_diagnosis",
                                             partial(self._on_diagnosis, i), QOS_LATCHED)
                           for i, t in enumerate(self.ids)]
-        p = self.params
         identity = content_hash(scenario_hash(self.sim), bool(p.lockstep),
                                 int(p.ato_lost_steps), float(p.max_sim_time_s))
         # what a checkpoint must have been made for (scenario content, seed, parameters)
@@ -323,25 +301,25 @@ class LineSimulator(Node):
                          regulator: int) -> None:
         """Hand a validated departure command to the plant; count the regulator."""
         self.sim.set_departure(i, st, dep, run, dwell)
-        if not self.dep_received[i, st]:
-            reg = _REGULATOR_NAMES.get(int(regulator), f"code {regulator}")
-            self.regulators[reg] = self.regulators.get(reg, 0) + 1
-        self.dep_received[i, st] = True
-        self._dep_version += 1
+        self.departures.receive(i, st, _REGULATOR_NAMES.get(int(regulator),
+                                                            f"code {regulator}"))
 
     # ------------------------------------------------------------------ resume
+    def _state_owner(self, name: str) -> tuple[Any, str]:
+        """The object and attribute holding the :data:`NODE_STATE` value ``name``."""
+        if name in _STATE_ELSEWHERE:
+            owner, attr = _STATE_ELSEWHERE[name]
+            return getattr(self, owner), attr
+        return self, name
+
     def _node_state(self) -> dict[str, Any]:
         """The node's part of a checkpoint (:data:`NODE_STATE`), by name."""
-        return {a: (self.sensors.last_t if a == "sensor_last_t" else getattr(self, a))
-                for a in NODE_STATE}
+        return {a: getattr(*self._state_owner(a)) for a in NODE_STATE}
 
     def _set_node_state(self, holder: Any) -> None:
         """Take the :data:`NODE_STATE` values of a restored checkpoint ``holder``."""
         for a in NODE_STATE:
-            if a == "sensor_last_t":
-                self.sensors.last_t = getattr(holder, a)
-            else:
-                setattr(self, a, getattr(holder, a))
+            setattr(*self._state_owner(a), getattr(holder, a))
 
     def _replay_departures(self) -> None:
         """Re-apply the journaled departure commands of the current step (after a resume)."""
@@ -416,8 +394,8 @@ class LineSimulator(Node):
             "real_time_factor": rtf,
             "step_time_ms": 1e3 * dw / steps if steps else float("nan"),
             "lockstep": self.params.lockstep, "lockstep_misses": self.lockstep_misses,
-            "fleet_state_resends": self.fleet_resends,
-            "lockstep_misses_in_period": misses, "ats_timeouts": self.ats_misses,
+            "fleet_state_resends": self.fleet.resends,
+            "lockstep_misses_in_period": misses, "ats_timeouts": self.departures.ats_misses,
             "rejected_messages": self.rejected,
             "rejected_by_kind": self.rejections.summary(),
             "ato_losses": self.watchdog.losses,
@@ -435,13 +413,13 @@ class LineSimulator(Node):
         With ``wait_for_subscribers``, each named node must also subscribe to every topic
         the simulator publishes (a recorder then sees step 0).
         """
-        ready = self.fleet_pub.get_subscription_count() > 0 and \
+        ready = self.fleet.fleet_pub.get_subscription_count() > 0 and \
             all(s.get_publisher_count() > 0 for s in self.cmd_subs) and \
             all(s.get_publisher_count() > 0 for s in self.dep_subs) and \
             self.sensors.fleet_pub.get_subscription_count() > 0
         if not ready or not self.params.wait_for_subscribers:
             return ready
-        pubs = [self.clock_pub, self.event_pub, self.status_pub, *self.state_pubs,
+        pubs = [self.fleet.clock_pub, self.event_pub, self.status_pub, *self.fleet.state_pubs,
                 self.sensors.fleet_pub]
         for p in pubs:
             names = {i.node_name for i in self.get_subscriptions_info_by_topic(p.topic_name)}
@@ -460,27 +438,13 @@ class LineSimulator(Node):
         (acknowledgements come with the DDS heartbeat, ~1 s: not every step).
         """
         end = time.monotonic() + timeout_s
-        for p in (self.clock_pub, self.event_pub, self.status_pub, *self.state_pubs,
-                  self.sensors.fleet_pub):
+        for p in (self.fleet.clock_pub, self.event_pub, self.status_pub,
+                  *self.fleet.state_pubs, self.sensors.fleet_pub):
             rest = end - time.monotonic()
             if rest <= 0.0 or not p.wait_for_all_acked(Duration(seconds=rest)):
                 self.get_logger().warning(f"{p.topic_name}: not every reader acknowledged "
                                           f"the last messages within {timeout_s:g} s")
                 return
-
-    def new_subscribers(self, active: np.ndarray) -> np.ndarray:
-        """Active trains whose state topic matched a new subscriber since the last check."""
-        cnt = np.array([p.get_subscription_count() for p in self.state_pubs], dtype=np.int64)
-        changed = active & (cnt != self._matched)
-        self._matched = cnt
-        return changed
-
-    def publish_states(self, trains: np.ndarray) -> None:
-        """Publish again the step-k states of ``trains`` (a late or restarted ATO)."""
-        t = float(self.sim.t)
-        for i, m in conv.state_msgs(self.ids, np.flatnonzero(trains), self.sim.states(),
-                                    self.k, t):
-            self.state_pubs[i].publish(m)
 
     def publish_step(self) -> np.ndarray:
         """Publish /clock and the states of step k; return the active mask.
@@ -494,8 +458,7 @@ class LineSimulator(Node):
 
     def publish_clock(self) -> None:
         """Publish /clock at the time of step k (every ``clock_every`` steps)."""
-        if self.k % self.clock_every == 0:
-            self.clock_pub.publish(cdr.clock(float(self.sim.t)))
+        self.fleet.publish_clock(self.k)
 
     def publish_lockstep(self) -> np.ndarray:
         """Publish what the ATOs answer at step k: the fleet state, the per-train states.
@@ -505,94 +468,7 @@ class LineSimulator(Node):
         """
         if self.checkpoints.replay:
             self._replay_departures()
-        t = float(self.sim.t)
-        active = np.asarray(self.sim.active_mask(), dtype=bool)
-        per_train = active if self.k % self.state_every == 0 else active & ~self.fleet_driven
-        if per_train.any():
-            # a topic nobody reads is not published (outside tools that subscribe get it at
-            # the declared rate; the fleet state carries every step): no writes, and no
-            # per-train command echoes from the ATOs for them (issue 13)
-            per_train = self._state_read(per_train)
-        idx = np.flatnonzero(active)
-        self._echo_mask = per_train
-        self._active_idx, self._active_idx_k, self._active = idx, self.k, active
-        # the fleet state's arrays of the active trains only (not every state array of
-        # every train: the lockstep's critical path, issue 13), the same values
-        rows = fleet_state_rows(self.sim, idx)
-        self._step_rows = (self.k, idx, rows)
-        self._fleet_msg = conv.fleet_state_rows_cdr(self._state_builder(idx), idx.size, rows,
-                                                    self.k, t, per_train[idx])
-        self.fleet_pub.publish(self._fleet_msg)
-        if per_train.any():
-            for i, m in conv.state_msgs(self.ids, np.flatnonzero(per_train), self.sim.states(),
-                                        self.k, t):
-                self.state_pubs[i].publish(m)
-        return active
-
-    def _state_read(self, mask: np.ndarray) -> np.ndarray:
-        """``mask`` less the trains whose ``/<train>/state`` has no subscriber.
-
-        Only the trains in ``mask`` are asked (one graph query each, on the step path).
-        """
-        out = np.zeros_like(mask)
-        for i in np.flatnonzero(mask):
-            out[i] = self.state_pubs[i].get_subscription_count() > 0
-        return out
-
-    def new_fleet_subscribers(self) -> bool:
-        """The fleet state topic matched a new (or lost a) subscriber since the last check."""
-        n = self.fleet_pub.get_subscription_count()
-        changed = n != self._fleet_matched
-        self._fleet_matched = n
-        return changed
-
-    def publish_fleet_again(self, active: np.ndarray | None = None) -> None:
-        """Publish the step-k fleet state again.
-
-        Without ``active``: the whole message (an ATO process that matched late). With it:
-        the entries of the active trains whose command of step k has not arrived (a state
-        lost with a killed ATO process, its restarted successor never saw it). A re-sent
-        state is answered with the same command (the ATO does not track it twice).
-        """
-        if active is None:
-            if self._fleet_msg is not None:
-                self.fleet_pub.publish(self._fleet_msg)
-            return
-        k, idx, rows = self._step_rows
-        missing = np.flatnonzero(active & (self.cmd_step < self.k))
-        if k != self.k or missing.size == 0:
-            return
-        # the entries published at step k (``active`` is step k's active mask)
-        at = np.searchsorted(idx, missing)
-        if int(at.max()) < idx.size and np.array_equal(idx[at], missing):
-            again = {key: a[at] for key, a in rows.items()}
-        else:  # not one of them (never in the loop): their states now
-            again = fleet_state_rows(self.sim, missing)
-        self.fleet_resends += 1
-        self.fleet_pub.publish(conv.fleet_state_rows_cdr(
-            self._state_builder(missing), missing.size, again, self.k, float(self.sim.t),
-            self._echo_mask[missing]))
-
-    def _state_builder(self, idx: np.ndarray) -> cdr.FleetStateBuilder:
-        """The FleetState layout of the trains ``idx`` (cached per index list)."""
-        key = np.asarray(idx, dtype=np.int64).tobytes()
-        got = self._state_builders.get(key)
-        if got is None:
-            if len(self._state_builders) > 256:
-                self._state_builders.clear()
-            got = self._state_builders[key] = cdr.FleetStateBuilder(self._ids_block(idx),
-                                                                    len(idx))
-        return got
-
-    def _ids_block(self, idx: np.ndarray) -> bytes:
-        """The train ids of ``idx`` as a serialized string[] (cached per index list)."""
-        key = np.asarray(idx, dtype=np.int64).tobytes()
-        block = self._ids_blocks.get(key)
-        if block is None:
-            if len(self._ids_blocks) > 1024:
-                self._ids_blocks.clear()
-            block = self._ids_blocks[key] = cdr.string_seq([self.ids[i] for i in idx])
-        return block
+        return self.fleet.publish(self.k, self.fleet_driven)
 
     def commands_complete(self, active: np.ndarray) -> bool:
         """Check the lockstep barrier of step k.
@@ -600,30 +476,18 @@ class LineSimulator(Node):
         True when all active trains sent their command for step k and the ATS has decided
         the departure of every train dwelling at a station (lockstep on the ATS as well).
         """
-        idx = self._active_idx if self._active_idx_k == self.k else np.flatnonzero(active)
+        fleet = self.fleet
+        idx = fleet.active_idx if fleet.active_idx_k == self.k else np.flatnonzero(active)
         return (idx.size == 0 or int(self.cmd_step[idx].min()) >= self.k) \
-            and not self.pending_departures()
+            and not self.departures.pending(self.k, self.sim)
 
     def waited_trains(self) -> np.ndarray:
         """Active trains whose per-train command the lockstep waits on (no fleet answer yet)."""
-        return self._active & ~self.fleet_driven
+        return self.fleet.active & ~self.fleet_driven
 
     def pending_departures(self) -> list[tuple[int, int]]:
         """(train, station) pairs dwelling without an ATS departure command yet."""
-        key = (self.k, self._dep_version)
-        if self._pending[0] == key:
-            return self._pending[1]
-        ck, dwell = self._dwelling
-        if ck != self.k:  # mode, service and station change only in a step
-            dwell = dwelling_in_service(self.sim)
-            self._dwelling = (self.k, dwell)
-        last = len(self.sim.station_names) - 1
-        out = []
-        for i, j in dwell:
-            if 0 <= j < last and not self.dep_received[i, j] and not self.dep_given_up[i, j]:
-                out.append((int(i), j))
-        self._pending = (key, out)
-        return out
+        return self.departures.pending(self.k, self.sim)
 
     def advance(self, active: np.ndarray, timed_out: bool) -> None:
         """Apply the commands, step the core and publish its outputs."""
@@ -664,10 +528,7 @@ class LineSimulator(Node):
         """
         if timed_out:
             missing = [self.ids[i] for i in np.flatnonzero(active & (self.cmd_step < self.k))]
-            for i, j in self.pending_departures():
-                self.dep_given_up[i, j] = True
-                self._dep_version += 1
-                self.ats_misses += 1
+            for i, j in self.departures.give_up_pending(self.k, self.sim):
                 missing.append(f"ATS for {self.ids[i]} at station {j} (timetable used)")
             self.lockstep_misses += 1
             self._warn_rate_limited(
@@ -751,13 +612,13 @@ class LineSimulator(Node):
         k["lockstep_misses"] = int(self.lockstep_misses)
         k["rejected_messages"] = int(self.rejected)
         k["rejected_by_kind"] = self.rejections.as_dict()
-        k["ats_timeouts"] = int(self.ats_misses)
+        k["ats_timeouts"] = int(self.departures.ats_misses)
         k["ato_losses"] = int(self.watchdog.losses)
         k["ato_stop_steps"] = int(self.watchdog.stop_steps)
         k["steps"] = int(self.k)
         k["scenario"] = self.params.scenario_name
         k["lockstep"] = bool(self.params.lockstep)
-        k["regulators_seen"] = dict(sorted(self.regulators.items()))
+        k["regulators_seen"] = dict(sorted(self.departures.regulators.items()))
         k["planners_seen"] = sorted(self.planners)  # names only: latched, depth-1 reader
         return k
 

@@ -106,16 +106,16 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
         now = time.monotonic()
         if next_alone <= now < alone_until:
             next_alone = now + 1.0
-            check_alone(sim, sim.fleet_pub.topic_name)
+            check_alone(sim, sim.fleet.fleet_pub.topic_name)
     if not sim.graph_ready():
         log.warning("startup: not every ATO/ATS endpoint was discovered; starting anyway")
     log.info(f"graph ready after {time.monotonic() - t0:.2f} s")
     sim.started = True
-    sim.new_subscribers(np.ones(len(sim.ids), dtype=bool))
+    sim.fleet.new_subscribers(np.ones(len(sim.ids), dtype=bool))
     sim.sensors.resend_new_readers(float(sim.sim.t), sim.started)  # the readers of step 0:
     # nothing kept yet, nothing sent
     next_sensor_check = time.monotonic() + 1.0
-    sim.new_fleet_subscribers()
+    sim.fleet.new_fleet_subscribers()
     wall0, sim0 = time.monotonic(), float(sim.sim.t)
     sim.wall0 = wall0
     k0 = int(sim.k)  # the first step of this loop (a resumed run's is not 0)
@@ -141,9 +141,9 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
             next_sensor_check = time.monotonic() + 1.0
             sim.sensors.resend_new_readers(float(sim.sim.t), sim.started)
             if time.monotonic() < alone_until:
-                check_alone(sim, sim.fleet_pub.topic_name)
+                check_alone(sim, sim.fleet.fleet_pub.topic_name)
             else:
-                check_not_refused(sim, sim.fleet_pub.topic_name)
+                check_not_refused(sim, sim.fleet.fleet_pub.topic_name)
         if active is None:  # else published with the step before (step_and_publish)
             if params.wait_for_subscribers and sim.k > 0 and sim.k % RECORDER_SYNC_STEPS == 0:
                 sim.wait_acked(timeout_s=30.0)
@@ -164,16 +164,16 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
                     # a state may have been published before a late (or restarted) ATO
                     # matched: only then, and only to that train, is it sent again
                     resend = time.monotonic() + 0.5
-                    again = sim.new_subscribers(active)
+                    again = sim.fleet.new_subscribers(active)
                     if again.any():
-                        sim.publish_states(again)
-                    if sim.new_fleet_subscribers():
-                        sim.publish_fleet_again()
+                        sim.fleet.publish_states(sim.k, again)
+                    if sim.fleet.new_fleet_subscribers():
+                        sim.fleet.publish_again(sim.k, sim.cmd_step)
                     elif time.monotonic() >= fleet_resend:
                         # no answer for a while: the state may have been lost with a
                         # killed ATO process whose successor matched between two checks
                         fleet_resend = time.monotonic() + FLEET_RESEND_S
-                        sim.publish_fleet_again(active)
+                        sim.fleet.publish_again(sim.k, sim.cmd_step, active)
             active = sim.step_and_publish(active, timed_out=not complete)
         else:
             target = wall0 + (float(sim.sim.t) + sim.sim.control_period_s - sim0) / params.rtf
