@@ -16,24 +16,26 @@ k has arrived; on ``step_timeout_s`` the last command is applied (ATP still supe
 miss is counted and a warning logged. Free-run: steps are paced at ``real_time_factor``.
 The physics, ATP and KPIs are the ROS-free :class:`metro_atc.core.plant.line.LineSim`.
 
-Resume (``checkpoint_dir``): every ``checkpoint_period_s`` of simulated time the node writes
-its full state (the plant with its event log and RNG states, the lockstep step, counters,
-departure bookkeeping: :mod:`metro_atc.core.plant.snapshot`) to
-``<checkpoint_dir>/line_simulator.npz``, and appends every departure command it applies,
-with its step, to ``line_simulator_departures.jsonl``.  Started with a checkpoint there (a
-respawn), it resumes from it: the restored event history is published again (transient
-local, for a restarted ATS), the lockstep restarts at the checkpoint's step, and the
-departure commands of the steps after it are re-applied from the journal at the same steps
-(the ATS does not repeat them); the ATOs follow the step back (``ato_controller``).
+Resume (``checkpoint_dir``): periodic checkpoints of the plant and the node's counters,
+and a write-ahead journal of the departure commands applied; a respawned simulator resumes
+from the last checkpoint, publishes the restored event history again and re-applies the
+journaled commands at their steps (:mod:`metro_atc.nodes.sim_checkpoints`).
+
+The node declares its parameters (:mod:`~metro_atc.nodes.sim_params`), creates its
+publishers and subscriptions (QoS), converts and validates the messages, and sequences its
+collaborators: the plant (``LineSim``), the fleet-state carrier
+(:mod:`~metro_atc.nodes.sim_fleet`), the departure bookkeeping
+(:mod:`~metro_atc.nodes.sim_departures`), the brake-sensor outbox
+(:mod:`~metro_atc.nodes.sim_sensors`), the checkpoints, the run's files
+(:mod:`~metro_atc.nodes.sim_outputs`); :mod:`~metro_atc.nodes.sim_lockstep` drives it and
+:mod:`~metro_atc.nodes.sim_domain` keeps it alone on its ROS domain.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from functools import partial
-from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -41,7 +43,6 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureCommand,
                                 FleetBrakeSensorData, FleetCommand, FleetState, LineStatus,
                                 SpeedProfile, TractionCommand, TrainEvent, TrainState)
-from rclpy.duration import Duration
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -54,7 +55,6 @@ from metro_atc.core.plant.line import LineSim
 from metro_atc.core.plant.snapshot import scenario_hash
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, bounds_for
-from metro_atc.jsonsafe import json_safe
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_EVENTS,
                                     QOS_FLEET_SENSOR, QOS_LATCHED, QOS_LATCHED_IN,
@@ -63,9 +63,10 @@ from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_EVENTS,
                                     run_nodes, spin_until_stopped)
 from metro_atc.nodes.sim_checkpoints import Checkpoints, journal_key
 from metro_atc.nodes.sim_departures import DepartureBook
-from metro_atc.nodes.sim_domain import LINGER_S, linger
+from metro_atc.nodes.sim_domain import LINGER_S, linger, subscribed_by, wait_acked
 from metro_atc.nodes.sim_fleet import FleetStatePublisher
 from metro_atc.nodes.sim_lockstep import RECORDER_SYNC_STEPS, lockstep_loop
+from metro_atc.nodes.sim_outputs import write_finished_file, write_outputs
 from metro_atc.nodes.sim_params import SimParams
 from metro_atc.nodes.sim_sensors import SensorOutbox
 
@@ -408,7 +409,7 @@ class LineSimulator(Node):
 
         An ATO is there when its command topic has a publisher and the fleet state a
         subscriber (an ATO process that matches the fleet state late gets it again:
-        :meth:`publish_fleet_again`).
+        :meth:`FleetStatePublisher.publish_again`).
 
         With ``wait_for_subscribers``, each named node must also subscribe to every topic
         the simulator publishes (a recorder then sees step 0).
@@ -419,13 +420,12 @@ class LineSimulator(Node):
             self.sensors.fleet_pub.get_subscription_count() > 0
         if not ready or not self.params.wait_for_subscribers:
             return ready
-        pubs = [self.fleet.clock_pub, self.event_pub, self.status_pub, *self.fleet.state_pubs,
+        return subscribed_by(self, self._recorded_pubs(), self.params.wait_for_subscribers)
+
+    def _recorded_pubs(self) -> list[Any]:
+        """The publishers a recorder (``wait_for_subscribers``) must read."""
+        return [self.fleet.clock_pub, self.event_pub, self.status_pub, *self.fleet.state_pubs,
                 self.sensors.fleet_pub]
-        for p in pubs:
-            names = {i.node_name for i in self.get_subscriptions_info_by_topic(p.topic_name)}
-            if not all(w in names for w in self.params.wait_for_subscribers):
-                return False
-        return True
 
     def wait_acked(self, timeout_s: float = 5.0) -> None:
         """Wait until every reliable reader acknowledged what was published (a recorder).
@@ -437,14 +437,7 @@ class LineSimulator(Node):
         waits here every ``RECORDER_SYNC_STEPS`` steps so it never falls further
         (acknowledgements come with the DDS heartbeat, ~1 s: not every step).
         """
-        end = time.monotonic() + timeout_s
-        for p in (self.fleet.clock_pub, self.event_pub, self.status_pub,
-                  *self.fleet.state_pubs, self.sensors.fleet_pub):
-            rest = end - time.monotonic()
-            if rest <= 0.0 or not p.wait_for_all_acked(Duration(seconds=rest)):
-                self.get_logger().warning(f"{p.topic_name}: not every reader acknowledged "
-                                          f"the last messages within {timeout_s:g} s")
-                return
+        wait_acked(self._recorded_pubs(), timeout_s, self.get_logger())
 
     def publish_step(self) -> np.ndarray:
         """Publish /clock and the states of step k; return the active mask.
@@ -587,24 +580,9 @@ class LineSimulator(Node):
                                       "handing the train back")
 
     def announce_finished(self) -> None:
-        """Write ``finished_file`` (if set): the run is over, its last samples delivered.
-
-        The launcher then stops the other nodes while this one writes its outputs (issue
-        13: their shutdown no longer follows this node's). The file holds the stepping
-        loop's wall and simulated time, ``{"loop_wall_s": s, "loop_sim_s": s}`` (its speed
-        without its start-up and end: the figure to set beside a co-simulation's own loop;
-        wall times stay out of kpis.json, which two runs write identically). A file that
-        cannot be written is logged; the launcher then stops the nodes after this one.
-        """
-        if not self.params.finished_file:
-            return
-        try:
-            tmp = Path(self.params.finished_file + ".tmp")
-            tmp.write_text(json.dumps({"loop_wall_s": self.loop_wall_s,
-                                       "loop_sim_s": self.loop_sim_s}))
-            tmp.replace(self.params.finished_file)  # seen whole or not at all
-        except OSError as exc:
-            self.get_logger().warning(f"finished_file {self.params.finished_file}: {exc}")
+        """Write ``finished_file`` (if set): the run is over (:func:`write_finished_file`)."""
+        write_finished_file(self.params.finished_file, self.loop_wall_s, self.loop_sim_s,
+                            self.get_logger())
 
     def kpis(self) -> dict[str, Any]:
         """The core's KPIs plus the node's lockstep/rejection counters."""
@@ -638,22 +616,13 @@ class LineSimulator(Node):
                 linger(self, LINGER_S)
 
     def _write_outputs(self) -> None:
-        """The outputs of :meth:`close`."""
+        """The outputs of :meth:`close` (:func:`write_outputs`)."""
         if not self.params.out_dir:
             return
-        out = Path(self.params.out_dir)
-        out.mkdir(parents=True, exist_ok=True)
         k = self.kpis()
         k["finished"] = bool(self.finished)
-        try:
-            from metro_atc import plots
-            if self.params.plots:
-                plots.write_outputs(self.sim, out, kpis=k, planned=self.planned)
-                return
-            plots.write_events_csv(self.sim, out / "events.csv")
-        except Exception as exc:  # noqa: BLE001 - outputs must not hide the KPIs
-            self.get_logger().error(f"writing outputs to {out} failed: {exc}")
-        (out / "kpis.json").write_text(json.dumps(json_safe(k), indent=2, sort_keys=True))
+        write_outputs(self.params.out_dir, self.sim, k, self.params.plots, self.planned,
+                      self.get_logger())
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -4,7 +4,9 @@ Two graphs on one ROS domain answer each other's lockstep: a simulator that find
 ``line_simulator`` publishing the fleet state refuses to run (:func:`check_alone`), says so
 on :data:`REFUSED_TOPIC` and lingers until the other one refused too, so both runs refuse;
 one that learns later that another refused beside it stops too (:func:`check_not_refused`).
-At its end the simulator waits for its readers' acknowledgements (:func:`linger`).
+At its end the simulator waits for its readers' acknowledgements (:func:`linger`); a
+recorder named in ``wait_for_subscribers`` is waited for before step 0
+(:func:`subscribed_by`) and its acknowledgements during the run (:func:`wait_acked`).
 
 Functions of the node's public graph API only (names, publishers, topic infos).
 """
@@ -12,10 +14,12 @@ Functions of the node's public graph API only (names, publishers, topic infos).
 from __future__ import annotations
 
 import time
+from typing import Any, Sequence
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.duration import Duration
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 
 from metro_atc.nodes.common import QOS_LATCHED, NodeConfigError
 
@@ -100,5 +104,30 @@ def linger(node: Node, limit_s: float) -> bool:
     for pub in node.publishers:
         left = end - time.monotonic()
         if left <= 0.0 or not pub.wait_for_all_acked(Duration(seconds=left)):
+            return False
+    return True
+
+
+def subscribed_by(node: Node, pubs: Sequence[Publisher], names: Sequence[str]) -> bool:
+    """Each node of ``names`` subscribes to the topic of every publisher of ``pubs``."""
+    for p in pubs:
+        seen = {i.node_name for i in node.get_subscriptions_info_by_topic(p.topic_name)}
+        if not all(w in seen for w in names):
+            return False
+    return True
+
+
+def wait_acked(pubs: Sequence[Publisher], timeout_s: float, logger: Any) -> bool:
+    """Wait until every reliable reader of ``pubs`` acknowledged what was published.
+
+    At most ``timeout_s`` [s] of wall time for all; the first publisher not acknowledged
+    in time is logged (``logger``) and False returned.
+    """
+    end = time.monotonic() + timeout_s
+    for p in pubs:
+        rest = end - time.monotonic()
+        if rest <= 0.0 or not p.wait_for_all_acked(Duration(seconds=rest)):
+            logger.warning(f"{p.topic_name}: not every reader acknowledged "
+                           f"the last messages within {timeout_s:g} s")
             return False
     return True
