@@ -504,13 +504,13 @@ class LineSimulator(Node):
         """
         res, done = self.step_plant(active, timed_out)
         ck = self.checkpoints
-        if done or (ck.replay_due(self.k) and ck.due(self.k)) or (
+        if done or (ck.replay and ck.replay_due(self.k) and ck.due(self.k)) or (
                 self.params.wait_for_subscribers and self.k % RECORDER_SYNC_STEPS == 0):
             self.publish_outputs(res, done)
             return None
         nxt = self.publish_lockstep()
         self.publish_outputs(res, done)
-        self.publish_clock()
+        self.fleet.publish_clock(self.k)
         return nxt
 
     def step_plant(self, active: np.ndarray, timed_out: bool) -> tuple[Any, bool]:
