@@ -108,14 +108,21 @@ def test_plant_modules_are_small() -> None:
         assert n <= MAX_PLANT_LINES, f"{f.name}: {n} lines"
 
 
+def _simulator_modules() -> list[Path]:
+    """The line_simulator node's module and its collaborators' (``nodes/sim_*.py``)."""
+    return [PKG / "nodes" / "line_simulator.py"] + sorted((PKG / "nodes").glob("sim_*.py"))
+
+
 def test_no_private_reads_across_plant_modules() -> None:
-    """Plant, line, bridge and plots code reads no ``_private`` attribute of another object.
+    """Plant, line, bridge, plots and simulator node code reads no ``_private`` attribute of
+    another object.
 
     ``self._x`` and ``cls._x`` are the module's own; anything else (``sim._c0``) is a read of
     another module's internals.
     """
     files = sorted((PKG / "core" / "plant").glob("*.py")) + sorted(
         (PKG / "core" / "line").glob("*.py")) + [PKG / "core" / "bridge.py", PKG / "plots.py"]
+    files += _simulator_modules()
     bad = []
     for f in files:
         for node in ast.walk(ast.parse(f.read_text(), str(f))):
@@ -125,3 +132,39 @@ def test_no_private_reads_across_plant_modules() -> None:
                              and node.value.id in ("self", "cls"))):
                 bad.append(f"{f.name}:{node.lineno} .{node.attr}")
     assert not bad, bad
+
+
+MAX_NODE_CLASS_ATTRIBUTES = 40
+"""DEVELOPERS' rule: a class that needs ~50 attributes is several classes."""
+
+
+def _attributes(cls: ast.ClassDef) -> set[str]:
+    """The ``self.x`` names a class assigns."""
+    out = set()
+    for n in ast.walk(cls):
+        if isinstance(n, ast.Attribute) and isinstance(n.ctx, ast.Store) \
+                and isinstance(n.value, ast.Name) and n.value.id == "self":
+            out.add(n.attr)
+    return out
+
+
+def test_simulator_classes_have_one_job() -> None:
+    """No class of the line_simulator node's modules assigns more than 40 attributes."""
+    files = _simulator_modules()
+    assert len(files) > 1
+    seen, big = 0, []
+    for f in files:
+        for c in ast.walk(ast.parse(f.read_text(), str(f))):
+            if isinstance(c, ast.ClassDef):
+                seen += 1
+                n = len(_attributes(c))
+                if n > MAX_NODE_CLASS_ATTRIBUTES:
+                    big.append(f"{f.name}:{c.name} {n}")
+    assert seen and not big, big
+
+
+def test_attribute_count_sees_assignments() -> None:
+    """The count sees every ``self.x =`` form (the test above can fail)."""
+    src = "class A:\n def f(self):\n  self.a = 1\n  self.b: int = 2\n  self.a += 1\n  x.c = 3\n"
+    cls = next(n for n in ast.walk(ast.parse(src)) if isinstance(n, ast.ClassDef))
+    assert _attributes(cls) == {"a", "b"}

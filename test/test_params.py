@@ -74,11 +74,11 @@ def test_dynamic_parameters_take_effect(graph: dict[str, Any]) -> None:
 
     sim = graph["sim"]
     r = graph["set"]("/line_simulator", "step_timeout_s", 2.5)
-    assert r.successful and sim.step_timeout_s == 2.5
+    assert r.successful and sim.params.step_timeout_s == 2.5
     r = graph["set"]("/line_simulator", "diagnostics_period_s", 0.25)
-    assert r.successful and sim.rt.timer.timer_period_ns == 250_000_000
+    assert r.successful and sim.params.rt.timer.timer_period_ns == 250_000_000
     r = graph["set"]("/line_simulator", "step_timeout_s", 1e6)  # out of the declared range
-    assert not r.successful and sim.step_timeout_s == 2.5
+    assert not r.successful and sim.params.step_timeout_s == 2.5
     r = graph["set"]("/ats_regulator", "log_level", "debug")
     assert r.successful
     assert graph["ats"].get_logger().get_effective_level() == \

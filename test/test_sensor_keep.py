@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from metro_atc.nodes.line_simulator import sensor_keep_floor
+from metro_atc.nodes.sim_sensors import sensor_keep_floor
 
 INF = np.inf
 

@@ -26,7 +26,8 @@ from metro_atc.nodes.ato_controller import AtoController, FleetLink
 from metro_atc.nodes.ats_regulator import AtsRegulator
 from metro_atc.nodes.brake_diagnostic import BrakeDiagnostic
 from metro_atc.nodes.common import NodeConfigError
-from metro_atc.nodes.line_simulator import LineSimulator, lockstep_loop
+from metro_atc.nodes.line_simulator import LineSimulator
+from metro_atc.nodes.sim_lockstep import lockstep_loop
 
 
 def _overrides(values: dict[str, Any]) -> list[Parameter]:

@@ -16,36 +16,33 @@ k has arrived; on ``step_timeout_s`` the last command is applied (ATP still supe
 miss is counted and a warning logged. Free-run: steps are paced at ``real_time_factor``.
 The physics, ATP and KPIs are the ROS-free :class:`metro_atc.core.plant.line.LineSim`.
 
-Resume (``checkpoint_dir``): every ``checkpoint_period_s`` of simulated time the node writes
-its full state (the plant with its event log and RNG states, the lockstep step, counters,
-departure bookkeeping: :mod:`metro_atc.core.plant.snapshot`) to
-``<checkpoint_dir>/line_simulator.npz``, and appends every departure command it applies,
-with its step, to ``line_simulator_departures.jsonl``.  Started with a checkpoint there (a
-respawn), it resumes from it: the restored event history is published again (transient
-local, for a restarted ATS), the lockstep restarts at the checkpoint's step, and the
-departure commands of the steps after it are re-applied from the journal at the same steps
-(the ATS does not repeat them); the ATOs follow the step back (``ato_controller``).
+Resume (``checkpoint_dir``): periodic checkpoints of the plant and the node's counters,
+and a write-ahead journal of the departure commands applied; a respawned simulator resumes
+from the last checkpoint, publishes the restored event history again and re-applies the
+journaled commands at their steps (:mod:`metro_atc.nodes.sim_checkpoints`).
+
+The node declares its parameters (:mod:`~metro_atc.nodes.sim_params`), creates its
+publishers and subscriptions (QoS), converts and validates the messages, and sequences its
+collaborators: the plant (``LineSim``), the fleet-state carrier
+(:mod:`~metro_atc.nodes.sim_fleet`), the departure bookkeeping
+(:mod:`~metro_atc.nodes.sim_departures`), the brake-sensor outbox
+(:mod:`~metro_atc.nodes.sim_sensors`), the checkpoints, the run's files
+(:mod:`~metro_atc.nodes.sim_outputs`); :mod:`~metro_atc.nodes.sim_lockstep` drives it and
+:mod:`~metro_atc.nodes.sim_domain` keeps it alone on its ROS domain.
 """
 
 from __future__ import annotations
 
-import json
 import math
-import os
-import threading
 import time
-from collections import deque
 from functools import partial
-from pathlib import Path
-from types import SimpleNamespace
-from typing import Any, NamedTuple, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureCommand,
                                 FleetBrakeSensorData, FleetCommand, FleetState, LineStatus,
                                 SpeedProfile, TractionCommand, TrainEvent, TrainState)
-from rclpy.duration import Duration
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -53,123 +50,42 @@ from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 
 from metro_atc.core.ato_watchdog import AtoWatchdog
-from metro_atc.core.checkpoint import CheckpointError, capture, content_hash, read, restore, \
-    save_tree
-from metro_atc.core.journal import read_entries
+from metro_atc.core.checkpoint import content_hash
 from metro_atc.core.plant.line import LineSim
-from metro_atc.core.plant.snapshot import scenario_hash, static_parts
-from metro_atc.core.plant.views import dwelling_in_service, fleet_state_rows
+from metro_atc.core.plant.snapshot import scenario_hash
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, bounds_for
-from metro_atc.jsonsafe import json_safe
-from metro_atc.nodes import cdr
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_EVENTS,
                                     QOS_FLEET_SENSOR, QOS_LATCHED, QOS_LATCHED_IN,
                                     QOS_RELIABLE, QOS_SENSOR, OK, WARN, NodeConfigError,
-                                    RuntimeParams,
-                                    SubscriptionPoller, bulk_publisher, bulk_subscription,
-                                    subscriber_gids,
-                                    diag_status, run_nodes, spin_until_stopped, static,
-                                    stop_requested)
+                                    bulk_publisher, bulk_subscription, diag_status,
+                                    run_nodes, spin_until_stopped)
+from metro_atc.nodes.sim_checkpoints import Checkpoints, journal_key
+from metro_atc.nodes.sim_departures import DepartureBook
+from metro_atc.nodes.sim_domain import LINGER_S, linger, subscribed_by, wait_acked
+from metro_atc.nodes.sim_fleet import FleetStatePublisher
+from metro_atc.nodes.sim_lockstep import RECORDER_SYNC_STEPS, lockstep_loop
+from metro_atc.nodes.sim_outputs import write_finished_file, write_outputs
+from metro_atc.nodes.sim_params import SimParams
+from metro_atc.nodes.sim_sensors import SensorOutbox
 
 
 _REGULATOR_NAMES = {code: name for name, code in conv.REGULATOR_CODES.items()}
 """DepartureCommand.regulator codes -> regulator names (what ran, for the KPIs)."""
 
-CHECKPOINT_FILE = "line_simulator.npz"
-"""The simulator's checkpoint in ``checkpoint_dir`` (replaced atomically)."""
-STARTED_MARKER = "line_simulator.started"
-"""Written in ``checkpoint_dir`` at the first start: a process that finds it is a respawn."""
-ALONE_CHECK_S = 10.0
-"""Wall seconds after its first start in which the simulator looks for another
-``line_simulator`` publishing ``/line/fleet_state`` on its ROS domain (two graphs on one
-domain answer each other's lockstep: refused, not run).  A respawn skips the look: the killed
-process's endpoints stay in the discovery data until their lease expires."""
-ALONE_LINGER_S = 15.0
-"""Wall seconds at most that a simulator which found another one stays on the domain before
-it exits: it leaves as soon as every other simulator it sees has refused too (or left)."""
-REFUSED_TOPIC = "/line/simulator_refused"
-"""A refusing simulator publishes one DiagnosticStatus (ERROR, the refusal) here, latched: the
-other simulator of the domain sees that it was seen (the refusal handshake of
-:meth:`LineSimulatorNode.check_alone`)."""
-REFUSED_POLL_S = 0.1
-"""Wall seconds between two looks at the graph while a refusing simulator lingers."""
-DEPARTURE_JOURNAL = "line_simulator_departures.jsonl"
-"""Departure commands applied, one JSON line each (step, train, station, values)."""
-RESEND_BATCH = 64
-"""Kept sensor samples re-sent per FleetBrakeSensorData (a pause after each)."""
-RESEND_PAUSE_S = 0.005
-"""Pause between re-sent batches [s] (wall): a reader catching up is not flooded beyond the
-reliable writer's history of 1 000 batches."""
-TAIL_RESEND_S = 3.0
-"""End of a run: wall seconds a train's diagnosis must have kept acknowledging the same
-sample (a live, idle reader: its periodic diagnosis came again with that stamp) while its
-sensor readers stayed the same, before the samples after it are published again (the last
-samples of a best-effort stream can be lost). A reader busy catching up publishes nothing;
-a dead one neither."""
-RECORDER_SYNC_STEPS = 250
-"""While a recorder is waited for (``wait_for_subscribers``), every this many steps the
-lockstep waits until every reliable reader acknowledged what was published: half the
-500-state writer history, so a recorder slower than the graph loses no state (issue 13:
-with the fast tracker the graph outruns a recording node)."""
-ECHO_PERIOD_S = 0.25
-"""Wall period of the poll of the per-train command echoes, speed profiles, brake diagnoses
-and the departure commands the lockstep does not wait for [s] (none is on the lockstep's
-path: a departure command becomes waited for once its train dwells)."""
-EXECUTOR_PERIOD_S = 0.25
-"""Wall period of the executor spin in the node's own process (parameter services, the
-/diagnostics timer) [s]."""
-FLEET_RESEND_S = 2.0
-"""Lockstep: wall time without every command of the step before the fleet-state entries
-of the trains not answered are published again [s] (a state lost with a killed ATO)."""
 NODE_STATE = ("k", "cmd_step", "cmd_effort", "lockstep_misses", "rejected", "rejections",
               "event_seq", "sensor_last_t", "dep_received", "dep_given_up", "ats_misses",
               "_next_status_t", "_next_progress_t", "regulators", "planners", "planned",
               "watchdog")
 """Node attributes saved with the plant in a checkpoint."""
-
-
-class SensorBatch(NamedTuple):
-    """Brake sensor samples in stamp order.
-
-    ``t`` [s], ``trains`` (train indices), ``omega`` [rad/s] and ``clamp`` [N] (samples x
-    axles), ``accel`` [m/s^2], ``vref`` [m/s], ``mass`` [kg] per sample.
-    """
-
-    t: np.ndarray
-    trains: np.ndarray
-    omega: np.ndarray
-    clamp: np.ndarray
-    accel: np.ndarray
-    vref: np.ndarray
-    mass: np.ndarray
-
-
-def unacknowledged(ack_t: np.ndarray, last_t: np.ndarray) -> np.ndarray:
-    """Trains whose brake diagnosis has not acknowledged their newest sensor sample.
-
-    ``ack_t``: the acknowledged stamp [s] (-inf: no diagnosis heard yet, not pending);
-    ``last_t``: the newest sample's stamp [s].
-    """
-    return np.isfinite(ack_t) & (last_t > ack_t + 1e-6)
-
-
-def sensor_keep_floor(now_s: float, resend_s: float, ack_t: np.ndarray,
-                      last_t: np.ndarray) -> float:
-    """Oldest stamp [s] of the brake sensor samples the simulator must still keep.
-
-    At least the last ``resend_s`` (for a reader that is new), and back to the
-    acknowledgement ``ack_t`` of every train whose newest sample ``last_t`` is not yet
-    acknowledged (a restarted reader catches up on all it missed, however long it was down).
-    A train whose samples are all acknowledged (one out of service included) holds nothing
-    back; a train never acknowledged (``-inf``) only the ``resend_s`` window.
-    """
-    floor = now_s - resend_s
-    pending = unacknowledged(ack_t, last_t)
-    if pending.any():
-        floor = min(floor, float(ack_t[pending].min()))
-    return floor
+_STATE_ELSEWHERE = {"sensor_last_t": ("sensors", "last_t"),
+                    "dep_received": ("departures", "received"),
+                    "dep_given_up": ("departures", "given_up"),
+                    "ats_misses": ("departures", "ats_misses"),
+                    "regulators": ("departures", "regulators")}
+"""The :data:`NODE_STATE` values a collaborator holds: name -> (node attribute, its
+attribute)."""
 
 
 class LineSimulator(Node):
@@ -178,107 +94,19 @@ class LineSimulator(Node):
     def __init__(self, **kwargs: Any) -> None:
         """Declare parameters, load the scenario, create the publishers and subscriptions."""
         super().__init__("line_simulator", **kwargs)
-        self.scenario_name = static(self, "scenario", "taipei_blue",
-                                    "embedded scenario name or path to a scenario YAML")
-        self.seed = static(self, "seed", 0, "random seed of disturbances and noise",
-                           0, 2**31 - 1)
-        self.lockstep = static(self, "lockstep", True,
-                               "deterministic lockstep (true) or free-run at real_time_factor")
-        self.rtf = static(self, "real_time_factor", 10.0,
-                          "free-run pacing: simulated seconds per wall second", 0.01, 10000.0)
-        self.startup_timeout_s = static(self, "startup_timeout_s", 60.0,
-                                        "wall time to wait for ATO/ATS discovery [s]",
-                                        0.0, 3600.0)
-        self.wait_for_subscribers = [x for x in static(
-            self, "wait_for_subscribers", [""],
-            "node names (e.g. a recorder) that must subscribe to every topic of the "
-            "simulator before step 0") if x]
-        self.max_sim_time_s = static(self, "max_sim_time_s", 0.0,
-                                     "stop after this simulated time [s]; 0: scenario end",
-                                     0.0, 1e7)
-        self.out_dir = static(self, "out_dir", "",
-                              "directory for kpis.json, events.csv and plots ('' : none)")
-        self.plots = static(self, "plots", True, "write PNG plots into out_dir")
-        self.exit_on_finish = static(self, "exit_on_finish", True,
-                                     "shut the node down when the scenario ends")
-        self.finished_file = static(
-            self, "finished_file", "",
-            "a file created once the run finished and its last samples were delivered, "
-            "before the outputs are written ('' : none; python -m metro_atc run then stops "
-            "the other nodes while this one writes its outputs)")
-        self.train_state_period_s = static(
-            self, "train_state_period_s", 1.0,
-            "simulated time between the per-train /<train>/state messages of trains whose "
-            "ATO answers /line/fleet_state (the lockstep carrier, every step); 0: every step",
-            0.0, 3600.0)
-        self.clock_period_s = static(
-            self, "clock_period_s", 0.0,
-            "simulated time between /clock messages [s] (0: every step; -1: "
-            "train_state_period_s); nothing in the graph steps on /clock (the lockstep "
-            "carries the time), but outside tools see a lockstep hold on it", -1.0, 3600.0)
-        self.rt = RuntimeParams(self, self.health)
-        self.step_timeout_s = self.rt.dynamic(
-            "step_timeout_s", 10.0, "lockstep: wall time to wait for all commands [s]",
-            partial(setattr, self, "step_timeout_s"), 0.01, 600.0)
-        self.status_period_s = self.rt.dynamic(
-            "status_period_s", 10.0,
-            "simulated time between /line/status messages [s] (each computes the run's "
-            "KPIs so far: ~3 ms on the Blue line peak, more than a physics step)",
-            partial(setattr, self, "status_period_s"), 0.01, 3600.0)
-        self.sensor_idle_period_s = self.rt.dynamic(
-            "sensor_idle_period_s", 1.0,
-            "brake sensors: samples are published at the scenario rate while the instrumented "
-            "car brakes, and every this many simulated seconds otherwise (0: every sample)",
-            partial(setattr, self, "sensor_idle_period_s"), 0.0, 3600.0)
-        self.progress_period_s = self.rt.dynamic(
-            "progress_period_s", 600.0, "simulated time between progress log lines [s]",
-            self._set_progress_period, 1.0, 1e6)
-        self.min_rtf = self.rt.dynamic(
-            "min_real_time_factor", 1.0,
-            "/diagnostics: WARN when the simulated seconds per wall second over the last "
-            "diagnostics period fall below this", partial(setattr, self, "min_rtf"),
-            0.0, 1e6)
-        self.ato_lost_steps = static(
-            self, "ato_lost_steps", 8,
-            "a train whose ATO misses this many consecutive steps is braked to a stop "
-            "(CBTC fault) until its ATO answers again", 1, 1_000_000)
-        self.checkpoint_dir = static(
-            self, "checkpoint_dir", "",
-            "directory of the resume checkpoint and departure journal ('' : none); a "
-            "checkpoint found there at start-up is resumed from")
-        self.sensor_resend_s = static(
-            self, "sensor_resend_s", 120.0,
-            "brake sensors: the samples of this many simulated seconds are kept and sent "
-            "again when a new reader matches (a restarted brake_diagnostic catches up)",
-            0.0, 1e5)
-        self.sensor_keep_max = static(
-            self, "sensor_keep_max", 200_000,
-            "brake sensors: at most this many samples are kept for a re-send (the oldest "
-            "beyond it are dropped, counted and logged)", 0, 100_000_000)
-        self.sensor_drain_timeout_s = static(
-            self, "sensor_drain_timeout_s", 60.0,
-            "end of a run: wall seconds to wait until every train's brake diagnosis "
-            "acknowledged its last sensor sample (a restarted brake_diagnostic catching up; "
-            "0: no wait)", 0.0, 3600.0)
-        self.checkpoint_period_s = static(
-            self, "checkpoint_period_s", 60.0,
-            "simulated time between checkpoints [s] (0: none)", 0.0, 1e7)
-        self.sensor_batch_period_s = static(
-            self, "sensor_batch_period_s", 1.0,
-            "brake sensors: simulated time whose samples go out in one FleetBrakeSensorData "
-            "on /line/brake_sensors (0: one message per step with samples; the last batch "
-            "goes out at a checkpoint and at the end of the run)", 0.0, 3600.0)
-        self._next_progress_t = self.progress_period_s
-        self._wall0 = time.monotonic()
+        self.params = SimParams(self, self.health, self._set_progress_period)
+        """The node's parameters (:mod:`metro_atc.nodes.sim_params`)."""
+        self._next_progress_t = self.params.progress_period_s
+        self.wall0 = time.monotonic()
         try:
-            scn = load_scenario(self.scenario_name)
+            scn = load_scenario(self.params.scenario_name)
         except ScenarioError as exc:
             raise NodeConfigError(str(exc)) from None
-        self.sim = LineSim(scn, seed=int(self.seed))
+        self.sim = LineSim(scn, seed=int(self.params.seed))
         self.bounds = bounds_for(scn)
         self.rejections = Rejections()
         """Rejected input messages per kind (:mod:`metro_atc.core.validate`)."""
-        self.watchdog = AtoWatchdog(len(self.sim.train_ids), int(self.ato_lost_steps))
+        self.watchdog = AtoWatchdog(len(self.sim.train_ids), int(self.params.ato_lost_steps))
         """Lost-ATO decision (:mod:`metro_atc.core.ato_watchdog`)."""
         self.ids: list[str] = list(self.sim.train_ids)
         self.index = {tid: i for i, tid in enumerate(self.ids)}
@@ -289,11 +117,8 @@ class LineSimulator(Node):
         self.lockstep_misses = 0
         self.rejected = 0
         self.event_seq = np.zeros(n, dtype=np.int64)
-        self.sensor_last_t = np.full(n, -np.inf)
-        n_st = len(self.sim.station_names)
-        self.dep_received = np.zeros((n, n_st), dtype=bool)
-        self.dep_given_up = np.zeros((n, n_st), dtype=bool)
-        self.ats_misses = 0
+        self.departures = DepartureBook(n, len(self.sim.station_names))
+        """Departure commands received or given up (:mod:`metro_atc.nodes.sim_departures`)."""
         self._last_warn: dict[str, float] = {}
         self._next_status_t = 0.0
         self.finished = False
@@ -302,112 +127,40 @@ class LineSimulator(Node):
         """Wall time of the stepping loop from its first step to the end [s] (None before)."""
         self.loop_sim_s = 0.0
         """Simulated time that loop ran [s]."""
-        self.regulators: dict[str, int] = {}
         self.planners: dict[str, int] = {}
         self.planned: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
         self._health_last = (time.monotonic(), 0.0, 0, 0)
-        self._matched = np.zeros(n, dtype=np.int64)
-        self.identity = content_hash(scenario_hash(self.sim), bool(self.lockstep),
-                                     int(self.ato_lost_steps), float(self.max_sim_time_s))
-        """What a checkpoint must have been made for (scenario content, seed, parameters)."""
-        period = float(self.checkpoint_period_s) / self.sim.control_period_s
-        self.checkpoint_every = max(int(round(period)), 1) if period > 0 else 0
-        self.replay: list[dict[str, Any]] = []
-        """Journaled departure commands still to re-apply after a resume (in order)."""
-        self.journaled: set[tuple[Any, ...]] = set()
-        """Departure commands of the journal (a late copy from the ATS is not re-applied)."""
-        self.resumed_from = -1
-        self.sensor_log: deque[SensorBatch] = deque()
-        """Recent brake sensor samples, batch by batch as published, for a restarted
-        reader."""
-        self._sensor_log_n = 0
-        """Samples in :attr:`sensor_log`."""
-        self._sensor_pending: list[SensorBatch] = []
-        """Samples of the steps since the last fleet sensor message (not yet published)."""
-        self._sensor_flush_t = -math.inf
-        """Simulated time [s] from which the pending samples are published."""
-        self._sensor_out = [conv.sensor_sample_msg(t, 0.0, [], [], math.nan, math.nan,
-                                                   math.nan) for t in self.ids]
-        """The BrakeSensorData of each train, refilled for every sample published."""
-        self._sensor_readers: set[bytes] = set()
-        """Endpoint GIDs of the fleet sensor topic's readers seen so far."""
-        self._sensor_read = np.zeros(n, dtype=bool)
-        """Trains whose ``/<train>/brake_sensors`` had a reader at the last check (only
-        those are published: a topic nobody reads costs nothing)."""
-        self._resend_due = np.zeros(n, dtype=bool)
-        self._readers_known = False
-        self.diag_ack_t = np.full(n, -np.inf)
-        """Per train: the newest sensor sample its BrakeDiagnosis acknowledged [s] (-inf: no
-        diagnosis heard). Samples after it are kept for a re-send however old."""
-        self._ack_wall = np.full(n, -np.inf)
-        """Wall time the acknowledgement of each train last changed, or its sensor topic
-        gained a reader (monotonic) [s]."""
-        self._ack_seen_wall = np.full(n, -np.inf)
-        """Wall time a diagnosis of each train was last received (monotonic) [s]."""
-        self.sensor_dropped = 0
-        """Kept samples dropped beyond ``sensor_keep_max``."""
-        self._journal: Any = None
-        self._ck_writer: threading.Thread | None = None
-        """The thread writing the last checkpoint (:meth:`save_checkpoint`)."""
-        self._ck_failed: str | None = None
-        """Why the last checkpoint write failed (reported by :meth:`wait_checkpoint`)."""
-        self.first_start = True
-        """No earlier process of this run (see :data:`STARTED_MARKER`)."""
-        if self.checkpoint_dir:
-            self._open_checkpoints(Path(self.checkpoint_dir))
         self.fleet_driven = np.zeros(n, dtype=bool)
         """Trains whose ATO answered a fleet state (their per-train state is decimated)."""
-        self._fleet_matched = 0
-        self._fleet_msg: bytes | None = None
-        """The serialized fleet state of step k (published again to a late ATO process)."""
         self._id_bytes = {tid.encode("utf-8"): i for i, tid in enumerate(self.ids)}
         """Train id (UTF-8) -> index, for the serialized fleet commands."""
         self._ix_cache: dict[tuple[bytes, ...], np.ndarray] = {}
         """Train indices of each fleet command train list seen (bounded)."""
-        self._ids_blocks: dict[bytes, bytes] = {}
-        self._state_builders: dict[bytes, cdr.FleetStateBuilder] = {}
-        """FleetState layouts by the train indices' bytes."""
-        """Serialized train id lists (cdr.string_seq) by the train indices' bytes."""
-        self._echo_mask = np.zeros(n, dtype=bool)
-        self._active = np.zeros(n, dtype=bool)
-        """Active trains of the last step published."""
-        self._active_idx = np.zeros(0, dtype=np.intp)
-        self._active_idx_k = -1
-        """Their indices, and the step they are of."""
-        """Trains whose per-train state was published at step k too (fleet ``echo``)."""
-        self.fleet_resends = 0
-        """Fleet states published again for trains that did not answer in time."""
-        self._step_rows: tuple[int, np.ndarray, dict[str, np.ndarray]] = (-1, np.zeros(0), {})
-        """(k, the active trains, their fleet-state arrays published at step k): a re-send
-        (:meth:`publish_fleet_again`) takes them again."""
-        self._dwelling: tuple[int, list[tuple[int, int]]] = (-1, [])
-        """(k, (train, station) of the trains dwelling in service at step k)."""
-        self._dep_version = 0
-        """Bumped whenever a departure is received or given up (dep_received/dep_given_up)."""
-        self._pending: tuple[tuple[int, int], list[tuple[int, int]]] = ((-1, -1), [])
-        """((k, _dep_version), pending_departures()) of the last look."""
-        self.state_every = max(1, int(round(self.train_state_period_s
-                                            / float(self.sim.control_period_s))))
-        """Steps between per-train states of fleet-driven trains."""
-        clock_period = float(self.train_state_period_s if self.clock_period_s < 0
-                             else self.clock_period_s)
-        self.clock_every = max(1, int(round(clock_period / float(self.sim.control_period_s))))
-        """Steps between /clock messages."""
-
-        self.clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK)
+        p = self.params
+        dt = float(self.sim.control_period_s)
+        clock_period = float(p.train_state_period_s if p.clock_period_s < 0
+                             else p.clock_period_s)
+        clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK)
         self.event_pub = self.create_publisher(TrainEvent, "/line/events", QOS_EVENTS)
         self.status_pub = self.create_publisher(LineStatus, "/line/status", QOS_LATCHED)
-        self.state_pubs = [bulk_publisher(self, TrainState, f"/{t}/state", QOS_RELIABLE)
-                           for t in self.ids]
-        self.fleet_pub = bulk_publisher(self, FleetState, "/line/fleet_state", QOS_RELIABLE)
+        state_pubs = [bulk_publisher(self, TrainState, f"/{t}/state", QOS_RELIABLE)
+                      for t in self.ids]
+        self.fleet = FleetStatePublisher(
+            self.ids, self.sim,
+            bulk_publisher(self, FleetState, "/line/fleet_state", QOS_RELIABLE), state_pubs,
+            clock_pub, state_every=max(1, int(round(p.train_state_period_s / dt))),
+            clock_every=max(1, int(round(clock_period / dt))))
+        """The fleet state, per-train states and /clock (:mod:`metro_atc.nodes.sim_fleet`)."""
         # raw: the commands are read from their CDR bytes (conv.fleet_command_efforts_cdr)
         self.fleet_sub = self.create_subscription(
             FleetCommand, "/line/fleet_command", self._on_fleet_command, QOS_RELIABLE,
             raw=True, event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
-        self.fleet_sensor_pub = bulk_publisher(self, FleetBrakeSensorData, FLEET_SENSOR_TOPIC,
-                                               QOS_FLEET_SENSOR)
-        self.sensor_pubs = [bulk_publisher(self, BrakeSensorData, f"/{t}/brake_sensors",
-                                           QOS_SENSOR) for t in self.ids]
+        self.sensors = SensorOutbox(
+            self, self.ids,
+            bulk_publisher(self, FleetBrakeSensorData, FLEET_SENSOR_TOPIC, QOS_FLEET_SENSOR),
+            [bulk_publisher(self, BrakeSensorData, f"/{t}/brake_sensors", QOS_SENSOR)
+             for t in self.ids], self.params, self.fleet.ids_block, self._warn_rate_limited)
+        """The brake sensor outbox (:mod:`metro_atc.nodes.sim_sensors`)."""
         self.cmd_subs = [bulk_subscription(self, TractionCommand, f"/{t}/command",
                                            partial(self._on_command, i), QOS_RELIABLE)
                          for i, t in enumerate(self.ids)]
@@ -421,12 +174,21 @@ class LineSimulator(Node):
         self.diag_subs = [bulk_subscription(self, BrakeDiagnosis, f"/{t}/brake_diagnosis",
                                             partial(self._on_diagnosis, i), QOS_LATCHED)
                           for i, t in enumerate(self.ids)]
-        if self.resumed_from >= 0:
+        identity = content_hash(scenario_hash(self.sim), bool(p.lockstep),
+                                int(p.ato_lost_steps), float(p.max_sim_time_s))
+        # what a checkpoint must have been made for (scenario content, seed, parameters)
+        self.checkpoints = Checkpoints(p.checkpoint_dir, identity, p.checkpoint_period_s,
+                                       self.sim.control_period_s, self.get_logger(),
+                                       self._warn_rate_limited)
+        """Checkpoints and the departure journal (:mod:`metro_atc.nodes.sim_checkpoints`)."""
+        restored = self.checkpoints.open(self.sim, self._node_state())
+        if restored is not None:
+            self._set_node_state(restored)
             self.republish_history()
         self.get_logger().info(
-            f"scenario '{self.scenario_name}': {n} trains, {len(self.sim.station_names)} "
+            f"scenario '{self.params.scenario_name}': {n} trains, {len(self.sim.station_names)} "
             f"stations, control period {self.sim.control_period_s} s, "
-            f"{'lockstep' if self.lockstep else f'free-run x{self.rtf}'}")
+            f"{'lockstep' if self.params.lockstep else f'free-run x{self.params.rtf}'}")
 
     # ------------------------------------------------------------------ inputs
     def _warn_rate_limited(self, key: str, text: str) -> None:
@@ -527,11 +289,11 @@ class LineSimulator(Node):
         try:
             st, dep, run, dwell = conv.departure_from_msg(msg, topic, self.ids[i], self.bounds)
             key = (i, st, dep, run, dwell, int(msg.regulator))
-            if _nan_key(key) in self.journaled:
+            if self.checkpoints.is_journaled(key):
                 return  # applied (or to be applied) from the journal at its original step
             # journaled first: a kill between the two replays it at this step on resume
             # (applied first, a kill in between would lose the step it was applied at)
-            self._journal_write(key)
+            self.checkpoints.journal(self.k, key)
             conv.guarded(topic, self._apply_departure, *key)
         except conv.MessageRejected as exc:
             self._reject("departure command", exc)
@@ -540,115 +302,33 @@ class LineSimulator(Node):
                          regulator: int) -> None:
         """Hand a validated departure command to the plant; count the regulator."""
         self.sim.set_departure(i, st, dep, run, dwell)
-        if not self.dep_received[i, st]:
-            reg = _REGULATOR_NAMES.get(int(regulator), f"code {regulator}")
-            self.regulators[reg] = self.regulators.get(reg, 0) + 1
-        self.dep_received[i, st] = True
-        self._dep_version += 1
+        self.departures.receive(i, st, _REGULATOR_NAMES.get(int(regulator),
+                                                            f"code {regulator}"))
 
     # ------------------------------------------------------------------ resume
-    def _open_checkpoints(self, folder: Path) -> None:
-        """Resume from ``folder``'s checkpoint if there is one; open the departure journal."""
-        folder.mkdir(parents=True, exist_ok=True)
-        marker = folder / STARTED_MARKER
-        self.first_start = not marker.exists()
-        marker.touch()
-        ck = folder / CHECKPOINT_FILE
-        journal = folder / DEPARTURE_JOURNAL
-        if ck.is_file():
-            try:
-                head, arrays = read(ck, identity=self.identity)
-                holder = SimpleNamespace(line=self.sim, **{a: getattr(self, a)
-                                                           for a in NODE_STATE})
-                restore(holder, head["tree"], arrays, static_parts(self.sim))
-            except (CheckpointError, KeyError, TypeError, ValueError, IndexError) as exc:
-                raise NodeConfigError(f"cannot resume from {ck}: {str(exc)[:200]}") from None
-            for a in NODE_STATE:
-                setattr(self, a, getattr(holder, a))
-            self.resumed_from = int(self.k)
-            self.get_logger().warning(
-                f"resuming from the checkpoint of step {self.k} (t={self.sim.t:.2f} s) in "
-                f"{folder}")
-        for tmp in folder.glob(f".{CHECKPOINT_FILE}.*.tmp"):
-            tmp.unlink(missing_ok=True)  # a checkpoint being written when the node died
-        entries = _read_journal(journal)
-        if entries:
-            # resumed, or restarted before the first checkpoint (then from step 0): the
-            # departure commands since are re-applied at their steps, not taken again
-            self.journaled = {_nan_key(_journal_key(e)) for e in entries}
-            self.replay = [e for e in entries if int(e["k"]) >= max(self.resumed_from, 0)]
-        # rewrite the journal with the entries kept (a torn last line is dropped)
-        tmp = journal.with_name(journal.name + ".tmp")
-        tmp.write_text("".join(json.dumps(e) + "\n" for e in entries))
-        os.replace(tmp, journal)
-        self._journal = open(journal, "a", encoding="utf-8")
+    def _state_owner(self, name: str) -> tuple[Any, str]:
+        """The object and attribute holding the :data:`NODE_STATE` value ``name``."""
+        if name in _STATE_ELSEWHERE:
+            owner, attr = _STATE_ELSEWHERE[name]
+            return getattr(self, owner), attr
+        return self, name
 
-    def _journal_write(self, key: tuple[Any, ...]) -> None:
-        """Append an applied departure command (and the step) to the journal."""
-        if self._journal is None:
-            return
-        i, st, dep, run, dwell, reg = key
-        self._journal.write(json.dumps({"k": int(self.k), "i": int(i), "st": int(st),
-                                        "dep": dep, "run": run, "dwell": dwell,
-                                        "reg": int(reg)}) + "\n")
-        self._journal.flush()  # in the OS: survives a SIGKILL of this process
+    def _node_state(self) -> dict[str, Any]:
+        """The node's part of a checkpoint (:data:`NODE_STATE`), by name."""
+        return {a: getattr(*self._state_owner(a)) for a in NODE_STATE}
 
-    def replay_departures(self) -> None:
+    def _set_node_state(self, holder: Any) -> None:
+        """Take the :data:`NODE_STATE` values of a restored checkpoint ``holder``."""
+        for a in NODE_STATE:
+            setattr(*self._state_owner(a), getattr(holder, a))
+
+    def _replay_departures(self) -> None:
         """Re-apply the journaled departure commands of the current step (after a resume)."""
-        while self.replay and int(self.replay[0]["k"]) <= self.k:
-            e = self.replay.pop(0)
+        for e in self.checkpoints.take_replay(self.k):
             try:
-                self._apply_departure(*_journal_key(e))
+                self._apply_departure(*journal_key(e))
             except (IndexError, ValueError, TypeError) as exc:
                 self.get_logger().error(f"journaled departure command {e} not applied: {exc}")
-
-    def checkpoint_due(self) -> bool:
-        """A checkpoint is written at the current step."""
-        return bool(self.checkpoint_dir and self.checkpoint_every) and self.k != 0 \
-            and self.k % self.checkpoint_every == 0 and self.k != self.resumed_from
-
-    def save_checkpoint(self) -> None:
-        """Write the checkpoint of the current step (atomically) if one is due.
-
-        The state is captured here (copies: :func:`metro_atc.core.checkpoint.capture`); the
-        file is written by a thread while the lockstep goes on (~60 % of a checkpoint's
-        time: JSON, ``np.savez``, fsync), one file at a time.  Until it is renamed into place
-        the previous checkpoint stands: a kill in between resumes from that one (the
-        departure journal holds every command since), as a kill before this step would.
-        """
-        if not self.checkpoint_due():
-            return
-        holder = SimpleNamespace(line=self.sim, **{a: getattr(self, a) for a in NODE_STATE})
-        try:
-            tree, arrays = capture(holder, static_parts(self.sim))
-        except CheckpointError as exc:
-            self._warn_rate_limited("checkpoint", f"checkpoint of step {self.k} not "
-                                    f"written: {exc}")
-            return
-        self.wait_checkpoint()
-        writer = threading.Thread(
-            target=self._write_checkpoint, name="checkpoint", daemon=False,
-            args=(Path(self.checkpoint_dir) / CHECKPOINT_FILE, tree, arrays, int(self.k),
-                  float(self.sim.t)))
-        self._ck_writer = writer
-        writer.start()
-
-    def _write_checkpoint(self, path: Path, tree: Any, arrays: list[np.ndarray], step: int,
-                          t: float) -> None:
-        """Write a captured checkpoint (the writer thread); a failure is kept for the loop."""
-        try:
-            save_tree(path, tree, arrays, identity=self.identity, step=step, t=t)
-        except Exception as exc:  # noqa: BLE001 - reported by wait_checkpoint, never raised
-            self._ck_failed = f"checkpoint of step {step} not written: {exc}"
-
-    def wait_checkpoint(self) -> None:
-        """Wait until the checkpoint being written (if any) is in place; log a failure."""
-        writer, self._ck_writer = self._ck_writer, None
-        if writer is not None:
-            writer.join()
-        failed, self._ck_failed = self._ck_failed, None
-        if failed:
-            self._warn_rate_limited("checkpoint", failed)
 
     def republish_history(self) -> None:
         """Publish the restored event history again (a restarted ATS replays it)."""
@@ -677,17 +357,12 @@ class LineSimulator(Node):
         except conv.MessageRejected as exc:
             self._reject(f"/{self.ids[i]}/brake_diagnosis", exc)
             return
-        now = time.monotonic()
-        self._ack_seen_wall[i] = now
-        if t != self.diag_ack_t[i]:
-            # the latest, not the largest: a restarted diagnosis acknowledges less
-            self.diag_ack_t[i] = t
-            self._ack_wall[i] = now
+        self.sensors.acknowledge(i, t)
 
     def _set_progress_period(self, value: float) -> None:
-        self.progress_period_s = float(value)
-        self._next_progress_t = float(self.sim.t) + self.progress_period_s \
-            if hasattr(self, "sim") else self.progress_period_s
+        self.params.progress_period_s = float(value)
+        self._next_progress_t = float(self.sim.t) + self.params.progress_period_s \
+            if hasattr(self, "sim") else self.params.progress_period_s
 
     # ------------------------------------------------------------------ health
     def health(self) -> list[DiagnosticStatus]:
@@ -706,7 +381,7 @@ class LineSimulator(Node):
         steps = self.k - k0
         misses = self.lockstep_misses - m0
         level, msg = OK, "running"
-        want = self.min_rtf if self.lockstep else 0.9 * self.rtf
+        want = self.params.min_rtf if self.params.lockstep else 0.9 * self.params.rtf
         if not self.started:
             msg = "waiting for the graph before step 0"
         elif self.finished:
@@ -719,9 +394,9 @@ class LineSimulator(Node):
             "step": self.k, "sim_time_s": t, "steps_per_s": steps / dw,
             "real_time_factor": rtf,
             "step_time_ms": 1e3 * dw / steps if steps else float("nan"),
-            "lockstep": self.lockstep, "lockstep_misses": self.lockstep_misses,
-            "fleet_state_resends": self.fleet_resends,
-            "lockstep_misses_in_period": misses, "ats_timeouts": self.ats_misses,
+            "lockstep": self.params.lockstep, "lockstep_misses": self.lockstep_misses,
+            "fleet_state_resends": self.fleet.resends,
+            "lockstep_misses_in_period": misses, "ats_timeouts": self.departures.ats_misses,
             "rejected_messages": self.rejected,
             "rejected_by_kind": self.rejections.summary(),
             "ato_losses": self.watchdog.losses,
@@ -729,77 +404,28 @@ class LineSimulator(Node):
             "trains_in_service": int(np.count_nonzero(self.sim.active_mask()))})]
 
     # ------------------------------------------------------------------ stepping
-    def check_alone(self) -> None:
-        """Raise :class:`NodeConfigError` when another simulator shares this ROS domain.
-
-        Another ``line_simulator`` publishing the fleet state is a second graph: its ATOs
-        would answer this lockstep.  Discovery is not symmetric in time (one simulator may
-        see the other seconds before it is seen), so a refusing simulator says so on
-        :data:`REFUSED_TOPIC` and stays on the domain until every other simulator it sees
-        has refused too or left (at most :data:`ALONE_LINGER_S`): both runs refuse.
-        """
-        if self._other_simulators(self.fleet_pub.topic_name) == 0:
-            return
-        reason = (f"another {self.get_name()} publishes {self.fleet_pub.topic_name} on "
-                  f"ROS_DOMAIN_ID={self.context.get_domain_id()}: a second graph on this "
-                  "domain; give each run its own ROS_DOMAIN_ID")
-        self.get_logger().error(reason)
-        refused = self.create_publisher(DiagnosticStatus, REFUSED_TOPIC, QOS_LATCHED)
-        refused.publish(DiagnosticStatus(level=DiagnosticStatus.ERROR, name=self.get_name(),
-                                         message=reason))
-        deadline = time.monotonic() + ALONE_LINGER_S
-        while time.monotonic() < deadline:
-            others = self._other_simulators(self.fleet_pub.topic_name)
-            if others == 0 or self._other_simulators(REFUSED_TOPIC) >= others:
-                break
-            time.sleep(REFUSED_POLL_S)
-        raise NodeConfigError(reason)
-
-    def check_not_refused(self) -> None:
-        """Raise :class:`NodeConfigError` when another simulator refused to run beside this one.
-
-        Checked once a wall second after :data:`ALONE_CHECK_S`: a loaded machine may let
-        the other simulator see this one only after this one's own look ended (seen once
-        in CI: the other refused, this one ran to the end).
-        """
-        if self._other_simulators(REFUSED_TOPIC) == 0:
-            return
-        raise NodeConfigError(
-            f"another {self.get_name()} on ROS_DOMAIN_ID={self.context.get_domain_id()} "
-            f"refused to run beside this one (it found this one publishing "
-            f"{self.fleet_pub.topic_name}): a second graph on this domain; give each run "
-            "its own ROS_DOMAIN_ID")
-
-    def _other_simulators(self, topic: str) -> int:
-        """Publishers of ``topic`` by a node of this simulator's name other than this one."""
-        same = [i for i in self.get_publishers_info_by_topic(topic)
-                if i.node_name == self.get_name() and i.node_namespace == self.get_namespace()]
-        own = 1 if any(p.topic_name == topic for p in self.publishers) else 0
-        return max(0, len(same) - own)
-
     def graph_ready(self) -> bool:
         """Every train has an ATO, the ATS and the brake diagnosis connected.
 
         An ATO is there when its command topic has a publisher and the fleet state a
         subscriber (an ATO process that matches the fleet state late gets it again:
-        :meth:`publish_fleet_again`).
+        :meth:`FleetStatePublisher.publish_again`).
 
         With ``wait_for_subscribers``, each named node must also subscribe to every topic
         the simulator publishes (a recorder then sees step 0).
         """
-        ready = self.fleet_pub.get_subscription_count() > 0 and \
+        ready = self.fleet.fleet_pub.get_subscription_count() > 0 and \
             all(s.get_publisher_count() > 0 for s in self.cmd_subs) and \
             all(s.get_publisher_count() > 0 for s in self.dep_subs) and \
-            self.fleet_sensor_pub.get_subscription_count() > 0
-        if not ready or not self.wait_for_subscribers:
+            self.sensors.fleet_pub.get_subscription_count() > 0
+        if not ready or not self.params.wait_for_subscribers:
             return ready
-        pubs = [self.clock_pub, self.event_pub, self.status_pub, *self.state_pubs,
-                self.fleet_sensor_pub]
-        for p in pubs:
-            names = {i.node_name for i in self.get_subscriptions_info_by_topic(p.topic_name)}
-            if not all(w in names for w in self.wait_for_subscribers):
-                return False
-        return True
+        return subscribed_by(self, self._recorded_pubs(), self.params.wait_for_subscribers)
+
+    def _recorded_pubs(self) -> list[Any]:
+        """The publishers a recorder (``wait_for_subscribers``) must read."""
+        return [self.fleet.clock_pub, self.event_pub, self.status_pub, *self.fleet.state_pubs,
+                self.sensors.fleet_pub]
 
     def wait_acked(self, timeout_s: float = 5.0) -> None:
         """Wait until every reliable reader acknowledged what was published (a recorder).
@@ -811,28 +437,7 @@ class LineSimulator(Node):
         waits here every ``RECORDER_SYNC_STEPS`` steps so it never falls further
         (acknowledgements come with the DDS heartbeat, ~1 s: not every step).
         """
-        end = time.monotonic() + timeout_s
-        for p in (self.clock_pub, self.event_pub, self.status_pub, *self.state_pubs,
-                  self.fleet_sensor_pub):
-            rest = end - time.monotonic()
-            if rest <= 0.0 or not p.wait_for_all_acked(Duration(seconds=rest)):
-                self.get_logger().warning(f"{p.topic_name}: not every reader acknowledged "
-                                          f"the last messages within {timeout_s:g} s")
-                return
-
-    def new_subscribers(self, active: np.ndarray) -> np.ndarray:
-        """Active trains whose state topic matched a new subscriber since the last check."""
-        cnt = np.array([p.get_subscription_count() for p in self.state_pubs], dtype=np.int64)
-        changed = active & (cnt != self._matched)
-        self._matched = cnt
-        return changed
-
-    def publish_states(self, trains: np.ndarray) -> None:
-        """Publish again the step-k states of ``trains`` (a late or restarted ATO)."""
-        t = float(self.sim.t)
-        for i, m in conv.state_msgs(self.ids, np.flatnonzero(trains), self.sim.states(),
-                                    self.k, t):
-            self.state_pubs[i].publish(m)
+        wait_acked(self._recorded_pubs(), timeout_s, self.get_logger())
 
     def publish_step(self) -> np.ndarray:
         """Publish /clock and the states of step k; return the active mask.
@@ -846,8 +451,7 @@ class LineSimulator(Node):
 
     def publish_clock(self) -> None:
         """Publish /clock at the time of step k (every ``clock_every`` steps)."""
-        if self.k % self.clock_every == 0:
-            self.clock_pub.publish(cdr.clock(float(self.sim.t)))
+        self.fleet.publish_clock(self.k)
 
     def publish_lockstep(self) -> np.ndarray:
         """Publish what the ATOs answer at step k: the fleet state, the per-train states.
@@ -855,95 +459,9 @@ class LineSimulator(Node):
         After a resume, the journaled departure commands of step k are applied first (the
         states carry the departure times). Returns the active mask.
         """
-        self.replay_departures()
-        t = float(self.sim.t)
-        active = np.asarray(self.sim.active_mask(), dtype=bool)
-        per_train = active if self.k % self.state_every == 0 else active & ~self.fleet_driven
-        if per_train.any():
-            # a topic nobody reads is not published (outside tools that subscribe get it at
-            # the declared rate; the fleet state carries every step): no writes, and no
-            # per-train command echoes from the ATOs for them (issue 13)
-            per_train = self._state_read(per_train)
-        idx = np.flatnonzero(active)
-        self._echo_mask = per_train
-        self._active_idx, self._active_idx_k, self._active = idx, self.k, active
-        # the fleet state's arrays of the active trains only (not every state array of
-        # every train: the lockstep's critical path, issue 13), the same values
-        rows = fleet_state_rows(self.sim, idx)
-        self._step_rows = (self.k, idx, rows)
-        self._fleet_msg = conv.fleet_state_rows_cdr(self._state_builder(idx), idx.size, rows,
-                                                    self.k, t, per_train[idx])
-        self.fleet_pub.publish(self._fleet_msg)
-        if per_train.any():
-            for i, m in conv.state_msgs(self.ids, np.flatnonzero(per_train), self.sim.states(),
-                                        self.k, t):
-                self.state_pubs[i].publish(m)
-        return active
-
-    def _state_read(self, mask: np.ndarray) -> np.ndarray:
-        """``mask`` less the trains whose ``/<train>/state`` has no subscriber.
-
-        Only the trains in ``mask`` are asked (one graph query each, on the step path).
-        """
-        out = np.zeros_like(mask)
-        for i in np.flatnonzero(mask):
-            out[i] = self.state_pubs[i].get_subscription_count() > 0
-        return out
-
-    def new_fleet_subscribers(self) -> bool:
-        """The fleet state topic matched a new (or lost a) subscriber since the last check."""
-        n = self.fleet_pub.get_subscription_count()
-        changed = n != self._fleet_matched
-        self._fleet_matched = n
-        return changed
-
-    def publish_fleet_again(self, active: np.ndarray | None = None) -> None:
-        """Publish the step-k fleet state again.
-
-        Without ``active``: the whole message (an ATO process that matched late). With it:
-        the entries of the active trains whose command of step k has not arrived (a state
-        lost with a killed ATO process, its restarted successor never saw it). A re-sent
-        state is answered with the same command (the ATO does not track it twice).
-        """
-        if active is None:
-            if self._fleet_msg is not None:
-                self.fleet_pub.publish(self._fleet_msg)
-            return
-        k, idx, rows = self._step_rows
-        missing = np.flatnonzero(active & (self.cmd_step < self.k))
-        if k != self.k or missing.size == 0:
-            return
-        # the entries published at step k (``active`` is step k's active mask)
-        at = np.searchsorted(idx, missing)
-        if int(at.max()) < idx.size and np.array_equal(idx[at], missing):
-            again = {key: a[at] for key, a in rows.items()}
-        else:  # not one of them (never in the loop): their states now
-            again = fleet_state_rows(self.sim, missing)
-        self.fleet_resends += 1
-        self.fleet_pub.publish(conv.fleet_state_rows_cdr(
-            self._state_builder(missing), missing.size, again, self.k, float(self.sim.t),
-            self._echo_mask[missing]))
-
-    def _state_builder(self, idx: np.ndarray) -> cdr.FleetStateBuilder:
-        """The FleetState layout of the trains ``idx`` (cached per index list)."""
-        key = np.asarray(idx, dtype=np.int64).tobytes()
-        got = self._state_builders.get(key)
-        if got is None:
-            if len(self._state_builders) > 256:
-                self._state_builders.clear()
-            got = self._state_builders[key] = cdr.FleetStateBuilder(self._ids_block(idx),
-                                                                    len(idx))
-        return got
-
-    def _ids_block(self, idx: np.ndarray) -> bytes:
-        """The train ids of ``idx`` as a serialized string[] (cached per index list)."""
-        key = np.asarray(idx, dtype=np.int64).tobytes()
-        block = self._ids_blocks.get(key)
-        if block is None:
-            if len(self._ids_blocks) > 1024:
-                self._ids_blocks.clear()
-            block = self._ids_blocks[key] = cdr.string_seq([self.ids[i] for i in idx])
-        return block
+        if self.checkpoints.replay:
+            self._replay_departures()
+        return self.fleet.publish(self.k, self.fleet_driven)
 
     def commands_complete(self, active: np.ndarray) -> bool:
         """Check the lockstep barrier of step k.
@@ -951,30 +469,18 @@ class LineSimulator(Node):
         True when all active trains sent their command for step k and the ATS has decided
         the departure of every train dwelling at a station (lockstep on the ATS as well).
         """
-        idx = self._active_idx if self._active_idx_k == self.k else np.flatnonzero(active)
+        fleet = self.fleet
+        idx = fleet.active_idx if fleet.active_idx_k == self.k else np.flatnonzero(active)
         return (idx.size == 0 or int(self.cmd_step[idx].min()) >= self.k) \
-            and not self.pending_departures()
+            and not self.departures.pending(self.k, self.sim)
 
     def waited_trains(self) -> np.ndarray:
         """Active trains whose per-train command the lockstep waits on (no fleet answer yet)."""
-        return self._active & ~self.fleet_driven
+        return self.fleet.active & ~self.fleet_driven
 
     def pending_departures(self) -> list[tuple[int, int]]:
         """(train, station) pairs dwelling without an ATS departure command yet."""
-        key = (self.k, self._dep_version)
-        if self._pending[0] == key:
-            return self._pending[1]
-        ck, dwell = self._dwelling
-        if ck != self.k:  # mode, service and station change only in a step
-            dwell = dwelling_in_service(self.sim)
-            self._dwelling = (self.k, dwell)
-        last = len(self.sim.station_names) - 1
-        out = []
-        for i, j in dwell:
-            if 0 <= j < last and not self.dep_received[i, j] and not self.dep_given_up[i, j]:
-                out.append((int(i), j))
-        self._pending = (key, out)
-        return out
+        return self.departures.pending(self.k, self.sim)
 
     def advance(self, active: np.ndarray, timed_out: bool) -> None:
         """Apply the commands, step the core and publish its outputs."""
@@ -997,14 +503,14 @@ class LineSimulator(Node):
         (the caller publishes them, unless finished).
         """
         res, done = self.step_plant(active, timed_out)
-        replay_due = bool(self.replay) and int(self.replay[0]["k"]) <= self.k
-        if done or (replay_due and self.checkpoint_due()) or (
-                self.wait_for_subscribers and self.k % RECORDER_SYNC_STEPS == 0):
+        ck = self.checkpoints
+        if done or (ck.replay and ck.replay_due(self.k) and ck.due(self.k)) or (
+                self.params.wait_for_subscribers and self.k % RECORDER_SYNC_STEPS == 0):
             self.publish_outputs(res, done)
             return None
         nxt = self.publish_lockstep()
         self.publish_outputs(res, done)
-        self.publish_clock()
+        self.fleet.publish_clock(self.k)
         return nxt
 
     def step_plant(self, active: np.ndarray, timed_out: bool) -> tuple[Any, bool]:
@@ -1015,10 +521,7 @@ class LineSimulator(Node):
         """
         if timed_out:
             missing = [self.ids[i] for i in np.flatnonzero(active & (self.cmd_step < self.k))]
-            for i, j in self.pending_departures():
-                self.dep_given_up[i, j] = True
-                self._dep_version += 1
-                self.ats_misses += 1
+            for i, j in self.departures.give_up_pending(self.k, self.sim):
                 missing.append(f"ATS for {self.ids[i]} at station {j} (timetable used)")
             self.lockstep_misses += 1
             self._warn_rate_limited(
@@ -1031,7 +534,8 @@ class LineSimulator(Node):
         res = self.sim.step(effort)
         self.k += 1
         t = float(self.sim.t)
-        done = bool(self.sim.done) or (self.max_sim_time_s > 0 and t >= self.max_sim_time_s)
+        end = self.params.max_sim_time_s
+        done = bool(self.sim.done) or (end > 0 and t >= end)
         return res, done
 
     def publish_outputs(self, res: Any, done: bool) -> None:
@@ -1044,24 +548,26 @@ class LineSimulator(Node):
             self.event_seq[ev.train_idx] += 1
             self.event_pub.publish(conv.event_msg(ev, self.ids, self.sim.station_names,
                                                   int(self.event_seq[ev.train_idx])))
-        self.publish_sensors(res.sensor_arrays)
+        self.sensors.take(res.sensor_arrays)
         t = float(self.sim.t)
         if t >= self._next_progress_t:
-            self._next_progress_t += self.progress_period_s
-            wall = time.monotonic() - self._wall0
+            self._next_progress_t += self.params.progress_period_s
+            wall = time.monotonic() - self.wall0
             self.get_logger().info(
                 f"t={t:.0f} s: {int(np.count_nonzero(self.sim.active_mask()))} trains in "
                 f"service, {self.lockstep_misses} lockstep misses, "
                 f"{t / wall if wall > 0 else 0.0:.1f}x real time")
         if t >= self._next_status_t or done:
-            self._next_status_t = t + self.status_period_s
+            self._next_status_t = t + self.params.status_period_s
             self.status_pub.publish(conv.line_status_msg(self.kpis(), self.k, t, done))
         if done:
             self.finished = True
-            self.flush_sensors(force=True)
+            self.sensors.flush(t, force=True)
         else:
-            self.flush_sensors(force=self.checkpoint_due())
-            self.save_checkpoint()
+            due = self.checkpoints.due(self.k)
+            self.sensors.flush(t, force=due)
+            if due:
+                self.checkpoints.save(self.k, t, self.sim, self._node_state())
 
     def _log_watchdog(self, e: Any) -> None:
         """Log a lost ATO (error) or its return (warning)."""
@@ -1073,229 +579,10 @@ class LineSimulator(Node):
             self.get_logger().warning(f"ATO of {t} back after {e.missed} missed steps; "
                                       "handing the train back")
 
-    def publish_sensors(self, block: Any) -> None:
-        """Take the step's brake sensor samples (all while braking, else at the idle period).
-
-        The UKF learns the pad friction only while the clamp force is applied; between brake
-        applications a sparse heartbeat keeps the diagnosis alive at a fraction of the
-        message load (20 Hz x 30 trains would be ~600 messages per simulated second).  The
-        samples wait for :meth:`flush_sensors` (``sensor_batch_period_s``).
-        """
-        if block is None:
-            return
-        # plain Python floats here: numpy scalar indexing per sample was most of the node's
-        # time with ~10 samples per step at the peak (issue 13)
-        t = np.asarray(block.t, dtype=float).tolist()
-        clamp = np.asarray(block.clamp, dtype=np.float64)
-        # braked: some axle clamp force well above the sensor noise (50 N scale)
-        braking = np.nanmax(clamp, axis=2, initial=0.0) > 1000.0
-        idle = float(self.sensor_idle_period_s)
-        tr_all = np.asarray(block.trains, dtype=np.int64)
-        last = self.sensor_last_t[tr_all]
-        # the sample instants of the step in order, all trains at once: braking trains
-        # every instant, the others once per idle period (the first instant due)
-        take = np.empty(braking.shape, dtype=bool)
-        for a, ts in enumerate(t):
-            due = braking[a] | (idle <= 0.0) | (ts - last >= idle - 1e-9)
-            take[a] = due
-            last = np.where(due, ts, last)
-        self.sensor_last_t[tr_all] = last
-        aa, bb = np.nonzero(take)  # instant-major: the samples in stamp order
-        if aa.size:
-            self._sensor_pending.append(SensorBatch(
-                np.asarray(block.t, dtype=float)[aa], tr_all[bb],
-                np.asarray(block.omega, dtype=np.float64)[aa, bb], clamp[aa, bb],
-                np.asarray(block.accel, dtype=float)[aa, bb],
-                np.asarray(block.vref, dtype=float)[aa, bb],
-                np.asarray(block.car_mass, dtype=float)[bb]))
-
-    def flush_sensors(self, force: bool = False) -> None:
-        """Publish the pending samples as one FleetBrakeSensorData when the batch is due.
-
-        Due once ``sensor_batch_period_s`` of simulated time passed since the last one, or
-        ``force`` (a checkpoint: the samples of the steps before it are all out, a resumed
-        simulator makes the later ones again; the end of the run).  The published samples
-        are kept for a re-send; the kept ones older than :func:`sensor_keep_floor` dropped.
-        """
-        t = float(self.sim.t)
-        if not force and t < self._sensor_flush_t:
-            return
-        self._sensor_flush_t = t + float(self.sensor_batch_period_s) - 1e-9
-        pend = self._sensor_pending
-        if pend:
-            self._sensor_pending = []
-            batch = pend[0] if len(pend) == 1 else SensorBatch(
-                *(np.concatenate(parts) for parts in zip(*pend)))
-            self._send_samples(batch, live=True)
-        log = self.sensor_log
-        floor = sensor_keep_floor(t, self.sensor_resend_s, self.diag_ack_t, self.sensor_last_t)
-        while log and log[0].t[-1] < floor:
-            self._sensor_log_n -= log.popleft().t.size
-        extra = self._sensor_log_n - int(self.sensor_keep_max)
-        if extra > 0:
-            self.sensor_dropped += extra
-            self._sensor_log_n -= extra
-            while extra > 0:
-                first = log[0]
-                if first.t.size <= extra:
-                    extra -= log.popleft().t.size
-                else:
-                    log[0] = SensorBatch(*(a[extra:] for a in first))
-                    extra = 0
-            self._warn_rate_limited("sensor_keep_max", f"{self.sensor_dropped} kept brake "
-                                    f"sensor samples dropped (sensor_keep_max="
-                                    f"{self.sensor_keep_max}): a brake_diagnostic that is "
-                                    "down cannot catch up on them")
-
-    def resend_sensors(self) -> int:
-        """Send the kept samples of every train again when the fleet sensor topic gained a reader.
-
-        A restarted ``brake_diagnostic`` misses what was published while it was down
-        (volatile); it takes the samples it already has as the point to rebuild its
-        observer from, then the ones it missed.  A reader is new when its endpoint GID was
-        not seen before (a count can stay the same: the dead reader's lease expiring while
-        the new one matches); the samples are sent at the next call (about 1 s later), once
-        the new reader had time to match.  Also notes which ``/<train>/brake_sensors`` have
-        a reader (only those are published).  Returns the number of samples re-sent.
-        """
-        due = self._resend_due
-        self._resend_due = np.zeros(len(self.ids), dtype=bool)
-        gids = subscriber_gids(self, self.fleet_sensor_pub)
-        if gids - self._sensor_readers and self._readers_known:
-            self._resend_due[:] = True
-            self._ack_wall[:] = time.monotonic()  # no tail re-send for a while
-        self._sensor_readers |= gids
-        self._sensor_read = np.array([p.get_subscription_count() > 0
-                                      for p in self.sensor_pubs], dtype=bool)
-        self._readers_known = self.started  # the readers at step 0 are not new
-        sent = self._publish_kept(due, np.full(len(self.ids), -np.inf))
-        if sent:
-            self.get_logger().info(f"sent {sent} kept brake sensor samples again to a new "
-                                   "reader")
-        return sent
-
-    def _send_samples(self, batch: SensorBatch, live: bool) -> None:
-        """Publish samples (in order) as one FleetBrakeSensorData; keep the live ones.
-
-        Live samples also go to the ``/<train>/brake_sensors`` that had a reader at the last
-        check, and are kept for a re-send (``sensor_resend_s``).
-        """
-        trains = batch.trains
-        names, which = np.unique(trains, return_inverse=True)
-        n = trains.size
-        omega = batch.omega.reshape(n, -1)
-        self.fleet_sensor_pub.publish(cdr.fleet_sensors(float(self.sim.t), self._ids_block(
-            names), (which, conv.stamps_ns(batch.t), np.full(n, omega.shape[1]), omega,
-                     batch.clamp, batch.accel, batch.vref, batch.mass)))
-        if not live:
-            return
-        read = self._sensor_read
-        if read.any():
-            for j in np.flatnonzero(read[trains]).tolist():
-                i = int(trains[j])
-                # one message object per train, refilled (publish copies it out at once)
-                self.sensor_pubs[i].publish(conv.fill_sensor_msg(
-                    self._sensor_out[i], float(batch.t[j]), omega[j], batch.clamp[j],
-                    float(batch.accel[j]), float(batch.vref[j]), float(batch.mass[j])))
-        if self.sensor_resend_s > 0.0:
-            self.sensor_log.append(batch)
-            self._sensor_log_n += n
-
-    def _publish_kept(self, trains: np.ndarray, after_t: np.ndarray) -> int:
-        """Publish again the kept samples of ``trains`` newer than ``after_t`` (per train).
-
-        In batches of :data:`RESEND_BATCH` samples on the fleet topic, paused in between.
-        """
-        if not trains.any():
-            return 0
-        parts = []
-        for b in self.sensor_log:
-            sel = trains[b.trains] & (b.t > after_t[b.trains])
-            if sel.any():
-                parts.append(SensorBatch(*(a[sel] for a in b)))
-        if not parts:
-            return 0
-        picked = SensorBatch(*(np.concatenate(p) for p in zip(*parts)))
-        total = picked.t.size
-        for n in range(0, total, RESEND_BATCH):
-            if n:
-                time.sleep(RESEND_PAUSE_S)
-            self._send_samples(SensorBatch(*(a[n:n + RESEND_BATCH] for a in picked)),
-                               live=False)
-        return total
-
-    def sensors_unacknowledged(self) -> np.ndarray:
-        """Trains whose brake diagnosis (once heard) has not acknowledged their last sample."""
-        return unacknowledged(self.diag_ack_t, self.sensor_last_t)
-
-    def resend_tail(self, pending: np.ndarray) -> int:
-        """Publish again the kept samples after each pending train's acknowledgement.
-
-        Only for a train whose diagnosis kept acknowledging the same sample for
-        :data:`TAIL_RESEND_S` (a live reader that has taken all it got) while its readers
-        stayed the same (a new reader gets the whole re-send of :meth:`resend_sensors`, and
-        restarts ``_ack_wall``); they are samples the reader lost (a keep-last
-        history of 1 000 batches overrun). Returns the
-        number of samples sent.
-        """
-        due = pending & (self._ack_seen_wall - self._ack_wall >= TAIL_RESEND_S) \
-            & ~self._resend_due
-        if due.any():
-            self._ack_wall[due] = time.monotonic()  # once per TAIL_RESEND_S
-        return self._publish_kept(due, self.diag_ack_t + 1e-6)
-
-    def drain_sensors(self, spin: Any) -> bool:
-        """End of a run: wait until every train's brake diagnosis acknowledged its last sample.
-
-        A ``brake_diagnostic`` killed near the end of a fast run comes back after the
-        simulator finished: without this wait it would never get the samples it missed.
-        Bounded by ``sensor_drain_timeout_s`` (wall); new readers get the kept samples
-        (:meth:`resend_sensors`), a train whose acknowledgement stands still gets the samples
-        after it again (:meth:`resend_tail`). ``spin(timeout_s)`` serves the subscriptions.
-        True when everything was acknowledged (or no diagnosis was ever heard).
-        """
-        t0 = time.monotonic()
-        end = t0 + float(self.sensor_drain_timeout_s)
-        next_check = t0 + 1.0
-        while True:
-            pending = self.sensors_unacknowledged()
-            now = time.monotonic()
-            if not pending.any():
-                if now - t0 > 2.0:
-                    self.get_logger().info(f"every brake diagnosis acknowledged its last "
-                                           f"sensor sample after {now - t0:.1f} s")
-                return True
-            if now >= end or stop_requested():
-                names = ", ".join(self.ids[i] for i in np.flatnonzero(pending))
-                self.get_logger().warning(
-                    f"brake diagnosis of {names} did not acknowledge the last sensor samples "
-                    f"within {self.sensor_drain_timeout_s:g} s (brake_diagnostic down?)")
-                return False
-            spin(0.05)
-            if now >= next_check:
-                next_check = now + 1.0
-                self.resend_sensors()
-                self.resend_tail(pending)
-
     def announce_finished(self) -> None:
-        """Write ``finished_file`` (if set): the run is over, its last samples delivered.
-
-        The launcher then stops the other nodes while this one writes its outputs (issue
-        13: their shutdown no longer follows this node's). The file holds the stepping
-        loop's wall and simulated time, ``{"loop_wall_s": s, "loop_sim_s": s}`` (its speed
-        without its start-up and end: the figure to set beside a co-simulation's own loop;
-        wall times stay out of kpis.json, which two runs write identically). A file that
-        cannot be written is logged; the launcher then stops the nodes after this one.
-        """
-        if not self.finished_file:
-            return
-        try:
-            tmp = Path(self.finished_file + ".tmp")
-            tmp.write_text(json.dumps({"loop_wall_s": self.loop_wall_s,
-                                       "loop_sim_s": self.loop_sim_s}))
-            tmp.replace(self.finished_file)  # seen whole or not at all
-        except OSError as exc:
-            self.get_logger().warning(f"finished_file {self.finished_file}: {exc}")
+        """Write ``finished_file`` (if set): the run is over (:func:`write_finished_file`)."""
+        write_finished_file(self.params.finished_file, self.loop_wall_s, self.loop_sim_s,
+                            self.get_logger())
 
     def kpis(self) -> dict[str, Any]:
         """The core's KPIs plus the node's lockstep/rejection counters."""
@@ -1303,13 +590,13 @@ class LineSimulator(Node):
         k["lockstep_misses"] = int(self.lockstep_misses)
         k["rejected_messages"] = int(self.rejected)
         k["rejected_by_kind"] = self.rejections.as_dict()
-        k["ats_timeouts"] = int(self.ats_misses)
+        k["ats_timeouts"] = int(self.departures.ats_misses)
         k["ato_losses"] = int(self.watchdog.losses)
         k["ato_stop_steps"] = int(self.watchdog.stop_steps)
         k["steps"] = int(self.k)
-        k["scenario"] = self.scenario_name
-        k["lockstep"] = bool(self.lockstep)
-        k["regulators_seen"] = dict(sorted(self.regulators.items()))
+        k["scenario"] = self.params.scenario_name
+        k["lockstep"] = bool(self.params.lockstep)
+        k["regulators_seen"] = dict(sorted(self.departures.regulators.items()))
         k["planners_seen"] = sorted(self.planners)  # names only: latched, depth-1 reader
         return k
 
@@ -1321,7 +608,7 @@ class LineSimulator(Node):
         writer's heartbeat: waited for before the outputs, that was most of ``LINGER_S`` at
         the end of every run, issue 13).
         """
-        self.wait_checkpoint()
+        self.checkpoints.wait()
         try:
             self._write_outputs()
         finally:
@@ -1329,227 +616,13 @@ class LineSimulator(Node):
                 linger(self, LINGER_S)
 
     def _write_outputs(self) -> None:
-        """The outputs of :meth:`close`."""
-        if not self.out_dir:
+        """The outputs of :meth:`close` (:func:`write_outputs`)."""
+        if not self.params.out_dir:
             return
-        out = Path(self.out_dir)
-        out.mkdir(parents=True, exist_ok=True)
         k = self.kpis()
         k["finished"] = bool(self.finished)
-        try:
-            from metro_atc import plots
-            if self.plots:
-                plots.write_outputs(self.sim, out, kpis=k, planned=self.planned)
-                return
-            plots.write_events_csv(self.sim, out / "events.csv")
-        except Exception as exc:  # noqa: BLE001 - outputs must not hide the KPIs
-            self.get_logger().error(f"writing outputs to {out} failed: {exc}")
-        (out / "kpis.json").write_text(json.dumps(json_safe(k), indent=2, sort_keys=True))
-
-
-def _journal_key(e: dict[str, Any]) -> tuple[Any, ...]:
-    """(train, station, departure, running time, dwell limit, regulator) of a journal line."""
-    return (int(e["i"]), int(e["st"]), float(e["dep"]), float(e["run"]), float(e["dwell"]),
-            int(e["reg"]))
-
-
-def _nan_key(key: tuple[Any, ...]) -> tuple[Any, ...]:
-    """A hashable key where NaN equals NaN (NaN marks an unset value)."""
-    return tuple("nan" if isinstance(x, float) and math.isnan(x) else x for x in key)
-
-
-def _read_journal(path: Path) -> list[dict[str, Any]]:
-    """The departure journal's entries (a torn or foreign line ends it)."""
-    return read_entries(path, lambda e, _: bool((_journal_key(e), int(e["k"]))))
-
-
-def lockstep_loop(executor: SingleThreadedExecutor, sim: LineSimulator,
-                  fast_path: bool = True) -> None:
-    """Drive the simulator: lockstep on commands, or free-run paced at the real-time factor.
-
-    With ``fast_path`` (the node's own process) commands and departure commands are taken by
-    a :class:`SubscriptionPoller`, the per-train command echoes and the speed profiles by
-    another every :data:`ECHO_PERIOD_S` of wall time; everything else on ``executor``
-    (parameter services, the /diagnostics timer) is spun every :data:`EXECUTOR_PERIOD_S`.
-    Without it (the single-process graph, where other nodes' callbacks share the executor)
-    every wait is an executor spin.
-    """
-    log = sim.get_logger()
-    lock_pollers: dict[tuple[bytes, tuple[int, ...]], SubscriptionPoller] = {}
-    echo_pollers: dict[bytes, SubscriptionPoller] = {}
-
-    def poller_set() -> tuple[SubscriptionPoller, SubscriptionPoller]:
-        """Return the (lockstep, echo) pollers of the trains waited for.
-
-        The lockstep waits on the fleet commands, on the per-train commands of active
-        trains no fleet command answered yet, and on the departure commands of the trains
-        dwelling without one (the barrier waits for those).  Everything else (the
-        per-train commands of fleet-driven trains, echoes for outside tools that the fleet
-        command carried already; those of trains not in service; the speed profiles; the
-        other departure commands, sent before their train reached the station; the brake
-        diagnoses) is drained every slow period: each waited-on subscription costs every
-        wait, and waking for every echo cost more than the step (issue 13).  Made again
-        when those sets change (cached).
-        """
-        own = sim.waited_trains()
-        pend = tuple(sorted({i for i, _ in sim.pending_departures()}))
-        okey = own.tobytes()
-        lock = lock_pollers.get((okey, pend))
-        if lock is None:
-            if len(lock_pollers) > 256:
-                lock_pollers.clear()
-            lock = lock_pollers[(okey, pend)] = SubscriptionPoller(
-                sim.context, [sim.fleet_sub, *(sim.cmd_subs[i] for i in np.flatnonzero(own)),
-                              *(sim.dep_subs[i] for i in pend)])
-        return lock, echo_poller()
-
-    def echo_poller() -> SubscriptionPoller:
-        """Return the poller of everything the lockstep does not wait on (see poller_set)."""
-        own = sim.waited_trains()
-        okey = own.tobytes()
-        echo = echo_pollers.get(okey)
-        if echo is None:
-            if len(echo_pollers) > 64:
-                echo_pollers.clear()
-            echo = echo_pollers[okey] = SubscriptionPoller(
-                sim.context, [*(s for i, s in enumerate(sim.cmd_subs) if not own[i]),
-                              *sim.profile_subs, *sim.dep_subs, *sim.diag_subs])
-        return echo
-
-    def wait(timeout_s: float) -> None:
-        if fast_path:
-            poller_set()[0].poll(timeout_s)
-            slow_path()
-        else:
-            executor.spin_once(timeout_sec=timeout_s)
-
-    t0 = time.monotonic()
-    alone_until = t0 + ALONE_CHECK_S if sim.first_start else t0
-    next_alone = t0  # the graph query costs: once a second, as in the stepping loop
-    while not sim.graph_ready() and time.monotonic() - t0 < sim.startup_timeout_s:
-        if stop_requested():
-            return
-        executor.spin_once(timeout_sec=0.05)
-        now = time.monotonic()
-        if next_alone <= now < alone_until:
-            next_alone = now + 1.0
-            sim.check_alone()
-    if not sim.graph_ready():
-        log.warning("startup: not every ATO/ATS endpoint was discovered; starting anyway")
-    log.info(f"graph ready after {time.monotonic() - t0:.2f} s")
-    sim.started = True
-    sim.new_subscribers(np.ones(len(sim.ids), dtype=bool))
-    sim.resend_sensors()  # the readers of step 0: nothing kept yet, nothing sent
-    next_sensor_check = time.monotonic() + 1.0
-    sim.new_fleet_subscribers()
-    wall0, sim0 = time.monotonic(), float(sim.sim.t)
-    sim._wall0 = wall0
-    k0 = int(sim.k)  # the first step of this loop (a resumed run's is not 0)
-    last_slow = time.monotonic()
-
-    last_executor = time.monotonic()
-
-    def slow_path(force: bool = False) -> None:
-        nonlocal last_slow, last_executor
-        now = time.monotonic()
-        if force or now - last_slow >= ECHO_PERIOD_S:
-            last_slow = now
-            echo_poller().poll(0.0)
-            if force or now - last_executor >= EXECUTOR_PERIOD_S:
-                # parameter services and the /diagnostics timer: each spin rebuilds the
-                # executor's wait set from all ~100 entities of the node (~1 ms)
-                last_executor = now
-                executor.spin_once(timeout_sec=0.0)
-
-    active: np.ndarray | None = None
-    while not sim.finished and not stop_requested():
-        if time.monotonic() >= next_sensor_check:
-            next_sensor_check = time.monotonic() + 1.0
-            sim.resend_sensors()
-            if time.monotonic() < alone_until:
-                sim.check_alone()
-            else:
-                sim.check_not_refused()
-        if active is None:  # else published with the step before (step_and_publish)
-            if sim.wait_for_subscribers and sim.k > 0 and sim.k % RECORDER_SYNC_STEPS == 0:
-                sim.wait_acked(timeout_s=30.0)
-            active = sim.publish_step()
-        if sim.lockstep:
-            deadline = time.monotonic() + sim.step_timeout_s
-            resend = time.monotonic() + 0.5
-            fleet_resend = time.monotonic() + FLEET_RESEND_S
-            while True:
-                # the barrier (looked at once per wake: nothing arrives between two looks)
-                complete = sim.commands_complete(active)
-                if complete or time.monotonic() >= deadline:
-                    break
-                if stop_requested():
-                    return
-                wait(0.02)
-                if time.monotonic() > resend and not sim.commands_complete(active):
-                    # a state may have been published before a late (or restarted) ATO
-                    # matched: only then, and only to that train, is it sent again
-                    resend = time.monotonic() + 0.5
-                    again = sim.new_subscribers(active)
-                    if again.any():
-                        sim.publish_states(again)
-                    if sim.new_fleet_subscribers():
-                        sim.publish_fleet_again()
-                    elif time.monotonic() >= fleet_resend:
-                        # no answer for a while: the state may have been lost with a
-                        # killed ATO process whose successor matched between two checks
-                        fleet_resend = time.monotonic() + FLEET_RESEND_S
-                        sim.publish_fleet_again(active)
-            active = sim.step_and_publish(active, timed_out=not complete)
-        else:
-            target = wall0 + (float(sim.sim.t) + sim.sim.control_period_s - sim0) / sim.rtf
-            while True:
-                rest = target - time.monotonic()
-                if rest <= 0:
-                    break
-                wait(min(rest, 0.01))
-            wait(0.0)
-            sim.advance(active, timed_out=False)
-            active = None
-        if fast_path:
-            slow_path()
-        else:
-            executor.spin_once(timeout_sec=0.0)
-    sim.flush_sensors(force=True)  # stopped by a signal: what was sampled goes out
-    sim.wait_checkpoint()
-    if sim.wait_for_subscribers:
-        sim.wait_acked()
-    if not sim.finished:
-        log.info(f"stopped by a signal at t={sim.sim.t:.1f} s, step {sim.k}")
-        return
-    sim.loop_wall_s, sim.loop_sim_s = time.monotonic() - wall0, float(sim.sim.t) - sim0
-    log.info(f"scenario finished at t={sim.sim.t:.1f} s after {sim.k} steps, "
-             f"{time.monotonic() - t0:.1f} s wall ({sim.loop_wall_s:.1f} s from step {k0})")
-    sim.drain_sensors(lambda timeout_s: executor.spin_once(timeout_sec=timeout_s))
-    executor.spin_once(timeout_sec=0.0)
-    # the other nodes may stop now (the launcher's finished_file), while this one writes
-    # its outputs; the last samples' acknowledgements are awaited after those (close)
-    sim.announce_finished()
-
-
-LINGER_S = 0.3
-"""Most wall time [s] the simulator waits at its end for its last samples to be delivered."""
-
-
-def linger(node: Node, limit_s: float) -> bool:
-    """Wait until every matched reader acknowledged the node's samples; True if all did.
-
-    The last events and statuses reach their subscribers before the process exits (a
-    reliable writer destroyed earlier takes its unacknowledged samples with it); at most
-    ``limit_s`` [s] of wall time (a reader that stopped acknowledging). Best-effort writers
-    have nothing to wait for. This used to be a fixed 0.3 s of executor spinning.
-    """
-    end = time.monotonic() + float(limit_s)
-    for pub in node.publishers:
-        left = end - time.monotonic()
-        if left <= 0.0 or not pub.wait_for_all_acked(Duration(seconds=left)):
-            return False
-    return True
+        write_outputs(self.params.out_dir, self.sim, k, self.params.plots, self.planned,
+                      self.get_logger())
 
 
 def main(args: Sequence[str] | None = None) -> int:
@@ -1558,7 +631,7 @@ def main(args: Sequence[str] | None = None) -> int:
         node = nodes[0]
         assert isinstance(node, LineSimulator)
         lockstep_loop(executor, node)
-        if not node.exit_on_finish:
+        if not node.params.exit_on_finish:
             spin_until_stopped(executor)
 
     return run_nodes(lambda: [LineSimulator()], loop, args)

@@ -37,7 +37,7 @@ from metro_atc.core.line.scenario import Scenario
 
 BRAKING_CLAMP_N = 1000.0
 """A sample with some axle clamp force above this counts as braking (published at the full
-rate), as in ``line_simulator.publish_sensors`` [N]."""
+rate), as in ``sim_sensors.SensorOutbox.take`` [N]."""
 IDLE_PERIOD_S = 1.0
 """Heartbeat period between brake applications (``sensor_idle_period_s`` default) [s]."""
 BRAKE_FAULT_KINDS = ("pad_mu", "wheel")

@@ -1,0 +1,62 @@
+"""The line_simulator's files at the end of a run: the finished file and the run's outputs.
+
+:func:`write_finished_file` tells the launcher that the run is over (it then stops the other
+nodes while the simulator writes its outputs); :func:`write_outputs` writes ``events.csv``,
+``kpis.json`` and (optionally) the plots into the output directory.  A failure is logged,
+never raised past the KPIs.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from metro_atc.jsonsafe import json_safe
+
+
+def write_finished_file(path: str, loop_wall_s: float | None, loop_sim_s: float,
+                        logger: Any) -> None:
+    """Write the finished file ``path`` (if set): the run is over, its last samples delivered.
+
+    The launcher then stops the other nodes while this one writes its outputs (issue
+    13: their shutdown no longer follows this node's). The file holds the stepping
+    loop's wall and simulated time, ``{"loop_wall_s": s, "loop_sim_s": s}`` (its speed
+    without its start-up and end: the figure to set beside a co-simulation's own loop;
+    wall times stay out of kpis.json, which two runs write identically). A file that
+    cannot be written is logged (``logger``); the launcher then stops the nodes after this
+    one.
+    """
+    if not path:
+        return
+    try:
+        tmp = Path(path + ".tmp")
+        tmp.write_text(json.dumps({"loop_wall_s": loop_wall_s, "loop_sim_s": loop_sim_s}))
+        tmp.replace(path)  # seen whole or not at all
+    except OSError as exc:
+        logger.warning(f"finished_file {path}: {exc}")
+
+
+def write_outputs(out_dir: str, line: Any, kpis: dict[str, Any], with_plots: bool,
+                  planned: dict[int, Any], logger: Any) -> None:
+    """Write the run's outputs into ``out_dir`` ('' : none).
+
+    ``line``: the plant (its event log); ``kpis``: the run's KPIs (``kpis.json``);
+    ``with_plots``: the PNG plots too (:func:`metro_atc.plots.write_outputs`, which writes
+    the KPIs itself), else ``events.csv``; ``planned``: the speed profiles the ATOs
+    published (train -> station -> (positions [m], speeds [m/s])). A failure of the CSV or
+    plots is logged (``logger``) and the KPIs written all the same.
+    """
+    if not out_dir:
+        return
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        from metro_atc import plots
+        if with_plots:
+            plots.write_outputs(line, out, kpis=kpis, planned=planned)
+            return
+        plots.write_events_csv(line, out / "events.csv")
+    except Exception as exc:  # noqa: BLE001 - outputs must not hide the KPIs
+        logger.error(f"writing outputs to {out} failed: {exc}")
+    (out / "kpis.json").write_text(json.dumps(json_safe(kpis), indent=2, sort_keys=True))
