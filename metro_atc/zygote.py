@@ -151,11 +151,16 @@ def _request(line: str) -> tuple[list[str], str, str, int]:
     return argv, log, mode, parent
 
 
-def _child(argv: list[str], log: str, mode: str, parent: int) -> list[str]:
-    """In the forked node: session, stdio, wait for the re-parenting; return argv to run."""
+def _open_log(log: str, mode: str) -> int:
+    """The node's log file, opened for writing (``mode`` ``"ab"``: appended to)."""
+    return os.open(log, os.O_WRONLY | os.O_CREAT | (os.O_APPEND if mode == "ab" else
+                                                    os.O_TRUNC), 0o644)
+
+
+def _child(argv: list[str], fd: int, parent: int) -> list[str]:
+    """In the forked node: session, stdio (``fd``: its log), wait for the re-parenting;
+    return argv to run."""
     os.setsid()
-    fd = os.open(log, os.O_WRONLY | os.O_CREAT | (os.O_APPEND if mode == "ab" else
-                                                  os.O_TRUNC), 0o644)
     null = os.open(os.devnull, os.O_RDONLY)
     os.dup2(null, 0)
     os.dup2(fd, 1)
@@ -193,12 +198,15 @@ def serve(stdin: Any = None) -> list[str] | None:
         if mid == 0:  # intermediate: fork the node, hand its pid over, leave at once
             os.close(r)
             try:
+                # the log exists once the pid is answered (as an exec'd node's, which the
+                # launcher opens before starting it): a reader may look at once
+                fd = _open_log(log, mode)
                 pid = os.fork()
             except OSError:
                 os._exit(1)
             if pid == 0:
                 os.close(w)
-                return _child(argv, log, mode, parent)
+                return _child(argv, fd, parent)
             os.write(w, str(pid).encode())
             os._exit(0)
         os.close(w)

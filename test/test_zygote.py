@@ -93,6 +93,7 @@ def test_a_forked_node_runs_the_installed_executable(installed: Path, ros_env: d
         log = tmp_path / "ats.log"
         p = z.spawn(argv, str(log))
         assert p is not None, z.error
+        assert log.exists()  # before the answer, as an exec'd node's log (a race under load)
         try:
             assert _ppid(p.pid) == os.getpid()
             assert os.getsid(p.pid) == p.pid
