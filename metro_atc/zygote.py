@@ -158,8 +158,10 @@ def _open_log(log: str, mode: str) -> int:
 
 
 def _child(argv: list[str], fd: int, parent: int) -> list[str]:
-    """In the forked node: session, stdio (``fd``: its log), wait for the re-parenting;
-    return argv to run."""
+    """In the forked node: session, stdio, re-parenting; return argv to run.
+
+    ``fd``: the node's log (stdout and stderr), opened before the fork.
+    """
     os.setsid()
     null = os.open(os.devnull, os.O_RDONLY)
     os.dup2(null, 0)
