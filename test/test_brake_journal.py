@@ -147,6 +147,45 @@ def test_a_resend_overlapping_the_journal_rebuilds_to_the_same_state(
     assert set(rebuilt) == due
 
 
+def test_a_restarted_node_acknowledges_its_journal_until_the_resend_reaches_back(
+        make_node: Any, tmp_path: Path) -> None:
+    """After a restart the live stream may reach the node before the simulator's re-send
+    (batches 700-719 published while it was down): its acknowledgement stays at its newest
+    journaled sample, so the simulator still sees those samples pending (at the end of a run
+    its drain waits for them), until a re-sent sample at or before it arrives, then at what
+    its observer has taken until it has taken all; the node ends as the uninterrupted one.
+    Without a re-send the hold lapses after HOLD_MAX_S."""
+    import time
+
+    msgs = _msgs(-1)
+    cut, down = 700, 20
+    a = make_node(tmp_path)
+    _feed(a, msgs)
+    journaled = make_node(tmp_path / "b")
+    _feed(journaled, msgs[:cut])
+    b = make_node(tmp_path / "b")
+    held = dict(b.held)
+    assert set(held) == {"train_01", "train_02"}, held
+    _feed(b, msgs[cut + down:cut + down + 40])  # live, after the gap
+    assert all(b._recv_t[t] > held[t] for t in held), (b._recv_t, held)
+    assert {t: b._train_stamp(t) for t in held} == held
+    _feed(b, msgs[cut - 3:cut + 5])  # the re-send of the kept samples begins
+    assert not b.held and b.catching_up
+    for t in b.catching_up:  # acknowledged as far as the observer has taken
+        assert b._train_stamp(t) == b.watch[t].t_last < b._recv_t[t]
+    _feed(b, msgs[cut + 5:])  # the rest of it, then the live stream
+    assert not b.held
+    assert all(b._train_stamp(t) == a._train_stamp(t) for t in held)
+    assert _state(b) == _state(a)
+    _feed(make_node(tmp_path / "c"), msgs[:cut])
+    c = make_node(tmp_path / "c")  # restarted, and no re-send comes
+    _feed(c, msgs[cut + down:cut + down + 40])
+    assert c.held and all(c._train_stamp(t) < c._recv_t[t] for t in c.held)
+    c._held_until = time.monotonic() - 1.0
+    assert all(c._train_stamp(t) == c._recv_t[t] for t in ("train_01", "train_02"))
+    assert not c.held
+
+
 def test_journal_of_one_sample_per_line_is_read(make_node: Any, tmp_path: Path) -> None:
     """Journals written one JSON sample per line (main before issue 13) replay the same."""
     from metro_atc.nodes.brake_diagnostic import unpacked_entries
@@ -217,3 +256,27 @@ def test_journal_text_does_not_depend_on_the_bursts(make_node: Any, tmp_path: Pa
     for name in names:
         text = (tmp_path / "a" / name).read_text()
         assert text and text == (tmp_path / "b" / name).read_text(), name
+
+
+def test_a_level_change_goes_to_diagnostics_at_once(make_node: Any, tmp_path: Path) -> None:
+    """OK -> WARN -> ERROR of the pad fault: /diagnostics published right after each batch
+    that changed a level (not only at the wall-clock tick: a fast run's last tick can come
+    before the ERROR), carrying the new level."""
+    node = make_node(tmp_path)
+    sent: list[int] = []
+    publish = node.rt.publish
+
+    def spy() -> None:
+        sent.append(node._levels["train_01"])
+        publish()
+
+    node.rt.publish = spy
+    levels = []
+    for m in _msgs(-1):
+        before = dict(node._levels)
+        node._on_batch(m)
+        node.flush()
+        if node._levels["train_01"] != before["train_01"] and before["train_01"] >= 0:
+            levels.append(node._levels["train_01"])
+    assert levels == [1, 2], levels
+    assert sent == levels

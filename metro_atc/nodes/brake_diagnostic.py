@@ -125,6 +125,12 @@ IDLE_ACK_GAP_S = 0.1
 """Least wall time between two idle acknowledgements (:data:`IDLE_ACK_S`) [s]: at most 10
 BrakeDiagnosis per train and wall second besides the :data:`ACK_PERIOD_S` ones."""
 
+HOLD_MAX_S = 10.0
+"""After a restart: wall seconds at most that a train's acknowledgement stays at its newest
+journaled sample while no re-sent sample has reached back to it (see
+:attr:`BrakeDiagnostic.held`): a train whose samples the simulator no longer keeps is then
+acknowledged as usual."""
+
 
 class BrakeDiagnostic(Node):
     """The brake diagnosis node (see module docstring)."""
@@ -182,6 +188,21 @@ class BrakeDiagnostic(Node):
         """Journal entries not written yet (written by :meth:`flush`)."""
         self._kv: dict[str, dict[str, KeyValue]] = {t: {} for t in self.ids}
         """The /diagnostics key-values of each train (reused: only their values change)."""
+        self.held: dict[str, float] = {}
+        """After a restart, per train: its newest journaled sample [s], acknowledged instead
+        of the newest received until a sample at or before it arrives (the simulator's
+        re-send to this new reader reached back) or :data:`HOLD_MAX_S` passed.  The live
+        stream reaching the node first would otherwise acknowledge what was published while
+        it was down: at the end of a run the simulator would then see nothing pending and
+        stop before its re-send."""
+        self._level_changed = False
+        """A train's level changed since the last /diagnostics (published after the batch)."""
+        self.catching_up: set[str] = set()
+        """Trains out of :attr:`held` whose observer has not yet taken every sample received
+        (the re-send): acknowledged at the observer's newest sample until it has."""
+        self._held_until = math.inf
+        """Wall time (monotonic) [s] at which :attr:`held` and :attr:`catching_up` lapse
+        (:data:`HOLD_MAX_S` after the restart or the last re-send reaching back)."""
         self.down_since: set[str] = set()
         """Trains that, after a restart, have not caught up yet: their samples after the last
         journaled one and before the live stream were missed while down (one catch-up each)."""
@@ -201,6 +222,9 @@ class BrakeDiagnostic(Node):
                 # a restart: every train catches up once, also one that had sent nothing
                 # before the kill (empty journal: its whole re-send was missed)
                 self.down_since = set(self.ids)
+                self.held = {t: w.t_last for t, w in self.watch.items()
+                             if math.isfinite(w.t_last)}
+                self._held_until = time.monotonic() + HOLD_MAX_S
         # one FleetBrakeSensorData per lockstep step with samples (all trains); no QoS-event
         # waitables (see common.bulk_subscription)
         self.index = {t: i for i, t in enumerate(self.ids)}
@@ -327,7 +351,7 @@ class BrakeDiagnostic(Node):
             self.rejections.add("error")
             self._log_bounded("", "error", f"skipped sample batch: {type(exc).__name__}: {exc}")
             return
-        recv, watch, levels = self._recv_t, self.watch, self._levels
+        recv, watch, levels, held = self._recv_t, self.watch, self._levels, self.held
         if len(rows) != len(items):
             rows = [b""] * len(items)  # (never: then each sample a JSON line)
         for (train_id, stamp, s), row in zip(items, rows):
@@ -338,6 +362,11 @@ class BrakeDiagnostic(Node):
                 continue
             if stamp > recv[train_id]:  # rejected ones count too
                 recv[train_id] = stamp
+            if held and stamp <= held.get(train_id, -math.inf) + 1e-9:
+                # the re-send reached back to the journal: acknowledged as far as taken
+                del held[train_id]
+                self.catching_up.add(train_id)
+                self._held_until = time.monotonic() + HOLD_MAX_S
             if s.__class__ is dict:
                 # a slow or standing train's sample after the last one (most samples):
                 # what _on_sample does with it (neither a re-send nor behind the stream:
@@ -350,6 +379,11 @@ class BrakeDiagnostic(Node):
                         self._publish_train(train_id, s["t_s"])
                     continue
             self._on_sample(train_id, s, row)
+        if self._level_changed:
+            # a new level goes to /diagnostics at once, not at the next wall-clock tick (a
+            # fast run's last tick can come before it; diagnostic_updater's force_update)
+            self._level_changed = False
+            self.rt.publish()
 
     def _on_sample(self, train_id: str, s: dict[str, Any] | conv.MessageRejected,
                    row: bytes = b"") -> None:
@@ -407,6 +441,7 @@ class BrakeDiagnostic(Node):
         w = self.watch[train_id]
         level, text = w.level_message()
         if level != self._levels[train_id] and self._levels[train_id] >= 0:
+            self._level_changed = True
             line = (f"{train_id}: {LEVEL_NAMES[self._levels[train_id]]} -> "
                     f"{LEVEL_NAMES[level]} at t={stamp_s:.2f} s: {text}")
             if level == 2:  # rclpy: one severity per logging call site
@@ -454,7 +489,22 @@ class BrakeDiagnostic(Node):
         return st
 
     def _train_stamp(self, train_id: str) -> float:
-        """The train's newest sample, received or replayed [s] (simulated time; 0: none)."""
+        """The train's newest sample, received or replayed [s] (simulated time; 0: none).
+
+        What its BrakeDiagnosis acknowledges; after a restart, its newest journaled sample
+        while :attr:`held`, then the observer's newest while :attr:`catching_up`.
+        """
+        if self.held or self.catching_up:
+            if time.monotonic() >= self._held_until:
+                self.held.clear()
+                self.catching_up.clear()
+            elif train_id in self.held:
+                return self.held[train_id]
+            elif train_id in self.catching_up:
+                taken = self.watch[train_id].t_last
+                if taken < self._recv_t[train_id] - 1e-9:
+                    return taken if math.isfinite(taken) else 0.0
+                self.catching_up.discard(train_id)
         t = max(self.watch[train_id].t_last, self._recv_t[train_id])
         return t if math.isfinite(t) else 0.0
 
