@@ -673,7 +673,7 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
     finished = Path(plans) / "line_simulator.finished"
     commands = dict(build_commands(a, train_ids, out_dir, plans, str(finished)))
     respawns = {label: 0 for label in commands}
-    killed = 0  # processes that died by SIGKILL (their DDS shared memory stays behind)
+    killed = False  # a process died by SIGKILL (its DDS shared memory stays behind)
     forks = {label for label, argv in commands.items() if forkable(argv)}
     if zygote is None and forks:
         zygote = start_zygote(sorted({os.path.basename(commands[x][0]) for x in forks}))
@@ -715,8 +715,7 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
                 n, label, rc = failed[0]
                 why = f"killed by {signal.Signals(-rc).name}" if rc < 0 and \
                     -rc in signal.valid_signals() else _last_error_line(log_dir / f"{label}.log")
-                if rc == -signal.SIGKILL:
-                    killed += 1
+                killed = killed or rc == -signal.SIGKILL
                 if respawns[label] < a.respawn_limit and rc != 2:
                     respawns[label] += 1
                     print(f"metro_atc run: {label} exited with {rc} ({why}); restarting it "

@@ -100,12 +100,7 @@ def linger(node: Node, limit_s: float) -> bool:
     ``limit_s`` [s] of wall time (a reader that stopped acknowledging). Best-effort writers
     have nothing to wait for. This used to be a fixed 0.3 s of executor spinning.
     """
-    end = time.monotonic() + float(limit_s)
-    for pub in node.publishers:
-        left = end - time.monotonic()
-        if left <= 0.0 or not pub.wait_for_all_acked(Duration(seconds=left)):
-            return False
-    return True
+    return wait_acked(list(node.publishers), float(limit_s), None)
 
 
 def subscribed_by(node: Node, pubs: Sequence[Publisher], names: Sequence[str]) -> bool:
@@ -121,13 +116,14 @@ def wait_acked(pubs: Sequence[Publisher], timeout_s: float, logger: Any) -> bool
     """Wait until every reliable reader of ``pubs`` acknowledged what was published.
 
     At most ``timeout_s`` [s] of wall time for all; the first publisher not acknowledged
-    in time is logged (``logger``) and False returned.
+    in time is logged (``logger``, if given) and False returned.
     """
     end = time.monotonic() + timeout_s
     for p in pubs:
         rest = end - time.monotonic()
         if rest <= 0.0 or not p.wait_for_all_acked(Duration(seconds=rest)):
-            logger.warning(f"{p.topic_name}: not every reader acknowledged "
-                           f"the last messages within {timeout_s:g} s")
+            if logger is not None:
+                logger.warning(f"{p.topic_name}: not every reader acknowledged "
+                               f"the last messages within {timeout_s:g} s")
             return False
     return True

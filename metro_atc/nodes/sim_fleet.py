@@ -98,9 +98,7 @@ class FleetStatePublisher:
                                                     k, t, per_train[idx])
         self.fleet_pub.publish(self._fleet_msg)
         if per_train.any():
-            for i, m in conv.state_msgs(self.ids, np.flatnonzero(per_train), line.states(),
-                                        k, t):
-                self.state_pubs[i].publish(m)
+            self.publish_states(k, per_train)
         return active
 
     def _state_read(self, mask: np.ndarray) -> np.ndarray:
@@ -114,7 +112,7 @@ class FleetStatePublisher:
         return out
 
     def publish_states(self, k: int, trains: np.ndarray) -> None:
-        """Publish again the step-``k`` states of ``trains`` (a late or restarted ATO)."""
+        """Publish the step-``k`` states of ``trains`` (due, or again for a late ATO)."""
         t = float(self.line.t)
         for i, m in conv.state_msgs(self.ids, np.flatnonzero(trains), self.line.states(),
                                     k, t):

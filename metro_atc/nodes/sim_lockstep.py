@@ -51,8 +51,8 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
     lock_pollers: dict[tuple[bytes, tuple[int, ...]], SubscriptionPoller] = {}
     echo_pollers: dict[bytes, SubscriptionPoller] = {}
 
-    def poller_set() -> tuple[SubscriptionPoller, SubscriptionPoller]:
-        """Return the (lockstep, echo) pollers of the trains waited for.
+    def lock_poller() -> SubscriptionPoller:
+        """Return the poller of what the lockstep waits for.
 
         The lockstep waits on the fleet commands, on the per-train commands of active
         trains no fleet command answered yet, and on the departure commands of the trains
@@ -74,10 +74,10 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
             lock = lock_pollers[(okey, pend)] = SubscriptionPoller(
                 sim.context, [sim.fleet_sub, *(sim.cmd_subs[i] for i in np.flatnonzero(own)),
                               *(sim.dep_subs[i] for i in pend)])
-        return lock, echo_poller()
+        return lock
 
     def echo_poller() -> SubscriptionPoller:
-        """Return the poller of everything the lockstep does not wait on (see poller_set)."""
+        """Return the poller of everything the lockstep does not wait on (see lock_poller)."""
         own = sim.waited_trains()
         okey = own.tobytes()
         echo = echo_pollers.get(okey)
@@ -91,7 +91,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
 
     def wait(timeout_s: float) -> None:
         if fast_path:
-            poller_set()[0].poll(timeout_s)
+            lock_poller().poll(timeout_s)
             slow_path()
         else:
             executor.spin_once(timeout_sec=timeout_s)
