@@ -18,9 +18,11 @@ from launch.event_handlers import OnProcessExit
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from metro_atc.core.atr.registry import REGULATORS
+
 ARGUMENTS = {
     "scenario": ("taipei_blue", "embedded scenario name or path to a scenario YAML"),
-    "regulator": ("none", "ATS regulator: none | lqr | dhp | aoc | elqr"),
+    "regulator": ("none", "ATS regulator: " + REGULATORS.help()),
     "seed": ("0", "random seed of disturbances and sensor noise"),
     "lockstep": ("true", "deterministic lockstep (true) or free-run at real_time_factor"),
     "real_time_factor": ("10.0", "free-run pacing: simulated seconds per wall second"),

@@ -32,6 +32,7 @@ import torch
 from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.fingerprint import line_hash
 from metro_atc.core.atr.lines import get_line
+from metro_atc.core.atr.registry import TRAINED
 from metro_atc.core.atr.weights_store import DEFAULT_EPOCHS, cached_path, train_weights
 
 
@@ -39,7 +40,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     """Parse arguments, train, write the weights file; returns a process exit code."""
     ap = argparse.ArgumentParser(prog="metro_atc train",
                                  description="train ATR regulator weights (seed 000 AOC/DHP)")
-    ap.add_argument("method", choices=("aoc", "dhp"))
+    ap.add_argument("method", choices=TRAINED)
     ap.add_argument("--scenario", default="taipei_blue",
                     help="line: a scenario name or file (the ATS node's model of it), "
                          "blue_line_estimates or small<N>")

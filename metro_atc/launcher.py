@@ -46,6 +46,7 @@ from typing import Any, Sequence, Union
 
 import numpy as np
 
+from metro_atc.core.atr.registry import REGULATORS
 from metro_atc.dds import clean_killed_shm, config_dir, dds_defaults
 from metro_atc.process_watch import PARENT_PID_ENV
 from metro_atc.zygote import Client as Zygote
@@ -58,7 +59,6 @@ ZYGOTE_ENV = "METRO_ATC_ZYGOTE"
 
 NODE_EXECUTABLES = ("line_simulator", "ats_regulator", "ato_controller", "brake_diagnostic",
                     "bag_recorder")
-REGULATORS = ("none", "lqr", "dhp", "aoc", "elqr")
 RECORDER_NODE = "bag_recorder"
 """Node name of the recorder (the simulator waits for it before step 0)."""
 EXIT_TIMEOUT = 124
@@ -89,7 +89,8 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m metro_atc run", description=__doc__)
     p.add_argument("--scenario", default="taipei_blue",
                    help="embedded scenario name or path to a scenario YAML (default taipei_blue)")
-    p.add_argument("--regulator", choices=REGULATORS, default="none")
+    p.add_argument("--regulator", choices=REGULATORS.names, default="none",
+                   help=REGULATORS.help())
     p.add_argument("--out", default=None, help="output directory (KPIs, events CSV, PNGs)")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.add_argument("--single-process", action="store_true",
@@ -471,14 +472,15 @@ def prepare_regulator(a: argparse.Namespace, scn: Any) -> str | None:
     it, so a regulator that cannot start stops the run before the graph exists.
     """
     a.weights_file = ""
-    if a.regulator not in ("aoc", "dhp", "lqr"):
+    entry = REGULATORS.get(a.regulator)
+    if entry is None or not entry.has("prebuilt"):
         return None
     from metro_atc.core.atr.lines import atr_line_for
     from metro_atc.core.atr.regulators import make_regulator
     from metro_atc.core.atr.weights_store import ensure_weights
     try:
         line = atr_line_for(scn)
-        if a.regulator in ("aoc", "dhp"):
+        if entry.has("trained"):
             if a.weights:
                 path = Path(a.weights).resolve()
             else:

@@ -89,15 +89,15 @@ def test_dynamic_parameters_take_effect(graph: dict[str, Any]) -> None:
 
 def test_enumerations_carry_their_values(graph: dict[str, Any]) -> None:
     """The descriptors of regulator, planner, tracker, log_level list the allowed values."""
-    from metro_atc import launcher
-    from metro_atc.core.ato.planner import PLANNERS
-    from metro_atc.nodes.ats_regulator import REGULATORS
+    from metro_atc.core.ato.registry import PLANNERS, TRACKERS
+    from metro_atc.core.atr.registry import REGULATORS
 
-    assert REGULATORS == launcher.REGULATORS
     d = graph["ats"].describe_parameter("regulator")
     assert d.read_only and all(r in d.additional_constraints for r in REGULATORS)
     d = graph["ato"].describe_parameter("planner")
     assert all(p in d.additional_constraints for p in PLANNERS)
+    d = graph["ato"].describe_parameter("tracker")
+    assert all(t in d.additional_constraints for t in TRACKERS)
     d = graph["sim"].describe_parameter("log_level")
     assert not d.read_only and "debug" in d.additional_constraints
 

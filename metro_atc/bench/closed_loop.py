@@ -31,7 +31,7 @@ import numpy as np
 from metro_atc.bench.progress import progress_each
 from metro_atc.bench.regulation import PAPER
 from metro_atc.jsonsafe import json_safe
-from metro_atc.launcher import REGULATORS
+from metro_atc.core.atr.registry import REGULATORS
 
 DEFAULT_REGULATORS = ("none", "lqr", "dhp", "aoc")
 KPIS = {

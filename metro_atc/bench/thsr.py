@@ -32,8 +32,8 @@ from metro_atc.bench.progress import Progress
 from metro_atc.jsonsafe import json_safe as _json_safe
 from metro_atc.core.ato.envelope import RunModel
 from metro_atc.core.ato.fuzzy import FuzzyController
-from metro_atc.core.ato.pi import PIController
 from metro_atc.core.ato.reference_curve import ReferenceCurve
+from metro_atc.core.ato.registry import TRACKERS
 from metro_atc.core.ato.tracking import simulate_tracking
 from metro_atc.core.line.vehicle import THSR_700T, Track
 
@@ -82,7 +82,8 @@ def main(argv: Optional[list[str]] = None) -> int:
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument("--quick", action="store_true", help="only the first two runs")
     ap.add_argument("--seed", type=int, default=1, help="unused (deterministic)")
-    ap.add_argument("--tracker", choices=("fuzzy", "pi"), default="fuzzy")
+    ap.add_argument("--tracker", choices=TRACKERS.names, default="fuzzy",
+                    help=TRACKERS.help())
     ap.add_argument("--dt", type=float, default=0.1, help="control / RK4 step [s]")
     ap.add_argument("--out", default=None, help="directory for PNG plots")
     args = ap.parse_args(argv)
@@ -91,7 +92,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     track = Track.flat(300.0 / 3.6)
     runs = [RunModel(THSR_700T, track, 0.0, float(d)) for d in dist_m]
     refs = [ReferenceCurve(r) for r in runs]
-    tracker = FuzzyController() if args.tracker == "fuzzy" else PIController()
+    tracker = TRACKERS[args.tracker].load()()
     prog = Progress("bench thsr", _expected_time_s(refs[-1]), "simulated s",
                     rate_name="rtf")
 

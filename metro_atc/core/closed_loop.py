@@ -48,10 +48,10 @@ from typing import Any, Optional
 
 import numpy as np
 
-from metro_atc.core.ato.onboard import OnboardAto, atp_model_for, envelope_limits, tsr_zones
+from metro_atc.core.ato.wiring import AtoWiring, MmasSettings, ato_wiring
 from metro_atc.core.atr.dispatch import Dispatch, make_dispatcher
 from metro_atc.core.brake.line_monitor import LineBrakeMonitor
-from metro_atc.core.bridge import timetable_for, track_for, train_for
+from metro_atc.core.bridge import timetable_for
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.line.scenario import Scenario
 from metro_atc.core.line.track import window_min_ahead, window_min_behind
@@ -94,6 +94,8 @@ class ClosedLoopResult:
     """Brake-diagnosis figures (:meth:`LineBrakeMonitor.summary`) when it ran."""
     interventions_at_tsr_notice: int = 0
     """ATP intervention onsets at a TSR's notice time (module docstring)."""
+    ato: Optional[AtoWiring] = None
+    """What every train's ATO was built from (:func:`metro_atc.core.ato.wiring.ato_wiring`)."""
 
     @property
     def forced_stop_errors_m(self) -> list[float]:
@@ -134,24 +136,22 @@ class ClosedLoopResult:
 
 def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp",
                     tracker: str = "fuzzy", seed: int = 0,
-                    duration_s: Optional[float] = None, brake: bool = False) -> ClosedLoopResult:
+                    duration_s: Optional[float] = None, brake: bool = False,
+                    mmas: Optional[MmasSettings] = None) -> ClosedLoopResult:
     """Run ``scn`` to its end (or ``duration_s``) in the ROS-free lockstep; see module doc.
 
-    With ``brake`` the brake sensor samples also go to the brake diagnosis
-    (:class:`metro_atc.core.brake.line_monitor.LineBrakeMonitor`).
+    The ATOs are wired as the ``ato_controller`` node wires them
+    (:func:`metro_atc.core.ato.wiring.ato_wiring`; ``mmas``: the node's MMAS parameters,
+    default theirs).  With ``brake`` the brake sensor samples also go to the brake
+    diagnosis (:class:`metro_atc.core.brake.line_monitor.LineBrakeMonitor`).
     """
     w0 = time.perf_counter()
     sim = LineSim(scn, seed=seed, trace_period_s=0.0)
     tt = timetable_for(scn)
-    train = train_for(scn)
-    track = track_for(scn)
-    limits = envelope_limits(scn, train)
-    atp = atp_model_for(scn, train)
+    wiring = ato_wiring(scn, planner, tracker, mmas=mmas, tt=tt)
     shared: dict[str, Any] = {}
-    tsrs = tsr_zones(scn)
-    atos = [OnboardAto(train, track, tt.station_positions_m, planner=planner, tracker=tracker,
-                       control_period_s=float(scn.sim.control_period_s), limits=limits,
-                       shared=shared, tsrs=tsrs, atp=atp) for _ in tt.train_ids]
+    tsrs = list(wiring.tsrs)
+    atos = [wiring.onboard(shared) for _ in tt.train_ids]
     ats = make_dispatcher(scn, regulator, tt=tt)
     mon = LineBrakeMonitor(scn) if brake else None
     ids = list(tt.train_ids)
@@ -235,7 +235,8 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
         tsr_minima=minima, energy_kwh=float(kp["energy_kwh"]), train_km=dist / 1000.0,
         sim_time_s=float(sim.t), wall_s=time.perf_counter() - w0, finished=bool(sim.done),
         kpis=kp, arrivals=arrivals,
-        brake=mon.summary() if mon is not None else {}, interventions_at_tsr_notice=at_notice)
+        brake=mon.summary() if mon is not None else {}, interventions_at_tsr_notice=at_notice,
+        ato=wiring)
 
 
 def _at_tsr_notice(sim: LineSim, tsrs: list[Any], trains: Any) -> int:

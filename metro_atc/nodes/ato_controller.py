@@ -53,12 +53,12 @@ from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 
 from metro_atc.core.ato.coasting import warm_up_plan_kernel
-from metro_atc.core.ato.controller import TRACKERS
-from metro_atc.core.ato.onboard import (OnboardAto, PlanEvent, atp_model_for, envelope_limits,
-                                        tsr_zones)
+from metro_atc.core.ato.onboard import OnboardAto, PlanEvent
 from metro_atc.core.ato.plan_store import PlanStore
-from metro_atc.core.ato.planner import PLANNERS, Profile
-from metro_atc.core.bridge import timetable_for, track_for, train_for
+from metro_atc.core.ato.planner import Profile
+from metro_atc.core.ato.registry import PLANNERS, TRACKERS
+from metro_atc.core.ato.wiring import MmasSettings, ato_wiring
+from metro_atc.core.bridge import timetable_for
 from metro_atc.core.journal import read_entries
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, StepWindow, bounds_for
@@ -99,12 +99,17 @@ class AtoController(Node):
         self.scenario_name = static(self, "scenario", "taipei_blue",
                                     "embedded scenario name or path to a scenario YAML")
         static(self, "train_ids", [""], "trains hosted by this process (launcher use)")
-        planner = static(self, "planner", "ectp", "speed-profile planner", choices=PLANNERS)
-        tracker = static(self, "tracker", "fuzzy", "speed tracker", choices=TRACKERS)
-        mmas_ants = static(self, "mmas_ants", 50, "MMAS: ants per iteration (seed 001)", 1, 1000)
-        mmas_iter = static(self, "mmas_iterations", 100, "MMAS: iterations (seed 001)", 1, 10000)
-        mmas_sections = static(self, "mmas_sections", 50, "MMAS: sections per run (seed 001)",
-                               2, 500)
+        planner = static(self, "planner", "ectp", "speed-profile planner: " + PLANNERS.help(),
+                         choices=PLANNERS.names)
+        tracker = static(self, "tracker", "fuzzy", "speed tracker: " + TRACKERS.help(),
+                         choices=TRACKERS.names)
+        mmas_default = MmasSettings()
+        mmas_ants = static(self, "mmas_ants", mmas_default.n_ants,
+                           "MMAS: ants per iteration (seed 001)", 1, 1000)
+        mmas_iter = static(self, "mmas_iterations", mmas_default.n_iterations,
+                           "MMAS: iterations (seed 001)", 1, 10000)
+        mmas_sections = static(self, "mmas_sections", mmas_default.n_sections,
+                               "MMAS: sections per run (seed 001)", 2, 500)
         plan_dir = static(self, "plan_store_dir", "",
                           "directory shared by the ATO processes of a run: finished plans "
                           "are planned once per run and target ('': per process only)")
@@ -117,12 +122,6 @@ class AtoController(Node):
         # /diagnostics stamped with the simulated time of the last state acted on (the
         # launcher runs the ATOs without use_sim_time: they need no /clock)
         self.rt = RuntimeParams(self, self.health, stamp=self.last_state_t)
-        if planner not in PLANNERS:
-            raise NodeConfigError(f"parameter planner='{planner}' is not one of "
-                                  f"{', '.join(PLANNERS)}")
-        if tracker not in TRACKERS:
-            raise NodeConfigError(f"parameter tracker='{tracker}' is not one of "
-                                  f"{', '.join(TRACKERS)}")
         if scenario is None:
             try:
                 scenario = load_scenario(self.scenario_name)
@@ -134,37 +133,31 @@ class AtoController(Node):
                                   f"'{self.scenario_name}' ({self.tt.train_ids[0]} .. "
                                   f"{self.tt.train_ids[-1]})")
         self.idx = self.tt.train_ids.index(train_id)
-        self.track = track_for(scenario)
-        extra: dict[str, Any] = {}
-        if planner == "mmas":
-            extra = {"n_ants": mmas_ants, "n_iterations": mmas_iter, "n_sections": mmas_sections}
-        train = train_for(scenario)
+        # what this train's OnboardAto is built from, as the ROS-free closed loop builds it;
+        # the ATP model (one plant grid per process) is shared by the trains of the process
+        try:
+            self.wiring = ato_wiring(
+                scenario, planner, tracker, MmasSettings(mmas_ants, mmas_iter, mmas_sections),
+                tt=self.tt, atp=shared.get("atp_model") if shared is not None else None)
+        except ValueError as exc:
+            raise NodeConfigError(str(exc)) from None
+        if shared is not None:
+            shared["atp_model"] = self.wiring.atp
+        train = self.wiring.train
         if plan_dir and shared is not None and "plan_store" not in shared:
             try:
                 shared["plan_store"] = PlanStore(plan_dir, context=f"{self.scenario_name}|"
                                                  f"{planner}|{train!r}")
             except OSError as exc:
                 raise NodeConfigError(f"plan_store_dir '{plan_dir}': {exc}") from None
-        limits = envelope_limits(scenario, train)  # planning limits inside the ATP envelope
         if shared is None or not shared.get("plan_kernel_loaded"):
             # the first plan runs inside the lockstep callback: load the kernel before
-            warm_up_plan_kernel(train, limits)
+            warm_up_plan_kernel(train, self.wiring.limits)
             if shared is not None:
                 shared["plan_kernel_loaded"] = True
-        self.stations = self.tt.station_positions_m
-        # the ATP model (one plant grid per process, shared by its trains)
-        atp = shared.get("atp_model") if shared is not None else None
-        if atp is None:
-            atp = atp_model_for(scenario, train)
-            if shared is not None:
-                shared["atp_model"] = atp
-        period = float(scenario.sim.control_period_s)
-        tsrs = tsr_zones(scenario)
 
         def new_onboard() -> OnboardAto:
-            return OnboardAto(train, self.track, self.stations, planner=planner,
-                              tracker=tracker, control_period_s=period, limits=limits,
-                              shared=shared, tsrs=tsrs, atp=atp, **extra)
+            return self.wiring.onboard(shared)
 
         self._new_onboard = new_onboard
         self.onboard = new_onboard()

@@ -26,6 +26,7 @@ from rclpy.node import Node
 
 from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.dispatch import Dispatch, make_dispatcher
+from metro_atc.core.atr.registry import REGULATORS
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.nodes import conversions as conv
@@ -34,8 +35,6 @@ from metro_atc.nodes.common import (OK, QOS_EVENTS, QOS_LATCHED, WARN, NodeConfi
                                     spin_fast, static)
 
 
-REGULATORS = ("none", "lqr", "dhp", "aoc", "elqr")
-"""Values of the ``regulator`` parameter."""
 ATS_SLOW_PERIOD_S = 0.2
 """Wall time between two turns of the ATS's executor [s] (events are served at once)."""
 
@@ -48,9 +47,8 @@ class AtsRegulator(Node):
         super().__init__("ats_regulator", **kwargs)
         self.scenario_name = static(self, "scenario", "taipei_blue",
                                     "embedded scenario name or path to a scenario YAML")
-        self.regulator = static(self, "regulator", "none",
-                                "regulator: none (timetable) | lqr | dhp | aoc | elqr "
-                                "(energy-aware LQR, seed 003)", choices=REGULATORS)
+        self.regulator = static(self, "regulator", "none", "regulator: " + REGULATORS.help(),
+                                choices=REGULATORS.names)
         weights_file = static(self, "weights_file", "",
                               "dhp/aoc weights ('' : the shipped or cached weights trained "
                               "on this line; weights of another line are refused)")

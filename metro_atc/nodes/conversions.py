@@ -23,13 +23,14 @@ from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureComman
                                 TractionCommand, TrainEvent, TrainState)
 from rosgraph_msgs.msg import Clock
 
+from metro_atc.core.atr.registry import REGULATORS
 from metro_atc.core.validate import (Bounds, Rejected, StepWindow, check_finite, check_index,
                                      check_range, check_stamp, check_time)
 from metro_atc.nodes import cdr
 
-REGULATOR_CODES = {"none": DepartureCommand.REGULATOR_NONE, "lqr": DepartureCommand.REGULATOR_LQR,
-                   "dhp": DepartureCommand.REGULATOR_DHP, "aoc": DepartureCommand.REGULATOR_AOC,
-                   "elqr": DepartureCommand.REGULATOR_ELQR}
+REGULATOR_CODES = {name: int(getattr(DepartureCommand, f"REGULATOR_{name.upper()}"))
+                   for name in REGULATORS}
+"""``DepartureCommand.regulator`` code of each regulator (constant ``REGULATOR_<NAME>``)."""
 
 
 MessageRejected = Rejected

@@ -21,17 +21,18 @@ from typing import Any, Optional
 
 
 from metro_atc.core.ato.envelope import OperatingLimits, RunModel
-from metro_atc.core.ato.fuzzy import FuzzyController, FuzzyParams
-from metro_atc.core.ato.pi import PIController, PIParams
+from metro_atc.core.ato.fuzzy import FuzzyController
+from metro_atc.core.ato.pi import PIController
 from metro_atc.core.ato.planner import PLANNERS, Profile, plan_profile
+from metro_atc.core.ato.registry import TRACKERS as TRACKER_REGISTRY
 from metro_atc.core.ato.reference_curve import ProfileReference
 from metro_atc.core.ato.tsr_plan import track_with_tsrs
 from metro_atc.core.line.vehicle import (Track, TrainParams, max_traction_force_at,
                                          resistance_force_at)
 from metro_atc.core.scalar_math import sqrt_or_nan
 
-TRACKERS = ("fuzzy", "pi")
-"""Tracker names accepted by :class:`AtoCore`."""
+TRACKERS = TRACKER_REGISTRY.names
+"""Tracker names accepted by :class:`AtoCore` (:data:`metro_atc.core.ato.registry.TRACKERS`)."""
 HOLD_BRAKE = -0.5
 """Holding-brake command at the platform [-]."""
 SAFE_BRAKE = -1.0
@@ -107,8 +108,8 @@ class AtoCore:
         self.stale_after_s = float(stale_after_s)
         self.limits = limits if limits is not None else OperatingLimits()
         self.planner_params = dict(planner_params)
-        self.tracker = FuzzyController(FuzzyParams()) if tracker == "fuzzy" \
-            else PIController(PIParams())
+        self.tracker: FuzzyController | PIController = \
+            TRACKER_REGISTRY[tracker].load()()  # default gains
         self._shared: dict[str, Any] = shared if shared is not None else {}
         self._cache: dict[Any, Any] = self._shared.setdefault("prework", {})
         self._runs: dict[tuple[Any, ...], RunModel] = self._shared.setdefault("runs", {})

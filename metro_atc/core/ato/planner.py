@@ -23,13 +23,14 @@ from metro_atc.core.ato.dp import build_dp_tables, solve_dp
 from metro_atc.core.ato.envelope import (MODE_ACCEL, MODE_BRAKE, MODE_COAST, MODE_CRUISE,
                                          RunModel, profile_energy_time)
 from metro_atc.core.ato.mmas import MmasParams, solve_mmas
+from metro_atc.core.ato.registry import PLANNERS as PLANNER_REGISTRY
 from metro_atc.core.ato.sections import build_section_tables
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-PLANNERS = ("mmas", "dp", "fotp", "fctp", "ectp", "actp_tc", "actp_c")
-"""Planner names accepted by :func:`plan_profile`."""
+PLANNERS = PLANNER_REGISTRY.names
+"""Planner names accepted by :func:`plan_profile` (:mod:`metro_atc.core.ato.registry`)."""
 
 
 @dataclass
@@ -136,36 +137,65 @@ def plan_profile(run: RunModel, target_running_time_s: float, planner: str = "ec
                         fast.energy_j, False,
                         f"target {target:.1f} s below the minimum running time "
                         f"{fast.time_s:.1f} s: flat-out (fastest) profile", t0)
+    plan = PLANNER_REGISTRY[name].load()
+    prof: Profile = plan(run, name, target, fast, cache, params, t0)
+    return prof
+
+
+# Planner functions of :data:`metro_atc.core.ato.registry.PLANNERS`: ``run``, the planner
+# ``name``, a finite positive ``target`` [s] not below the flat-out time, the flat-out
+# profile ``fast``, the caller's ``cache``, the planner ``params`` of :func:`plan_profile`
+# and its start time ``t0`` (perf_counter) -> the Profile.
+
+def plan_fotp(run: RunModel, name: str, target: float, fast: Any,
+              cache: Optional[dict[Any, Any]], params: dict[str, Any], t0: float) -> Profile:
+    """FOTP: the flat-out profile (it does not aim at the target)."""
+    return _profile(run, name, target, fast.s_grid, fast.v_profile, fast.time_s,
+                    fast.energy_j, True, "", t0)
+
+
+def plan_coasting(run: RunModel, name: str, target: float, fast: Any,
+                  cache: Optional[dict[Any, Any]], params: dict[str, Any], t0: float
+                  ) -> Profile:
+    """FCTP, ECTP, ACTP-TC, ACTP-C: the coasting control systems of :mod:`coasting`."""
+    h = float(params.get("h_m", 2.0))
+    if name == "fctp":
+        res = coasting.fctp(run, target, float(params.get("coast_fraction", 0.5)),
+                            float(params.get("delta", coasting.LEVEL_II)), h)
+    elif name == "ectp":
+        res = coasting.ectp(run, target, float(params.get("delta", coasting.LEVEL_II)), h)
+    elif name in ("actp_tc", "actp_c"):
+        ap = coasting.ActpParams(iterations=int(params.get("iterations", 400)),
+                                 seed=int(params.get("seed", 1)))
+        res = coasting.actp(run, target, name == "actp_tc", ap, h)
+    else:
+        raise ValueError(f"{name!r} is not a coasting control system")
+    return _profile(run, name, target, res.s_grid, res.v_profile, res.time_s,
+                    res.energy_j, res.feasible, res.message, t0)
+
+
+def plan_dp(run: RunModel, name: str, target: float, fast: Any,
+            cache: Optional[dict[Any, Any]], params: dict[str, Any], t0: float) -> Profile:
+    """DP: the minimum-energy reference (tables cached per run and grid)."""
     key = (run.x_start_m, run.x_stop_m)
-    if name == "fotp":
-        return _profile(run, name, target, fast.s_grid, fast.v_profile, fast.time_s,
-                        fast.energy_j, True, "", t0)
-    if name in ("fctp", "ectp", "actp_tc", "actp_c"):
-        if name == "fctp":
-            res = coasting.fctp(run, target, float(params.get("coast_fraction", 0.5)),
-                                float(params.get("delta", coasting.LEVEL_II)), h)
-        elif name == "ectp":
-            res = coasting.ectp(run, target, float(params.get("delta", coasting.LEVEL_II)), h)
-        else:
-            ap = coasting.ActpParams(iterations=int(params.get("iterations", 400)),
-                                     seed=int(params.get("seed", 1)))
-            res = coasting.actp(run, target, name == "actp_tc", ap, h)
-        return _profile(run, name, target, res.s_grid, res.v_profile, res.time_s,
-                        res.energy_j, res.feasible, res.message, t0)
-    if name == "dp":
-        ds = float(params.get("ds_m", 10.0))
-        de = float(params.get("de_m2s2", 1.0))
-        dk = ("dp", key, ds, de)
-        tab = cache.get(dk) if cache is not None else None
-        if tab is None:
-            tab = build_dp_tables(run, ds, de)
-            if cache is not None:
-                cache[dk] = tab
-        r = solve_dp(run, target, tables=tab)
-        msg = "" if r.feasible else f"DP time {r.time_s:.2f} s exceeds target"
-        return _profile(run, name, target, r.s_grid, r.v_profile, r.time_s, r.energy_j,
-                        r.feasible, msg, t0)
-    # MMAS
+    ds = float(params.get("ds_m", 10.0))
+    de = float(params.get("de_m2s2", 1.0))
+    dk = ("dp", key, ds, de)
+    tab = cache.get(dk) if cache is not None else None
+    if tab is None:
+        tab = build_dp_tables(run, ds, de)
+        if cache is not None:
+            cache[dk] = tab
+    r = solve_dp(run, target, tables=tab)
+    msg = "" if r.feasible else f"DP time {r.time_s:.2f} s exceeds target"
+    return _profile(run, name, target, r.s_grid, r.v_profile, r.time_s, r.energy_j,
+                    r.feasible, msg, t0)
+
+
+def plan_mmas(run: RunModel, name: str, target: float, fast: Any,
+              cache: Optional[dict[Any, Any]], params: dict[str, Any], t0: float) -> Profile:
+    """MMAS over section modes and speed codes (section tables cached per run)."""
+    key = (run.x_start_m, run.x_stop_m)
     n_sec = int(params.get("n_sections", 50))
     codes_kmh = tuple(params.get("codes_kmh", range(40, 85, 5)))
     mk = ("mmas", key, n_sec, codes_kmh)

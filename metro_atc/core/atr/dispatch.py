@@ -46,11 +46,10 @@ import numpy as np
 from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.fingerprint import line_hash
 from metro_atc.core.atr.node_core import KINDS, AtsRegulatorCore
-from metro_atc.core.atr.regulators import Regulator
+from metro_atc.core.atr.registry import REGULATORS
+from metro_atc.core.atr.regulators import make_regulator
 from metro_atc.core.bridge import Timetable, atr_line_for, timetable_for
 from metro_atc.core.line.scenario import Scenario
-
-REGULATORS = ("none", "lqr", "dhp", "aoc", "elqr")
 
 
 @dataclass(frozen=True)
@@ -189,17 +188,16 @@ def make_dispatcher(scn: Scenario, regulator: str = "none", weights_file: str = 
     weight ``energy_weight``; its energy table is built from the scenario (a few seconds).
     Raises ValueError / FileNotFoundError with a clear message for a bad choice or file.
     """
-    if regulator not in REGULATORS:
-        raise ValueError(f"regulator {regulator!r} is not one of {', '.join(REGULATORS)}")
+    entry = REGULATORS.entry(regulator)
     tt = tt if tt is not None else timetable_for(scn)
     core = None
     if regulator != "none":
         line = atr_line_for(scn, tt)
         w = cost if cost is not None else CostWeights()
         path: Optional[str] = weights_file or None
-        if regulator in ("dhp", "aoc") and not path:
+        if entry.has("trained") and not path:
             # here, not at the top: the weights store imports torch (~2 s of CPU), which
-            # the ATS with 'none' or 'lqr' never needs (issue 13)
+            # the ATS with 'none' or 'lqr' never needs
             from metro_atc.core.atr.weights_store import find_weights
             found = find_weights(regulator, line)
             if found is None:
@@ -208,10 +206,7 @@ def make_dispatcher(scn: Scenario, regulator: str = "none", weights_file: str = 
                     f"{line_hash(line)[:12]}): 'python -m metro_atc run --train-regulator "
                     f"auto' trains them, or give weights_file")
             path = str(found)
-        reg: Optional[Regulator] = None
-        if regulator == "elqr":
-            from metro_atc.core.atr.energy import EnergyLqrRegulator, build_energy_table
-            reg = EnergyLqrRegulator(line, build_energy_table(scn, line), w, energy_weight)
+        reg = make_regulator(regulator, line, w, path, scenario=scn, energy_weight=energy_weight)
         core = AtsRegulatorCore(line, regulator, weights_path=path, cost=w,
                                 train_ids=tt.train_ids,
                                 first_dispatch_s=float(tt.departure_s[0, 0]),

@@ -132,7 +132,7 @@ from metro_atc.core.ato.dp import DPTables, lerp, build_dp_tables
 from metro_atc.core.ato.envelope import RunModel
 from metro_atc.core.atr.blue_line import LineData
 from metro_atc.core.atr.cost import CostWeights, stage_cost
-from metro_atc.core.atr.regulators import Regulator
+from metro_atc.core.atr.regulators import Regulator, RegulatorInputs
 from metro_atc.core.atr.traffic import linear_model, split_adjustment
 from metro_atc.core.line.scenario import Scenario, load_scenario
 
@@ -608,3 +608,15 @@ __all__ = ["AffineLqr", "ENERGY_SOURCES", "EnergyLqrRegulator", "EnergyTable", "
            "J_PER_KWH", "affine_lqr", "build_energy_table",
            "dp_energy_time_points", "energy_aware_stage_cost", "energy_table_for",
            "energy_term", "fit_curve", "lower_hull", "run_adjustment"]
+
+
+def build_elqr(name: str, inputs: RegulatorInputs) -> Regulator:
+    """Factory of ``elqr`` (:data:`metro_atc.core.atr.registry.REGULATORS`).
+
+    The energy table is built from ``inputs.scenario`` (a few seconds); ValueError when
+    there is none.
+    """
+    if inputs.scenario is None:
+        raise ValueError(f"regulator {name!r} needs the scenario (its energy table)")
+    return EnergyLqrRegulator(inputs.line, build_energy_table(inputs.scenario, inputs.line),
+                              inputs.cost, inputs.energy_weight)

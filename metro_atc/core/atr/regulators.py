@@ -17,6 +17,7 @@ horizon).  Saturation is *not* applied here: the plant (or the node) limits the 
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Dict, Optional, Union
 
@@ -25,11 +26,13 @@ import numpy as np
 from metro_atc.core.atr.blue_line import LineData
 from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.fingerprint import line_hash
+from metro_atc.core.atr.registry import REGULATORS
 from metro_atc.core.atr.traffic import linear_model
 
 if TYPE_CHECKING:
     from metro_atc.core.atr.problems import AtrProblem
     from metro_atc.core.atr.training import Agent
+    from metro_atc.core.line.scenario import Scenario
 
 # torch (~2 s of CPU to import) and scipy.linalg are imported by the regulators that use
 # them, not here: the ATS node with the default regulator 'none' loads neither (issue 13;
@@ -38,7 +41,6 @@ if TYPE_CHECKING:
 WEIGHTS_FORMAT = "metro_atc.atr.weights/1"
 MAX_WEIGHTS_BYTES = 50_000_000
 """Largest ATR weights file read [bytes] (the shipped ones are < 100 kB)."""
-REGULATORS = ("none", "lqr", "dhp", "aoc")
 DATA_DIR = Path(__file__).resolve().parents[2] / "data"
 
 
@@ -219,26 +221,62 @@ def default_weights_path(method: str, scenario: str) -> Path:
     return DATA_DIR / f"{method}_{scenario}.pt"
 
 
-def make_regulator(name: str, line: LineData, weights: Optional[CostWeights] = None,
-                   weights_path: Optional[Union[str, Path]] = None) -> Regulator:
-    """Build a regulator by name ('none', 'lqr', 'dhp', 'aoc').
+@dataclass(frozen=True)
+class RegulatorInputs:
+    """What a regulator factory of :data:`metro_atc.core.atr.registry.REGULATORS` gets.
 
-    For dhp/aoc, ``weights_path`` defaults to the shipped weights for the line (if any);
-    the cost weights and horizon then come from the file.
+    line: the ATR line; cost: the cost weights (q, r, x_scale_s, horizon); weights_path:
+    trained regulators' weights file (None: the shipped file for the line); scenario: the
+    scenario (the energy-aware LQR builds its energy table from it; None elsewhere);
+    energy_weight: the energy-aware LQR's weight w_E [-].
     """
-    if name not in REGULATORS:
-        raise ValueError(f"unknown regulator {name!r}; choose one of {', '.join(REGULATORS)}")
-    w = weights if weights is not None else CostWeights()
-    if name == "none":
-        return NoneRegulator(line.n_stations)
-    if name == "lqr":
-        a, b = linear_model(line.c())  # AtrProblem's a_np, b_np without its torch tensors
-        return LqrRegulator(a, b, w)
-    if weights_path is not None:
-        path = Path(weights_path)
-    else:
-        path = default_weights_path(name, line.name)
-    reg = load_weights(path, line)
+
+    line: LineData
+    cost: CostWeights
+    weights_path: Optional[Path] = None
+    scenario: Optional["Scenario"] = None
+    energy_weight: float = 1.0
+
+
+def build_none(name: str, inputs: RegulatorInputs) -> Regulator:
+    """Factory of ``none``: the timetable (u = 0)."""
+    return NoneRegulator(inputs.line.n_stations)
+
+
+def build_lqr(name: str, inputs: RegulatorInputs) -> Regulator:
+    """Factory of ``lqr``: the gain of the line's linear traffic model."""
+    a, b = linear_model(inputs.line.c())  # AtrProblem's a_np, b_np without its torch tensors
+    return LqrRegulator(a, b, inputs.cost)
+
+
+def build_trained(name: str, inputs: RegulatorInputs) -> Regulator:
+    """Factory of the trained regulators (``dhp``, ``aoc``): load and check the weights.
+
+    The file (default: the shipped weights for the line) must hold a ``name`` policy trained
+    on this line; its cost weights and horizon come from the file.
+    """
+    path = inputs.weights_path if inputs.weights_path is not None else \
+        default_weights_path(name, inputs.line.name)
+    reg = load_weights(path, inputs.line)
     if reg.name != name:
         raise ValueError(f"{path} holds a {reg.name!r} regulator, not {name!r}")
+    return reg
+
+
+def make_regulator(name: str, line: LineData, weights: Optional[CostWeights] = None,
+                   weights_path: Optional[Union[str, Path]] = None,
+                   scenario: Optional["Scenario"] = None,
+                   energy_weight: float = 1.0) -> Regulator:
+    """Build a regulator by name (:data:`metro_atc.core.atr.registry.REGULATORS`).
+
+    For dhp/aoc, ``weights_path`` defaults to the shipped weights for the line (if any);
+    the cost weights and horizon then come from the file.  ``elqr`` needs ``scenario``
+    (its energy table) and takes ``energy_weight``.  ValueError (one line) for an unknown
+    name or a regulator that cannot be built.
+    """
+    entry = REGULATORS.entry(name)
+    w = weights if weights is not None else CostWeights()
+    inputs = RegulatorInputs(line, w, Path(weights_path) if weights_path is not None else None,
+                             scenario, float(energy_weight))
+    reg: Regulator = entry.load()(name, inputs)
     return reg

@@ -33,11 +33,13 @@ from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.evaluation import incident_scenario, kpis, simulate
 from metro_atc.core.atr.fingerprint import line_hash
 from metro_atc.core.atr.problems import AtrProblem
+from metro_atc.core.atr.registry import TRAINED
 from metro_atc.core.atr.regulators import (DATA_DIR, NeuralRegulator, NoneRegulator, Regulator,
                                            read_blob, save_weights)
 from metro_atc.core.atr.training import atr_train_config, train
 
-KINDS = ("aoc", "dhp")
+KINDS = TRAINED
+"""Regulators whose weights the store keeps (:data:`metro_atc.core.atr.registry.TRAINED`)."""
 CACHE_ENV = "METRO_ATC_ATR_CACHE"
 """Environment variable overriding the cache directory."""
 DEFAULT_EPOCHS = 1500
