@@ -67,10 +67,6 @@ NODE_EXECUTABLES = ("line_simulator", "ats_regulator", "ato_controller", "brake_
 REGULATORS = ("none", "lqr", "dhp", "aoc", "elqr")
 RECORDER_NODE = "bag_recorder"
 """Node name of the recorder (the simulator waits for it before step 0)."""
-EXIT_TIMEOUT = Exit.TIMEOUT
-"""Exit code of a run stopped by the wall-clock ``--timeout`` (as coreutils ``timeout``)."""
-EXIT_NODE_FAILED = Exit.NODE_FAILED
-"""Exit code of a run stopped because a node process failed."""
 POLL_S = 0.05
 """Wall period at which ``run`` looks at its processes [s] (the simulator's end is seen at
 most this late; a look costs one ``waitpid`` per process)."""
@@ -772,7 +768,7 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
                       f"(log: {log_dir / (label + '.log')})", file=sys.stderr)
                 # the simulator's own verdicts stand (outputs not written, no ATO answered)
                 code = rc if n == 0 and rc in (Exit.OUTPUTS_NOT_WRITTEN,
-                                               Exit.GRAPH_NOT_READY) else EXIT_NODE_FAILED
+                                               Exit.GRAPH_NOT_READY) else Exit.NODE_FAILED
             elif sim.poll() in NORMAL_END:
                 if tail is not None:
                     tail.poll()  # the lines since the last poll (a short run: all of them)
@@ -780,7 +776,7 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
             elif time.monotonic() > deadline:
                 print(f"metro_atc run: error: wall-clock timeout after {a.timeout:g} s "
                       f"(logs: {log_dir})", file=sys.stderr)
-                code = EXIT_TIMEOUT
+                code = Exit.TIMEOUT
             else:
                 if time.monotonic() >= next_poll:
                     if tail is not None:
@@ -826,7 +822,7 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
             print(f"metro_atc run: error: {label} exited with {end_rc} at shutdown: "
                   f"{_last_error_line(log_dir / f'{label}.log')}", file=sys.stderr)
             code = Exit.OUTPUTS_NOT_WRITTEN if end_rc == Exit.OUTPUTS_NOT_WRITTEN \
-                else EXIT_NODE_FAILED
+                else Exit.NODE_FAILED
     return code
 
 

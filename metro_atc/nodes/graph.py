@@ -97,7 +97,7 @@ def _run_graph(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Path) -
         for n in nodes:
             n.destroy_node()
         rclpy.try_shutdown()
-        return 3
+        return Exit.NODE_FAILED  # as a node that refuses in the multi-process graph
     try:
         executor = SingleThreadedExecutor()
         for n in nodes:
