@@ -763,7 +763,8 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
                     procs[n] = (label, start(label, "ab"))
                     write_pids(log_dir, procs)
                     continue
-                limit = " (respawn limit reached)" if a.respawn_limit else ""
+                limit = " (not restarted: a restart cannot mend it)" if rc in NO_RESPAWN \
+                    else " (respawn limit reached)" if a.respawn_limit else ""
                 print(f"metro_atc run: error: {label} exited with {rc}{limit}: {why} "
                       f"(log: {log_dir / (label + '.log')})", file=sys.stderr)
                 # the simulator's own verdicts stand (outputs not written, no ATO answered)

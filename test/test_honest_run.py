@@ -133,6 +133,34 @@ def test_graph_reports_a_truncated_and_a_cut_service(ros_env: dict[str, str],
     assert k["finished"] is False and k["cut_at_s"] == pytest.approx(60.0)
 
 
+@pytest.mark.parametrize("sim_rc, want, restarted", [
+    (Exit.SERVICE_INCOMPLETE, Exit.OK, False),   # a normal end: the KPIs decide (after)
+    (Exit.CUT, Exit.OK, False),
+    (Exit.OUTPUTS_NOT_WRITTEN, Exit.OUTPUTS_NOT_WRITTEN, False),
+    (Exit.GRAPH_NOT_READY, Exit.GRAPH_NOT_READY, False),
+    (Exit.ERROR, Exit.NODE_FAILED, True),
+])
+def test_launcher_keeps_the_simulators_verdict(monkeypatch: pytest.MonkeyPatch,
+                                               tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str],
+                                               sim_rc: int, want: int,
+                                               restarted: bool) -> None:
+    """The simulator's own ends are not restarted: an incomplete or cut service ends the
+    graph normally (its KPIs give the code), unwritten outputs (4) and a graph that never
+    answered (7) are the run's code; a crash is restarted, then NODE_FAILED."""
+    sim = [sys.executable, "-c", f"import time; time.sleep(1.0); raise SystemExit({sim_rc})"]
+    other = [sys.executable, "-c", "import time; time.sleep(30)"]
+    monkeypatch.setattr(launcher, "build_commands",
+                        lambda a, ids, out, plans="", finished="": [
+                            ("line_simulator", sim), ("ats_regulator", other)])
+    a = launcher._parser().parse_args(["--out", str(tmp_path), "--respawn-limit", "1",
+                                       "--timeout", "60"])
+    code = launcher._run_processes(a, ["train_01"], tmp_path)
+    err = capsys.readouterr().err
+    assert code == want, err
+    assert ("restarting it" in err) == restarted, err
+
+
 # ----------------------------------------------------------------- refuse instead of ignore
 def test_unknown_parameters_are_refused() -> None:
     """``-p no_such:=1``, ``-p node:no_such:=1``, ``-p other_node:x:=1`` and a params file
