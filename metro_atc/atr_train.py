@@ -8,8 +8,10 @@ with saturation, crowding, knock-on delays and exponential departure delays) on 
 line of ``--scenario`` (for a scenario: the model the ``ats_regulator`` node builds of it)
 and writes a small weights file the node loads, stamped with the line's traffic-model hash
 (the node refuses it on any other line); ``--cache`` writes it where ``run`` looks
-(:mod:`metro_atc.core.atr.weights_store`).  Progress on stderr.  Deterministic for a given
---seed on one CPU thread.
+(:mod:`metro_atc.core.atr.weights_store`).  Progress on stderr, then the file written and,
+if the weights' own validation cost is above the timetable's, a warning with the figures
+(``run`` refuses such weights unless ``--accept-worse-regulator``).  Deterministic for a
+given --seed on one CPU thread.
 
 The shipped defaults were produced with::
 
@@ -33,7 +35,8 @@ from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.fingerprint import line_hash
 from metro_atc.core.atr.lines import get_line
 from metro_atc.core.atr.registry import TRAINED
-from metro_atc.core.atr.weights_store import DEFAULT_EPOCHS, cached_path, train_weights
+from metro_atc.core.atr.weights_store import (DEFAULT_EPOCHS, cached_path, train_weights,
+                                              validation_problem)
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -74,6 +77,12 @@ def main(argv: Optional[List[str]] = None) -> int:
     if not a.quiet:
         print(json.dumps({"method": a.method, "scenario": line.name, "out": str(out),
                           "line_hash": line_hash(line), **info}))
+    print(f"metro_atc train: weights written to {out}", file=sys.stderr)
+    worse = validation_problem(out)
+    if worse is not None:
+        # written all the same (for study); 'run' refuses them without --accept-worse-regulator
+        print(f"metro_atc train: warning: {worse}; 'run' refuses them unless "
+              "--accept-worse-regulator", file=sys.stderr)
     return 0
 
 

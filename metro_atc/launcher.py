@@ -18,10 +18,14 @@ the run ends with the events and KPIs of an uninterrupted one.  The current proc
 are in ``LOG_DIR/pids.json``.  ``--resume`` continues a run whose launcher itself was
 stopped (the checkpoints in ``--out`` are kept; otherwise a run starts by removing them).
 
-No silent degradation: if a process fails beyond its respawn limit, the graph is stopped
-and the run exits non-zero with one line naming the process and its reason; the wall-clock
-``--timeout`` exits non-zero too. ``--record DIR`` adds the ``bag_recorder`` node (a rosbag2
-MCAP directory of every topic) and the simulator waits for it before step 0.
+No silent degradation: exit 0 only when the whole service ran (every train completed its
+trips) and the outputs were written; every other end has its own exit code
+(:class:`metro_atc.exit_codes.Exit`) and one line on stderr: input refused before the graph
+started (2), a process failed beyond its respawn limit (3, naming it and its reason),
+outputs not written (4), trains that did not complete (5), a run cut by ``--duration`` (6),
+a graph whose ATOs never answered (7), the wall-clock ``--timeout`` (124).
+``--record DIR`` adds the ``bag_recorder`` node (a rosbag2 MCAP directory of every topic)
+and the simulator waits for it before step 0.
 
 The process list comes from :func:`graph_processes` (ROS-free), which the launch file
 ``launch/metro_line.launch.py`` uses as well.
@@ -48,6 +52,8 @@ import numpy as np
 
 from metro_atc.core.atr.registry import REGULATORS
 from metro_atc.dds import clean_killed_shm, config_dir, dds_defaults
+from metro_atc.exit_codes import NO_RESPAWN, NORMAL_END, Exit, outcome
+from metro_atc.nodes.sim_outputs import regulator_label
 from metro_atc.process_watch import PARENT_PID_ENV
 from metro_atc.zygote import Client as Zygote
 from metro_atc.zygote import Forked
@@ -61,10 +67,6 @@ NODE_EXECUTABLES = ("line_simulator", "ats_regulator", "ato_controller", "brake_
                     "bag_recorder")
 RECORDER_NODE = "bag_recorder"
 """Node name of the recorder (the simulator waits for it before step 0)."""
-EXIT_TIMEOUT = 124
-"""Exit code of a run stopped by the wall-clock ``--timeout`` (as coreutils ``timeout``)."""
-EXIT_NODE_FAILED = 3
-"""Exit code of a run stopped because a node process failed."""
 POLL_S = 0.05
 """Wall period at which ``run`` looks at its processes [s] (the simulator's end is seen at
 most this late; a look costs one ``waitpid`` per process)."""
@@ -105,7 +107,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="real-time factor in free-run mode (default 10)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--duration", type=float, default=0.0,
-                   help="stop after this much simulated time [s] (0: scenario end)")
+                   help="stop after this much simulated time [s] (0: scenario end); a run "
+                        "this cuts before every train completed exits 6 (kpis.json: "
+                        "finished false, cut_at_s)")
     p.add_argument("--timeout", type=float, default=3600.0,
                    help="wall-clock limit for the whole run [s]")
     p.add_argument("--plots", action=argparse.BooleanOptionalAction, default=True,
@@ -121,6 +125,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="aoc/dhp: when no shipped or cached weights were trained on the "
                         "scenario's line (traffic-model hash), train them before the graph "
                         "starts (auto; progress on stderr, cached) or refuse (never)")
+    p.add_argument("--accept-worse-regulator", action="store_true",
+                   help="aoc/dhp: use weights whose own validation cost is above the "
+                        "timetable's (refused by default, with the figures)")
     p.add_argument("--weights", default="", metavar="FILE",
                    help="aoc/dhp weights file (refused before any node starts if it was "
                         "trained on another line)")
@@ -390,7 +397,7 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
         train_ids = list(scenario_train_ids(scn))
     except (ScenarioError, ValueError) as exc:
         print(f"metro_atc run: error: {exc}", file=sys.stderr)
-        return 2
+        return Exit.REFUSED
     out_dir = Path(a.out) if a.out else Path(tempfile.mkdtemp(prefix="metro_atc_run_"))
     problem = check_out_dir(out_dir)
     if problem is None and a.log_dir:
@@ -408,13 +415,17 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
                             or not 0 <= a.step_timeout <= 600):
         problem = "--respawn-limit, --checkpoint-period and --step-timeout (<= 600) must " \
             "be >= 0"
-    if problem is None and not a.single_process:
-        problem = prepare_checkpoints(checkpoint_dir(out_dir), a.resume)
+    t_train = time.monotonic()
     if problem is None:
         problem = prepare_regulator(a, scn)
+    training_s = time.monotonic() - t_train if getattr(a, "weights_source", "") == "trained" \
+        else 0.0
+    # last: a refused run leaves no checkpoints folder behind
+    if problem is None and not a.single_process:
+        problem = prepare_checkpoints(checkpoint_dir(out_dir), a.resume)
     if problem:
         print(f"metro_atc run: error: {problem}", file=sys.stderr)
-        return 2
+        return Exit.REFUSED
     t0 = time.monotonic()
     memory: dict[str, float | None] = {}
     cpu: dict[str, float | None] = {}
@@ -428,17 +439,23 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
         show = a.progress == "always" or (a.progress == "auto" and sys.stderr.isatty())
         horizon_s = progress_horizon_s(scn, a.duration) if show else None
         code = _run_processes(a, train_ids, out_dir, horizon_s, memory, cpu, zygote, timing)
-    wall = time.monotonic() - t0
+    # the regulator's training (if any) is part of the run's wall time
+    wall = time.monotonic() - t0 + training_s
     kpi_file = out_dir / "kpis.json"
     if code != 0:
         return code
-    if not kpi_file.is_file():
-        print(f"metro_atc run: error: the simulator wrote no KPIs; see the logs in "
-              f"{out_dir / 'logs'}", file=sys.stderr)
-        return 1
-    kpis = json.loads(kpi_file.read_text())
+    try:
+        kpis = json.loads(kpi_file.read_text())
+        if not isinstance(kpis, dict):
+            raise ValueError("not a JSON object")
+    except (OSError, ValueError) as exc:
+        print(f"metro_atc run: error: OUTPUTS_NOT_WRITTEN (exit {int(Exit.OUTPUTS_NOT_WRITTEN)}"
+              f"): no readable {kpi_file} ({getattr(exc, 'strerror', None) or exc}); see the "
+              f"logs in {out_dir / 'logs'}", file=sys.stderr)
+        return Exit.OUTPUTS_NOT_WRITTEN
     # the printed report adds the launcher's view; kpis.json stays as the simulator wrote it
     kpis["wall_time_s"] = round(wall, 3)
+    kpis["regulator_training_s"] = round(training_s, 3)
     sim_t = float(kpis.get("sim_time_s", 0.0))
     kpis["real_time_factor"] = round(sim_t / wall, 2) if wall > 0 else math.nan
     if timing:
@@ -446,9 +463,10 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
         # own loop (bench sumo)
         kpis["loop_wall_s"] = round(timing["loop_wall_s"], 3)
         kpis["loop_real_time_factor"] = round(timing["loop_sim_s"] / timing["loop_wall_s"], 2)
-    seen = kpis.get("regulators_seen") or {}
-    kpis["regulator"] = ",".join(sorted(seen)) if seen else "none (no departure commands)"
-    kpis["planner"] = ",".join(kpis.get("planners_seen") or []) or "none"
+    kpis.setdefault("regulator", regulator_label(kpis.get("regulators_seen") or {}))
+    kpis.setdefault("planner", ",".join(kpis.get("planners_seen") or []) or "none")
+    if a.weights_file:
+        kpis["weights"] = a.weights_file
     kpis["mode"] = "single_process" if a.single_process else "multi_process"
     kpis["out_dir"] = str(out_dir)
     kpis["node_peak_rss_mb"] = memory
@@ -459,7 +477,10 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
         print(json.dumps(kpis, sort_keys=True))
     else:
         _print_table(kpis)
-    return 0
+    end, why = outcome(kpis)
+    if end != Exit.OK:
+        print(f"metro_atc run: {end.name} (exit {int(end)}): {why}", file=sys.stderr)
+    return int(end)
 
 
 def prepare_regulator(a: argparse.Namespace, scn: Any) -> str | None:
@@ -468,26 +489,44 @@ def prepare_regulator(a: argparse.Namespace, scn: Any) -> str | None:
     Sets ``a.weights_file`` to weights trained on the scenario's line (same traffic-model
     hash, :mod:`metro_atc.core.atr.weights_store`): ``--weights`` if given and valid, else
     the shipped or cached ones, else (``--train-regulator auto``) weights trained now into
-    the cache with progress on stderr.  The regulator is built once here as the ATS builds
-    it, so a regulator that cannot start stops the run before the graph exists.
+    the cache with progress on stderr; ``a.weights_source`` says which (``given``,
+    ``shipped``, ``cached``, ``trained``; '' without weights).  One line on stderr names
+    the file used.  Weights whose own validation cost is above the timetable's
+    (:func:`~metro_atc.core.atr.weights_store.validation_problem`) are refused with the
+    figures unless ``--accept-worse-regulator`` (then, and for the shipped weights, the
+    figures are printed as a warning).  The regulator is built once here as the ATS
+    builds it, so a regulator that cannot start stops the run before the graph exists.
     """
     a.weights_file = ""
+    a.weights_source = ""
     entry = REGULATORS.get(a.regulator)
     if entry is None or not entry.has("prebuilt"):
         return None
     from metro_atc.core.atr.lines import atr_line_for
     from metro_atc.core.atr.regulators import make_regulator
-    from metro_atc.core.atr.weights_store import ensure_weights
+    from metro_atc.core.atr.weights_store import resolve_weights, validation_problem
+
+    def say(m: str) -> None:
+        print(f"metro_atc run: {m}", file=sys.stderr, flush=True)
+
     try:
         line = atr_line_for(scn)
         if entry.has("trained"):
             if a.weights:
-                path = Path(a.weights).resolve()
+                path, source = Path(a.weights).resolve(), "given"
             else:
-                path = ensure_weights(a.regulator, line, a.train_regulator == "auto",
-                                      progress=lambda m: print(f"metro_atc run: {m}",
-                                                               file=sys.stderr, flush=True))
+                got = resolve_weights(a.regulator, line, a.train_regulator == "auto",
+                                      progress=say)
+                path, source = got.path, got.source
+            a.weights_source = source
             make_regulator(a.regulator, line, None, path)
+            say(f"{a.regulator} weights: {path} ({source})")
+            worse = validation_problem(path)
+            if worse is not None:
+                if source != "shipped" and not getattr(a, "accept_worse_regulator", False):
+                    return f"regulator '{a.regulator}': {worse}; refused (use " \
+                        "--accept-worse-regulator to run it all the same)"
+                say(f"warning: regulator '{a.regulator}': {worse}")
             a.weights_file = str(path)
         else:
             make_regulator(a.regulator, line)
@@ -712,13 +751,13 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
             ended = [(n, label, p.poll()) for n, (label, p) in enumerate(procs)
                      if n == 0 or not stopping]
             failed = [(n, label, rc) for n, label, rc in ended
-                      if rc is not None and (n > 0 or rc != 0)]
+                      if rc is not None and (n > 0 or rc not in NORMAL_END)]
             if failed:
                 n, label, rc = failed[0]
                 why = f"killed by {signal.Signals(-rc).name}" if rc < 0 and \
                     -rc in signal.valid_signals() else _last_error_line(log_dir / f"{label}.log")
                 killed = killed or rc == -signal.SIGKILL
-                if respawns[label] < a.respawn_limit and rc != 2:
+                if respawns[label] < a.respawn_limit and rc not in NO_RESPAWN:
                     respawns[label] += 1
                     print(f"metro_atc run: {label} exited with {rc} ({why}); restarting it "
                           f"({respawns[label]} of {a.respawn_limit})", file=sys.stderr,
@@ -726,18 +765,21 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
                     procs[n] = (label, start(label, "ab"))
                     write_pids(log_dir, procs)
                     continue
-                limit = " (respawn limit reached)" if a.respawn_limit else ""
+                limit = " (not restarted: a restart cannot mend it)" if rc in NO_RESPAWN \
+                    else " (respawn limit reached)" if a.respawn_limit else ""
                 print(f"metro_atc run: error: {label} exited with {rc}{limit}: {why} "
                       f"(log: {log_dir / (label + '.log')})", file=sys.stderr)
-                code = EXIT_NODE_FAILED
-            elif sim.poll() == 0:
+                # the simulator's own verdicts stand (outputs not written, no ATO answered)
+                code = rc if n == 0 and rc in (Exit.OUTPUTS_NOT_WRITTEN,
+                                               Exit.GRAPH_NOT_READY) else Exit.NODE_FAILED
+            elif sim.poll() in NORMAL_END:
                 if tail is not None:
                     tail.poll()  # the lines since the last poll (a short run: all of them)
                 break
             elif time.monotonic() > deadline:
                 print(f"metro_atc run: error: wall-clock timeout after {a.timeout:g} s "
                       f"(logs: {log_dir})", file=sys.stderr)
-                code = EXIT_TIMEOUT
+                code = Exit.TIMEOUT
             else:
                 if time.monotonic() >= next_poll:
                     if tail is not None:
@@ -754,7 +796,7 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
                     next_poll = time.monotonic() + 1.0
                 time.sleep(POLL_S)
     except KeyboardInterrupt:
-        code = 130
+        code = Exit.INTERRUPTED
     finally:
         if zygote is not None:
             if zygote.info and zygote.proc is not None:
@@ -782,7 +824,8 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
             label, end_rc = bad[0]
             print(f"metro_atc run: error: {label} exited with {end_rc} at shutdown: "
                   f"{_last_error_line(log_dir / f'{label}.log')}", file=sys.stderr)
-            code = EXIT_NODE_FAILED
+            code = Exit.OUTPUTS_NOT_WRITTEN if end_rc == Exit.OUTPUTS_NOT_WRITTEN \
+                else Exit.NODE_FAILED
     return code
 
 
@@ -813,7 +856,8 @@ def _print_table(k: dict[str, Any]) -> None:
             "min_separation_m", "energy_kwh", "max_delay_s", "recovery_time_s",
             "late_departures", "passengers_left_behind", "sim_time_s", "wall_time_s",
             "real_time_factor", "loop_wall_s", "loop_real_time_factor", "lockstep_misses",
-            "regulator", "planner", "out_dir", "bag")
+            "regulator", "planner", "weights", "regulator_training_s", "finished",
+            "cut_at_s", "incomplete_trains", "out_dir", "bag")
     width = max(len(x) for x in keys)
     for key in keys:
         if key in k:

@@ -14,6 +14,7 @@ from typing import Any
 import pytest
 
 from metro_atc import launcher
+from metro_atc.exit_codes import Exit
 
 SIM = [sys.executable, "-c", "import time; time.sleep(4.0)"]
 """A simulator that runs 4 s and ends normally."""
@@ -62,7 +63,7 @@ def test_beyond_the_limit_the_run_fails(monkeypatch: pytest.MonkeyPatch, tmp_pat
     node = _node("print('error: boom'); raise SystemExit(1)")
     monkeypatch.setattr(launcher, "clean_killed_shm", lambda: pytest.fail("nothing killed"))
     code, err = _run(monkeypatch, tmp_path, node, 2, capsys)
-    assert code == launcher.EXIT_NODE_FAILED, err
+    assert code == Exit.NODE_FAILED, err
     assert "(1 of 2)" in err and "(2 of 2)" in err and "(3 of 2)" not in err, err
     assert "ats_regulator exited with 1 (respawn limit reached): error: boom" in err, err
     # each start appended to the same log
@@ -77,7 +78,7 @@ def test_no_respawn_for_configuration_errors_or_limit_0(
     end the run at the first death."""
     node = _node("raise SystemExit(2)" if limit else "raise SystemExit(1)")
     code, err = _run(monkeypatch, tmp_path, node, limit, capsys)
-    assert code == launcher.EXIT_NODE_FAILED, err
+    assert code == Exit.NODE_FAILED, err
     assert "restarting" not in err, err
 
 

@@ -38,6 +38,7 @@ from rclpy.subscription import Subscription
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
 from metro_atc.dds import dds_defaults
+from metro_atc.exit_codes import Exit
 from metro_atc.process_watch import watch_parent
 
 QOS_RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=500,
@@ -399,16 +400,32 @@ class RuntimeParams:
 
 
 class NodeConfigError(RuntimeError):
-    """A node cannot start because of its configuration (one clear line for the user)."""
+    """A node cannot start because of its configuration (one clear line for the user).
+
+    ``code``: the process's exit code (:data:`Exit.REFUSED`: a restart cannot mend it).
+    """
+
+    code: int = Exit.REFUSED
+
+
+class GraphNotReady(NodeConfigError):
+    """The graph a node waits for never appeared within its bounded wait (one line)."""
+
+    code = Exit.GRAPH_NOT_READY
 
 
 def run_nodes(factory: Callable[[], Sequence[Node]],
-              loop: Callable[[SingleThreadedExecutor, Sequence[Node]], None] | None = None,
+              loop: Callable[[SingleThreadedExecutor, Sequence[Node]], int | None]
+              | None = None,
               args: Iterable[str] | None = None) -> int:
     """Init rclpy, build nodes, spin a SingleThreadedExecutor, exit cleanly on SIGINT/SIGTERM.
 
-    Configuration errors (bad scenario, out-of-range parameter, a :class:`NodeConfigError`
-    raised by ``loop``) print one line and return 2.
+    Returns the process's exit code (:class:`metro_atc.exit_codes.Exit`): configuration
+    errors (bad scenario, out-of-range parameter, unknown parameter, a params file for no
+    node here, a :class:`NodeConfigError` raised by ``loop``) print one line and return its
+    ``code`` (:data:`Exit.REFUSED`, :data:`Exit.GRAPH_NOT_READY`); ``loop`` may return the
+    code of the run it drove (None: 0); a node whose ``close`` (which writes its outputs)
+    fails prints one line and the process returns :data:`Exit.OUTPUTS_NOT_WRITTEN`.
     """
     dds_defaults()
     watch_parent()
@@ -417,7 +434,7 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
     problem = check_params_files(argv)
     if problem:
         print(f"{name}: error: {problem}", file=sys.stderr)
-        return 2
+        return Exit.REFUSED
     try:
         # rclpy's own SIGINT handler shuts the context down under the running callbacks
         # (RCLError "failed to initialize wait set", "publisher's context is invalid" in
@@ -426,7 +443,7 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except RuntimeError as exc:
         print(f"{name}: error: {_one_line(exc).split(', at /')[0]}", file=sys.stderr)
-        return 2
+        return Exit.REFUSED
     # a flag, not an exception: raised inside rclpy's executor an exception leaves
     # half-made tasks ("coroutine ... was never awaited"); every loop here waits at most
     # ~0.1 s and checks the flag
@@ -441,21 +458,22 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
             check_overrides(nodes, argv)
         except (NodeConfigError, ParameterException, ValueError, TypeError) as exc:
             print(f"{name}: error: {_one_line(exc)}", file=sys.stderr)
-            return 2
+            return int(getattr(exc, "code", Exit.REFUSED))
         executor = SingleThreadedExecutor()
         for n in nodes:
             executor.add_node(n)
         with _profiled(name):
             if loop is not None:
-                loop(executor, nodes)
+                code = int(loop(executor, nodes) or 0)
             else:
                 spin_until_stopped(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         code = 0
     except NodeConfigError as exc:
-        # found while running (another graph on the domain): one line, exit 2 (no respawn)
+        # found while running (another graph on the domain, a graph that never came): one
+        # line, its code (no respawn)
         print(f"{name}: error: {_one_line(exc)}", file=sys.stderr)
-        code = 2
+        code = int(exc.code)
     finally:
         # a second signal during the clean-up must not leave a traceback either
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
@@ -465,8 +483,12 @@ def run_nodes(factory: Callable[[], Sequence[Node]],
             if callable(close):
                 try:
                     close()
-                except Exception as exc:  # noqa: BLE001 - best effort at shutdown
-                    print(f"shutdown: {exc}", file=sys.stderr)
+                except Exception as exc:  # noqa: BLE001 - reported by the exit code
+                    # close writes a node's outputs: the run did not produce them
+                    print(f"{name}: error: {n.get_name()}: outputs not written: "
+                          f"{_one_line(exc)}", file=sys.stderr)
+                    if code in (Exit.OK, Exit.SERVICE_INCOMPLETE, Exit.CUT):
+                        code = Exit.OUTPUTS_NOT_WRITTEN
             n.destroy_node()
         rclpy.try_shutdown()
         try:
@@ -513,14 +535,20 @@ def check_overrides(nodes: Sequence[Node], argv: Sequence[str]) -> None:
     """Raise :class:`NodeConfigError` for a params-file value no node can take.
 
     See :func:`metro_atc.nodes.param_check.override_problem` (``seed: {a: 1}``, unknown
-    parameter names in a section naming the node).
+    parameter names in a section naming the node) and
+    :func:`~metro_atc.nodes.param_check.unknown_problem` (``-p no_such_param:=1``, a params
+    file naming no node of the process).
     """
-    from metro_atc.nodes.param_check import override_problem
+    from metro_atc.nodes.param_check import override_problem, unknown_problem
 
     for n in nodes:
         problem = override_problem(n.get_name(), n.get_namespace(), n.has_parameter, argv)
         if problem:
             raise NodeConfigError(problem)
+    problem = unknown_problem([(n.get_name(), n.get_namespace(), n.has_parameter)
+                               for n in nodes], argv)
+    if problem:
+        raise NodeConfigError(problem)
 
 
 def check_params_files(argv: Sequence[str]) -> str | None:

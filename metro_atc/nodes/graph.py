@@ -22,6 +22,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from metro_atc.core.bridge import timetable_for
 from metro_atc.core.line.scenario import load_scenario
+from metro_atc.exit_codes import Exit
 from metro_atc.nodes.ato_controller import AtoController, FleetLink
 from metro_atc.nodes.ats_regulator import AtsRegulator
 from metro_atc.nodes.brake_diagnostic import BrakeDiagnostic
@@ -96,18 +97,25 @@ def _run_graph(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Path) -
         for n in nodes:
             n.destroy_node()
         rclpy.try_shutdown()
-        return 3
+        return Exit.NODE_FAILED  # as a node that refuses in the multi-process graph
     try:
         executor = SingleThreadedExecutor()
         for n in nodes:
             executor.add_node(n)
+        code = 0
         try:
             lockstep_loop(executor, sim, fast_path=False)
         except KeyboardInterrupt:
-            return 130
-        finally:
+            code = Exit.INTERRUPTED
+        except NodeConfigError as exc:  # the simulator gave up (GraphNotReady)
+            print(f"metro_atc run: error: line_simulator: {exc}", file=sys.stderr)
+            code = exc.code
+        try:
             sim.close()
-        return 0
+        except OSError as exc:  # its outputs: the launcher finds no kpis.json or says why
+            print(f"metro_atc run: error: line_simulator: {exc}", file=sys.stderr)
+            code = code or Exit.OUTPUTS_NOT_WRITTEN
+        return int(code)
     finally:
         for n in nodes:
             n.destroy_node()

@@ -51,6 +51,7 @@ from rosgraph_msgs.msg import Clock
 
 from metro_atc.core.ato_watchdog import AtoWatchdog
 from metro_atc.core.checkpoint import content_hash
+from metro_atc.core.plant.kpi import service_end
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.plant.snapshot import scenario_hash
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
@@ -58,7 +59,8 @@ from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_EVENTS,
                                     QOS_FLEET_SENSOR, QOS_LATCHED, QOS_LATCHED_IN,
-                                    QOS_RELIABLE, QOS_SENSOR, OK, WARN, NodeConfigError,
+                                    QOS_RELIABLE, QOS_SENSOR, OK, WARN, GraphNotReady,
+                                    NodeConfigError,
                                     bulk_publisher, bulk_subscription, diag_status,
                                     run_nodes, spin_until_stopped)
 from metro_atc.nodes.sim_checkpoints import Checkpoints, journal_key
@@ -66,7 +68,8 @@ from metro_atc.nodes.sim_departures import DepartureBook
 from metro_atc.nodes.sim_domain import LINGER_S, linger, subscribed_by, wait_acked
 from metro_atc.nodes.sim_fleet import FleetStatePublisher
 from metro_atc.nodes.sim_lockstep import RECORDER_SYNC_STEPS, lockstep_loop
-from metro_atc.nodes.sim_outputs import write_finished_file, write_outputs
+from metro_atc.exit_codes import Exit, outcome
+from metro_atc.nodes.sim_outputs import regulator_label, write_finished_file, write_outputs
 from metro_atc.nodes.sim_params import SimParams
 from metro_atc.nodes.sim_sensors import SensorOutbox
 
@@ -123,6 +126,11 @@ class LineSimulator(Node):
         self._next_status_t = 0.0
         self.finished = False
         self.started = False
+        self.cut_at_s: float | None = None
+        self.silent_since: float | None = None
+        """Wall time (``time.monotonic``) of the first of the consecutive timed-out lockstep
+        steps in which no active train's ATO answered (None: an ATO answered the last step)."""
+        """Simulated time at which ``max_sim_time_s`` ended the run [s] (None: it did not)."""
         self.loop_wall_s: float | None = None
         """Wall time of the stepping loop from its first step to the end [s] (None before)."""
         self.loop_sim_s = 0.0
@@ -414,13 +422,23 @@ class LineSimulator(Node):
         With ``wait_for_subscribers``, each named node must also subscribe to every topic
         the simulator publishes (a recorder then sees step 0).
         """
-        ready = self.fleet.fleet_pub.get_subscription_count() > 0 and \
-            all(s.get_publisher_count() > 0 for s in self.cmd_subs) and \
-            all(s.get_publisher_count() > 0 for s in self.dep_subs) and \
-            self.sensors.fleet_pub.get_subscription_count() > 0
+        ready = not self.graph_missing()
         if not ready or not self.params.wait_for_subscribers:
             return ready
         return subscribed_by(self, self._recorded_pubs(), self.params.wait_for_subscribers)
+
+    def graph_missing(self) -> list[str]:
+        """The endpoints :meth:`graph_ready` waits for that are not there (short names)."""
+        missing = []
+        if self.fleet.fleet_pub.get_subscription_count() == 0:
+            missing.append("a /line/fleet_state reader (ATO)")
+        missing += [f"{s.topic_name} writer (ATO)" for s in self.cmd_subs
+                    if s.get_publisher_count() == 0]
+        missing += [f"{s.topic_name} writer (ATS)" for s in self.dep_subs
+                    if s.get_publisher_count() == 0]
+        if self.sensors.fleet_pub.get_subscription_count() == 0:
+            missing.append(f"a {self.sensors.fleet_pub.topic_name} reader (brake_diagnostic)")
+        return missing
 
     def _recorded_pubs(self) -> list[Any]:
         """The publishers a recorder (``wait_for_subscribers``) must read."""
@@ -520,6 +538,7 @@ class LineSimulator(Node):
         ``max_sim_time_s``).
         """
         if timed_out:
+            self._check_not_silent(active)
             missing = [self.ids[i] for i in np.flatnonzero(active & (self.cmd_step < self.k))]
             for i, j in self.departures.give_up_pending(self.k, self.sim):
                 missing.append(f"ATS for {self.ids[i]} at station {j} (timetable used)")
@@ -527,6 +546,8 @@ class LineSimulator(Node):
             self._warn_rate_limited(
                 "lockstep", f"lockstep step {self.k}: no command from {', '.join(missing[:5])}"
                 f"{' ...' if len(missing) > 5 else ''}; applying the last command")
+        else:
+            self.silent_since = None
         effort, wd_events = self.watchdog.apply(self.k, active, self.cmd_step >= self.k,
                                                 self.cmd_effort)
         for e in wd_events:
@@ -535,8 +556,34 @@ class LineSimulator(Node):
         self.k += 1
         t = float(self.sim.t)
         end = self.params.max_sim_time_s
-        done = bool(self.sim.done) or (end > 0 and t >= end)
+        cut = end > 0 and t >= end
+        if cut:
+            self.cut_at_s = t
+        done = bool(self.sim.done) or cut
         return res, done
+
+    def _check_not_silent(self, active: np.ndarray) -> None:
+        """Give up (:class:`GraphNotReady`) when no ATO answered for ``ato_absent_timeout_s``.
+
+        Called at a timed-out step: a step in which no active train's ATO answered starts
+        (or continues) a silence; one answer ends it.  A simulator whose ATOs never appeared
+        would otherwise step once per ``step_timeout_s`` until the scenario's end.
+        """
+        answered = bool(active.any()) and bool((self.cmd_step[active] >= self.k).any())
+        now = time.monotonic()
+        if answered or not active.any():
+            self.silent_since = None
+            return
+        if self.silent_since is None:
+            self.silent_since = now - self.params.step_timeout_s  # the step waited that long
+        limit = self.params.ato_absent_timeout_s
+        if now - self.silent_since >= limit:
+            missing = self.graph_missing()
+            raise GraphNotReady(
+                f"no ATO answered for {now - self.silent_since:.0f} s of wall time "
+                f"(ato_absent_timeout_s {limit:g} s; step {self.k}, t={float(self.sim.t):.1f} "
+                f"s); missing: {', '.join(missing[:6]) or 'no endpoint (commands lost)'}"
+                f"{' ...' if len(missing) > 6 else ''}; giving up")
 
     def publish_outputs(self, res: Any, done: bool) -> None:
         """Publish the outputs of the step that led to step k (:meth:`step_plant`).
@@ -598,7 +645,26 @@ class LineSimulator(Node):
         k["lockstep"] = bool(self.params.lockstep)
         k["regulators_seen"] = dict(sorted(self.departures.regulators.items()))
         k["planners_seen"] = sorted(self.planners)  # names only: latched, depth-1 reader
+        k["regulator"] = regulator_label(k["regulators_seen"])
+        k["planner"] = ",".join(k["planners_seen"]) or "none"
         return k
+
+    def final_kpis(self) -> dict[str, Any]:
+        """:meth:`kpis` with whether the whole service ran (:func:`service_end`)."""
+        k = self.kpis()
+        k.update(service_end(int(k["trains"]), int(k["completed_trains"]), float(self.sim.t),
+                             self.finished, self.cut_at_s, float(self.sim.duration_s)))
+        return k
+
+    def exit_code(self) -> int:
+        """The process's exit code once the run ended (:func:`metro_atc.exit_codes.outcome`).
+
+        Logs the reason of a run that did not complete (one error line).
+        """
+        code, why = outcome(self.final_kpis())
+        if code != Exit.OK:
+            self.get_logger().error(f"run not complete ({code.name}, exit {int(code)}): {why}")
+        return int(code)
 
     def close(self) -> None:
         """Write the run's outputs (events CSV, plots, KPIs JSON) if an out_dir is set.
@@ -619,20 +685,20 @@ class LineSimulator(Node):
         """The outputs of :meth:`close` (:func:`write_outputs`)."""
         if not self.params.out_dir:
             return
-        k = self.kpis()
-        k["finished"] = bool(self.finished)
+        k = self.final_kpis()
         write_outputs(self.params.out_dir, self.sim, k, self.params.plots, self.planned,
                       self.get_logger())
 
 
 def main(args: Sequence[str] | None = None) -> int:
     """Entry point of the ``line_simulator`` executable."""
-    def loop(executor: SingleThreadedExecutor, nodes: Sequence[Node]) -> None:
+    def loop(executor: SingleThreadedExecutor, nodes: Sequence[Node]) -> int | None:
         node = nodes[0]
         assert isinstance(node, LineSimulator)
         lockstep_loop(executor, node)
         if not node.params.exit_on_finish:
             spin_until_stopped(executor)
+        return node.exit_code() if node.finished else None
 
     return run_nodes(lambda: [LineSimulator()], loop, args)
 

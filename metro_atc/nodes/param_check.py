@@ -4,7 +4,9 @@ rclpy reads ``--params-file`` with an unbounded ``yaml.safe_load`` (a binary fil
 ``UnicodeDecodeError``) and silently ignores a value it cannot use: ``seed: {a: 1}`` becomes
 a parameter ``seed.a`` that no node declares, and ``seed`` keeps its default.  This module
 loads parameter files with the limits of :mod:`metro_atc.core.safe_yaml` and finds
-overrides that no parameter of a node takes.
+overrides that no parameter of a node takes.  rclpy also ignores ``-p no_such_param:=1`` (no
+node declares it) and a params file whose sections name no node of the process (a typo in
+the node name): :func:`unknown_problem` refuses both.
 """
 
 from __future__ import annotations
@@ -14,7 +16,8 @@ from typing import Any, Callable, Iterator, Sequence
 
 from metro_atc.core.safe_yaml import YamlLimitError, load_yaml_file, one_line, short_repr
 
-__all__ = ["load_params_file", "params_files", "node_sections", "override_problem"]
+__all__ = ["load_params_file", "params_files", "node_sections", "override_problem",
+           "cli_params", "unknown_problem"]
 
 _BUILTIN_PREFIXES = ("qos_overrides.",)
 """Parameter namespaces rclpy itself reads without declaring them."""
@@ -113,4 +116,72 @@ def override_problem(name: str, namespace: str, has_parameter: Callable[[str], b
                 if explicit:
                     return one_line(f"params file {path}: '{key}': node '{name}' has no "
                                     f"parameter '{pname}'", 260)
+    return None
+
+
+NodeInfo = tuple[str, str, Callable[[str], bool]]
+"""A node of the process: (name, namespace, has_parameter)."""
+
+
+def _ros_region(argv: Sequence[str]) -> Iterator[tuple[int, str]]:
+    """(index, argument) of the ROS arguments (after ``--ros-args``, up to ``--``)."""
+    inside = False
+    for i, a in enumerate(argv):
+        if a == "--ros-args":
+            inside = True
+        elif a == "--":
+            inside = False
+        elif inside:
+            yield i, a
+
+
+def cli_params(argv: Sequence[str]) -> list[tuple[str | None, str, str]]:
+    """The ``-p [node:]name:=value`` overrides of a ROS argument list.
+
+    Returns (node name or None for every node, parameter name, the argument as given).
+    """
+    out: list[tuple[str | None, str, str]] = []
+    args = list(_ros_region(argv))
+    for n, (i, a) in enumerate(args):
+        if a not in ("-p", "--param") or n + 1 >= len(args) or args[n + 1][0] != i + 1:
+            continue
+        arg = args[n + 1][1]
+        left = arg.split(":=", 1)[0]
+        node, _, name = left.rpartition(":")
+        out.append((node or None, name, arg))
+    return out
+
+
+def _applies(node: str, name: str, namespace: str) -> bool:
+    """Whether a ``-p node:...`` prefix names the node ``name`` in ``namespace``."""
+    fqn = (namespace.rstrip("/") + "/" + name) if namespace not in ("", "/") else "/" + name
+    return node in (name, fqn) or _pattern(node).match(fqn) is not None
+
+
+def unknown_problem(nodes: Sequence[NodeInfo], argv: Sequence[str]) -> str | None:
+    """One error line for an override rclpy would ignore, else None.
+
+    A ``-p name:=value`` that no node of the process declares (or a ``-p node:name:=...``
+    naming no node here, or a parameter that node does not declare), and a ``--params-file``
+    none of whose sections applies to a node of the process.
+    """
+    names = ", ".join(sorted({n for n, _, _ in nodes})) or "none"
+    for node, pname, arg in cli_params(argv):
+        targets = [has for n, ns, has in nodes if node is None or _applies(node, n, ns)]
+        if not targets:
+            return one_line(f"-p {arg}: no node '{node}' in this process (nodes: {names})",
+                            260)
+        if pname.startswith(_BUILTIN_PREFIXES) or any(has(pname) for has in targets):
+            continue
+        who = f"node '{node}' has" if node else f"no node of this process ({names}) has"
+        return one_line(f"-p {arg}: {who} a parameter '{pname}' (rclpy would ignore it)", 260)
+    for path in params_files(argv):
+        doc, problem = load_params_file(path)
+        if problem:
+            return problem
+        keys = [key for key, _ in _sections(doc)]
+        if keys and not any(any(True for _ in node_sections(doc, n, ns)) for n, ns, _ in nodes):
+            return one_line(f"params file {path}: its sections ({', '.join(keys[:5])}) name no "
+                            f"node of this process (nodes: {names}); nothing in it would be "
+                            "used", 260)
     return None

@@ -108,7 +108,11 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
             next_alone = now + 1.0
             check_alone(sim, sim.fleet.fleet_pub.topic_name)
     if not sim.graph_ready():
-        log.warning("startup: not every ATO/ATS endpoint was discovered; starting anyway")
+        missing = sim.graph_missing()
+        log.warning(f"startup: after {params.startup_timeout_s:g} s {len(missing)} endpoints "
+                    f"not discovered ({', '.join(missing[:4])}{' ...' if len(missing) > 4 else ''}"
+                    f"); starting anyway (no ATO answer for {params.ato_absent_timeout_s:g} s "
+                    "ends the run)")
     log.info(f"graph ready after {time.monotonic() - t0:.2f} s")
     sim.started = True
     sim.fleet.new_subscribers(np.ones(len(sim.ids), dtype=bool))

@@ -3,7 +3,8 @@
 :func:`write_finished_file` tells the launcher that the run is over (it then stops the other
 nodes while the simulator writes its outputs); :func:`write_outputs` writes ``events.csv``,
 ``kpis.json`` and (optionally) the plots into the output directory.  A failure is logged,
-never raised past the KPIs.
+the KPIs written if they can be, then raised (the node exits with
+:data:`metro_atc.exit_codes.Exit.OUTPUTS_NOT_WRITTEN`).
 """
 
 from __future__ import annotations
@@ -37,20 +38,34 @@ def write_finished_file(path: str, loop_wall_s: float | None, loop_sim_s: float,
         logger.warning(f"finished_file {path}: {exc}")
 
 
+def regulator_label(seen: dict[str, int]) -> str:
+    """The ``regulator`` of a run's KPIs: the regulators whose departure commands ran.
+
+    ``seen``: regulator name -> departure commands applied; names joined by commas, or
+    ``none (no departure commands)``.
+    """
+    return ",".join(sorted(seen)) if seen else "none (no departure commands)"
+
+
 def write_outputs(out_dir: str, line: Any, kpis: dict[str, Any], with_plots: bool,
                   planned: dict[int, Any], logger: Any) -> None:
-    """Write the run's outputs into ``out_dir`` ('' : none).
+    """Write the run's outputs into ``out_dir`` ('' : none); raise OSError if any is missing.
 
     ``line``: the plant (its event log); ``kpis``: the run's KPIs (``kpis.json``);
     ``with_plots``: the PNG plots too (:func:`metro_atc.plots.write_outputs`, which writes
     the KPIs itself), else ``events.csv``; ``planned``: the speed profiles the ATOs
     published (train -> station -> (positions [m], speeds [m/s])). A failure of the CSV or
-    plots is logged (``logger``) and the KPIs written all the same.
+    plots is logged (``logger``), the KPIs are written all the same, then an OSError names
+    what is missing (the node's exit code says the outputs were not written).
     """
     if not out_dir:
         return
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OSError(f"outputs not written: {out}: {exc.strerror or exc}") from None
+    failed = ""
     try:
         from metro_atc import plots
         if with_plots:
@@ -58,5 +73,12 @@ def write_outputs(out_dir: str, line: Any, kpis: dict[str, Any], with_plots: boo
             return
         plots.write_events_csv(line, out / "events.csv")
     except Exception as exc:  # noqa: BLE001 - outputs must not hide the KPIs
+        failed = f"{'plots/events.csv' if with_plots else 'events.csv'} in {out}: {exc}"
         logger.error(f"writing outputs to {out} failed: {exc}")
-    (out / "kpis.json").write_text(json.dumps(json_safe(kpis), indent=2, sort_keys=True))
+    try:
+        (out / "kpis.json").write_text(json.dumps(json_safe(kpis), indent=2, sort_keys=True))
+    except OSError as exc:
+        raise OSError(f"outputs not written: {out / 'kpis.json'}: {exc.strerror or exc}") \
+            from None
+    if failed:
+        raise OSError(f"outputs not written: {failed}")

@@ -38,9 +38,17 @@ class SimParams:
                                "deterministic lockstep (true) or free-run at real_time_factor")
         self.rtf = static(node, "real_time_factor", 10.0,
                           "free-run pacing: simulated seconds per wall second", 0.01, 10000.0)
-        self.startup_timeout_s = static(node, "startup_timeout_s", 60.0,
-                                        "wall time to wait for ATO/ATS discovery [s]",
-                                        0.0, 3600.0)
+        self.startup_timeout_s = static(
+            node, "startup_timeout_s", 60.0,
+            "wall time to wait for every ATO/ATS/brake-diagnosis endpoint before step 0 [s]; "
+            "then the simulator starts with the endpoints found (logged) and "
+            "ato_absent_timeout_s bounds a wait for ATOs that never answer", 0.0, 3600.0)
+        self.ato_absent_timeout_s = static(
+            node, "ato_absent_timeout_s", 60.0,
+            "lockstep: wall time [s] of consecutive timed-out steps in which no active "
+            "train's ATO answered, after which the simulator gives up (exit code 7, "
+            "GRAPH_NOT_READY, one line naming the missing endpoints) instead of stepping "
+            "once per step_timeout_s", 0.1, 86400.0)
         self.wait_for_subscribers = [x for x in static(
             node, "wait_for_subscribers", [""],
             "node names (e.g. a recorder) that must subscribe to every topic of the "

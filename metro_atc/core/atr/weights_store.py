@@ -22,6 +22,7 @@ from __future__ import annotations
 import os
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Dict, Optional
 
@@ -169,17 +170,35 @@ def train_weights(kind: str, line: LineData, out: Path, epochs: int = DEFAULT_EP
     return info
 
 
+@dataclass(frozen=True)
+class Resolved:
+    """Weights resolved for a run: the file and where it came from."""
+
+    path: Path
+    source: str
+    """``shipped`` (``metro_atc/data``), ``cached`` (trained earlier, in the cache) or
+    ``trained`` (trained now into the cache)."""
+
+
 def ensure_weights(kind: str, line: LineData, train_missing: bool = True,
                    cache: Optional[Path] = None, epochs: int = DEFAULT_EPOCHS,
                    progress: Optional[Progress] = None) -> Path:
     """Weights of ``kind`` for ``line``: shipped or cached, else trained into the cache.
 
     ``train_missing`` False: ValueError (one line, naming the hash and the command that
-    trains them) instead of training.
+    trains them) instead of training.  :func:`resolve_weights` also says which it was.
     """
+    return resolve_weights(kind, line, train_missing, cache, epochs, progress).path
+
+
+def resolve_weights(kind: str, line: LineData, train_missing: bool = True,
+                    cache: Optional[Path] = None, epochs: int = DEFAULT_EPOCHS,
+                    progress: Optional[Progress] = None) -> Resolved:
+    """:func:`ensure_weights` with the weights' source (shipped, cached, trained now)."""
     found = find_weights(kind, line, cache)
     if found is not None:
-        return found
+        ship = found.parent.resolve() == DATA_DIR.resolve()
+        return Resolved(found, "shipped" if ship else "cached")
     target = cached_path(kind, line, cache)
     if not train_missing:
         raise ValueError(f"no {kind} weights for line {line.name!r} (traffic-model hash "
@@ -187,4 +206,31 @@ def ensure_weights(kind: str, line: LineData, train_missing: bool = True,
                          f"run with --train-regulator auto or train them with "
                          f"'python -m metro_atc train {kind} --scenario ... --cache'")
     train_weights(kind, line, target, epochs=epochs, progress=progress)
-    return target
+    return Resolved(target, "trained")
+
+
+def validation_problem(path: Path) -> Optional[str]:
+    """One line with the figures if the weights in ``path`` regulate worse than the timetable.
+
+    Reads the file's own validation (``info.validation``, written by
+    :func:`train_weights`: mean realised cost of the regulator and of the timetable on the
+    same episodes); None when the regulator's cost is at most the timetable's, or when the
+    file holds no validation (weights from elsewhere: nothing to judge by).
+    """
+    try:
+        info = read_blob(path).get("info") or {}
+    except (OSError, ValueError):
+        return None
+    v = info.get("validation") if isinstance(info, dict) else None
+    if not isinstance(v, dict):
+        return None
+    try:
+        cost, none = float(v["cost"]), float(v["cost_none"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not (np.isfinite(cost) and np.isfinite(none)) or cost <= none:
+        return None
+    return (f"{path.name}: its own validation cost {cost:.1f} is above the timetable's "
+            f"{none:.1f} (ratio {cost / none if none > 0 else float('inf'):.3f}, "
+            f"{int(v.get('episodes', 0))} episodes, {float(v.get('delay_s', 0.0)):.0f} s "
+            "initial delay): it regulates worse than no regulator")

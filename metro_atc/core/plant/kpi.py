@@ -181,3 +181,32 @@ def berthing_kpis(log: RunLog) -> dict[str, Any]:
             100.0 * float(log.interventions.sum()) / stops if stops else 0.0,
         "time_above_civil_limit_s": float(log.steps_above_civil * log.control_period_s),
     }
+
+
+def service_end(trains: int, completed_trains: int, sim_time_s: float, reached_end: bool,
+                cut_at_s: float | None, duration_s: float) -> dict[str, Any]:
+    """The ``finished`` / ``cut_at_s`` fields of a run's KPIs: did the whole service run.
+
+    ``reached_end``: the run stepped to its end (the scenario's ``duration_s`` [s], every
+    train out of service, or the cut); False when it was stopped before (a signal).
+    ``cut_at_s``: the user's cut (``--duration`` / ``max_sim_time_s`` [s]) when it ended the
+    run, else None.  ``finished`` is True only when every train completed its trips;
+    ``cut_at_s`` is kept only for a run the cut left unfinished; ``end`` says in one line
+    why the run ended.
+    """
+    missing = int(trains) - int(completed_trains)
+    finished = bool(reached_end) and missing == 0
+    if finished:
+        end = f"service completed: {trains} of {trains} trains"
+    elif not reached_end:
+        end = f"stopped at t={sim_time_s:.1f} s before the end: {missing} of {trains} " \
+            "trains did not complete"
+    elif cut_at_s is not None:
+        end = f"cut at t={cut_at_s:.1f} s (--duration / max_sim_time_s): {missing} of " \
+            f"{trains} trains did not complete"
+    else:
+        end = f"scenario duration {duration_s:.1f} s reached: {missing} of {trains} " \
+            "trains did not complete their trips"
+    return {"finished": finished, "incomplete_trains": missing,
+            "cut_at_s": None if finished or cut_at_s is None else float(cut_at_s),
+            "end": end}
