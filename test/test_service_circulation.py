@@ -133,3 +133,17 @@ def test_closed_form_edges() -> None:
     with pytest.raises(ValueError):
         closed_form_fleet(100.0, 0.0)
     assert math.isfinite(closed_form_fleet(0.0, 1.0))
+
+
+def test_prefer_picks_the_ready_train() -> None:
+    """FIFO takes the train ready longest, LIFO the one ready last; same fleet either way."""
+    trips = [Trip("b0", "B", "A", 0.0, 40.0), Trip("b1", "B", "A", 100.0, 140.0),
+             Trip("a0", "A", "B", 3000.0, 3100.0)]
+    tb = {"A": 60.0, "B": 60.0}
+    fifo = build_circulation(trips, tb, prefer="longest_wait").trains()
+    lifo = build_circulation(trips, tb, prefer="shortest_wait").trains()
+    assert [t.trip_id for t in fifo["train_01"]] == ["b0", "a0"]
+    assert [t.trip_id for t in lifo["train_02"]] == ["b1", "a0"]
+    assert len(fifo) == len(lifo) == 2
+    with pytest.raises(CirculationError, match="prefer"):
+        build_circulation(trips, tb, prefer="random")

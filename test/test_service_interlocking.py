@@ -108,6 +108,22 @@ class _Train:
     done: bool = False
 
 
+def _no_live_conflict(il: Interlocking) -> None:
+    """Brute force: routes that conflict on the track never both hold the shared part."""
+    lay = il.layout
+    rs = il.locked_routes()
+    for i, a in enumerate(rs):
+        for b in rs[i + 1:]:
+            if not brute_force_conflict(a, b, lay):
+                continue
+            held_a = {s for s in a.locked_sections if il.lock.get(s) == a.name}
+            held_b = {s for s in b.locked_sections if il.lock.get(s) == b.name}
+            assert not (held_a & set(b.locked_sections) & held_b), (a.name, b.name)
+            for p, pos in a.points:
+                if lay.point_section[p] in held_a and lay.point_section[p] in held_b:
+                    raise AssertionError(f"{a.name}/{b.name} both hold point {p}")
+
+
 def _simulate(lay: Layout, n_trains: int, seed: int, stall_p: float, max_steps: int = 40000
               ) -> dict:
     """Random occupy/clear/request sequences; safety checked after every event."""
@@ -136,6 +152,7 @@ def _simulate(lay: Layout, n_trains: int, seed: int, stall_p: float, max_steps: 
             t.route, t.todo, t.requested = rn, list(r.sections), False
             granted_log.append(rn)
         assert check_safe(il) is None, check_safe(il)
+        _no_live_conflict(il)
         live = [t for t in trains if not t.done]
         if not live and spawned == n_trains:
             return {"steps": step, "granted": granted_log, "stalls": stalls, "il": il}
@@ -167,8 +184,9 @@ def _simulate(lay: Layout, n_trains: int, seed: int, stall_p: float, max_steps: 
                 t.stage += 1
                 t.wait = int(rng.integers(0, 6))  # dwell / reversal
             assert check_safe(il) is None, check_safe(il)
+    pending = [(q.train, q.route.name) for q in il.queue]
     raise AssertionError(f"{lay.name}: not every train got through in {max_steps} steps "
-                         f"(deadlock/starvation): queue {[(q.train, q.route.name) for q in il.queue]}")
+                         f"(deadlock/starvation): queue {pending}")
 
 
 @pytest.mark.parametrize("lay", LAYOUTS, ids=lambda x: x.name)

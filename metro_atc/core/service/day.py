@@ -54,9 +54,11 @@ class DayError(ValueError):
 
 @dataclass(frozen=True)
 class DayPeriod:
-    """One period: ``start_s``/``end_s`` [s after midnight], headway ``headway_s`` [s],
-    flow factors per direction relative to the AM peak [-], whether the numbers are
-    estimates and their basis."""
+    """One period of the day (Lin 2010a eq. 7-8).
+
+    ``start_s``/``end_s`` [s after midnight], headway ``headway_s`` [s], flow factors per
+    direction relative to the AM peak [-], whether the numbers are estimates and their basis.
+    """
 
     name: str
     start_s: float
@@ -68,7 +70,7 @@ class DayPeriod:
     basis: str
 
     def as_tsk(self, direction: str) -> Period:
-        """The period as a TSK duration (Lin 2010a eq. 7-8) for ``direction`` up/down."""
+        """Return the period as a TSK duration (Lin 2010a eq. 7-8) for ``direction`` up/down."""
         return Period(self.start_s, self.end_s, self.headway_s,
                       self.flow_up if direction == "up" else self.flow_down)
 
@@ -363,5 +365,5 @@ def load_day(path: str | Path | None = None, line: LineData | None = None) -> Da
 
 
 def taipei_blue_day() -> DayPlan:
-    """The Taipei Blue line day (six periods, 06:00-24:00; peak headway of Lin 2010a)."""
+    """Return the Taipei Blue line day (six periods, 06:00-24:00; peak headway of Lin 2010a)."""
     return load_day()

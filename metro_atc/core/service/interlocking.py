@@ -85,7 +85,7 @@ class Route:
 
 
 def routes_conflict(a: Route, b: Route) -> bool:
-    """True when routes ``a`` and ``b`` may not be locked together (shared section/point)."""
+    """Return True if routes ``a`` and ``b`` may not be locked together (shared section/point)."""
     if a.name == b.name:
         return True
     if a.locked_sections & b.locked_sections:
@@ -115,7 +115,7 @@ class Layout:
     entry_section: str
 
     def route(self, name: str) -> Route:
-        """The route called ``name``; InterlockingError when unknown."""
+        """Return the route called ``name``; InterlockingError when unknown."""
         for r in self.routes:
             if r.name == name:
                 return r
@@ -127,7 +127,7 @@ class Layout:
         return frozenset(r.destination for r in self.routes if r.destination != self.exit_section)
 
     def conflict_matrix(self) -> Dict[Tuple[str, str], bool]:
-        """The derived conflict relation over all pairs of route names."""
+        """Return the derived conflict relation over all pairs of route names."""
         return {(a.name, b.name): routes_conflict(a, b)
                 for a, b in itertools.product(self.routes, self.routes)}
 
@@ -315,7 +315,7 @@ class Interlocking:
         return self.layout.route(route).exit_signal, self.layout.route_length_m(route)
 
     def occupy(self, section: str) -> None:
-        """A train enters ``section`` (track circuit reports occupied)."""
+        """Report that a train entered ``section`` (track circuit occupied)."""
         if section not in self.layout.section_length_m:
             raise InterlockingError(f"unknown section {section!r}")
         self.occupied.add(section)
@@ -324,7 +324,7 @@ class Interlocking:
             self.visited[owner].add(section)
 
     def clear(self, section: str) -> None:
-        """A train leaves ``section``; sectional release behind it (rule 2)."""
+        """Report that a train left ``section``; sectional release behind it (rule 2)."""
         self.occupied.discard(section)
         for name in list(self.set_routes):
             r = self.layout.route(name)
@@ -338,7 +338,7 @@ class Interlocking:
             self._maybe_done(name)
 
     def arrived(self, route: str) -> None:
-        """The train of ``route`` stands at the exit signal: release destination + overlap."""
+        """Report the train of ``route`` standing at its exit signal: release dest. + overlap."""
         r = self.layout.route(route)
         if route not in self.set_routes or r.destination not in self.occupied:
             raise InterlockingError(f"route {route}: no train standing at its exit signal")
