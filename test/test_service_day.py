@@ -103,6 +103,12 @@ def test_refusals_name_the_period_and_the_need() -> None:
     assert "periods[1].headway_s" in msg
     msg = _bad(p=lambda r: r["periods"][0].__setitem__("colour", "red"))
     assert "unknown key 'colour'" in msg
+    msg = _bad(f=lambda r: r.__setitem__("fleet", 50.5))
+    assert "fleet: expected an integer" in msg
+    msg = _bad(p=lambda r: r["periods"][3].__setitem__("name", ["x"]))
+    assert "periods[3].name" in msg
+    msg = _bad(t=lambda r: r["termini"][1].__setitem__("layout", "loop"))
+    assert "termini[1].layout" in msg and "tail_track, scissors" in msg
 
 
 def test_load_errors_are_one_line(tmp_path: Path) -> None:

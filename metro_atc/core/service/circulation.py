@@ -31,7 +31,15 @@ from typing import Dict, List, Mapping, Sequence, Set, Tuple
 
 
 class CirculationError(ValueError):
-    """The trip list cannot be served (one line naming the terminus, instant and cause)."""
+    """The trip list cannot be served (one line naming the terminus, instant and cause).
+
+    ``instant_s``: the instant [s] of the trip that cannot be served, when there is one.
+    """
+
+    def __init__(self, message: str, instant_s: float | None = None) -> None:
+        """Keep the one-line ``message`` and the ``instant_s`` [s] it is about."""
+        super().__init__(message)
+        self.instant_s = instant_s
 
 
 @dataclass(frozen=True)
@@ -150,7 +158,7 @@ def build_circulation(trips: Sequence[Trip], turnback_s: Mapping[str, float],
                 raise CirculationError(
                     f"terminus {trip.origin} has no depot connection: departure "
                     f"{trip.trip_id} at {_fmt(trip.departure_s)} has no train ({need}, "
-                    f"turnback {turnback_s[trip.origin]:.0f} s)")
+                    f"turnback {turnback_s[trip.origin]:.0f} s)", trip.departure_s)
             k = len(chains)
             chains.append([])
             pull_outs[trip.origin] += 1
@@ -163,7 +171,8 @@ def build_circulation(trips: Sequence[Trip], turnback_s: Mapping[str, float],
         for _, _, k in heap:
             if s not in dep_ok:
                 raise CirculationError(f"terminus {s} has no depot connection: train of trip "
-                                       f"{chains[k][-1].trip_id} ends its day there")
+                                       f"{chains[k][-1].trip_id} ends its day there",
+                                       chains[k][-1].arrival_s)
             pull_ins[s] += 1
     blocks: List[Block] = []
     for i, c in enumerate(chains):

@@ -201,9 +201,9 @@ def run_day(plan: DayPlan, stable_after_s: float = 1800.0
     try:
         circ = build_circulation(ts, tb, depots, stable_after_s, "shortest_wait")
     except CirculationError as exc:
-        t = _first_instant(str(exc))
-        name = plan.periods[period_index(plan.periods, t)].name if t is not None else "?"
-        raise DayError(one_line(f"day {plan.name}: period {name}: {exc}")) from None
+        where = (f"period {plan.periods[period_index(plan.periods, exc.instant_s)].name}: "
+                 if exc.instant_s is not None else "")
+        raise DayError(one_line(f"day {plan.name}: {where}{exc}")) from None
     reports = []
     for n, p in enumerate(plan.periods):
         grid = [tr.departure_s for tr in ts if p.start_s <= tr.departure_s < p.end_s]
@@ -226,14 +226,6 @@ def run_day(plan: DayPlan, stable_after_s: float = 1800.0
     return circ, reports
 
 
-def _first_instant(msg: str) -> float | None:
-    for word in msg.replace(",", " ").replace("(", " ").split():
-        parts = word.split(":")
-        if len(parts) == 3 and all(x.isdigit() for x in parts):
-            return int(parts[0]) * 3600.0 + int(parts[1]) * 60.0 + int(parts[2])
-    return None
-
-
 # --------------------------------------------------------------------------- loading
 
 _LAYOUTS = ("tail_track", "scissors")
@@ -245,6 +237,20 @@ def _num(raw: Any, path: str, src: str, lo: float, hi: float) -> float:
         raise DayError(one_line(f"day {src}: {path}: expected a number in [{lo:g}, {hi:g}], "
                                 f"got {short_repr(raw)}"))
     return float(raw)
+
+
+def _int(raw: Any, path: str, src: str, lo: int, hi: int) -> int:
+    if isinstance(raw, bool) or not isinstance(raw, int) or not lo <= raw <= hi:
+        raise DayError(one_line(f"day {src}: {path}: expected an integer in [{lo}, {hi}], "
+                                f"got {short_repr(raw)}"))
+    return raw
+
+
+def _str(raw: Any, path: str, src: str) -> str:
+    if not isinstance(raw, str) or not raw or len(raw) > 160 or not raw.isprintable():
+        raise DayError(one_line(f"day {src}: {path}: expected a short text, "
+                                f"got {short_repr(raw)}"))
+    return raw
 
 
 def _map(raw: Any, path: str, src: str, keys: Sequence[str]) -> Dict[str, Any]:
@@ -269,7 +275,7 @@ def _layout(raw: Dict[str, Any], path: str, src: str) -> Layout:
     vx = _num(raw["crossover_speed_kmh"], f"{path}.crossover_speed_kmh", src, 5.0, 80.0) * KMH
     if kind == "scissors":
         return scissors_terminus(rev, vx)
-    n = int(_num(raw.get("n_sidings", 1), f"{path}.n_sidings", src, 1, 8))
+    n = _int(raw.get("n_sidings", 1), f"{path}.n_sidings", src, 1, 8)
     return tail_track_terminus(n, rev, vx)
 
 
@@ -294,6 +300,8 @@ def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
             raise DayError(one_line(f"day {src}: {path}.station: expected terminus "
                                     f"{ends[i]}, got {short_repr(m['station'])}"))
         dst = m["depot_station"]
+        if m.get("depot") is not None:
+            _str(m["depot"], f"{path}.depot", src)
         if dst is not None and dst not in codes:
             raise DayError(one_line(f"day {src}: {path}: depot {m.get('depot')} connects at "
                                     f"{short_repr(dst)}, not a station of {ln.name} "
@@ -319,6 +327,9 @@ def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
         path = f"periods[{i}]"
         m = _map(p, path, src, ("name", "start_h", "end_h", "headway_s", "flow_up",
                                 "flow_down", "estimate", "basis"))
+        _str(m["name"], f"{path}.name", src)
+        if m.get("basis") is not None:
+            _str(m["basis"], f"{path}.basis", src)
         start = _num(m["start_h"], f"{path}.start_h", src, 0.0, 30.0) * 3600.0
         end = _num(m["end_h"], f"{path}.end_h", src, 0.0, 30.0) * 3600.0
         if periods and start != periods[-1].end_s:
@@ -343,10 +354,10 @@ def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
     if trans > shortest:
         raise DayError(one_line(f"day {src}: transition_s {trans:.0f} s exceeds the shortest "
                                 f"period ({shortest:.0f} s)"))
-    fleet = int(_num(top["fleet"], "fleet", src, 1, 500))
+    fleet = _int(top["fleet"], "fleet", src, 1, 500)
     off = _num(top["down_offset_s"], "down_offset_s", src, 0.0, 7200.0)
-    return DayPlan(str(top["name"]), ln, tuple(periods), (termini[0], termini[1]), fleet,
-                   trans, off)
+    return DayPlan(_str(top["name"], "name", src), ln, tuple(periods),
+                   (termini[0], termini[1]), fleet, trans, off)
 
 
 def day_file(name: str = "taipei_blue_day_periods") -> Path:
