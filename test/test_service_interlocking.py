@@ -56,6 +56,15 @@ def test_layout_validation_is_one_line() -> None:
     assert "\n" not in str(ei.value)
     with pytest.raises(InterlockingError, match="speed limit"):
         scissors_terminus(crossover_speed_mps=0.0)
+    il = Interlocking(scissors_terminus())
+    for bad_call in (lambda: il.occupy("zz"), lambda: il.clear("zz"),
+                     lambda: il.request("t", "nowhere"), lambda: il.arrived("arr_p1")):
+        with pytest.raises(InterlockingError):
+            bad_call()
+    il.request("t", "arr_p1")
+    with pytest.raises(InterlockingError, match="pending"):
+        il.request("t", "arr_p2")
+    assert il.occupied == set() and not il.lock and len(il.queue) == 1
 
 
 def test_min_turnback_and_movement_authority() -> None:

@@ -325,6 +325,8 @@ class Interlocking:
 
     def clear(self, section: str) -> None:
         """Report that a train left ``section``; sectional release behind it (rule 2)."""
+        if section not in self.layout.section_length_m:
+            raise InterlockingError(f"unknown section {section!r}")
         self.occupied.discard(section)
         for name in list(self.set_routes):
             r = self.layout.route(name)
