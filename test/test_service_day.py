@@ -39,6 +39,8 @@ def test_shipped_table_matches_the_atr_periods() -> None:
     assert min(p.headway_s for p in plan.periods) == LIN2010A_PEAK_HEADWAY_S
     assert all(p.basis for p in plan.periods if p.estimate)
     assert not plan.periods[1].estimate
+    # the ATR line data read the same table (one source)
+    assert len(default_periods()) == len(plan.periods)
     for ours, atr in zip(plan.periods, default_periods()):
         assert (ours.start_s, ours.end_s, ours.headway_s, ours.flow_up) == \
             (atr.start_s, atr.end_s, atr.headway_s, atr.flow_factor)

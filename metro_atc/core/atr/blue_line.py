@@ -89,16 +89,20 @@ class Period:
 
 
 def default_periods() -> List[Period]:
-    """Six daily durations like seed 000 Fig. 2 (headways/flows are estimates, see module)."""
+    """Six daily durations like Lin 2010a Fig. 2, from the shipped day table.
+
+    The periods (start, end [s], headway [s], up-direction flow factor [-]) are read from
+    ``metro_atc/data/taipei_blue_day_periods.yaml`` (the service day's table; its entries say
+    which values are estimates), so the regulator's TSK model and the day agree by construction.
+    """
+    from importlib import resources
+
+    from metro_atc.core.safe_yaml import load_yaml_file
+    raw = load_yaml_file(str(resources.files("metro_atc").joinpath(
+        "data", "taipei_blue_day_periods.yaml")))
     h = 3600.0
-    return [
-        Period(6.0 * h, 7.0 * h, 360.0, 0.30),
-        Period(7.0 * h, 9.0 * h, PEAK_HEADWAY_S, 1.00),
-        Period(9.0 * h, 17.0 * h, 300.0, 0.45),
-        Period(17.0 * h, 19.5 * h, 120.0, 0.90),
-        Period(19.5 * h, 22.0 * h, 300.0, 0.40),
-        Period(22.0 * h, 24.0 * h, 480.0, 0.20),
-    ]
+    return [Period(float(p["start_h"]) * h, float(p["end_h"]) * h, float(p["headway_s"]),
+                   float(p["flow_up"])) for p in raw["periods"]]
 
 
 @dataclass(frozen=True)
