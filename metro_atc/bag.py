@@ -125,6 +125,9 @@ class BagWriter:
     _writer: Any = None
     _t0: int | None = None
     _t1: int = 0
+    custom_data: dict[str, str] = field(default_factory=dict)
+    """``custom_data`` of ``metadata.yaml`` (strings; rosbag2's field for a recorder's own
+    notes)."""
 
     @property
     def mcap_path(self) -> Path:
@@ -199,7 +202,7 @@ class BagWriter:
             "files": [{"path": self.mcap_path.name,
                        "starting_time": {"nanoseconds_since_epoch": start},
                        "duration": {"nanoseconds": duration}, "message_count": n}],
-            "custom_data": None,
+            "custom_data": dict(self.custom_data) or None,
             "ros_distro": "jazzy",
         }
         (self.path / "metadata.yaml").write_text(

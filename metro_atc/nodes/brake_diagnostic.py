@@ -579,10 +579,13 @@ class BrakeDiagnostic(Node):
         return n, (n / s if s > 0.0 else 0.0)
 
     def summary(self) -> list[str]:
-        """One line per train (verdict, assessed or not, counters, mu_b range) and the
-        observer rate; the last line counts the trains assessed."""
+        """The observer rate, the trains assessed, then one line per train (verdict,
+        assessed or not, counters, mu_b range)."""
         n, rate = self.observer_rate()
-        out = [f"observer: {n} updates, {rate:.0f} updates per CPU second"]
+        lost = [t for t in self.ids if not self.watch[t].assessed]
+        out = [f"observer: {n} updates, {rate:.0f} updates per CPU second",
+               f"brake assessed on {len(self.ids) - len(lost)} of {len(self.ids)} trains"
+               + (f"; not assessed: {', '.join(lost)}" if lost else "")]
         for t in self.ids:
             w = self.watch[t]
             lo, hi = w.mu_b_range
@@ -592,13 +595,10 @@ class BrakeDiagnostic(Node):
             gap = f"longest gap {w.max_gap[0]:.2f} s at t={w.max_gap[1]:.2f} s"
             judged = (f"brake assessed ({w.braked_updates} braked updates at speed)"
                       if w.assessed else "brake not assessed (no friction-brake update at "
-                      "speed: the level says nothing about the pads)")
+                      "speed, mu_b never judged: the level says nothing about the pads)")
             out.append(f"{t}: {LEVEL_NAMES[max(self._levels[t], 0)]}{flaw}; {judged}; {rng}; "
                        f"{gap}; " +
                        ", ".join(f"{k} {v}" for k, v in w.counts.items()))
-        lost = [t for t in self.ids if not self.watch[t].assessed]
-        out.append(f"brake assessed on {len(self.ids) - len(lost)} of {len(self.ids)} trains"
-                   + (f"; not assessed: {', '.join(lost)}" if lost else ""))
         return out
 
     def close(self) -> None:

@@ -63,7 +63,8 @@ from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_EVENTS,
                                     run_nodes, spin_until_stopped)
 from metro_atc.nodes.sim_checkpoints import Checkpoints, journal_key
 from metro_atc.nodes.sim_departures import DepartureBook
-from metro_atc.nodes.sim_domain import LINGER_S, linger, subscribed_by, wait_acked
+from metro_atc.nodes.sim_domain import (LINGER_S, RECORDER_GATE_TOPIC, linger, subscribed_by,
+                                        wait_acked)
 from metro_atc.nodes.sim_fleet import FleetStatePublisher
 from metro_atc.nodes.sim_lockstep import RECORDER_SYNC_STEPS, lockstep_loop
 from metro_atc.nodes.sim_outputs import write_finished_file, write_outputs
@@ -143,6 +144,10 @@ class LineSimulator(Node):
         clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK)
         self.event_pub = self.create_publisher(TrainEvent, "/line/events", QOS_EVENTS)
         self.status_pub = self.create_publisher(LineStatus, "/line/status", QOS_LATCHED)
+        # (nothing is published here: a recorder subscribes once it matched every publisher)
+        self.gate_pub = self.create_publisher(DiagnosticStatus, RECORDER_GATE_TOPIC,
+                                              QOS_LATCHED) \
+            if self.params.wait_for_subscribers else None
         state_pubs = [bulk_publisher(self, TrainState, f"/{t}/state", QOS_RELIABLE)
                       for t in self.ids]
         self.fleet = FleetStatePublisher(
@@ -412,7 +417,9 @@ class LineSimulator(Node):
         :meth:`FleetStatePublisher.publish_again`).
 
         With ``wait_for_subscribers``, each named node must also subscribe to every topic
-        the simulator publishes (a recorder then sees step 0).
+        the simulator publishes, the recorder gate included (``RECORDER_GATE_TOPIC``: the
+        bag_recorder subscribes to it once it has matched every publisher it records; a
+        recorder then has step 0).
         """
         ready = self.fleet.fleet_pub.get_subscription_count() > 0 and \
             all(s.get_publisher_count() > 0 for s in self.cmd_subs) and \
@@ -424,8 +431,9 @@ class LineSimulator(Node):
 
     def _recorded_pubs(self) -> list[Any]:
         """The publishers a recorder (``wait_for_subscribers``) must read."""
+        gate = [self.gate_pub] if self.gate_pub is not None else []
         return [self.fleet.clock_pub, self.event_pub, self.status_pub, *self.fleet.state_pubs,
-                self.sensors.fleet_pub]
+                self.sensors.fleet_pub, *gate]
 
     def wait_acked(self, timeout_s: float = 5.0) -> None:
         """Wait until every reliable reader acknowledged what was published (a recorder).

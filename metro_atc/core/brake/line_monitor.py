@@ -11,8 +11,8 @@ simulator node publishes them (every sample while a car brakes, a heartbeat ever
 Figures (:meth:`LineBrakeMonitor.summary`):
 
 * ``brake_assessed``: per train, whether its brake was assessed at all (at least one observer
-  update at speed with the friction brake applied, :attr:`TrainBrakeWatch.assessed`: mu_b
-  is observable only then); ``brake_trains_assessed`` how many were,
+  update at speed with the friction brake applied, or mu_b judged once:
+  :attr:`TrainBrakeWatch.assessed`; mu_b is observable only while the pads act); ``brake_trains_assessed`` how many were,
   ``brake_trains_not_assessed`` the others (on stock whose friction brake never acts at
   speed: every train, and its OK says nothing);
 * ``brake_false_alarms``: level rises (OK -> WARN, OK/WARN -> ERROR) of assessed trains with
