@@ -1,7 +1,7 @@
 """bag_recorder node: every topic of the graph into a rosbag2 MCAP directory (``run --record``).
 
 rosbag2's recorder is not installable from PyPI; this node does its job for the metro_atc
-graph with rclpy and the ``mcap`` library (:mod:`metro_atc.bag` lays the bag out):
+graph with rclpy and the ``rosbags`` writer (:mod:`metro_atc.bag`):
 
 * it subscribes at start-up to every topic of the graph's topic map (:func:`graph_topics`,
   the scenario's trains) with the QoS of the topic's publishers; every
@@ -50,7 +50,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 from rclpy.subscription import Subscription
 from rosgraph_msgs.msg import Clock as ClockMsg
 
-from metro_atc.bag import BagWriter, Qos
+from metro_atc.bag import BagWriter, Qos, qos_profile
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.nodes import cdr
 from metro_atc.nodes.common import (OK, FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_DIAGNOSTICS,
@@ -174,9 +174,9 @@ def type_name(cls: Any) -> str:
 
 def bag_qos(q: QoSProfile) -> Qos:
     """An rclpy QoS profile as the bag stores it."""
-    return Qos(history=q.history.name.lower(), depth=int(q.depth),
-               reliability=q.reliability.name.lower(), durability=q.durability.name.lower(),
-               liveliness=q.liveliness.name.lower())
+    return qos_profile(history=q.history.name, depth=int(q.depth),
+                       reliability=q.reliability.name, durability=q.durability.name,
+                       liveliness=q.liveliness.name)
 
 
 def find_msg(package: str, name: str) -> str:
