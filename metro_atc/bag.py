@@ -40,7 +40,7 @@ _INFINITE = QosTime(sec=2147483647, nsec=4294967295)
 
 
 def qos_profile(history: str = "keep_last", depth: int = 10, reliability: str = "reliable",
-        durability: str = "volatile", liveliness: str = "automatic") -> Qos:
+                durability: str = "volatile", liveliness: str = "automatic") -> Qos:
     """A publisher's QoS as the bag stores it (enum names as rmw prints them, any case)."""
     return Qos(history=QosHistory[history.upper()], depth=int(depth),
                reliability=QosReliability[reliability.upper()],

@@ -28,7 +28,11 @@ rclpy = pytest.importorskip("rclpy")
 sys.path.insert(0, str(Path(__file__).parent))
 
 import brake_replay as br  # noqa: E402
-from test_brake_journal import _feed, _msgs, make_node  # noqa: E402,F401  (fixture)
+import test_brake_journal as journal  # noqa: E402
+
+_feed, _msgs = journal._feed, journal._msgs
+make_node = journal.make_node
+"""The fixture of ``test_brake_journal`` (a BrakeDiagnostic of mini_pad_fault)."""
 
 TRAINS = ("train_01", "train_02")
 

@@ -367,7 +367,8 @@ class BagRecorder(Node):
         text = f"bag {self.bag.path}: {n} messages on {len(self.bag.topics)} topics"
         if dropped:
             text += (f"; {sum(dropped.values())} repeated lockstep messages (re-sends) "
-                     f"recorded once: " + ", ".join(f"{k} {v}" for k, v in sorted(dropped.items())))
+                     "recorded once: "
+                     + ", ".join(f"{k} {v}" for k, v in sorted(dropped.items())))
         if self.context.ok():
             self.get_logger().info(text)
 

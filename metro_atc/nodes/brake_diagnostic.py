@@ -579,8 +579,10 @@ class BrakeDiagnostic(Node):
         return n, (n / s if s > 0.0 else 0.0)
 
     def summary(self) -> list[str]:
-        """The observer rate, the trains assessed, then one line per train (verdict,
-        assessed or not, counters, mu_b range)."""
+        """Shutdown lines: the observer rate, the trains assessed, one line per train.
+
+        A train's line: verdict, assessed or not, mu_b judged, longest gap, counters.
+        """
         n, rate = self.observer_rate()
         lost = [t for t in self.ids if not self.watch[t].assessed]
         out = [f"observer: {n} updates, {rate:.0f} updates per CPU second",

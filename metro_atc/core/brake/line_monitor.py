@@ -12,9 +12,9 @@ Figures (:meth:`LineBrakeMonitor.summary`):
 
 * ``brake_assessed``: per train, whether its brake was assessed at all (at least one observer
   update at speed with the friction brake applied, or mu_b judged once:
-  :attr:`TrainBrakeWatch.assessed`; mu_b is observable only while the pads act); ``brake_trains_assessed`` how many were,
-  ``brake_trains_not_assessed`` the others (on stock whose friction brake never acts at
-  speed: every train, and its OK says nothing);
+  :attr:`TrainBrakeWatch.assessed`; mu_b is observable only while the pads act);
+  ``brake_trains_assessed`` how many were, ``brake_trains_not_assessed`` the others (on
+  stock whose friction brake never acts at speed: every train, and its OK says nothing);
 * ``brake_false_alarms``: level rises (OK -> WARN, OK/WARN -> ERROR) of assessed trains with
   no pad or wheel fault in force at that time; ``brake_false_errors`` the ERROR ones among
   them; both None (not assessed, not "0 false alarms") when no train was assessed;
@@ -145,8 +145,10 @@ class LineBrakeMonitor:
                              "car_mass": float(b.car_mass[c])})
 
     def feed_sample(self, i: int, s: dict[str, Any]) -> None:
-        """Feed one published sample (the dict of ``TrainBrakeWatch.feed``) of train ``i``
-        and follow its level."""
+        """Feed one published sample of train ``i`` and follow its level.
+
+        ``s``: the sample dict of :meth:`TrainBrakeWatch.feed`.
+        """
         w = self.watch.get(i)
         if w is None:
             return

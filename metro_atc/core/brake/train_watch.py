@@ -224,12 +224,15 @@ class TrainBrakeWatch:
 
     @property
     def assessed(self) -> bool:
-        """The brake was assessed: at least one observer update at speed (above
-        ``V_PAUSE_MPS``) with the friction brake applied (mean clamp force above
-        ``BRAKED_CLAMP_N``), or mu_b judged at least once (its std below
-        ``MU_B_STD_JUDGE``: light blended brake applications can carry enough information
-        for the decision to announce a pad flaw).  A train with neither (electric braking
-        down to a crawl) is not assessed: its OK says nothing about its pads."""
+        """Whether the brake was assessed.
+
+        At least one observer update at speed (above ``V_PAUSE_MPS``) with the friction
+        brake applied (mean clamp force above ``BRAKED_CLAMP_N``), or mu_b judged at least
+        once (its std below ``MU_B_STD_JUDGE``: light blended brake applications can carry
+        enough information for the decision to announce a pad flaw).  A train with neither
+        (electric braking down to a crawl) is not assessed: its OK says nothing about its
+        pads.
+        """
         return self.braked_updates > 0 or bool(self.judged)
 
     def reject(self) -> None:
