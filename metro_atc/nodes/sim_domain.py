@@ -44,7 +44,7 @@ every publisher it must record (``metro_atc.nodes.bag_recorder``), so the simula
 for the recorder's subscriptions (:func:`subscribed_by`) also waits for that.  A recorder's
 subscription seen in the graph is not a matched one: a volatile reader takes only what is
 written after it has matched the writer itself, and the steps published before were lost
-(a bag held a train's states from step 81 and its commands from step 110)."""
+(a bag held a train's commands from step 110, its states from its first step, 81)."""
 LINGER_S = 0.3
 """Most wall time [s] the simulator waits at its end for its last samples to be delivered."""
 
