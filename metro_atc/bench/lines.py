@@ -100,11 +100,16 @@ def _brake_totals(rows: List[dict[str, Any]]) -> dict[str, Any]:
 
 
 def _false_alarms(row: dict[str, Any]) -> str:
-    """The row's brake false alarms as printed ('not assessed' where no brake was)."""
+    """The row's brake false alarms as printed, with the trains assessed.
+
+    'not assessed' where no train's brake was.
+    """
     if "brake_false_alarms" not in row:
         return "-"
     fa = row["brake_false_alarms"]
-    return "not assessed" if fa is None else str(fa)
+    n, of = row.get("brake_trains_assessed", 0), len(row.get("brake_assessed", {}))
+    return f"not assessed (0 of {of} trains)" if fa is None \
+        else f"{fa} ({n} of {of} trains assessed)"
 
 
 Job = Tuple[str, Any]
