@@ -470,9 +470,10 @@ class BrakeDiagnostic(Node):
         self._pub_stamp[train_id] = stamp_s
         self._pub_key[train_id] = (self._gen[train_id], w.counts["received"], stamp_s, level)
         c = w.counts
-        self.pubs[train_id].publish(conv.diagnosis_msg(
-            train_id, stamp_s, w.result, level, text, c["used"] + c["degraded"],
-            c["rejected"] + c["waiting"]))
+        msg = conv.diagnosis_msg(train_id, stamp_s, w.result, level, text,
+                                 c["used"] + c["degraded"], c["rejected"] + c["waiting"])
+        msg.assessed = w.assessed  # (cumulative: the simulator's kpis.json takes the last)
+        self.pubs[train_id].publish(msg)
         return level, text
 
     def _status(self, train_id: str, level: int, text: str) -> DiagnosticStatus:

@@ -176,6 +176,9 @@ class LineSimulator(Node):
         self.profile_subs = [bulk_subscription(self, SpeedProfile, f"/{t}/speed_profile",
                                                self._on_profile, QOS_LATCHED)
                              for t in self.ids]
+        self.brake_assessed = [False] * n
+        """Per train: its brake diagnosis said the brake was assessed (its latest, latched
+        BrakeDiagnosis: cumulative, so a restarted simulator has it back at once)."""
         self.diag_subs = [bulk_subscription(self, BrakeDiagnosis, f"/{t}/brake_diagnosis",
                                             partial(self._on_diagnosis, i), QOS_LATCHED)
                           for i, t in enumerate(self.ids)]
@@ -363,6 +366,7 @@ class LineSimulator(Node):
             self._reject(f"/{self.ids[i]}/brake_diagnosis", exc)
             return
         self.sensors.acknowledge(i, t)
+        self.brake_assessed[i] = bool(msg.assessed)
 
     def _set_progress_period(self, value: float) -> None:
         self.params.progress_period_s = float(value)
@@ -606,6 +610,9 @@ class LineSimulator(Node):
         k["lockstep"] = bool(self.params.lockstep)
         k["regulators_seen"] = dict(sorted(self.departures.regulators.items()))
         k["planners_seen"] = sorted(self.planners)  # names only: latched, depth-1 reader
+        k["brake_assessed"] = dict(zip(self.ids, self.brake_assessed))
+        k["brake_trains_not_assessed"] = [t for t, a in zip(self.ids, self.brake_assessed)
+                                          if not a]
         return k
 
     def close(self) -> None:
