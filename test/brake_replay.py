@@ -12,7 +12,7 @@ rest exactly).
 
 Command line (``PYTHONPATH`` choosing the code version)::
 
-    python test/brake_replay.py record OUT/bag/bag_0.mcap batches.npz [--t-max S]
+    python test/brake_replay.py record OUT/bag/bag.mcap batches.npz [--t-max S]
     python test/brake_replay.py replay batches.npz SCENARIO summary.json [--repeat 3]
     python test/brake_replay.py compare a.json b.json
 

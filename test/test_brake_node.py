@@ -181,6 +181,21 @@ def test_node_reports_rate_and_exits_cleanly(fault_run: dict[str, Any]) -> None:
     assert fault_run["kpis"]["completed_trains"] == fault_run["kpis"]["trains"]
 
 
+def test_kpis_say_which_brakes_were_assessed(fault_run: dict[str, Any]) -> None:
+    """kpis.json: per train whether its brake was assessed, as the node's summary says it
+    (both trains of mini_pad_fault emergency-brake at speed: both assessed), from the last
+    BrakeDiagnosis (``assessed``) the simulator took."""
+    k = fault_run["kpis"]
+    log = fault_run["log"]
+    said = {t: re.search(rf"{t}: \w+.*?; brake (not )?assessed", log) for t in
+            (FAULT_TRAIN, HEALTHY_TRAIN)}
+    assert all(said.values()), log[-2000:]
+    assert k["brake_assessed"] == {t: m.group(1) is None for t, m in said.items()}
+    assert k["brake_assessed"] == {FAULT_TRAIN: True, HEALTHY_TRAIN: True}
+    assert k["brake_trains_not_assessed"] == []
+    assert fault_run["bd"][HEALTHY_TRAIN][-1].assessed
+
+
 # ------------------------------------------------------------------ bad input, node alone
 
 def _sample(train: str, t: float, v: float, omega: Any = None, clamp: Any = None,

@@ -87,10 +87,29 @@ def _brake_totals(rows: List[dict[str, Any]]) -> dict[str, Any]:
     if not rows or "brake_false_alarms" not in rows[0]:
         return {}
     delays = [d for r in rows for d in r["brake_detect_after_brake_s"]]
-    return {k: int(sum(r[k] for r in rows))
-            for k in ("brake_false_alarms", "brake_false_errors", "brake_faults",
-                      "brake_faults_detected")} | {
+    # false alarms only over lines where some brake was assessed (None: none was)
+    judged = [r for r in rows if r.get("brake_false_alarms") is not None]
+    return {k: (int(sum(r[k] for r in judged)) if judged else None)
+            for k in ("brake_false_alarms", "brake_false_errors")} | {
+        k: int(sum(r.get(k, 0) for r in rows))
+        for k in ("brake_faults", "brake_faults_detected", "brake_trains_assessed",
+                  "brake_alarms_not_assessed")} | {
+        "brake_trains_not_assessed": int(sum(len(r.get("brake_trains_not_assessed", []))
+                                             for r in rows)),
         "brake_detect_after_brake_max_s": max(delays) if delays else math.nan}
+
+
+def _false_alarms(row: dict[str, Any]) -> str:
+    """The row's brake false alarms as printed, with the trains assessed.
+
+    'not assessed' where no train's brake was.
+    """
+    if "brake_false_alarms" not in row:
+        return "-"
+    fa = row["brake_false_alarms"]
+    n, of = row.get("brake_trains_assessed", 0), len(row.get("brake_assessed", {}))
+    return f"not assessed (0 of {of} trains)" if fa is None \
+        else f"{fa} ({n} of {of} trains assessed)"
 
 
 Job = Tuple[str, Any]
@@ -183,7 +202,7 @@ def main(argv: Optional[List[str]] = None) -> int:
                   f"above {row['time_above_civil_limit_s']:6.1f} s "
                   f"tsr-min {row['tsr_speed_minima_max']} "
                   f"{row['energy_kwh_per_train_km']:.2f} kWh/train-km "
-                  f"brake-fa {row.get('brake_false_alarms', '-')} "
+                  f"brake-fa {_false_alarms(row)} "
                   f"({row['wall_s']:.1f} s, {row['cpu_s']:.1f} CPU s)", flush=True)
     tot = totals(rows, errors)
     result = {"bench": "lines", "incidents": a.incidents, "regulator": a.regulator,

@@ -48,7 +48,12 @@ wrong number of axles, a stamp outside the run's horizon, an implausible channel
 (:func:`metro_atc.nodes.conversions.fleet_sensor_samples`, the rules of
 :func:`~metro_atc.nodes.conversions.sensor_from_msg`), or a stamp not after the previous
 one (out of order / duplicate) is rejected (not used at all; ``RESYNC_SAMPLES`` in-order
-samples behind a future-stamped one re-synchronise the stream and restart the filter);
+samples behind a future-stamped one re-synchronise the stream and restart the filter).
+A rejected sample changes nothing but the rejection counters (and the journal line that
+restores them after a restart): not the observer, not the journaled samples, not the
+acknowledgement (a sample stamped 1e6 s used to raise its train's "newest received" stamp,
+so every later BrakeDiagnosis acknowledged a stamp the simulator rejects, and the run's end
+waited out its whole drain timeout);
 a sample with NaN channels (dropouts) is used with those channels left out of the
 measurement update (predict only when no speed channel is left; the clamp force is
 held).  Each kind is logged at most once per ``log_period_s`` (wall) per train with the
@@ -162,8 +167,11 @@ class BrakeDiagnostic(Node):
         self.pubs = {t: bulk_publisher(self, BrakeDiagnosis, f"/{t}/brake_diagnosis",
                                        QOS_LATCHED) for t in self.ids}
         self._recv_t = {t: -math.inf for t in self.ids}
-        """Stamp of the newest sample this process received per train, rejected ones too
-        [s] (what the acknowledgement covers besides the observer's newest sample)."""
+        """Stamp of the newest valid sample this process received per train [s] (what the
+        acknowledgement covers besides the observer's newest sample).  A rejected sample
+        never raises it (one stamped beyond the run would be every later acknowledgement's
+        stamp, which the simulator rejects); a future-stamped valid one only until the
+        stream behind it re-synchronises the watch (``RESYNC_SAMPLES``)."""
         self._pub_stamp = {t: math.nan for t in self.ids}
         self._sample_count = 0
         """Samples handled (:meth:`_on_sample`), rejected ones included."""
@@ -360,24 +368,29 @@ class BrakeDiagnostic(Node):
                 self.rejections.add(s.kind)
                 self._log_bounded("", s.kind, f"skipped sample ({s.kind}): {s}")
                 continue
-            if stamp > recv[train_id]:  # rejected ones count too
+            if s.__class__ is not dict:
+                # a rejected sample changes nothing but its counters: not acknowledged (a
+                # stamp beyond the run would be every later acknowledgement's), not journaled
+                # as a sample, not seen by the observer
+                self._on_sample(train_id, s, row)
+                continue
+            if stamp > recv[train_id]:
                 recv[train_id] = stamp
             if held and stamp <= held.get(train_id, -math.inf) + 1e-9:
                 # the re-send reached back to the journal: acknowledged as far as taken
                 del held[train_id]
                 self.catching_up.add(train_id)
                 self._held_until = time.monotonic() + HOLD_MAX_S
-            if s.__class__ is dict:
-                # a slow or standing train's sample after the last one (most samples):
-                # what _on_sample does with it (neither a re-send nor behind the stream:
-                # nothing to rewind), without the observer's sample handling
-                w = watch[train_id]
-                if w.feed_paused(s["t_s"], s["ref_speed"], s["car_mass"]):
-                    self._sample_count += 1
-                    self._journal(train_id, s, row)
-                    if w.level() != levels[train_id]:
-                        self._publish_train(train_id, s["t_s"])
-                    continue
+            # a slow or standing train's sample after the last one (most samples):
+            # what _on_sample does with it (neither a re-send nor behind the stream:
+            # nothing to rewind), without the observer's sample handling
+            w = watch[train_id]
+            if w.feed_paused(s["t_s"], s["ref_speed"], s["car_mass"]):
+                self._sample_count += 1
+                self._journal(train_id, s, row)
+                if w.level() != levels[train_id]:
+                    self._publish_train(train_id, s["t_s"])
+                continue
             self._on_sample(train_id, s, row)
         if self._level_changed:
             # a new level goes to /diagnostics at once, not at the next wall-clock tick (a
@@ -401,7 +414,12 @@ class BrakeDiagnostic(Node):
             self._rewind(train_id, s)
             w = self.watch[train_id]
             self._journal(train_id, s, row)  # float lists: its own journal entry
+            resyncs = w.resyncs
             what = conv.guarded(topic, w.feed, s)
+            if w.resyncs != resyncs:
+                # the stream was followed again behind a future-stamped sample: that stamp
+                # is no longer what this train's acknowledgement covers
+                self._recv_t[train_id] = w.t_last
         except conv.MessageRejected as exc:
             w = self.watch[train_id]
             w.reject()
@@ -452,9 +470,10 @@ class BrakeDiagnostic(Node):
         self._pub_stamp[train_id] = stamp_s
         self._pub_key[train_id] = (self._gen[train_id], w.counts["received"], stamp_s, level)
         c = w.counts
-        self.pubs[train_id].publish(conv.diagnosis_msg(
-            train_id, stamp_s, w.result, level, text, c["used"] + c["degraded"],
-            c["rejected"] + c["waiting"]))
+        msg = conv.diagnosis_msg(train_id, stamp_s, w.result, level, text,
+                                 c["used"] + c["degraded"], c["rejected"] + c["waiting"])
+        msg.assessed = w.assessed  # (cumulative: the simulator's kpis.json takes the last)
+        self.pubs[train_id].publish(msg)
         return level, text
 
     def _status(self, train_id: str, level: int, text: str) -> DiagnosticStatus:
@@ -561,9 +580,15 @@ class BrakeDiagnostic(Node):
         return n, (n / s if s > 0.0 else 0.0)
 
     def summary(self) -> list[str]:
-        """One line per train (verdict, counters, mu_b range) and the observer rate."""
+        """Shutdown lines: the observer rate, the trains assessed, one line per train.
+
+        A train's line: verdict, assessed or not, mu_b judged, longest gap, counters.
+        """
         n, rate = self.observer_rate()
-        out = [f"observer: {n} updates, {rate:.0f} updates per CPU second"]
+        lost = [t for t in self.ids if not self.watch[t].assessed]
+        out = [f"observer: {n} updates, {rate:.0f} updates per CPU second",
+               f"brake assessed on {len(self.ids) - len(lost)} of {len(self.ids)} trains"
+               + (f"; not assessed: {', '.join(lost)}" if lost else "")]
         for t in self.ids:
             w = self.watch[t]
             lo, hi = w.mu_b_range
@@ -571,8 +596,11 @@ class BrakeDiagnostic(Node):
                    f"range [{lo:.3f}, {hi:.3f}]" if w.judged else "mu_b not judged")
             flaw = f", flaw at t={w.flaw_time:.2f} s" if w.flaw_time is not None else ""
             gap = f"longest gap {w.max_gap[0]:.2f} s at t={w.max_gap[1]:.2f} s"
-            out.append(f"{t}: {LEVEL_NAMES[max(self._levels[t], 0)]}{flaw}; {rng}; "
-                       f"{w.braked_updates} braked updates; {gap}; " +
+            judged = (f"brake assessed ({w.braked_updates} braked updates at speed)"
+                      if w.assessed else "brake not assessed (no friction-brake update at "
+                      "speed, mu_b never judged: the level says nothing about the pads)")
+            out.append(f"{t}: {LEVEL_NAMES[max(self._levels[t], 0)]}{flaw}; {judged}; {rng}; "
+                       f"{gap}; " +
                        ", ".join(f"{k} {v}" for k, v in w.counts.items()))
         return out
 

@@ -65,7 +65,8 @@ from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_EVENTS,
                                     run_nodes, spin_until_stopped)
 from metro_atc.nodes.sim_checkpoints import Checkpoints, journal_key
 from metro_atc.nodes.sim_departures import DepartureBook
-from metro_atc.nodes.sim_domain import LINGER_S, linger, subscribed_by, wait_acked
+from metro_atc.nodes.sim_domain import (LINGER_S, RECORDER_GATE_TOPIC, linger, subscribed_by,
+                                        wait_acked)
 from metro_atc.nodes.sim_fleet import FleetStatePublisher
 from metro_atc.nodes.sim_lockstep import RECORDER_SYNC_STEPS, lockstep_loop
 from metro_atc.exit_codes import Exit, outcome
@@ -151,6 +152,10 @@ class LineSimulator(Node):
         clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK)
         self.event_pub = self.create_publisher(TrainEvent, "/line/events", QOS_EVENTS)
         self.status_pub = self.create_publisher(LineStatus, "/line/status", QOS_LATCHED)
+        # (nothing is published here: a recorder subscribes once it matched every publisher)
+        self.gate_pub = self.create_publisher(DiagnosticStatus, RECORDER_GATE_TOPIC,
+                                              QOS_LATCHED) \
+            if self.params.wait_for_subscribers else None
         state_pubs = [bulk_publisher(self, TrainState, f"/{t}/state", QOS_RELIABLE)
                       for t in self.ids]
         self.fleet = FleetStatePublisher(
@@ -179,6 +184,9 @@ class LineSimulator(Node):
         self.profile_subs = [bulk_subscription(self, SpeedProfile, f"/{t}/speed_profile",
                                                self._on_profile, QOS_LATCHED)
                              for t in self.ids]
+        self.brake_assessed = [False] * n
+        """Per train: its brake diagnosis said the brake was assessed (its latest, latched
+        BrakeDiagnosis: cumulative, so a restarted simulator has it back at once)."""
         self.diag_subs = [bulk_subscription(self, BrakeDiagnosis, f"/{t}/brake_diagnosis",
                                             partial(self._on_diagnosis, i), QOS_LATCHED)
                           for i, t in enumerate(self.ids)]
@@ -366,6 +374,7 @@ class LineSimulator(Node):
             self._reject(f"/{self.ids[i]}/brake_diagnosis", exc)
             return
         self.sensors.acknowledge(i, t)
+        self.brake_assessed[i] = bool(msg.assessed)
 
     def _set_progress_period(self, value: float) -> None:
         self.params.progress_period_s = float(value)
@@ -420,7 +429,9 @@ class LineSimulator(Node):
         :meth:`FleetStatePublisher.publish_again`).
 
         With ``wait_for_subscribers``, each named node must also subscribe to every topic
-        the simulator publishes (a recorder then sees step 0).
+        the simulator publishes, the recorder gate included (``RECORDER_GATE_TOPIC``: the
+        bag_recorder subscribes to it once it has matched every publisher it records; a
+        recorder then has step 0).
         """
         ready = not self.graph_missing()
         if not ready or not self.params.wait_for_subscribers:
@@ -442,8 +453,9 @@ class LineSimulator(Node):
 
     def _recorded_pubs(self) -> list[Any]:
         """The publishers a recorder (``wait_for_subscribers``) must read."""
+        gate = [self.gate_pub] if self.gate_pub is not None else []
         return [self.fleet.clock_pub, self.event_pub, self.status_pub, *self.fleet.state_pubs,
-                self.sensors.fleet_pub]
+                self.sensors.fleet_pub, *gate]
 
     def wait_acked(self, timeout_s: float = 5.0) -> None:
         """Wait until every reliable reader acknowledged what was published (a recorder).
@@ -647,6 +659,9 @@ class LineSimulator(Node):
         k["planners_seen"] = sorted(self.planners)  # names only: latched, depth-1 reader
         k["regulator"] = regulator_label(k["regulators_seen"])
         k["planner"] = ",".join(k["planners_seen"]) or "none"
+        k["brake_assessed"] = dict(zip(self.ids, self.brake_assessed))
+        k["brake_trains_not_assessed"] = [t for t, a in zip(self.ids, self.brake_assessed)
+                                          if not a]
         return k
 
     def final_kpis(self) -> dict[str, Any]:

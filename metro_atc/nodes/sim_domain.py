@@ -37,6 +37,14 @@ other simulator of the domain sees that it was seen (the refusal handshake of
 :func:`check_alone`)."""
 REFUSED_POLL_S = 0.1
 """Wall seconds between two looks at the graph while a refusing simulator lingers."""
+RECORDER_GATE_TOPIC = "/line/recorder_gate"
+"""A topic the simulator publishes nothing on, only while ``wait_for_subscribers`` names a
+recorder: the bag_recorder subscribes to it only once each of its subscriptions has matched
+every publisher it must record (``metro_atc.nodes.bag_recorder``), so the simulator's wait
+for the recorder's subscriptions (:func:`subscribed_by`) also waits for that.  A recorder's
+subscription seen in the graph is not a matched one: a volatile reader takes only what is
+written after it has matched the writer itself, and the steps published before were lost
+(a bag held a train's commands from step 110, its states from its first step, 81)."""
 LINGER_S = 0.3
 """Most wall time [s] the simulator waits at its end for its last samples to be delivered."""
 

@@ -10,8 +10,16 @@ simulator node publishes them (every sample while a car brakes, a heartbeat ever
 
 Figures (:meth:`LineBrakeMonitor.summary`):
 
-* ``brake_false_alarms``: level rises (OK -> WARN, OK/WARN -> ERROR) of trains with no pad or
-  wheel fault in force at that time; ``brake_false_errors`` the ERROR ones among them;
+* ``brake_assessed``: per train, whether its brake was assessed at all (at least one observer
+  update at speed with the friction brake applied, or mu_b judged once:
+  :attr:`TrainBrakeWatch.assessed`; mu_b is observable only while the pads act);
+  ``brake_trains_assessed`` how many were, ``brake_trains_not_assessed`` the others (on
+  stock whose friction brake never acts at speed: every train, and its OK says nothing);
+* ``brake_false_alarms``: level rises (OK -> WARN, OK/WARN -> ERROR) of assessed trains with
+  no pad or wheel fault in force at that time; ``brake_false_errors`` the ERROR ones among
+  them; both None (not assessed, not "0 false alarms") when no train was assessed;
+  ``brake_alarms_not_assessed`` the level rises of fault-free trains that were not assessed
+  (sensor-data quality), counted apart;
 * ``brake_faults`` / ``brake_faults_detected``: injected pad-friction and wheel faults and
   those announced (ERROR) while in force, with the delay from the fault onset
   (``brake_detect_delays_s``) and from the first friction-brake application at speed after
@@ -132,17 +140,25 @@ class LineBrakeMonitor:
                 self._feed(int(i), t, b, a, c)
 
     def _feed(self, i: int, t: float, b: Any, a: int, c: int) -> None:
+        self.feed_sample(i, {"t_s": t, "omega": b.omega[a, c], "clamp": b.clamp[a, c],
+                             "accel": float(b.accel[a, c]), "ref_speed": float(b.vref[a, c]),
+                             "car_mass": float(b.car_mass[c])})
+
+    def feed_sample(self, i: int, s: dict[str, Any]) -> None:
+        """Feed one published sample of train ``i`` and follow its level.
+
+        ``s``: the sample dict of :meth:`TrainBrakeWatch.feed`.
+        """
         w = self.watch.get(i)
         if w is None:
             return
-        clamp = b.clamp[a, c]
-        s = {"t_s": t, "omega": b.omega[a, c], "clamp": clamp, "accel": float(b.accel[a, c]),
-             "ref_speed": float(b.vref[a, c]), "car_mass": float(b.car_mass[c])}
+        t = float(s["t_s"])
+        clamp = np.asarray(s["clamp"], dtype=float)
         w.feed(s)
         f = self._faulty(i, t)
         if (f is not None and math.isnan(f.braked_t) and np.isfinite(clamp).any()
                 and float(np.nanmean(clamp)) > BRAKED_CLAMP_N
-                and float(b.vref[a, c]) > 2.0 * V_PAUSE_MPS):
+                and float(s["ref_speed"]) > 2.0 * V_PAUSE_MPS):
             f.braked_t = t
         level, text = w.level_message()
         st = self.state[i]
@@ -163,13 +179,21 @@ class LineBrakeMonitor:
 
     def summary(self) -> dict[str, Any]:
         """Figures of the run (module docstring)."""
+        assessed = {self.ids[i]: w.assessed for i, w in self.watch.items()}
         fa = self.false_alarms()
+        judged_fa = [x for x in fa if assessed[x[0]]]
+        any_assessed = any(assessed.values())
         faulty = {f.train for f in self.faults}
         judged = [min(w.judged) for i, w in self.watch.items() if w.judged and i not in faulty]
         det = [f for f in self.faults if not math.isnan(f.detect_t)]
         return {
-            "brake_false_alarms": len(fa),
-            "brake_false_errors": sum(1 for x in fa if x[3] == 2),
+            "brake_assessed": assessed,
+            "brake_trains_assessed": sum(assessed.values()),
+            "brake_trains_not_assessed": sorted(t for t, a in assessed.items() if not a),
+            "brake_false_alarms": len(judged_fa) if any_assessed else None,
+            "brake_false_errors": (sum(1 for x in judged_fa if x[3] == 2) if any_assessed
+                                   else None),
+            "brake_alarms_not_assessed": len(fa) - len(judged_fa),
             "brake_faults": len(self.faults),
             "brake_faults_detected": len(det),
             "brake_detect_delays_s": [f.detect_t - f.t0 for f in det],

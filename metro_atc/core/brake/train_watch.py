@@ -211,6 +211,8 @@ class TrainBrakeWatch:
         self._t_fed = -math.inf
         self._ooo_n = 0
         self._ooo_last = -math.inf
+        self.resyncs = 0
+        """Times the stream was followed again behind a future-stamped sample."""
         self._sample = (np.zeros(N_AXLES), math.nan)
         self._info = (-1, 0.0)
         """(observer restarts seen, information variance of mu_b [-^2])."""
@@ -219,6 +221,19 @@ class TrainBrakeWatch:
         self._c = (cur.c1, cur.c2, cur.c3)
         self._slip_peak = cur.slip_peak
         self._mu_peak = cur.mu_peak
+
+    @property
+    def assessed(self) -> bool:
+        """Whether the brake was assessed.
+
+        At least one observer update at speed (above ``V_PAUSE_MPS``) with the friction
+        brake applied (mean clamp force above ``BRAKED_CLAMP_N``), or mu_b judged at least
+        once (its std below ``MU_B_STD_JUDGE``: light blended brake applications can carry
+        enough information for the decision to announce a pad flaw).  A train with neither
+        (electric braking down to a crawl) is not assessed: its OK says nothing about its
+        pads.
+        """
+        return self.braked_updates > 0 or bool(self.judged)
 
     def reject(self) -> None:
         """Count a sample rejected before :meth:`feed` (malformed, wrong train id)."""
@@ -288,6 +303,7 @@ class TrainBrakeWatch:
         if self._ooo_n >= RESYNC_SAMPLES:
             self._ooo_n, self._ooo_last = 0, -math.inf
             self.t_last = -math.inf
+            self.resyncs += 1
             # the filter's time base is the outlier's too: restart it from the next sample
             # (latched flaws stay)
             self.obs.ukf = None
