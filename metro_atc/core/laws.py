@@ -475,4 +475,5 @@ def grade_sine_array(grade: FloatArray) -> FloatArray:
 def on_array(fn, x, *args):  # type: ignore[no-untyped-def]
     """Apply a ``*_array`` law to any array-like ``x`` (any shape, returns that shape)."""
     xa = np.asarray(x, dtype=np.float64)
-    return fn(np.ascontiguousarray(xa).reshape(-1), *args).reshape(xa.shape)
+    out = fn(np.ascontiguousarray(xa).reshape(-1), *args).reshape(xa.shape)
+    return out[()] if out.ndim == 0 else out

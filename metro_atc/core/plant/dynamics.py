@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from metro_atc.core import laws
 from metro_atc.core.line.geometry import LineGeometry
 from metro_atc.core.line.vehicle import TrainParams
 
@@ -97,7 +98,8 @@ def rk4_motion(x: FloatArray, v: FloatArray, f_const: FloatArray, mass: FloatArr
             vn = np.where(stop, 0.0, vn)
             d_stop = np.minimum(vs * vs / (-2.0 * np.minimum(k1, -1e-9)), h * vs)
             dxs = np.where(stop, d_stop, dxs)
-            r1 = p.davis_a_n + vs * (p.davis_b_n_per_mps + p.davis_c_n_per_mps2 * vs)
+            r1 = laws.on_array(laws.davis_resistance_array, vs, p.davis_a_n,
+                               p.davis_b_n_per_mps, p.davis_c_n_per_mps2)
             pr = np.where(stop, r1 * d_stop, pr)
             clamped = stop if clamped is None else (clamped | stop)
         w_res = w_res + pr
