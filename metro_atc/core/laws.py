@@ -388,18 +388,27 @@ def braking_speed(dist_m: float, decel: float) -> float:
 
 
 @njit(cache=True)
+def downhill_accel(max_down: float) -> float:
+    """Gravity acceleration [m/s^2] on a downhill grade ``max_down`` [-]: ``g max_down``.
+
+    The ATP's small-angle assumption (sin(atan(i)) <= i).
+    """
+    return G_MPS2 * max_down
+
+
+@njit(cache=True)
 def guaranteed_decel_on_grade(b_level: float, max_down: float) -> float:
     """Guaranteed deceleration [m/s^2] on the steepest downhill grade ``max_down`` [-].
 
-    ``b_level - g max_down`` (small-angle grade, as the ATP assumes).
+    ``b_level - g max_down`` (:func:`downhill_accel`).
     """
-    return b_level - G_MPS2 * max_down
+    return b_level - downhill_accel(max_down)
 
 
 @njit(cache=True)
 def response_accel(a1: float, max_down: float) -> float:
     """Worst-case acceleration during the ATP response time [m/s^2]: ``a_1 + g max_down``."""
-    return a1 + G_MPS2 * max_down
+    return a1 + downhill_accel(max_down)
 
 
 @njit(cache=True)
