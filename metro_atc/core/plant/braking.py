@@ -128,21 +128,6 @@ class Brakes:
                 self.r_w[i, a] = p.wheel_radius_m * (radius_factor if on else 1.0)
         self.refresh_coefs()
 
-    def blend(self, a_d: FloatArray, v: FloatArray, mass: FloatArray, meff: FloatArray,
-              f_trac_max: FloatArray, eb_mask: BoolArray | None
-              ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """Traction, brake demand, electric brake and rail braking force [N] for ``a_d``."""
-        w_axle = mass * self.g_per_axle
-        f_trac = np.minimum(np.minimum(np.maximum(a_d, 0.0) * meff, f_trac_max),
-                            w_axle * self.trac_adh)
-        f_bdem = np.maximum(-a_d, 0.0) * meff
-        f_e = np.minimum(f_bdem, np.interp(v, self.tables.v, self.tables.ebrake))
-        if eb_mask is not None:
-            f_e = np.where(eb_mask, 0.0, f_e)
-        f_f = f_bdem - f_e
-        f_brake = self.rail_force(f_e, f_f, w_axle, a_d, v)
-        return f_trac, f_bdem, f_e, f_brake
-
     def rail_force(self, f_e: FloatArray, f_f: FloatArray, w_axle: FloatArray,
                    a_d: FloatArray, v: FloatArray) -> FloatArray:
         """Total braking force on the train [N] with adhesion limits (tread efforts).

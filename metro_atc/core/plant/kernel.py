@@ -1,11 +1,11 @@
-"""Compiled step kernel of the plant (numba): the numpy step of :mod:`.physics` fused per train.
+"""Compiled step kernel of the plant (numba): ATP, demand and brake blend fused per train.
 
-Every function here reproduces a numpy expression of :mod:`.atp`, :mod:`.braking`,
-:mod:`.dynamics`, :mod:`.energy`, :mod:`.driver` and :mod:`.sensors` element by element, in
-the same operation order (no fast-math, no fused multiply-add), so both paths agree to
-round-off (``test_plant_golden.py`` runs the golden traces with both; the property test
-compares them on generated lines).  The kernels read and write the components' own arrays
-(no state of their own); the numpy path stays the reference.
+The physics is :mod:`metro_atc.core.laws` (traction, brakes, adhesion, ATP braking curves,
+RK4), called per train and inlined by numba; no fast-math, no fused multiply-add.  The
+kernels read and write the components' own arrays (:mod:`.atp`, :mod:`.braking`,
+:mod:`.energy`, :mod:`.fleet`; no state of their own).  References: the golden traces
+(``test_plant_golden.py``) and the recorded generated-line traces
+(``test_plant_kernel.py``), both recorded when a numpy twin of this step still existed.
 
 Constants of a run are packed in one float array (indices ``C_*``, built by
 :mod:`.fast`); per-step outputs are the rows of one fresh ``[N_OUT, n]`` block (``O_*``).

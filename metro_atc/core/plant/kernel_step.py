@@ -1,7 +1,8 @@
 """Compiled (numba) motion, energy and reference driver; :func:`step_all` fuses a step.
 
-Twins of :func:`.dynamics.rk4_motion`, :meth:`.energy.EnergyMeter.meter` and
-:func:`.driver.driver_command` in the same operation order (see :mod:`.kernel`).
+RK4 with the energy quadrature of each force (:func:`metro_atc.core.laws.davis_rk4_step`),
+the energy meter's counters (:class:`.energy.EnergyMeter`) and the reference driver
+(:func:`.driver.driver_command`); see :mod:`.kernel`.
 """
 
 from __future__ import annotations
@@ -88,7 +89,7 @@ def motion(c, x, v, f_trac, f_brake, f_e, f_bdem, mp, geo, masks, stop_x, e_trac
                 if n_stop_moving == 0:  # only trains already at rest: exactly at rest
                     dxs[i] = 0.0
                     pr[i] = 0.0
-                else:  # uniform deceleration to rest (see rk4_motion)
+                else:  # uniform deceleration to rest (no roll-back)
                     d_stop = laws.stop_distance_in_step(vi, k1s[i], h)
                     dxs[i] = d_stop
                     pr[i] = laws.davis_resistance(vi, da, db, dc) * d_stop
