@@ -444,6 +444,15 @@ def davis_resistance_array(v: FloatArray, a: float, b: float, c: float) -> Float
 
 
 @njit(cache=True)
+def davis_odd_array(v: FloatArray, a: float, b: float, c: float) -> FloatArray:
+    """:func:`davis_odd` of each speed of a 1-d array [m/s]."""
+    out = np.empty(v.shape[0])
+    for i in range(v.shape[0]):
+        out[i] = davis_odd(v[i], a, b, c)
+    return out
+
+
+@njit(cache=True)
 def electric_brake_force_max_array(v: FloatArray, mass: float, brake_decel: float,
                                    power_max_w: float, fade_speed_mps: float) -> FloatArray:
     """:func:`electric_brake_force_max` of each speed of a 1-d array [m/s] -> [N]."""
