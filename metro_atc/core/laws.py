@@ -482,6 +482,15 @@ def curve_resistance_per_kg_array(r: FloatArray) -> FloatArray:
 
 
 @njit(cache=True)
+def stopping_distance_array(v: FloatArray, a_w: float, t_r: float, b_g: float) -> FloatArray:
+    """:func:`stopping_distance` of each speed of a 1-d array [m/s] -> [m]."""
+    out = np.empty(v.shape[0])
+    for i in range(v.shape[0]):
+        out[i] = stopping_distance(v[i], a_w, t_r, b_g)
+    return out
+
+
+@njit(cache=True)
 def grade_sine_array(grade: FloatArray) -> FloatArray:
     """:func:`grade_sine` of each grade of a 1-d array [-] -> [-]."""
     out = np.empty(grade.shape[0])
