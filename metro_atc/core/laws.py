@@ -491,6 +491,25 @@ def stopping_distance_array(v: FloatArray, a_w: float, t_r: float, b_g: float) -
 
 
 @njit(cache=True)
+def grade_force_array(grade: FloatArray, mass: float) -> FloatArray:
+    """:func:`grade_force` of each grade of a 1-d array [-] -> [N]."""
+    out = np.empty(grade.shape[0])
+    for i in range(grade.shape[0]):
+        out[i] = grade_force(grade[i], mass)
+    return out
+
+
+@njit(cache=True)
+def net_accel_array(v: FloatArray, effort_n: FloatArray, f_grade: FloatArray, a: float,
+                    b: float, c: float, meff: float) -> FloatArray:
+    """:func:`net_accel` of equal-length 1-d arrays (speed, effort, grade force)."""
+    out = np.empty(v.shape[0])
+    for i in range(v.shape[0]):
+        out[i] = net_accel(v[i], effort_n[i], f_grade[i], a, b, c, meff)
+    return out
+
+
+@njit(cache=True)
 def grade_sine_array(grade: FloatArray) -> FloatArray:
     """:func:`grade_sine` of each grade of a 1-d array [-] -> [-]."""
     out = np.empty(grade.shape[0])

@@ -28,9 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from metro_atc.core import laws
-from metro_atc.core.laws import G_MPS2
-
-__all__ = ["G_MPS2"]  # re-exported: the one value of :mod:`metro_atc.core.laws`
+from metro_atc.core.laws import G_MPS2 as G_MPS2  # re-exported: the one value
 
 FloatArray = NDArray[np.float64]
 
@@ -177,8 +175,7 @@ def max_traction_force(p: TrainParams, v: ArrayLike) -> FloatArray:
 
 def grade_force(p: TrainParams, grade: ArrayLike) -> FloatArray:
     """Gravity force along the track [N]; grade = rise/run (positive uphill) [-]."""
-    g = np.asarray(grade, dtype=float)
-    return p.mass_kg * G_MPS2 * np.sin(np.arctan(g))
+    return laws.on_array(laws.grade_force_array, grade, p.mass_kg)
 
 
 def effort_force(p: TrainParams, v: ArrayLike, u: ArrayLike) -> FloatArray:
@@ -202,10 +199,14 @@ def net_accel(p: TrainParams, v: ArrayLike, effort_n: ArrayLike,
     Resistance always opposes motion; at standstill it cannot exceed the other forces
     (static case handled by the integrator clamping v >= 0).
     """
-    va = np.asarray(v, dtype=float)
-    f = np.asarray(effort_n, dtype=float) - np.sign(va) * resistance_force(p, va) \
-        - grade_force(p, grade)
-    return f / p.effective_mass_kg
+    va, fe, fg = np.broadcast_arrays(np.asarray(v, dtype=float),
+                                     np.asarray(effort_n, dtype=float), grade_force(p, grade))
+    out = laws.net_accel_array(np.ascontiguousarray(va).reshape(-1),
+                               np.ascontiguousarray(fe).reshape(-1),
+                               np.ascontiguousarray(fg).reshape(-1), p.davis_a_n,
+                               p.davis_b_n_per_mps, p.davis_c_n_per_mps2,
+                               p.effective_mass_kg).reshape(va.shape)
+    return out[()] if out.ndim == 0 else out
 
 
 def rk4_step(p: TrainParams, x: ArrayLike, v: ArrayLike, effort_n: ArrayLike,
