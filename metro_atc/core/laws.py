@@ -241,12 +241,6 @@ def stop_distance_in_step(v: float, k1: float, h: float) -> float:
 
 
 @njit(cache=True)
-def service_brake_force(mass: float, brake_decel: float) -> float:
-    """Full service brake force [N]: mass [kg] x service deceleration [m/s^2]."""
-    return brake_decel * mass
-
-
-@njit(cache=True)
 def brake_demand_force(a_d: float, meff: float) -> float:
     """Brake force [N] demanded by the acceleration ``a_d`` [m/s^2]: ``max(-a_d, 0) M_eff``."""
     return fmax(-a_d, 0.0) * meff
@@ -277,7 +271,8 @@ def electric_brake_share(f_demand: float, f_e_max: float) -> float:
 def pad_torque(clamp_force_n: float, mu_b: float, r_b: float) -> float:
     """Friction brake torque [N m] of one axle ``2 mu_b R_b F_c`` (Lin and Tang 2010, eq. 4).
 
-    Clamp force [N], pad friction coefficient [-], effective pad radius [m].
+    Clamp force [N], pad friction coefficient [-], effective pad radius [m].  Plain
+    arithmetic: numba also compiles it for arrays (elementwise, the same operation order).
     """
     return 2.0 * mu_b * r_b * clamp_force_n
 
@@ -308,17 +303,6 @@ def burckhardt_mu(s: float, c1: float, c2: float, c3: float) -> float:
     """Burckhardt adhesion ``mu(s) = c1 (1 - exp(-c2 s)) - c3 s`` [-], slip s clipped to [0, 1]."""
     sa = fmin(fmax(s, 0.0), 1.0)
     return c1 * (1.0 - math.exp(-c2 * sa)) - c3 * sa
-
-
-@njit(cache=True)
-def creep_adhesion(s: float, mu_max: float, k: float, fall_a: float, fall_b: float,
-                   k_scale: float) -> float:
-    """Creep-force adhesion ``mu_max (2/pi) atan(k k_scale s) ((1 - A) e^(-B |s|) + A)`` [-].
-
-    Odd in the creep s [-]; the brake observer's truth model (Lin and Tang 2010, eq. 4).
-    """
-    fall = (1.0 - fall_a) * math.exp(-fall_b * abs(s)) + fall_a
-    return mu_max * (2.0 / math.pi) * math.atan(k * k_scale * s) * fall
 
 
 # ---------------------------------------------------------------------------- ATP curves

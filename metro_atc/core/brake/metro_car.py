@@ -100,7 +100,8 @@ class MetroCarParams:
 
         Brake torque per axle ``2 mu_b R_b F_c`` (seed 000 eq. 4), equal shares.
         """
-        return np.asarray(a_req) * self.mass * self.r_w / (N_AX * 2.0 * self.mu_b * self.r_b)
+        return np.asarray(a_req) * self.mass * self.r_w / (
+            N_AX * laws.pad_torque(1.0, self.mu_b, self.r_b))
 
 
 def from_train_params(tp: object) -> MetroCarParams:
@@ -240,7 +241,7 @@ def simulate_metro(p: MetroCarParams, scenarios: Sequence[MetroScenario], t_end:
         dx = np.empty_like(x)
         spec = f.sum(1) / mass - p.davis_decel(v)
         dx[:, 0] = spec - G * grade
-        tb = 2.0 * mub[:, None] * p.r_b * fc * np.tanh(om / p.w_eps)
+        tb = laws.pad_torque(fc, mub[:, None], p.r_b) * np.tanh(om / p.w_eps)
         dx[:, 1:5] = (-tb - p.r_w * f) / p.j_w
         dg_ = p.wsp_gain * (p.wsp_slip - np.abs(s))
         dg_ = np.where((g >= 1.0) & (dg_ > 0), 0.0, dg_)
@@ -879,7 +880,7 @@ class MetroBrakeObserver:
             mu_t = []
             for s in creep:
                 sa = min(abs(s), 1.0)
-                m = c1 * (1.0 - math.exp(-c2 * sa)) - c3 * sa
+                m = laws.burckhardt_mu(sa, c1, c2, c3)
                 mu_t.append(m if s > 0.0 else (-m if s < 0.0 else 0.0 * m))
         elif self.adhesion_fn is None:
             mu_t = adhesion(np.array(creep), self.mu_rail, p).tolist()
