@@ -268,7 +268,8 @@ def electric_brake_share(f_demand: float, f_e_max: float) -> float:
 
 
 @njit(cache=True)
-def pad_torque(clamp_force_n: float, mu_b: float, r_b: float) -> float:
+def pad_torque(clamp_force_n: float | FloatArray, mu_b: float | FloatArray,
+               r_b: float) -> float | FloatArray:
     """Friction brake torque [N m] of one axle ``2 mu_b R_b F_c`` (Lin and Tang 2010, eq. 4).
 
     Clamp force [N], pad friction coefficient [-], effective pad radius [m].  Plain
@@ -278,8 +279,12 @@ def pad_torque(clamp_force_n: float, mu_b: float, r_b: float) -> float:
 
 
 @njit(cache=True)
-def clamp_force_for_torque(torque_nm: float, mu_b: float, r_b: float) -> float:
-    """Clamp force [N] giving a brake torque [N m]: the inverse of :func:`pad_torque`."""
+def clamp_force_for_torque(torque_nm: float | FloatArray, mu_b: float,
+                           r_b: float) -> float | FloatArray:
+    """Clamp force [N] giving a brake torque [N m]: the inverse of :func:`pad_torque`.
+
+    Like :func:`pad_torque`, numba also compiles it for arrays (elementwise).
+    """
     return torque_nm / (2.0 * mu_b * r_b)
 
 
