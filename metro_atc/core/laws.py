@@ -5,8 +5,16 @@ Every function here is a scalar law on plain floats (SI units), compiled with
 array helpers at the end) and from the other numba kernels (which inline them).  Each
 reproduces, operation for operation, the expression the modules computed before it became
 the one source (no fast-math, no fused multiply-add: the same IEEE float64 results); the
-proofs are in ``test/test_laws.py``.  ``NUMBA_DISABLE_JIT=1`` runs the same source as plain
-Python (debugging).
+proofs are in ``test/test_laws.py``, the one-source check in ``test/test_laws_once.py``.
+Squares are products ``x * x`` (correctly rounded; C ``pow(x, 2)``, which CPython's
+``x ** 2`` calls, is one ulp off for about 1 value in 1 200).  Transcendentals are libm's
+(``math.exp``, ``math.sin``, ``math.atan``); numpy's vectorised ones differ from them by an
+ulp on some arguments, so array callers go through the ``*_array`` loops below.
+``NUMBA_DISABLE_JIT=1`` runs the same source as plain Python (debugging).
+
+numba's on-disk cache does not follow imports: a kernel that inlines a law keeps its cached
+machine code when only this file changes.  After editing a law, delete the caches
+(``find metro_atc install -name '*.nb[ic]' -delete``) or rebuild (``make setup``).
 
 Sources (the equations are cited where used):
 
