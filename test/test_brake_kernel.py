@@ -23,7 +23,7 @@ import pytest
 
 from metro_atc.core.brake import metro_car as mc
 from metro_atc.core.brake import line_monitor as lm
-from metro_atc.core.brake.metro_kernel import KERNEL_ENV, MetroUKF
+from metro_atc.core.brake.metro_kernel import MetroUKF
 from metro_atc.core.brake.train_watch import TrainBrakeWatch, observer_setup
 from metro_atc.core.closed_loop import run_closed_loop
 from metro_atc.core.line.scenario import load_scenario
@@ -115,16 +115,27 @@ def pad_fault_stream() -> list[tuple[str, dict[str, Any]]]:
     return rec
 
 
+def _numpy_filter(monkeypatch: pytest.MonkeyPatch, numpy_path: bool) -> None:
+    """The observer's filter: the compiled one, or (reference) the numpy UKF alone.
+
+    The numpy UKF is the path the kernels hand declined steps to, so the two must agree.
+    """
+    if numpy_path:
+        monkeypatch.setattr(mc, "make_metro_ukf_compiled", mc.make_metro_ukf)
+    else:
+        monkeypatch.undo()
+
+
 def _watch_outputs(stream: list[tuple[str, dict[str, Any]]], compiled: bool,
                    monkeypatch: pytest.MonkeyPatch) -> tuple[list[Any], int]:
-    monkeypatch.setenv(KERNEL_ENV, "1" if compiled else "0")
+    _numpy_filter(monkeypatch, not compiled)
     setup = observer_setup(load_scenario("mini_pad_fault"))
     ws: dict[str, TrainBrakeWatch] = {}
     out = []
     for train, s in stream:
         w = ws.get(train) or ws.setdefault(train, TrainBrakeWatch(train, setup))
-        assert w.obs.compiled == compiled
         kind = w.feed(s)
+        assert w.obs.ukf is None or isinstance(w.obs.ukf, MetroUKF) == compiled
         r = w.result
         out.append((kind, w.level_message(), r.level, np.r_[
             r.mu_b, r.mu_b_std, r.forces, r.residuals, r.residual_forces, r.speed, r.grade]))
@@ -147,7 +158,9 @@ def test_kernel_stream_equals_numpy_stream(pad_fault_stream: list[Any],
 
 
 @pytest.mark.parametrize("fault", ["wheel", "pad", "none"])
-def test_kernel_observer_equals_numpy_on_corrupted_runs(fault: str) -> None:
+def test_kernel_observer_equals_numpy_on_corrupted_runs(fault: str,
+                                                        monkeypatch: pytest.MonkeyPatch
+                                                        ) -> None:
     """Single-car runs with NaN channels, a held clamp force and a gap: same outputs."""
     log = mc.simulate_metro(P, [mc.MetroScenario(1, 0.15 if fault == "none" else 0.3,
                                                  fault, fault_time=1.0)], t_end=4.0)
@@ -155,8 +168,8 @@ def test_kernel_observer_equals_numpy_on_corrupted_runs(fault: str) -> None:
     y, fc = meas["y"][0], meas["fc"][0]
     res = {}
     for compiled in (False, True):
-        obs = mc.MetroBrakeObserver(P, 0.02, mu_rail=0.3, mass=float(log.mass[0]),
-                                    compiled=compiled)
+        _numpy_filter(monkeypatch, not compiled)
+        obs = mc.MetroBrakeObserver(P, 0.02, mu_rail=0.3, mass=float(log.mass[0]))
         out = []
         for k in range(y.shape[0]):
             if 100 <= k < 130:
@@ -208,7 +221,7 @@ def test_precompile_covers_every_call_of_the_observer(
     try:
         _, steps = _watch_outputs(pad_fault_stream[:4000], True, monkeypatch)
         assert steps > 0
-        test_kernel_observer_equals_numpy_on_corrupted_runs("pad")
+        test_kernel_observer_equals_numpy_on_corrupted_runs("pad", monkeypatch)
     finally:
         for k in kernels:
             k.disable_compile(False)

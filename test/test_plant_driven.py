@@ -25,10 +25,8 @@ from metro_atc.core.linegen import generate_line, scenario_yaml
 from metro_atc.core.plant import line as plant_line
 from metro_atc.core.plant import kernel_run as kr
 from metro_atc.core.plant.driver import simple_driver
-from metro_atc.core.plant.fast import numba_available
 from metro_atc.core.plant.line import LineSim, SensorBlock
 
-needs_numba = pytest.mark.skipif(not numba_available(), reason="numba not installed")
 
 STATE = ("x", "v", "acc", "a_dem", "u_last", "eb", "sb", "eoa", "atp_limit", "speed_code",
          "interventions", "violations", "e_trac", "e_elec", "e_fric", "e_res", "e_curve",
@@ -99,19 +97,19 @@ def _compare(a: LineSim, b: LineSim, ev_a: list[Any], ev_b: list[Any],
     b.sensors.zpos -= 5
 
 
-def _sims(scn: Scenario, seed: int, kernel: str = "numba", n: int = 2) -> list[LineSim]:
+def _sims(scn: Scenario, seed: int, n: int = 2) -> list[LineSim]:
     """``n`` simulators of ``scn`` built alike; the static description (a pure function of
     the scenario, the dearest part of the construction on a long line) is computed once and
     each simulator gets its own deep copy of it."""
     d = describe(scn)
     with mock.patch.object(plant_line, "describe", lambda s, p=None: copy.deepcopy(d)):
-        return [LineSim(scn, seed=seed, kernel=kernel) for _ in range(n)]
+        return [LineSim(scn, seed=seed) for _ in range(n)]
 
 
 def _check(scn: Scenario, seed: int, until_s: float, samples: bool = True,
-           kernel: str = "numba", tamper: Any = None) -> Any:
+           tamper: Any = None) -> Any:
     """Run both ways on ``scn``; returns the run_driven summary."""
-    a, b = _sims(scn, seed, kernel)
+    a, b = _sims(scn, seed)
     if tamper is not None:
         tamper(b)
     ev_a, bl_a, n_int = _per_step(a, until_s, samples)
@@ -130,7 +128,6 @@ def _gen(seed: int, incidents: bool, wet: bool) -> Scenario:
     return parse_scenario(scenario_yaml(d), src=f"gen_{seed}")
 
 
-@needs_numba
 @pytest.mark.parametrize("name,seed,until_s", [
     ("taipei_blue", 3, 1500.0), ("thsr", 5, 1800.0), ("taipei_blue_delay", 1, 1200.0),
     ("mini_pad_fault", 1, 1200.0)])
@@ -142,7 +139,6 @@ def test_run_driven_matches_the_step_loop(name: str, seed: int, until_s: float) 
     assert run.stops[kr.STOP_HIT] > 0 and run.stops[kr.STOP_TIME] > 0
 
 
-@needs_numba
 @pytest.mark.parametrize("case", ["mini_incidents", "mini_atp_eb"])
 def test_run_driven_with_incidents_and_sensor_faults(case: str) -> None:
     """Fixed block, wet rail, TSRs, hold, breakdown, wheel / pad / sensor faults."""
@@ -152,7 +148,6 @@ def test_run_driven_with_incidents_and_sensor_faults(case: str) -> None:
     assert np.isnan(_rows(run.blocks)).any()  # a dropout fault reached the samples
 
 
-@needs_numba
 @pytest.mark.parametrize("seed,incidents,wet", [
     (1, False, False), (2, True, False), (3, True, True), (4, False, True), (6, True, False)])
 def test_run_driven_on_generated_lines(seed: int, incidents: bool, wet: bool) -> None:
@@ -163,26 +158,12 @@ def test_run_driven_on_generated_lines(seed: int, incidents: bool, wet: bool) ->
         assert run.stops[kr.STOP_SLOW] > 0  # rolled back before a slide-model step
 
 
-@needs_numba
 def test_run_driven_without_samples() -> None:
     """Samples not read: same plant, the normals stream untouched (as the step loop)."""
     run = _check(load_scenario("taipei_blue"), 2, 900.0, samples=False)
     assert not run.blocks and run.kernel_steps > 0.5 * run.steps
 
 
-def test_run_driven_numpy_path() -> None:
-    """The numpy kernel runs the per-step loop (and gives the compiled run's results)."""
-    scn = load_scenario("mini_pad_fault")
-    run = _check(scn, 1, 700.0, kernel="numpy")
-    assert run.kernel_steps == 0 and run.steps > 0
-    if numba_available():
-        a, = _sims(scn, 1, "numpy", 1)
-        b, = _sims(scn, 1, "numba", 1)
-        ra, rb = a.run_driven(700.0), b.run_driven(700.0)
-        _compare(a, b, ra.events, rb.events, ra.blocks, rb.blocks)
-
-
-@needs_numba
 def test_run_driven_in_pieces_with_commands() -> None:
     """Chunks, ATS departure commands and other commands in between: still identical."""
     a, b = _sims(load_scenario("taipei_blue"), 4)
@@ -215,7 +196,6 @@ def test_run_driven_in_pieces_with_commands() -> None:
     _compare(a, b, ev_a, ev_b, bl_a, bl_b)
 
 
-@needs_numba
 def test_comparison_detects_a_change() -> None:
     """A 0.01 % change of a constant of the compiled run is caught."""
     from metro_atc.core.plant import kernel as kn

@@ -180,29 +180,46 @@ def test_adhesion_curve(curve: Any) -> None:
 def test_rk4_resting_branch_equals_standstill_branch() -> None:
     """Trains held at rest get bit-identical results with or without a train stopping.
 
-    ``rk4_motion`` skips the standstill branch when only trains already at rest would take
-    it; with one moving train braking to rest in the same period the full branch runs for
-    all of them.  The resting trains' outputs must not depend on which branch ran, on a
-    grade (uphill and downhill) with various brake efforts.
+    The compiled motion (:func:`metro_atc.core.plant.kernel_step.motion`) skips the
+    standstill branch when only trains already at rest would take it; with one moving train
+    braking to rest in the same period the full branch runs for all of them.  The resting
+    trains' outputs must not depend on which branch ran, on a grade (uphill and downhill)
+    with various brake efforts.
     """
-    from metro_atc.core.plant.dynamics import rk4_motion
+    from metro_atc.core.plant import kernel as kn
+    from metro_atc.core.plant import kernel_step as ks
     sim = flat_sim(grades="[{start_m: -5000, grade_permille: 0}, {start_m: 1000, "
                           "grade_permille: 35}, {start_m: 3000, grade_permille: -35}]")
-    p, g = sim.p, sim.geometry
+    p, st = sim.p, sim.stepper
+    c = st.c.copy()
+    c[kn.C_DT], c[kn.C_SUBSTEPS] = 0.25, 1.0
     rng = np.random.default_rng(7)
     n = 40
     x = rng.uniform(0.0, 5000.0, n)
-    v = np.zeros(n)
     mass = p.mass_kg + rng.uniform(0.0, 3.0e4, n)
     meff = mass + p.rotary_allowance * p.mass_kg
+    inv = 1.0 / meff
+    mp = np.stack([mass, meff, inv, p.davis_b_n_per_mps * inv, p.davis_c_n_per_mps2 * inv])
+    masks = np.zeros((5, n), dtype=bool)
+
+    def motion(v: np.ndarray, f_brake: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+        blk = np.zeros((kn.N_OUT, n))
+        e = [np.zeros(n) for _ in range(7)]
+        ks.motion(c, x, v, np.zeros(n), f_brake, np.zeros(n), np.ones(n), mp, st.geo, masks,
+                  np.full(n, np.inf), *e, np.zeros(n, dtype=np.int64), blk)
+        return blk, e
+
     # held trains: brake effort above the largest downhill grade force (they stay at rest)
-    f = -rng.uniform(2.0e5, 6.0e5, n) - p.davis_a_n
-    rest = rk4_motion(x, v, f, mass, meff, p, g, 0.25, 1)
-    assert rest.clamped is None and np.all(rest.v1 == 0.0) and np.array_equal(rest.x1, x)
-    v_mix, f_mix = v.copy(), f.copy()
-    v_mix[0], f_mix[0] = 0.05, -3.0e5  # comes to rest inside the period
-    mix = rk4_motion(x, v_mix, f_mix, mass, meff, p, g, 0.25, 1)
-    assert mix.clamped is not None and mix.clamped[0]
-    for a, b in ((rest.x1, mix.x1), (rest.v1, mix.v1), (rest.w_res, mix.w_res),
-                 (rest.w_grade, mix.w_grade), (rest.w_curve, mix.w_curve)):
+    f_brake = rng.uniform(2.0e5, 6.0e5, n)
+    v = np.zeros(n)
+    rest, e_rest = motion(v, f_brake)
+    assert np.all(rest[kn.O_V1] == 0.0) and np.array_equal(rest[kn.O_X1], x)
+    assert not np.any(e_rest[6])  # no stop correction
+    v_mix, f_mix = v.copy(), f_brake.copy()
+    v_mix[0], f_mix[0] = 0.05, 3.0e5 - p.davis_a_n  # comes to rest inside the period
+    mix, e_mix = motion(v_mix, f_mix)
+    assert mix[kn.O_V1, 0] == 0.0 and mix[kn.O_X1, 0] > x[0]
+    for row in (kn.O_X1, kn.O_V1, kn.O_ACC):
+        np.testing.assert_array_equal(rest[row, 1:], mix[row, 1:])
+    for a, b in zip(e_rest, e_mix):
         np.testing.assert_array_equal(a[1:], b[1:])

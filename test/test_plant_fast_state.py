@@ -16,7 +16,6 @@ import pytest
 
 from metro_atc.core.line.scenario import load_scenario
 from metro_atc.core.plant.driver import simple_driver
-from metro_atc.core.plant.fast import numba_available
 from metro_atc.core.plant.fast_state import Blocks
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.plant.snapshot import capture_line, restore_line
@@ -107,14 +106,13 @@ def test_blocks_copied_with_their_components(how: str) -> None:
     _check(parts, blk)
 
 
-@pytest.mark.skipif(not numba_available(), reason="numba not installed")
 def test_restored_compiled_plant_continues_like_the_original() -> None:
     """A compiled-kernel plant restored mid-run (fresh blocks) steps like the original."""
     scn = load_scenario("taipei_blue")
-    a = LineSim(scn, seed=3, kernel="numba")
+    a = LineSim(scn, seed=3)
     for _ in range(1200):
         a.step(simple_driver(a))
-    b = LineSim(scn, seed=3, kernel="numba")
+    b = LineSim(scn, seed=3)
     tree, arrays = capture_line(a)
     restore_line(b, tree, {f"a{i}": x for i, x in enumerate(arrays)})
     for k in range(400):

@@ -1,18 +1,23 @@
-"""The compiled plant kernel (numba) against the numpy reference path.
+"""The compiled plant step on generated lines, against recorded reference traces.
 
-Both paths run side by side on generated lines (:mod:`metro_atc.core.linegen`; some with
-incidents, some on a wet rail with traction pulses that make axles slide and ATP
-intervene) with the same command sequence: the reference driver's command (compared
-between the paths every step), NaN and out-of-range entries and traction pulses mixed in.
-Every step the whole fleet state, the ATP state, the energy counters, the events and the
-sensor samples must agree bit for bit -- the kernel repeats the numpy operations in the
-same order (no fused multiply-add, no reassociation), so no tolerance is needed.
+Generated lines (:mod:`metro_atc.core.linegen`; some with incidents, some on a wet rail
+with traction pulses that make axles slide and ATP intervene) run with the reference
+driver's command, NaN and out-of-range entries and traction pulses mixed in, and ATS
+departure commands on the way.  Every step's sums of the fleet, ATP, energy, axle and
+sensor state, the full state every ``FULL_EVERY`` steps, the events and the KPIs must equal
+``test/data/plant_gen/*.npz`` bit for bit.  The traces were recorded by ``main()`` below
+when the plant still had a numpy reference path beside the compiled one, and both gave
+these traces exactly (the numpy path then was the independent reference; it is gone, the
+laws live once in :mod:`metro_atc.core.laws`).  Re-record only for a change whose every
+moved number is explained.
 """
 
 from __future__ import annotations
 
 import json
-from typing import Any
+import sys
+from pathlib import Path
+from typing import Any, Callable
 
 import numpy as np
 import pytest
@@ -20,14 +25,18 @@ import pytest
 from metro_atc.core.line.scenario import parse_scenario
 from metro_atc.core.linegen import generate_line, scenario_yaml
 from metro_atc.core.plant.driver import simple_driver
-from metro_atc.core.plant.fast import KERNEL_ENV, numba_available, resolve_kernel
 from metro_atc.core.plant.line import LineSim
-
-needs_numba = pytest.mark.skipif(not numba_available(), reason="numba not installed")
 
 STATE = ("x", "v", "acc", "a_dem", "u_last", "eb", "sb", "eoa", "atp_limit", "speed_code",
          "interventions", "violations", "e_trac", "e_elec", "e_fric", "e_res", "e_curve",
          "e_grade", "e_stop_corr", "n_in_service", "status", "load", "fx", "clamp", "slip")
+SENSORS = ("omega", "clamp", "accel", "vref", "car_mass")
+CASES = [(1, False, False, False), (2, True, False, False), (3, True, True, True),
+         (4, False, True, True), (5, True, False, True), (6, False, False, True)]
+"""(seed, incidents, wet rail, traction pulses) of each generated line."""
+T_END_S = 600.0
+FULL_EVERY = 200
+DATA = Path(__file__).parent / "data" / "plant_gen"
 
 
 def _line(seed: int, incidents: bool, wet: bool) -> Any:
@@ -37,80 +46,89 @@ def _line(seed: int, incidents: bool, wet: bool) -> Any:
     return parse_scenario(scenario_yaml(d), src=f"gen_{seed}")
 
 
-def _compare(a: LineSim, b: LineSim, ra: Any, rb: Any, where: str) -> None:
-    for name in STATE:
-        np.testing.assert_array_equal(getattr(a, name), getattr(b, name),
-                                      err_msg=f"{where}: {name}")
-    assert a.atp.min_sep == b.atp.min_sep, where
-    assert a.atp.steps_above_civil == b.atp.steps_above_civil, where
-    assert ra.atp_interventions == rb.atp_interventions, where
-    assert [repr(e) for e in ra.events] == [repr(e) for e in rb.events], where
-    sa, sb = ra.sensor_arrays, rb.sensor_arrays
-    assert (sa is None) == (sb is None), where
-    if sa is not None:
-        for ch in ("t", "trains", "omega", "clamp", "accel", "vref", "car_mass"):
-            np.testing.assert_array_equal(getattr(sa, ch), getattr(sb, ch),
-                                          err_msg=f"{where}: sensor {ch}")
+def _name(case: tuple[int, bool, bool, bool]) -> str:
+    seed, inc, wet, pulses = case
+    return f"gen{seed}_{'i' if inc else 'n'}{'w' if wet else 'd'}{'p' if pulses else 'c'}"
 
 
-def _run_pair(scn: Any, seed: int, t_end: float, pulses: bool,
-              tamper: Any = None) -> int:
-    """Run both kernels in lockstep; returns the number of steps compared."""
-    a = LineSim(scn, seed=seed, kernel="numpy")
-    b = LineSim(scn, seed=seed, kernel="numba")
+def trace(case: tuple[int, bool, bool, bool], t_end: float = T_END_S,
+          make: Callable[[Any, int], LineSim] = lambda s, seed: LineSim(s, seed=seed),
+          tamper: Any = None, slid: list[int] | None = None) -> dict[str, np.ndarray]:
+    """Run one case; per-step sums, strided full states, events and KPIs."""
+    seed, incidents, wet, pulses = case
+    sim = make(_line(seed, incidents, wet), seed)
     if tamper is not None:
-        tamper(b)
+        tamper(sim)
     rng = np.random.default_rng(seed)
+    rows: list[list[float]] = []
+    full: dict[str, list[np.ndarray]] = {name: [] for name in STATE}
+    events: list[str] = []
     k = 0
-    while not a.done and a.t < t_end:
-        ua, ub = simple_driver(a), simple_driver(b)
-        np.testing.assert_array_equal(ua, ub, err_msg=f"driver, step {k}")
-        u = ua.copy()
-        r = rng.random(a.n)
+    while not sim.done and sim.t < t_end:
+        u = simple_driver(sim).copy()
+        r = rng.random(sim.n)
         u[r < 0.03] = np.nan
         u[(r >= 0.03) & (r < 0.04)] = 7.0
         if pulses and (k // 200) % 3 == 0:  # bursts of full traction (ATP, wheel slides)
-            u[: max(a.n // 3, 1)] = 1.0
-        ra, rb = a.step(u), b.step(u.copy())
-        _compare(a, b, ra, rb, f"step {k}, t = {a.t:.2f} s")
-        if k % 40 == 0 and a.t > 60.0:  # ATS departure commands on the way
-            i = int(rng.integers(a.n))
-            j = int(rng.integers(a.n_st))
-            cut = float(rng.uniform(20, 60))
-            for s in (a, b):
-                s.set_departure(i, j, a.t + 30.0, 95.0, cut)
-        k += 1
-    assert json.dumps(a.kpis(), sort_keys=True) == json.dumps(b.kpis(), sort_keys=True)
-    return k
-
-
-@needs_numba
-@pytest.mark.parametrize("seed,incidents,wet,pulses", [
-    (1, False, False, False), (2, True, False, False), (3, True, True, True),
-    (4, False, True, True), (5, True, False, True), (6, False, False, True)])
-def test_kernels_agree_on_generated_lines(seed: int, incidents: bool, wet: bool,
-                                          pulses: bool) -> None:
-    """Compiled and numpy steps give identical states, events and samples on any line."""
-    n = _run_pair(_line(seed, incidents, wet), seed, 900.0, pulses)
-    assert n > 1000
-
-
-@needs_numba
-def test_wet_pulses_exercise_the_slide_path() -> None:
-    """The wet-rail case above reaches the numpy slide model from the compiled step."""
-    scn = _line(3, True, True)
-    sim = LineSim(scn, seed=3, kernel="numba")
-    slid = 0
-    while sim.t < 900.0:
-        u = simple_driver(sim)
-        if (sim.step_count // 200) % 3 == 0:
             u[: max(sim.n // 3, 1)] = 1.0
-        sim.step(u)
-        slid += int(sim.brakes.any_slide)
-    assert slid > 0
+        res = sim.step(u)
+        row = [float(np.sum(np.asarray(getattr(sim, name), dtype=float))) for name in STATE]
+        sa = res.sensor_arrays
+        for ch in SENSORS:
+            a = np.asarray(getattr(sa, ch), dtype=float) if sa is not None else np.zeros(0)
+            row += [float(np.nansum(a)), float(np.count_nonzero(np.isnan(a)))]
+        row += [float(res.atp_interventions), sim.atp.min_sep, float(sim.atp.steps_above_civil)]
+        rows.append(row)
+        if k % FULL_EVERY == 0:
+            for name in STATE:
+                full[name].append(np.asarray(getattr(sim, name), dtype=float).copy())
+        events += [repr(e) for e in res.events]
+        if slid is not None:
+            slid.append(int(sim.brakes.any_slide))
+        if k % 40 == 0 and sim.t > 60.0:  # ATS departure commands on the way
+            i = int(rng.integers(sim.n))
+            j = int(rng.integers(sim.n_st))
+            cut = float(rng.uniform(20, 60))
+            sim.set_departure(i, j, sim.t + 30.0, 95.0, cut)
+        k += 1
+    out = {"rows": np.asarray(rows), "events": np.asarray(events, dtype=str),
+           "kpis": np.asarray(json.dumps(sim.kpis(), sort_keys=True))}
+    for name, arrs in full.items():  # per-train arrays, or axle arrays of varying shape
+        out[f"full_{name}"] = np.concatenate([a.ravel() for a in arrs])
+    return out
 
 
-@needs_numba
+def compare(got: dict[str, np.ndarray], exp: dict[str, np.ndarray], where: str) -> None:
+    """Every array equal bit for bit (the first differing step named)."""
+    assert set(got) == set(exp), where
+    g, e = got["rows"], exp["rows"]
+    assert g.shape == e.shape, f"{where}: {g.shape} steps x sums, expected {e.shape}"
+    same = (g == e) | (np.isnan(g) & np.isnan(e))
+    if not same.all():
+        k, j = np.argwhere(~same)[0]
+        names = list(STATE) + [f"sensor_{c}_{s}" for c in SENSORS for s in ("sum", "nan")] \
+            + ["interventions", "min_sep", "steps_above_civil"]
+        raise AssertionError(f"{where}: step {k}, {names[j]}: {g[k, j]!r} != {e[k, j]!r}")
+    for key in exp:
+        np.testing.assert_array_equal(got[key], exp[key], err_msg=f"{where}: {key}")
+
+
+@pytest.mark.parametrize("case", CASES, ids=_name)
+def test_generated_lines_reproduce_the_reference(case: tuple[int, bool, bool, bool]) -> None:
+    """States, events, samples and KPIs of the recorded reference, bit for bit."""
+    exp = dict(np.load(DATA / f"{_name(case)}.npz"))
+    got = trace(case)
+    assert got["rows"].shape[0] > 1000
+    compare(got, exp, _name(case))
+
+
+def test_wet_pulses_exercise_the_slide_path() -> None:
+    """The wet-rail case reaches the numpy slide model from the compiled step."""
+    slid: list[int] = []
+    trace(CASES[2], slid=slid)
+    assert sum(slid) > 0
+
+
 def test_comparison_detects_a_kernel_change() -> None:
     """A 0.01 % change of one kernel constant is caught (the comparison can fail)."""
     from metro_atc.core.plant import kernel as kn
@@ -118,11 +136,11 @@ def test_comparison_detects_a_kernel_change() -> None:
     def tamper(sim: LineSim) -> None:
         sim.stepper.c[kn.C_DAVIS_A] *= 1.0001
 
+    exp = dict(np.load(DATA / f"{_name(CASES[0])}.npz"))
     with pytest.raises(AssertionError):
-        _run_pair(_line(1, False, False), 1, 300.0, False, tamper)
+        compare(trace(CASES[0], tamper=tamper), exp, "tampered")
 
 
-@needs_numba
 def test_interp_matches_numpy() -> None:
     """The kernel's interp reproduces np.interp bit for bit, edge cases included."""
     from metro_atc.core.plant.kernel import interp1
@@ -137,37 +155,20 @@ def test_interp_matches_numpy() -> None:
         np.testing.assert_array_equal(got, np.interp(x, xp, fp))
 
 
-def test_kernel_selection(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Argument, environment and fallback rules of the kernel choice."""
-    monkeypatch.setenv(KERNEL_ENV, "numpy")
-    assert resolve_kernel() == "numpy"
-    assert resolve_kernel("numpy") == "numpy"
-    with pytest.raises(ValueError):
-        resolve_kernel("fortran")
-    monkeypatch.setenv(KERNEL_ENV, "auto")
-    assert resolve_kernel() == ("numba" if numba_available() else "numpy")
-    monkeypatch.setattr("metro_atc.core.kernel_choice.numba_available", lambda: False)
-    assert resolve_kernel("auto") == "numpy"
-    with pytest.raises(RuntimeError):
-        resolve_kernel("numba")
-
-
-@needs_numba
 def test_samples_read_out_of_order_or_skipped() -> None:
     """Samples the compiled step computed ahead are used only while they are the next ones.
 
     Reading patterns: every step, every other step, none, and held results read later in
-    reverse order.  The numba path (samples computed with the step once read, normals drawn
-    ahead in blocks) must give exactly the numpy path's samples (drawn at access).
+    reverse order.  A twin plant read in the same pattern but never computing ahead
+    (``sensors.want`` cleared after each read: every block assembled at access, from the
+    next normals of the stream) must give exactly the same samples.
     """
     scn = _line(2, True, False)
-    a = LineSim(scn, seed=2, kernel="numpy")
-    b = LineSim(scn, seed=2, kernel="numba")
+    a, b = LineSim(scn, seed=2), LineSim(scn, seed=2)
     held: list[tuple[Any, Any]] = []
-    n_cmp = 0
+    n_cmp = n_pre = 0
     for k in range(1600):
-        ua, ub = simple_driver(a), simple_driver(b)
-        ra, rb = a.step(ua), b.step(ub)
+        ra, rb = a.step(simple_driver(a)), b.step(simple_driver(b))
         mode = (k // 200) % 4
         pairs = []
         if mode == 0 or (mode == 1 and k % 2):
@@ -177,13 +178,30 @@ def test_samples_read_out_of_order_or_skipped() -> None:
             if len(held) == 3:
                 pairs, held = held[::-1], []
         for pa, pb in pairs:
+            n_pre += pb._snap is not None and pb._snap.pre is not None
             sa, sb = pa.sensor_arrays, pb.sensor_arrays
+            a.sensors.want = False
             assert (sa is None) == (sb is None), k
             if sa is not None:
                 n_cmp += 1
-                for ch in ("t", "trains", "omega", "clamp", "accel", "vref", "car_mass"):
+                for ch in ("t", "trains") + SENSORS:
                     np.testing.assert_array_equal(getattr(sa, ch), getattr(sb, ch),
                                                   err_msg=f"step {k}: sensor {ch}")
-    assert b.sensors.want and n_cmp > 300
-    # both at the same place of the sensor stream (buffers may be refilled at other steps)
+    assert b.sensors.want and n_cmp > 300 and n_pre > 100
+    assert json.dumps(a.kpis(), sort_keys=True) == json.dumps(b.kpis(), sort_keys=True)
     np.testing.assert_array_equal(a.sensors.normals(5000), b.sensors.normals(5000))
+
+
+def main(names: list[str]) -> None:
+    """Record the named cases, or every case (overwrites the reference traces)."""
+    DATA.mkdir(parents=True, exist_ok=True)
+    for case in CASES:
+        if names and _name(case) not in names:
+            continue
+        data = trace(case)
+        np.savez_compressed(DATA / f"{_name(case)}.npz", **data)
+        print(f"{_name(case)}: {data['rows'].shape[0]} steps, {data['events'].size} events")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

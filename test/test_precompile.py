@@ -3,7 +3,8 @@
 After :func:`metro_atc.core.precompile.precompile_graph_kernels` (the ``mini`` closed loop),
 a ``taipei_blue`` closed loop with the brake diagnosis (30 trains, the default planner and
 tracker) adds no type signature to any numba kernel of the plant, the ATO or the brake
-observer: a graph run after an install loads them all from the on-disk cache.
+observer, nor to the laws of :mod:`metro_atc.core.laws` that Python code calls: a graph run
+after an install loads them all from the on-disk cache.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from types import ModuleType
 
 from numba.core.registry import CPUDispatcher
 
+from metro_atc.core import laws
 from metro_atc.core.ato import control_kernel, control_kernel_step, step_kernel, switching_kernel
 from metro_atc.core.brake import metro_kernel
 from metro_atc.core.closed_loop import run_closed_loop
@@ -20,8 +22,8 @@ from metro_atc.core.plant import kernel, kernel_aux, kernel_run, kernel_step
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.precompile import precompile_graph_kernels
 
-MODULES: tuple[ModuleType, ...] = (kernel, kernel_aux, kernel_step, kernel_run, step_kernel,
-                                   switching_kernel, metro_kernel, control_kernel,
+MODULES: tuple[ModuleType, ...] = (laws, kernel, kernel_aux, kernel_step, kernel_run,
+                                   step_kernel, switching_kernel, metro_kernel, control_kernel,
                                    control_kernel_step)
 
 

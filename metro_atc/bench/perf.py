@@ -64,7 +64,7 @@ def energy_balance_error(sim: LineSim) -> float:
 
 def run_core(scenario: str, seed: int, sim_limit_s: float | None, sensors: bool,
              profile: bool = False, label: str = "",
-             kernel: str | None = None, per_step: bool = False) -> dict[str, Any]:
+             per_step: bool = False) -> dict[str, Any]:
     """Run a scenario headless; returns timing, KPIs and (optionally) a profile.
 
     The reference driver runs through :meth:`LineSim.run_driven` (several steps per
@@ -73,10 +73,10 @@ def run_core(scenario: str, seed: int, sim_limit_s: float | None, sensors: bool,
     the one that times the driver apart).
 
     ``label``: progress rows on stderr (:mod:`metro_atc.bench.progress`) under this name.
-    ``kernel``: the plant step (``auto``/``numba``/``numpy``, :mod:`metro_atc.core.plant.fast`);
-    its compilation / cache load happens while the plant is built, before the timing.
+    The plant step's compilation / cache load happens while the plant is built, before the
+    timing.
     """
-    sim = LineSim(load_scenario(scenario), seed=seed, kernel=kernel)
+    sim = LineSim(load_scenario(scenario), seed=seed)
     limit = sim.duration_s if sim_limit_s is None else sim_limit_s
     prog = Progress(f"bench perf: {label}", limit, "s simulated", rate_name="rtf",
                     enabled=None if label else False)
@@ -117,7 +117,7 @@ def run_core(scenario: str, seed: int, sim_limit_s: float | None, sensors: bool,
         "kernel_step_share": kernel_steps / max(sim.step_count, 1), "trains": sim.n,
         "sensor_samples": n_samples,
         "kpis": sim.kpis(), "energy_balance_error": energy_balance_error(sim), "sim": sim,
-        "plant_kernel": sim.kernel,
+        "plant_kernel": "numba",  # the only plant step (kept for the JSON's readers)
         "kernel_warmup_s": float(getattr(sim.stepper, "warm_s", 0.0)),
         "stop_correction_share": float(sim.e_stop_corr.sum()
                                        / max(float(sim.e_brake_rail.sum()), 1.0)),
@@ -161,19 +161,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--graph-duration", type=float, default=1800.0,
                     help="simulated seconds of the ROS graph run (graph_rtf)")
     ap.add_argument("--no-graph", action="store_true", help="skip the ROS graph run")
-    ap.add_argument("--kernel", choices=("auto", "numba", "numpy"), default=None,
-                    help="plant step kernel (default: $METRO_ATC_PLANT_KERNEL, else auto)")
     ap.add_argument("--per-step", action="store_true",
                     help="one step(simple_driver(sim)) call per step (the previous loop)")
     a = ap.parse_args(argv)
     limit = 900.0 if a.quick else None
     main_run = run_core(a.scenario, a.seed, limit, sensors=False, label="core 1/3",
-                        kernel=a.kernel, per_step=a.per_step)
-    sens_run = run_core(a.scenario, a.seed, limit, sensors=True,
-                        label="core 2/3 (sensors)", kernel=a.kernel, per_step=a.per_step)
-    prof_run = run_core(a.scenario, a.seed, 600.0, sensors=False, profile=True,
-                        label="core 3/3 (cProfile)", kernel=a.kernel,
                         per_step=a.per_step)
+    sens_run = run_core(a.scenario, a.seed, limit, sensors=True,
+                        label="core 2/3 (sensors)", per_step=a.per_step)
+    prof_run = run_core(a.scenario, a.seed, 600.0, sensors=False, profile=True,
+                        label="core 3/3 (cProfile)", per_step=a.per_step)
     if progress_enabled() and not a.no_graph:
         print("bench perf: graph run (python -m metro_atc run)", file=sys.stderr, flush=True)
     k = main_run["kpis"]

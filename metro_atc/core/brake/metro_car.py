@@ -39,8 +39,9 @@ from typing import Any, Callable, Optional, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
+from metro_atc.core import laws
 from metro_atc.core.brake import diagnosis as dg
-from metro_atc.core.brake.metro_kernel import MetroUKF, kernel_enabled
+from metro_atc.core.brake.metro_kernel import MetroUKF
 from metro_atc.core.brake.ukf import UKF, BatchUKF, symmetrize
 from metro_atc.core.line.adhesion import AdhesionCurve
 
@@ -91,15 +92,16 @@ class MetroCarParams:
     def davis_decel(self, v: FloatArray) -> FloatArray:
         """Running-resistance deceleration phi_r(v) [m/s^2] (seed 002 eq. 2), v [m/s]."""
         a, b, c = self.davis
-        va = np.abs(v)
-        return (a + b * va + c * va * va) * np.sign(v)
+        return np.asarray(laws.on_array(laws.davis_resistance_array, v, a, b, c)
+                          * np.sign(v))
 
     def clamp_for_decel(self, a_req: FloatArray) -> FloatArray:
         """Per-axle clamp force [N] giving deceleration ``a_req`` with nominal mu_b.
 
         Brake torque per axle ``2 mu_b R_b F_c`` (seed 000 eq. 4), equal shares.
         """
-        return np.asarray(a_req) * self.mass * self.r_w / (N_AX * 2.0 * self.mu_b * self.r_b)
+        return np.asarray(a_req) * self.mass * self.r_w / (
+            N_AX * laws.pad_torque(1.0, self.mu_b, self.r_b))
 
 
 def from_train_params(tp: object) -> MetroCarParams:
@@ -239,7 +241,7 @@ def simulate_metro(p: MetroCarParams, scenarios: Sequence[MetroScenario], t_end:
         dx = np.empty_like(x)
         spec = f.sum(1) / mass - p.davis_decel(v)
         dx[:, 0] = spec - G * grade
-        tb = 2.0 * mub[:, None] * p.r_b * fc * np.tanh(om / p.w_eps)
+        tb = laws.pad_torque(fc, mub[:, None], p.r_b) * np.tanh(om / p.w_eps)
         dx[:, 1:5] = (-tb - p.r_w * f) / p.j_w
         dg_ = p.wsp_gain * (p.wsp_slip - np.abs(s))
         dg_ = np.where((g >= 1.0) & (dg_ > 0), 0.0, dg_)
@@ -392,7 +394,7 @@ def make_metro_fx(p: MetroCarParams, dt_nominal: float):  # type: ignore[no-unty
         out = xs @ a
         v = xs[..., 0]
         acc = xs[..., 7:19:3].sum(-1) / u[..., 8:9]
-        acc -= (db + dc * np.abs(v)) * v + da * np.sign(v)
+        acc -= laws.on_array(laws.davis_odd_array, v, da, db, dc)
         out[..., 0] += dt * acc
         brake = np.tanh(xs[..., 1:5] * inv_eps)
         brake *= xs[..., 5:6]
@@ -420,7 +422,7 @@ def make_metro_hx(p: MetroCarParams):  # type: ignore[no-untyped-def]
         out = xs @ sel
         v = xs[..., 0]
         out[..., 4] = xs[..., 7:19:3].sum(-1) / u[..., 8:9]
-        out[..., 4] -= (db + dc * np.abs(v)) * v + da * np.sign(v)
+        out[..., 4] -= laws.on_array(laws.davis_odd_array, v, da, db, dc)
         return out
 
     return hx
@@ -684,9 +686,6 @@ class MetroBrakeObserver:
             as the target model instead of :func:`adhesion` (e.g. the line plant's
             ``AdhesionCurve(...).mu`` for the rail condition it simulates); the target
             is then ``sign(s) N_j mu(|s|)``.
-        compiled: UKF steps by the compiled kernels (:func:`make_metro_ukf_compiled`, the
-            same filter to round-off) or the numpy path; default
-            :func:`metro_atc.core.brake.metro_kernel.kernel_enabled`.
     """
 
     def __init__(self, params: Optional[MetroCarParams] = None, dt: float = 0.02,
@@ -694,10 +693,12 @@ class MetroBrakeObserver:
                  tuning: Optional[MetroObserverTuning] = None,
                  noise: Optional[MetroSensorNoise] = None, mass: Optional[float] = None,
                  min_brake_clamp: float = 2000.0, max_gap_s: float = 2.0,
-                 adhesion_fn: Optional[Callable[[FloatArray], FloatArray]] = None,
-                 compiled: Optional[bool] = None) -> None:
-        """Create the observer (see class docstring)."""
-        self.compiled = kernel_enabled() if compiled is None else bool(compiled)
+                 adhesion_fn: Optional[Callable[[FloatArray], FloatArray]] = None) -> None:
+        """Create the observer (see class docstring).
+
+        The filter's steps run in the compiled kernels (:func:`make_metro_ukf_compiled`;
+        the numpy UKF takes the steps they decline).
+        """
         self.p = params or MetroCarParams()
         self.dt = float(dt)
         self.mu_rail = self.p.mu_rail if mu_rail is None else float(mu_rail)
@@ -732,9 +733,8 @@ class MetroBrakeObserver:
     # -- helpers -----------------------------------------------------------------------
     def _init_filter(self, v0: float, omega0: Optional[FloatArray]) -> None:
         if self._ukf_template is None:
-            make = make_metro_ukf_compiled if self.compiled else make_metro_ukf
-            self.ukf = self._ukf_template = make(self.p, self.dt, v0, self.tuning, self.noise,
-                                                 omega0)
+            self.ukf = self._ukf_template = make_metro_ukf_compiled(
+                self.p, self.dt, v0, self.tuning, self.noise, omega0)
         else:  # the same filter as make_metro_ukf builds, its models and weights reused
             if self._p0 is None:  # (symmetrised once: restarted takes it as it is)
                 self._p0 = symmetrize(metro_prior(self.p, self.tuning, v0, omega0)[1])
@@ -880,7 +880,7 @@ class MetroBrakeObserver:
             mu_t = []
             for s in creep:
                 sa = min(abs(s), 1.0)
-                m = c1 * (1.0 - math.exp(-c2 * sa)) - c3 * sa
+                m = laws.burckhardt_mu(sa, c1, c2, c3)
                 mu_t.append(m if s > 0.0 else (-m if s < 0.0 else 0.0 * m))
         elif self.adhesion_fn is None:
             mu_t = adhesion(np.array(creep), self.mu_rail, p).tolist()

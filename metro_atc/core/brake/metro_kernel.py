@@ -20,31 +20,24 @@ Cholesky factorisation fails (the numpy path's jitter / eigenvalue fallbacks), o
 that is not finite (its rejection rules).  Compiled on first use and cached on disk
 (``cache=True``): ``scripts/install.sh`` compiles them after each build
 (:func:`metro_atc.core.brake.metro_car.precompile_metro_kernels`), so a node only loads
-them (~0.3 s of CPU, against ~6 s to compile); ``METRO_ATC_BRAKE_KERNEL=0`` selects the
-numpy path.
+them (~0.3 s of CPU, against ~6 s to compile).  The running resistance is
+:func:`metro_atc.core.laws.davis_odd`; ``NUMBA_DISABLE_JIT=1`` runs the same source
+uncompiled (debugging).
 """
 
 from __future__ import annotations
 
 import math
-import os
 from typing import Callable, Optional
 
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from metro_atc.core import laws
 from metro_atc.core.brake.ukf import UKF
 
 FloatArray = NDArray[np.float64]
-
-KERNEL_ENV = "METRO_ATC_BRAKE_KERNEL"
-"""Environment variable: ``0`` makes :func:`kernel_enabled` false (numpy path)."""
-
-
-def kernel_enabled() -> bool:
-    """True unless :data:`KERNEL_ENV` is ``0``."""
-    return os.environ.get(KERNEL_ENV, "1") != "0"
 
 
 @njit(cache=True, error_model="numpy")
@@ -109,9 +102,8 @@ def predict_kernel(x: FloatArray, p: FloatArray, u: FloatArray, dt: float, a: Fl
             ys[s, j] = acc
         v = xs[s, 0]
         f = xs[s, 7] + xs[s, 10] + xs[s, 13] + xs[s, 16]
-        sg = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else (0.0 if v == 0.0 else v))
         ac = f / u[8]
-        ac -= (db + dc * abs(v)) * v + da * sg
+        ac -= laws.davis_odd(v, da, db, dc)
         ys[s, 0] += dt * ac
         for j in range(4):
             br = math.tanh(xs[s, 1 + j] * inv_eps)
@@ -186,9 +178,8 @@ def update_kernel(x: FloatArray, p: FloatArray, z: FloatArray, rows: NDArray[np.
         yfull[1] = xs[s, 2]
         yfull[2] = xs[s, 3]
         yfull[3] = xs[s, 4]
-        sg = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else (0.0 if v == 0.0 else v))
         yfull[4] = (xs[s, 7] + xs[s, 10] + xs[s, 13] + xs[s, 16]) / u[8]
-        yfull[4] -= (db + dc * abs(v)) * v + da * sg
+        yfull[4] -= laws.davis_odd(v, da, db, dc)
         yfull[5] = v
         for j in range(m):
             ys[s, j] = yfull[rows[j]]

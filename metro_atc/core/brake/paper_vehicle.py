@@ -43,6 +43,7 @@ from typing import Optional
 
 import numpy as np
 
+from metro_atc.core import laws
 from metro_atc.core.brake.ukf import UKF, BatchUKF
 
 G = 9.80665
@@ -290,7 +291,8 @@ def clamp_command(p: PaperVehicleParams, a_req: FloatArray) -> FloatArray:
     torque = p.mass * a_req * p.r_w
     share = np.array([p.brake_share_front, p.brake_share_front,
                       1 - p.brake_share_front, 1 - p.brake_share_front]) / 2.0
-    return (torque[:, None] * share[None, :]) / (2.0 * p.mu_b * p.r_b)
+    return np.asarray(laws.clamp_force_for_torque(torque[:, None] * share[None, :], p.mu_b,
+                                                  p.r_b))
 
 
 # ----------------------------------------------------------------------------------------
@@ -444,7 +446,7 @@ def simulate(p: PaperVehicleParams, scenarios: list[Scenario], t_end: float = 5.
         dx[:, 0] = ax + vy[:, 0] * r[:, 0]
         dx[:, 1] = ay - vx[:, 0] * r[:, 0]
         dx[:, 2] = (xw * fyb - yw * fxb).sum(1) / iz
-        tb = 2.0 * mub * p.r_b * fc * np.tanh(om / p.w_eps)
+        tb = laws.pad_torque(fc, mub, p.r_b) * np.tanh(om / p.w_eps)
         dx[:, 3:7] = (-tb - p.r_w * fx) / p.j_w
         vrel = np.abs(vwx) + 0.5
         dx[:, 7:11] = vrel / p.relax_x * (fxs - fx)

@@ -67,6 +67,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from metro_atc.core import laws
 from metro_atc.core.brake import metro_car as mc
 from metro_atc.core.line.adhesion import CURVES, AdhesionCurve
 from metro_atc.core.line.rolling_stock import train_params_for
@@ -338,9 +339,8 @@ class TrainBrakeWatch:
             f += x if x != x else (hi if x > hi else (x if x > lo else lo))
         v = r.speed
         a, b, c = p.davis
-        va = abs(v)
         sign = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0 * v)
-        return f / mass - (a + b * va + c * va * va) * sign
+        return f / mass - laws.davis_resistance(v, a, b, c) * sign
 
     def feed_paused(self, t: float, vref: float, mass: float) -> bool:
         """:meth:`feed` of an in-order sample of a slow or standing train; False otherwise.

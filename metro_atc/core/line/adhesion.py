@@ -1,4 +1,4 @@
-"""Wheel-rail slip-adhesion curve and the per-axle brake/wheel relations.
+"""Wheel-rail slip-adhesion curve (:func:`metro_atc.core.laws.burckhardt_mu`).
 
 Adhesion follows the Burckhardt form ``mu(s) = c1 (1 - exp(-c2 s)) - c3 s`` of the slip
 ratio ``s = (v - omega r_w) / v`` (braking, s in [0, 1]).  The coefficients are estimates
@@ -10,7 +10,8 @@ Per-axle wheel dynamics (seed 000 second paper eq. 4, the axle as the lumped "wh
     J_w d(omega)/dt = -2 mu_b R_b F_c + r_w F_x
 
 with F_c the clamp force, mu_b the disk-pad friction coefficient, R_b the effective pad
-radius, r_w the wheel radius and F_x the rail force on the wheel (positive forward).
+radius, r_w the wheel radius and F_x the rail force on the wheel (positive forward); the pad
+torque ``2 mu_b R_b F_c`` is :func:`metro_atc.core.laws.pad_torque`.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from metro_atc.core import laws
 
 FloatArray = NDArray[np.float64]
 
@@ -33,8 +36,8 @@ class AdhesionCurve:
 
     def mu(self, s: ArrayLike) -> FloatArray:
         """Adhesion coefficient [-] at slip ratio s in [0, 1]."""
-        sa = np.clip(np.asarray(s, dtype=float), 0.0, 1.0)
-        return np.asarray(self.c1 * (1.0 - np.exp(-self.c2 * sa)) - self.c3 * sa)
+        return np.asarray(laws.on_array(laws.burckhardt_mu_array, s, self.c1, self.c2,
+                                        self.c3))
 
     @property
     def slip_peak(self) -> float:
@@ -74,13 +77,3 @@ WET = AdhesionCurve(c1=0.125, c2=80.0, c3=0.04)
 
 CURVES = {"dry": DRY, "wet": WET}
 """Adhesion curves by rail condition name."""
-
-
-def clamp_force_for_torque(torque_nm: ArrayLike, mu_b: float, r_b: float) -> FloatArray:
-    """Clamp force F_c [N] that produces a brake torque [N m]: T = 2 mu_b R_b F_c (eq. 4)."""
-    return np.asarray(np.asarray(torque_nm, dtype=float) / (2.0 * mu_b * r_b))
-
-
-def brake_torque(clamp_force_n: ArrayLike, mu_b: ArrayLike, r_b: float) -> FloatArray:
-    """Friction brake torque [N m] of one axle: 2 mu_b R_b F_c (seed 000 2nd paper eq. 4)."""
-    return np.asarray(2.0 * np.asarray(mu_b) * r_b * np.asarray(clamp_force_n, dtype=float))

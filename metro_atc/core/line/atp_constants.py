@@ -2,7 +2,7 @@
 
 The plant's :class:`metro_atc.core.plant.atp.AtpSupervisor` supervises with them and the ATO
 (:func:`metro_atc.core.ato.onboard.atp_model_for`) plans inside the same envelope; neither
-derives them on its own.  SI units.
+derives them on its own.  SI units; the formulas are those of :mod:`metro_atc.core.laws`.
 """
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from metro_atc.core import laws
 from metro_atc.core.line.adhesion import CURVES, AdhesionCurve
 from metro_atc.core.line.geometry import LineGeometry
 from metro_atc.core.line.scenario import Scenario
-from metro_atc.core.line.track import G
 from metro_atc.core.line.vehicle import TrainParams
 
 SBI_OFFSET_MPS = 0.3
@@ -63,17 +63,18 @@ def atp_constants(scn: Scenario, p: TrainParams, geom: LineGeometry,
         m_rot = p.rotary_allowance * p.mass_kg
         tare = max(p.mass_kg - p.nominal_load_pax * p.pax_mass_kg, 0.3 * p.mass_kg)
         b_lvl = min(p.emergency_brake_mps2,
-                    0.9 * curve.mu_slide * G * tare / (tare + m_rot))
-    b_g = float(b_lvl - G * geom.max_down)
+                    laws.adhesion_guaranteed_decel(curve.mu_slide, tare, m_rot))
+    b_g = float(laws.guaranteed_decel_on_grade(b_lvl, geom.max_down))
     if b_g <= 0.05:
         raise ValueError("guaranteed emergency braking is not positive on the steepest "
                          "downhill grade")
-    a_w = float(p.a1_mps2 + G * geom.max_down)
+    a_w = float(laws.response_accel(p.a1_mps2, geom.max_down))
     t_r = float(sg.response_time_s)
     t_sbi = float(sg.sbi_lead_s)
-    d_r = p.max_speed_mps * t_r + 0.5 * a_w * t_r ** 2
+    d_r = laws.response_distance(p.max_speed_mps, a_w, t_r)
     return AtpConstants(
-        b_guar_level=float(b_lvl), b_g=b_g, a_w=a_w, g_down=G * geom.max_down, t_r=t_r,
+        b_guar_level=float(b_lvl), b_g=b_g, a_w=a_w,
+        g_down=float(laws.downhill_accel(geom.max_down)), t_r=t_r,
         t_sbi=t_sbi, margin_m=float(sg.safety_margin_m), tsr_notice_s=float(sg.tsr_notice_s),
         fixed_block=sg.mode == "fixed_block",
         n_resp=int(math.ceil(d_r / geom.dx)) + 1,

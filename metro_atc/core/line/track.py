@@ -21,16 +21,17 @@ decelerates at least at ``b_g`` (guaranteed emergency decel minus the steepest d
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from metro_atc.core import laws
+
 FloatArray = NDArray[np.float64]
 
-G = 9.80665
-"""Standard gravity [m/s^2]."""
+G = laws.G_MPS2
+"""Standard gravity [m/s^2] (:data:`metro_atc.core.laws.G_MPS2`)."""
 
 
 class BrakingCurve:
@@ -45,10 +46,9 @@ class BrakingCurve:
         """Guaranteed deceleration ``b_g`` [m/s^2] and response time ``t_r`` [s]."""
         self.b_g, self.t_r = float(b_g), float(t_r)
         b, tr = self.b_g, self.t_r
-        self.c0a = (b * tr) ** 2
+        # laws.ebi_coef at a_w = 0, and the a_w coefficient of its c0
+        self.c0a, self.c1, self.c2a = (float(c) for c in laws.ebi_coef(b, tr, 0.0))
         self.c0b = b * tr * tr
-        self.c1 = 2.0 * b
-        self.c2a = b * tr
 
     def coef(self, a_w: ArrayLike) -> tuple[Any, Any]:
         """(c0, c2) for the response acceleration ``a_w`` [m/s^2]."""
@@ -84,24 +84,15 @@ def ebi_speed_at(dist_m: float, target_mps: float, a_w: float, t_r: float,
                  b_g: float) -> float:
     """:func:`ebi_speed` for one distance (plain floats, the same IEEE result) [m/s].
 
-    The per-train ATO evaluates the curve a few times per control step (issue 13).
+    The per-train ATO evaluates the curve a few times per control step:
+    :func:`metro_atc.core.laws.ebi_speed`.
     """
-    b, tr = float(b_g), float(t_r)
-    c0 = (b * tr) ** 2 + b * tr * tr * a_w
-    c2 = b * tr + tr * a_w
-    if target_mps != 0.0:
-        c0 = c0 + target_mps * target_mps
-    z = c0 + 2.0 * b * dist_m
-    if z < 0.0:  # np.maximum(z, 0): NaN and -0.0 pass
-        z = 0.0
-    return (math.sqrt(z) if z == z else z) - c2
+    return float(laws.ebi_speed(dist_m, target_mps, a_w, t_r, b_g))
 
 
 def stopping_distance(v_mps: ArrayLike, a_w: float, t_r: float, b_g: float) -> FloatArray:
     """Worst-case ATP stopping distance [m] from speed v (response + braking), inverse of EBI."""
-    v = np.asarray(v_mps, dtype=float)
-    w = v + a_w * t_r
-    return np.asarray(v * t_r + 0.5 * a_w * t_r * t_r + w * w / (2.0 * b_g))
+    return np.asarray(laws.on_array(laws.stopping_distance_array, v_mps, a_w, t_r, b_g))
 
 
 def step_profile(starts: ArrayLike, values: ArrayLike, default: float,
@@ -161,6 +152,4 @@ def curve_resistance_per_kg(radius_m: ArrayLike) -> FloatArray:
 
     w_r [N/kN] = 650 / (R - 55) for R >= 300 m, 500 / (R - 30) below (R in m).
     """
-    r = np.asarray(radius_m, dtype=float)
-    wr = np.where(r >= 300.0, 650.0 / np.maximum(r - 55.0, 1.0), 500.0 / np.maximum(r - 30.0, 1.0))
-    return np.asarray(wr / 1000.0 * G)
+    return np.asarray(laws.on_array(laws.curve_resistance_per_kg_array, radius_m))

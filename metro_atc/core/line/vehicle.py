@@ -20,14 +20,15 @@ References
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-G_MPS2 = 9.80665
-"""Standard gravity [m/s^2]."""
+from metro_atc.core import laws
+from metro_atc.core.laws import G_MPS2 as G_MPS2  # re-exported: the one value
 
 FloatArray = NDArray[np.float64]
 
@@ -115,57 +116,56 @@ class TrainParams:
     @property
     def a2(self) -> float:
         """Constant a_2 of seed 002 eq. 4 [m^2/s^3], from continuity at v_1."""
-        return self.a1_mps2 * (self.v1_mps + self.b2_mps)
+        return float(laws.traction_a2(self.a1_mps2, self.v1_mps, self.b2_mps))
 
     @property
     def a3(self) -> float:
         """Constant a_3 of seed 002 eq. 5 [m^3/s^4], from continuity at v_2."""
-        phi2_v2 = self.a2 / (self.v2_mps + self.b2_mps)
-        return phi2_v2 * (self.v2_mps + self.b3_mps) ** 2
+        return float(laws.traction_a3(self.a1_mps2, self.v1_mps, self.v2_mps, self.b2_mps,
+                                      self.b3_mps))
+
+    @functools.cached_property
+    def traction_law(self) -> tuple[float, float, float, float, float, float, float]:
+        """(a1, v1, v2, a2, a3, b2, b3): the arguments of :func:`laws.traction_accel`."""
+        return (self.a1_mps2, self.v1_mps, self.v2_mps, self.a2, self.a3, self.b2_mps,
+                self.b3_mps)
 
 
 def resistance_force(p: TrainParams, v: ArrayLike) -> FloatArray:
-    """Davis running resistance F_r(v) [N] for speed v [m/s] >= 0 (seed 002 eq. 1-2)."""
-    va = np.abs(np.asarray(v, dtype=float))
-    return p.davis_a_n + p.davis_b_n_per_mps * va + p.davis_c_n_per_mps2 * va * va
+    """Davis running resistance F_r(v) [N] for speed v [m/s] >= 0 (seed 002 eq. 1-2).
+
+    :func:`metro_atc.core.laws.davis_resistance` of each speed.
+    """
+    return laws.on_array(laws.davis_resistance_array, v, p.davis_a_n, p.davis_b_n_per_mps,
+                         p.davis_c_n_per_mps2)
 
 
 def max_traction_accel(p: TrainParams, v: ArrayLike) -> FloatArray:
     """Maximum tractive acceleration phi_psi(v) [m/s^2] (seed 002 eq. 3-5).
 
-    Acceleration here is tractive force divided by the *static* mass, as in seed 002.
+    Acceleration here is tractive force divided by the *static* mass, as in seed 002:
+    :func:`metro_atc.core.laws.traction_accel` of each speed.
     """
-    va = np.abs(np.asarray(v, dtype=float))
-    phi1 = np.full_like(va, p.a1_mps2)
-    phi2 = p.a2 / (va + p.b2_mps + 1e-12)
-    phi3 = p.a3 / (va + p.b3_mps + 1e-12) ** 2
-    return np.where(va <= p.v1_mps, phi1, np.where(va <= p.v2_mps, phi2, phi3))
+    return laws.on_array(laws.traction_accel_array, v, *p.traction_law)
 
 
 def resistance_force_at(p: TrainParams, v: float) -> float:
     """:func:`resistance_force` for one speed [m/s] (plain floats, the same IEEE result) [N]."""
-    va = abs(v)
-    return p.davis_a_n + p.davis_b_n_per_mps * va + p.davis_c_n_per_mps2 * va * va
+    return laws.davis_resistance(v, p.davis_a_n, p.davis_b_n_per_mps,  # type: ignore
+                                 p.davis_c_n_per_mps2)
 
 
 def max_traction_accel_at(p: TrainParams, v: float) -> float:
     """:func:`max_traction_accel` for one speed [m/s] (plain floats, the same IEEE result).
 
-    The per-train ATO evaluates it a few times per control step: without the numpy
-    overhead of a 0-d array (issue 13, graph speed).
+    The per-train ATO evaluates it a few times per control step (no 0-d array).
     """
-    va = abs(v)
-    if va <= p.v1_mps:
-        return p.a1_mps2
-    if va <= p.v2_mps:
-        return p.a2 / (va + p.b2_mps + 1e-12)
-    # ``** 2`` (C pow), as numpy computes it for one value (a float64 scalar, not an array)
-    return p.a3 / (va + p.b3_mps + 1e-12) ** 2
+    return laws.traction_accel(v, *p.traction_law)  # type: ignore[no-any-return]
 
 
 def max_traction_force_at(p: TrainParams, v: float) -> float:
     """:func:`max_traction_force` for one speed [m/s] (plain floats, the same result) [N]."""
-    return p.mass_kg * max_traction_accel_at(p, v)
+    return laws.traction_force(v, p.mass_kg, *p.traction_law)  # type: ignore
 
 
 def max_traction_force(p: TrainParams, v: ArrayLike) -> FloatArray:
@@ -175,8 +175,7 @@ def max_traction_force(p: TrainParams, v: ArrayLike) -> FloatArray:
 
 def grade_force(p: TrainParams, grade: ArrayLike) -> FloatArray:
     """Gravity force along the track [N]; grade = rise/run (positive uphill) [-]."""
-    g = np.asarray(grade, dtype=float)
-    return p.mass_kg * G_MPS2 * np.sin(np.arctan(g))
+    return laws.on_array(laws.grade_force_array, grade, p.mass_kg)
 
 
 def effort_force(p: TrainParams, v: ArrayLike, u: ArrayLike) -> FloatArray:
@@ -185,10 +184,12 @@ def effort_force(p: TrainParams, v: ArrayLike, u: ArrayLike) -> FloatArray:
     u > 0: fraction of the maximum tractive force at v; u < 0: fraction of the maximum
     service braking force ``m * max_service_brake``.
     """
-    ua = np.clip(np.asarray(u, dtype=float), -1.0, 1.0)
-    trac = ua * max_traction_force(p, v)
-    brake = ua * p.mass_kg * p.max_service_brake_mps2
-    return np.where(ua >= 0.0, trac, brake)
+    ua = np.asarray(u, dtype=float)
+    f_max = np.broadcast_to(max_traction_force(p, v), np.broadcast_shapes(ua.shape, np.shape(v)))
+    ua, f_max = np.broadcast_arrays(ua, f_max)
+    out = np.array([laws.command_effort(float(a), float(f), p.mass_kg, p.max_service_brake_mps2)
+                    for a, f in zip(ua.ravel(), f_max.ravel())]).reshape(ua.shape)
+    return out[()] if out.ndim == 0 else out
 
 
 def net_accel(p: TrainParams, v: ArrayLike, effort_n: ArrayLike,
@@ -198,10 +199,14 @@ def net_accel(p: TrainParams, v: ArrayLike, effort_n: ArrayLike,
     Resistance always opposes motion; at standstill it cannot exceed the other forces
     (static case handled by the integrator clamping v >= 0).
     """
-    va = np.asarray(v, dtype=float)
-    f = np.asarray(effort_n, dtype=float) - np.sign(va) * resistance_force(p, va) \
-        - grade_force(p, grade)
-    return f / p.effective_mass_kg
+    va, fe, fg = np.broadcast_arrays(np.asarray(v, dtype=float),
+                                     np.asarray(effort_n, dtype=float), grade_force(p, grade))
+    out = laws.net_accel_array(np.ascontiguousarray(va).reshape(-1),
+                               np.ascontiguousarray(fe).reshape(-1),
+                               np.ascontiguousarray(fg).reshape(-1), p.davis_a_n,
+                               p.davis_b_n_per_mps, p.davis_c_n_per_mps2,
+                               p.effective_mass_kg).reshape(va.shape)
+    return out[()] if out.ndim == 0 else out
 
 
 def rk4_step(p: TrainParams, x: ArrayLike, v: ArrayLike, effort_n: ArrayLike,

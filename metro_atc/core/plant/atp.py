@@ -1,5 +1,8 @@
 """ATP supervisor (seed 001 Fig. 1) and the independent safety monitors.
 
+The per-step supervision runs in the compiled step (:func:`.kernel.front`, braking curves
+of :mod:`metro_atc.core.laws`); this module holds its constants, grids and state.
+
 Moving-block end of authority = rear of the train ahead minus the safety margin (fixed
 block: entry of the block holding its rear minus the margin); static/temporary speed-limit
 supervision on precomputed grids; service-brake intervention ``sbi_lead_s`` before the
@@ -15,15 +18,13 @@ reference driver and the plots read.
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from metro_atc.core.line.adhesion import AdhesionCurve
-from metro_atc.core.line.atp_constants import SBI_OFFSET_MPS, atp_constants
+from metro_atc.core.line.atp_constants import atp_constants
 from metro_atc.core.line.geometry import LineGeometry
-from metro_atc.core.line.rolling_stock import KMH
 from metro_atc.core.line.scenario import Scenario
 from metro_atc.core.line.service import drive_envelope
 from metro_atc.core.line.track import (BrakingCurve, braking_envelope, window_min_ahead,
@@ -137,46 +138,6 @@ class AtpSupervisor:
             obst[ns:] = np.minimum(obst[ns:], np.where(same, rear[:-ns], math.inf))
         return obst
 
-    def supervise(self, fl: Fleet) -> tuple[FloatArray, FloatArray, IntArray, int]:
-        """Authority, EBI/SBI speeds and interventions at the start of a step.
-
-        Returns (phi(v) [m/s^2], obstacle rears [m], grid cells of the fronts, number of
-        new interventions); updates ``eoa``, ``atp_limit``, ``speed_code``, ``eb``, ``sb``,
-        ``interventions`` and the safety monitors.
-        """
-        g = self.geom
-        x, v, run = fl.x, fl.v, fl.run
-        obst = self.obstacle_rear(fl, False)
-        obst_sig = self.obstacle_rear(fl, True) if self.fixed_block else obst
-        self.eoa = eoa = np.minimum(obst_sig - self.margin, g.eoa_end)
-        k = ((x - g.x0) * g.inv_dx).astype(np.int64)
-        dist = eoa - x
-        phi = np.interp(v, self.tables.v, self.tables.phi)
-        c0, c2 = self.curve.coef(phi + self.g_down)
-        v_ma = self.curve.speed_from(c0, c2, dist)
-        v_ebi = np.minimum(self.ebi_static[k], v_ma)
-        v_sb_ma = self.curve.speed_from(c0, c2, dist - self.t_sbi * v)
-        v_sbi = np.minimum(self.sbi_static[k], v_sb_ma) - SBI_OFFSET_MPS
-        self.atp_limit = v_ebi
-        if self.fixed_block:
-            self.speed_codes(x, eoa)
-            v_sbi = np.minimum(v_sbi, self.speed_code + 0.5 * g.ceiling_tol)
-        over = run & (v > v_sbi)
-        n_int = 0
-        if self.any_atp or _cnz(over):
-            moving = v > 0.0
-            eb_prev, sb_prev = self.eb, self.sb
-            eb = run & ((eb_prev & moving) | (v > v_ebi))
-            sb = ~eb & (over | (sb_prev & moving & run & (v > v_sbi - 0.5)))
-            onset = moving & ((eb & ~eb_prev) | (sb & ~sb_prev & ~eb_prev))
-            n_int = int(np.count_nonzero(onset))
-            if n_int:
-                self.interventions += onset
-            self.eb, self.sb = eb, sb
-            self.any_atp = bool(_cnz(eb) or _cnz(sb))
-        self.monitor(fl, obst, k)
-        return phi, obst, k, n_int
-
     def monitor(self, fl: Fleet, obst: FloatArray, k: IntArray, count: bool = True) -> None:
         """Independent safety monitors: separation and overspeed violations, min separation.
 
@@ -204,26 +165,3 @@ class AtpSupervisor:
     def monitor_now(self, fl: Fleet) -> None:
         """The safety monitors on the current state (end of a run, before the KPIs)."""
         self.monitor(fl, self.obstacle_rear(fl, False), self.geom.cells(fl.x), count=False)
-
-    def speed_codes(self, x: FloatArray, eoa: FloatArray) -> None:
-        """Fixed-block speed code of each train's current block [m/s] (5 km/h steps).
-
-        The code allows a service-brake stop at the end of authority from the block entry.
-        """
-        g = self.geom
-        start = g.x0 + np.floor((x - g.x0) / self.block_len) * self.block_len
-        code = np.sqrt(2.0 * self.p.max_service_brake_mps2 * np.maximum(eoa - start, 0.0))
-        code = np.floor(code / (5.0 * KMH)) * (5.0 * KMH)
-        k = ((x - g.x0) * g.inv_dx).astype(np.int64)
-        self.speed_code = np.minimum(code, self.limit_eff[k])
-
-    def brake_demand(self, a_tgt: FloatArray, broken: BoolArray, any_broken: bool,
-                     bs: float, eb_decel: float, jerk_dt: float,
-                     jerk_eb_dt: float) -> tuple[FloatArray, Any, BoolArray | None]:
-        """ATP (and breakdown) override of the target deceleration and jerk limit."""
-        if not (self.any_atp or any_broken):
-            return a_tgt, jerk_dt, None
-        eb = self.eb | broken
-        a_tgt = np.where(self.sb, np.minimum(a_tgt, -bs), a_tgt)
-        a_tgt = np.where(eb, -eb_decel, a_tgt)
-        return a_tgt, np.where(eb, jerk_eb_dt, jerk_dt), eb

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from metro_atc.core import laws
 from metro_atc.core.line.adhesion import AdhesionCurve
 from metro_atc.core.line.track import G
 from metro_atc.core.line.vehicle import TrainParams
@@ -94,13 +95,16 @@ class Brakes:
         self.g_per_axle = G / n_ax
         self.trac_adh = curve.mu_peak * self.n_mot
         self.jw = p.wheel_inertia_kgm2
-        self.fc_per_n = p.wheel_radius_m / (2.0 * p.pad_mu_nominal * p.brake_radius_m)
+        # clamp force per N of tread effort: the inverse of the pad torque at r_w (eq. 4)
+        self.fc_per_n = laws.clamp_force_for_torque(p.wheel_radius_m, p.pad_mu_nominal,
+                                                    p.brake_radius_m)
         self.refresh_coefs()
 
     def refresh_coefs(self) -> None:
         """Per-axle coefficients of the instrumented car (refreshed when faults change)."""
         p = self.p
-        self.tb_coef = 2.0 * self.pad_mu * p.brake_radius_m / self.r_w  # F_x per clamp N
+        # F_x per clamp N: pad torque per N (eq. 4) over r_w
+        self.tb_coef = laws.pad_torque(1.0, self.pad_mu, p.brake_radius_m) / self.r_w
         self.inv_rw2 = 1.0 / (self.r_w * self.r_w)
         self.cap_coef = self.mu_pk * self.adh_factor
         adh = self.adh_factor.copy()
@@ -127,21 +131,6 @@ class Brakes:
                 self.adh_factor[i, a] = adhesion_factor if on else 1.0
                 self.r_w[i, a] = p.wheel_radius_m * (radius_factor if on else 1.0)
         self.refresh_coefs()
-
-    def blend(self, a_d: FloatArray, v: FloatArray, mass: FloatArray, meff: FloatArray,
-              f_trac_max: FloatArray, eb_mask: BoolArray | None
-              ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """Traction, brake demand, electric brake and rail braking force [N] for ``a_d``."""
-        w_axle = mass * self.g_per_axle
-        f_trac = np.minimum(np.minimum(np.maximum(a_d, 0.0) * meff, f_trac_max),
-                            w_axle * self.trac_adh)
-        f_bdem = np.maximum(-a_d, 0.0) * meff
-        f_e = np.minimum(f_bdem, np.interp(v, self.tables.v, self.tables.ebrake))
-        if eb_mask is not None:
-            f_e = np.where(eb_mask, 0.0, f_e)
-        f_f = f_bdem - f_e
-        f_brake = self.rail_force(f_e, f_f, w_axle, a_d, v)
-        return f_trac, f_bdem, f_e, f_brake
 
     def rail_force(self, f_e: FloatArray, f_f: FloatArray, w_axle: FloatArray,
                    a_d: FloatArray, v: FloatArray) -> FloatArray:
@@ -227,7 +216,7 @@ class Brakes:
         n_sub = max(int(round(self.dt / 0.005)), 1)
         h = self.dt / n_sub
         wsp = self.wsp.copy()
-        tb_coef = 2.0 * self.pad_mu * self.p.brake_radius_m
+        tb_coef = laws.pad_torque(1.0, self.pad_mu, self.p.brake_radius_m)
         fx = fx_roll
         for _ in range(n_sub):
             s = np.clip(1.0 - omega * rw / v, 0.0, 1.0)

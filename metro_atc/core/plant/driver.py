@@ -11,7 +11,7 @@ the ATP braking curve is the ATP's own (:attr:`AtpSupervisor.curve`).
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,10 +33,7 @@ class PlantView(Protocol):
     fleet: Fleet
     atp: AtpSupervisor
     geometry: LineGeometry
-
-    def active_mask(self) -> NDArray[np.bool_]:
-        """Trains that must send a command this step."""
-        ...
+    stepper: Any
 
 
 def driver_command(sim: PlantView, gain: float = 1.5, lookahead_s: float = 0.7) -> FloatArray:
@@ -47,46 +44,15 @@ def driver_command(sim: PlantView, gain: float = 1.5, lookahead_s: float = 0.7) 
     (b = 0.6 x max service brake), and the ATP service-intervention speed 2 s ahead minus
     1 m/s.  Close to a stop the feed-forward ``-(v^2 / 2 d) / b_max`` of the constant
     deceleration that stops exactly there is added.  Stopped short: creep at 30 % traction.
+    Computed by the compiled :func:`.kernel_step.driver` (curves of
+    :mod:`metro_atc.core.laws`).
     """
-    stepper = getattr(sim, "stepper", None)
-    if stepper is not None:  # compiled twin (plant kernel numba)
-        return np.asarray(stepper.driver(sim, gain, lookahead_s, False))
-    fl, atp, g = sim.fleet, sim.atp, sim.geometry
-    x, v = fl.x, fl.v
-    la = v * lookahead_s
-    kl = ((x + la - g.x0) * g.inv_dx).astype(np.int64)
-    np.minimum(kl, g.n_cells - 1, out=kl)
-    b2 = 2.0 * atp.b_drive
-    d_stop = fl.stop_x - x
-    d_ma = atp.eoa - x - 3.0
-    d_eff = np.minimum(d_stop, d_ma)
-    v_curve = np.sqrt(b2 * np.maximum(d_eff - la, 0.0))
-    lead = v * (atp.t_sbi + 2.0)
-    c0, c2 = atp.curve.coef(atp.a_w)  # worst case at standstill
-    v_atp = atp.curve.speed_from(c0, c2, d_ma - lead, below_mps=1.0)
-    v_ref = np.minimum(np.minimum(atp.drive_env[kl], v_curve),
-                       np.minimum(v_atp, atp.sbi_static[kl] - 1.0))
-    if atp.fixed_block:
-        v_ref = np.minimum(v_ref, atp.speed_code - 0.5)
-    err = gain * (v_ref - v)
-    # programmed stopping: feed-forward of the constant deceleration that stops at the point
-    near = d_eff < (0.65 / atp.b_drive) * v * v + 1.0
-    ff = (v * v) / (-2.0 * sim.p.max_service_brake_mps2 * np.maximum(d_eff, 0.05))
-    u = np.where(near, np.minimum(err, ff + err), err)
-    # creep when stopped short of the stop point; hold once there
-    tol = 0.5 * g.tol_stop
-    u = np.where((v < 0.3) & (d_stop > tol) & (v_ref > 1.0), np.maximum(u, 0.3), u)
-    u = np.where((d_stop <= tol) & (v < 0.5), -1.0, u)
-    return np.minimum(np.maximum(u, -1.0), 1.0)
+    return np.asarray(sim.stepper.driver(sim, gain, lookahead_s, False))
 
 
 def simple_driver(sim: PlantView) -> FloatArray:
     """Safe reference driver for the whole fleet (commands for inactive trains are 0)."""
-    stepper = getattr(sim, "stepper", None)
-    if stepper is not None:
-        return np.asarray(stepper.driver(sim, 1.5, 0.7, True))
-    u = driver_command(sim)
-    return np.asarray(np.where(sim.active_mask(), u, 0.0))
+    return np.asarray(sim.stepper.driver(sim, 1.5, 0.7, True))
 
 
 def random_driver(sim: PlantView, rng: np.random.Generator) -> FloatArray:

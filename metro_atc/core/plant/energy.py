@@ -1,5 +1,6 @@
 """Energy meter of a fleet [J]: traction and braking work at the wheels, resistances, grade.
 
+The compiled step adds each period's work to the counters (:func:`.kernel_step.motion`).
 Rail braking work is split into electric (regenerated x efficiency x receptivity) and
 friction; substation energy = wheel traction / efficiency + auxiliary - regenerated.  The
 balance closes to RK4 accuracy (test_plant_energy.py): in a period that ends at rest the
@@ -12,8 +13,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from metro_atc.core.line.vehicle import TrainParams
-
-from .dynamics import StepMotion
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -36,28 +35,6 @@ class EnergyMeter:
         self.traction_efficiency = p.traction_efficiency
         self.regen_eff = p.regen_efficiency * regen_receptivity
         self.aux_dt = p.aux_power_w * control_period_s
-
-    def meter(self, mo: StepMotion, v0: FloatArray, dxt: FloatArray, meff: FloatArray,
-              f_trac: FloatArray, f_brake: FloatArray, f_e: FloatArray, f_bdem: FloatArray,
-              run: BoolArray) -> None:
-        """Add one control period (motion ``mo`` from speed ``v0`` over ``dxt``)."""
-        w_trac = f_trac * dxt
-        w_brk = f_brake * dxt
-        if mo.clamped is not None:
-            v1 = mo.v1
-            resid = (w_trac - mo.w_grade - mo.w_curve - mo.w_res
-                     - 0.5 * meff * (v1 * v1 - v0 * v0))
-            w_new = np.where(mo.clamped, np.maximum(resid, 0.0), w_brk)
-            self.e_stop_corr += np.abs(w_new - w_brk)
-            w_brk = w_new
-        w_e = w_brk * (f_e / np.maximum(f_bdem, 1e-9))
-        self.e_trac += w_trac
-        self.e_elec += w_e
-        self.e_fric += w_brk - w_e
-        self.e_res += mo.w_res
-        self.e_curve += mo.w_curve
-        self.e_grade += mo.w_grade
-        self.n_in_service += run
 
     @property
     def e_brake_rail(self) -> FloatArray:

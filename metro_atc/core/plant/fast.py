@@ -1,46 +1,55 @@
-"""The compiled plant step: kernel selection and the wrappers around :mod:`.kernel`.
+"""The compiled plant step: the wrappers around :mod:`.kernel` / :mod:`.kernel_step`.
 
-``plant_kernel`` (``LineSim(kernel=...)`` or the ``METRO_ATC_PLANT_KERNEL`` environment
-variable): ``numpy`` -- the reference path (:mod:`.physics`); ``numba`` -- the fused
-per-train loops of :mod:`.kernel` / :mod:`.kernel_aux`; ``auto`` (default) -- numba when it
-is installed, else numpy.  Both read and write the same component arrays, so the state stays
-in the components (checkpoints, plots and nodes see no difference); the numpy path is the
-reference the compiled one is tested against (golden traces, generated lines).
+One step of the fleet's continuous part (ATP supervision and monitors, jerk-limited
+demand, traction / blended brake / adhesion, RK4 with the energy quadrature, arrival
+candidates) is one call of the fused per-train loops, whose physics is
+:mod:`metro_atc.core.laws`; a step where an axle may slide hands the rail force to the
+adhesion / wheel-slide model of :mod:`.braking`.  The kernels read and write the
+components' own arrays, so the state stays in the components (checkpoints, plots and
+nodes see them).  ``NUMBA_DISABLE_JIT=1`` runs the same source uncompiled (debugging).
 """
 
 from __future__ import annotations
 
 import copy
 import time
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from metro_atc.core.kernel_choice import numba_available
-from metro_atc.core.kernel_choice import resolve_kernel as choose_kernel
+from metro_atc.core.line.geometry import LineGeometry
 from metro_atc.core.line.rolling_stock import KMH
+from metro_atc.core.line.vehicle import TrainParams
 
-from .atp import CIVIL_TOL_MPS
-from .braking import AxleState
+from .atp import CIVIL_TOL_MPS, AtpSupervisor
+from .braking import AxleState, Brakes
+from .energy import EnergyMeter
 from .fast_state import Blocks, same
-from .physics import PlantParts
+from .fleet import Fleet
 from .sensors import SensorBlock, Sensors, SensorSnap
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
-KERNELS = ("auto", "numba", "numpy")
-"""Accepted values of ``plant_kernel``."""
 AUTO_GAIN, AUTO_LOOKAHEAD_S = 1.5, 0.7
 """:func:`.driver.driver_command` defaults: the plant's own driver of turning-back trains."""
-KERNEL_ENV = "METRO_ATC_PLANT_KERNEL"
-"""Environment variable selecting the kernel when ``LineSim`` is not told."""
 
 
-def resolve_kernel(name: str | None = None) -> str:
-    """``numba`` or ``numpy`` for the requested kernel (argument, else env, else auto)."""
-    return choose_kernel(name, KERNEL_ENV, "numpy", "plant kernel")
+class PlantParts(Protocol):
+    """The components a step advances (``LineSim`` provides them)."""
+
+    fleet: Fleet
+    atp: AtpSupervisor
+    brakes: Brakes
+    energy: EnergyMeter
+    sensors: Sensors
+    geometry: LineGeometry
+    p: TrainParams
+    control_period_s: float
+    substeps: int
+    tol_stop: float
+    t: float
 
 
 class FastSensors(Sensors):
@@ -59,7 +68,7 @@ class FastSensors(Sensors):
                      np.zeros((2, 1, 1, 4)), np.zeros((2, 1, 1)))  # compile / load now
 
     def block(self, sn: SensorSnap) -> SensorBlock:
-        """Samples with noise and injected sensor faults (same draws as the numpy path).
+        """Samples with noise and injected sensor faults.
 
         The compiled step computes them with the step (``sn.pre``, see
         :meth:`NumbaStepper.advance`) once samples have been read (``want``); they are
@@ -91,7 +100,7 @@ class FastSensors(Sensors):
 
 
 class NumbaStepper:
-    """:func:`.physics.advance_numpy` with the compiled kernel (same signature, same updates).
+    """The plant's step of the continuous part with the compiled kernel.
 
     The kernel (:func:`.kernel_step.step_rows`) takes a few packed arrays: constants of
     the run (with the sensor noise), static tables, the persistent blocks of
@@ -124,12 +133,12 @@ class NumbaStepper:
         vals = {
             kn.C_X0: g.x0, kn.C_INV_DX: g.inv_dx, kn.C_LEN: g.length_m,
             kn.C_X_SWITCH: g.x_switch, kn.C_BLOCK: atp.block_len, kn.C_MARGIN: atp.margin,
-            kn.C_EOA_END: g.eoa_end, kn.C_G_DOWN: atp.g_down, kn.C_C0A: cu.c0a,
-            kn.C_C0B: cu.c0b, kn.C_C1: cu.c1, kn.C_C2A: cu.c2a, kn.C_TR: cu.t_r,
+            kn.C_EOA_END: g.eoa_end, kn.C_G_DOWN: atp.g_down, kn.C_B_G: cu.b_g,
+            kn.C_TR: cu.t_r,
             kn.C_TSBI: atp.t_sbi, kn.C_SBI_OFF: _sbi_offset(), kn.C_CEIL_TOL: g.ceiling_tol,
             kn.C_BS: p.max_service_brake_mps2, kn.C_EB_DECEL: p.emergency_brake_actual_mps2,
             kn.C_JERK: p.max_jerk_mps3 * dt, kn.C_JERK_EB: p.emergency_jerk_mps3 * dt,
-            kn.C_CIVIL_TOL: CIVIL_TOL_MPS, kn.C_G_AXLE: br.g_per_axle,
+            kn.C_CIVIL_TOL: CIVIL_TOL_MPS, kn.C_N_AX: br.n_ax,
             kn.C_TRAC_ADH: br.trac_adh, kn.C_MU_PK: br.mu_pk, kn.C_INV_NAX: 1.0 / br.n_ax,
             kn.C_INV_NMOT: 1.0 / max(br.n_mot, 1), kn.C_DAVIS_A: p.davis_a_n,
             kn.C_DAVIS_B: p.davis_b_n_per_mps, kn.C_DAVIS_C: p.davis_c_n_per_mps2,
@@ -227,7 +236,13 @@ class NumbaStepper:
     def advance(self, sim: PlantParts, u: FloatArray, auto_u: FloatArray | None,
                 axles: bool = False, ts: FloatArray | None = None
                 ) -> tuple[int, BoolArray | None, FloatArray]:
-        """See :func:`.physics.advance_numpy` (``axles``: fill the axle arrays now).
+        """Advance the fleet one control period with the commands ``u`` [n] (valid shape).
+
+        NaN keeps the last command, values are clipped to [-1, 1]; ``auto_u`` replaces the
+        command of the trains the plant drives itself (``fleet.auto``).  Updates the fleet
+        (x, v, acc, a_dem, u_last), the ATP state, the brake axle state and the energy
+        meter.  Returns (new ATP interventions, arrival/overrun candidates (None if none),
+        front - stop point [m]).  ``axles``: fill the axle arrays now.
 
         ``auto_u`` None: the kernel computes the turning-back trains' commands itself
         (:func:`.driver.driver_command` with its default gains, at the start of the step).
@@ -360,5 +375,4 @@ def _sbi_offset() -> float:
     return float(SBI_OFFSET_MPS)
 
 
-__all__ = ["KERNELS", "KERNEL_ENV", "FastSensors", "NumbaStepper",
-           "numba_available", "resolve_kernel"]
+__all__ = ["FastSensors", "NumbaStepper", "PlantParts"]

@@ -80,7 +80,7 @@ class Fleet:
         """Per-train constants of the masses (new arrays; the step reads them).
 
         ``meff`` = m + m_rot [kg], ``inv_meff`` [1/kg], ``davis_bc`` = Davis B and C over
-        ``meff`` [1/s, 1/m] (:func:`.dynamics.rk4_motion`).
+        ``meff`` [1/s, 1/m] (:func:`metro_atc.core.laws.davis_rk4_step`).
         """
         p = self.p
         self.meff: FloatArray = self.mass + self.m_rot

@@ -1,11 +1,11 @@
-"""Compiled step kernel of the plant (numba): the numpy step of :mod:`.physics` fused per train.
+"""Compiled step kernel of the plant (numba): ATP, demand and brake blend fused per train.
 
-Every function here reproduces a numpy expression of :mod:`.atp`, :mod:`.braking`,
-:mod:`.dynamics`, :mod:`.energy`, :mod:`.driver` and :mod:`.sensors` element by element, in
-the same operation order (no fast-math, no fused multiply-add), so both paths agree to
-round-off (``test_plant_golden.py`` runs the golden traces with both; the property test
-compares them on generated lines).  The kernels read and write the components' own arrays
-(no state of their own); the numpy path stays the reference.
+The physics is :mod:`metro_atc.core.laws` (traction, brakes, adhesion, ATP braking curves,
+RK4), called per train and inlined by numba; no fast-math, no fused multiply-add.  The
+kernels read and write the components' own arrays (:mod:`.atp`, :mod:`.braking`,
+:mod:`.energy`, :mod:`.fleet`; no state of their own).  References: the golden traces
+(``test_plant_golden.py``) and the recorded generated-line traces
+(``test_plant_kernel.py``), both recorded when a numpy twin of this step still existed.
 
 Constants of a run are packed in one float array (indices ``C_*``, built by
 :mod:`.fast`); per-step outputs are the rows of one fresh ``[N_OUT, n]`` block (``O_*``).
@@ -19,12 +19,13 @@ import math
 
 from numba import njit
 
+from metro_atc.core import laws
+
 # packed constants (float64 vector)
-(C_X0, C_INV_DX, C_LEN, C_X_SWITCH, C_BLOCK, C_MARGIN, C_EOA_END, C_G_DOWN, C_C0A, C_C0B,
- C_C1, C_C2A, C_TR, C_TSBI, C_SBI_OFF, C_CEIL_TOL, C_BS, C_EB_DECEL, C_JERK, C_JERK_EB,
- C_CIVIL_TOL, C_G_AXLE, C_TRAC_ADH, C_MU_PK, C_INV_NAX, C_INV_NMOT, C_DAVIS_A, C_DAVIS_B,
- C_DAVIS_C, C_DT, C_TOL, C_CODE_STEP, C_FIXED, C_N_SID, C_SUBSTEPS, C_FC_PER_N, C_JW,
- N_CONST) = range(38)
+(C_X0, C_INV_DX, C_LEN, C_X_SWITCH, C_BLOCK, C_MARGIN, C_EOA_END, C_G_DOWN, C_B_G, C_TR,
+ C_TSBI, C_SBI_OFF, C_CEIL_TOL, C_BS, C_EB_DECEL, C_JERK, C_JERK_EB, C_CIVIL_TOL, C_N_AX,
+ C_TRAC_ADH, C_MU_PK, C_INV_NAX, C_INV_NMOT, C_DAVIS_A, C_DAVIS_B, C_DAVIS_C, C_DT, C_TOL,
+ C_CODE_STEP, C_FIXED, C_N_SID, C_SUBSTEPS, C_FC_PER_N, C_JW, N_CONST) = range(35)
 # rows of the per-step output block
 (O_X1, O_V1, O_ACC, O_LIM, O_EOA, O_AD, O_FFA, O_WAX, O_U, O_DRV, O_PHI, O_FTRAC, O_FBDEM,
  O_FE, O_FF, O_FBRK, O_D, O_VSBI, O_OBST, O_EBR, N_OUT) = range(21)
@@ -179,15 +180,14 @@ def front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb,
         phi[i] = ph
         blk[O_EBR, i] = interp_at(v[i], tv, tebr, jv)
         a_w = ph + c[C_G_DOWN]
-        c0 = c[C_C0A] + c[C_C0B] * a_w
-        c2 = c[C_C2A] + c[C_TR] * a_w
-        v_ma = math.sqrt(_mx(c0 + c[C_C1] * dist, 0.0)) - c2
+        c0, c1, c2 = laws.ebi_coef(c[C_B_G], c[C_TR], a_w)
+        v_ma = laws.ebi_speed_from(c0, c1, c2, dist)
         lim[i] = _mn(ebi_s[k], v_ma)
-        v_sb_ma = math.sqrt(_mx(c0 + c[C_C1] * (dist - c[C_TSBI] * v[i]), 0.0)) - c2
+        v_sb_ma = laws.ebi_speed_from(c0, c1, c2, dist - c[C_TSBI] * v[i])
         vs = _mn(sbi_s[k], v_sb_ma) - c[C_SBI_OFF]
         if fixed:
             start = x0 + math.floor((x[i] - x0) / c[C_BLOCK]) * c[C_BLOCK]
-            code = math.sqrt(2.0 * c[C_BS] * _mx(eoa[i] - start, 0.0))
+            code = laws.braking_speed(eoa[i] - start, c[C_BS])
             code = math.floor(code / c[C_CODE_STEP]) * c[C_CODE_STEP]
             speed_code[i] = _mn(code, lim_eff[k])
             vs = _mn(vs, speed_code[i] + 0.5 * c[C_CEIL_TOL])
@@ -252,12 +252,13 @@ def front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb,
                 jmax = c[C_JERK_EB]
         a_d = _mn(_mx(a_t, a_prev[i] - jmax), a_prev[i] + jmax)
         blk[O_AD, i] = a_d
-        w_ax = mass[i] * c[C_G_AXLE]
+        w_ax = laws.axle_load(mass[i], c[C_N_AX])
         blk[O_WAX, i] = w_ax
-        blk[O_FTRAC, i] = _mn(_mn(_mx(a_d, 0.0) * meff[i], f_max), w_ax * c[C_TRAC_ADH])
-        f_bdem = _mx(-a_d, 0.0) * meff[i]
+        blk[O_FTRAC, i] = laws.traction_demand_force(a_d, meff[i], f_max,
+                                                     w_ax * c[C_TRAC_ADH])
+        f_bdem = laws.brake_demand_force(a_d, meff[i])
         blk[O_FBDEM, i] = f_bdem
-        f_e = _mn(f_bdem, blk[O_EBR, i])
+        f_e = laws.electric_brake_share(f_bdem, blk[O_EBR, i])
         if ebm:
             f_e = 0.0
         blk[O_FE, i] = f_e
@@ -265,7 +266,8 @@ def front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb,
         blk[O_FF, i] = f_f
         f_fa = f_f * c[C_INV_NAX]
         blk[O_FFA, i] = f_fa
-        if f_e * c[C_INV_NMOT] + f_fa > c[C_MU_PK] * w_ax or f_fa * slide_ratio[i] > w_ax:
+        if (f_e * c[C_INV_NMOT] + f_fa > laws.adhesion_limit(c[C_MU_PK], w_ax)
+                or f_fa * slide_ratio[i] > w_ax):
             fast = False
         blk[O_FBRK, i] = f_e + f_fa * fric_mult[i]
     return n_int, any_atp, any_viol, gmin, n_civil, fast

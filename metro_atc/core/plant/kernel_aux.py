@@ -1,7 +1,6 @@
-"""Compiled (numba) sensor samples: :meth:`.sensors.Sensors.block` element by element.
+"""Compiled (numba) sensor samples of the instrumented cars (:class:`.fast.FastSensors`).
 
-Same operation order as the numpy path (see :mod:`.kernel`); the normal draws are made by
-the caller with the sensors' own generator, so the streams are identical.
+The normal draws are made by the caller with the sensors' own generator (one stream).
 """
 
 from __future__ import annotations

@@ -1,15 +1,16 @@
 """Compiled (numba) motion, energy and reference driver; :func:`step_all` fuses a step.
 
-Twins of :func:`.dynamics.rk4_motion`, :meth:`.energy.EnergyMeter.meter` and
-:func:`.driver.driver_command` in the same operation order (see :mod:`.kernel`).
+RK4 with the energy quadrature of each force (:func:`metro_atc.core.laws.davis_rk4_step`),
+the energy meter's counters (:class:`.energy.EnergyMeter`) and the reference driver
+(:func:`.driver.driver_command`); see :mod:`.kernel`.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
+
+from metro_atc.core import laws
 
 from .kernel import (C_DAVIS_A, C_DAVIS_B, C_DAVIS_C, C_DT, C_FIXED, C_INV_DX, C_SUBSTEPS,
                      C_TOL, C_X0, G_ENV, G_SBI, M_CAND, M_RUN, N_CONST, O_ACC, O_AD, O_D,
@@ -49,7 +50,7 @@ def motion(c, x, v, f_trac, f_brake, f_e, f_bdem, mp, geo, masks, stop_x, e_trac
     dt = c[C_DT]
     substeps = int(c[C_SUBSTEPS])
     h = dt / substeps
-    h2, h6 = 0.5 * h, h / 6.0
+    h6 = h / 6.0
     xs = x.copy()
     vs = v.copy()
     w_res = np.zeros(n)
@@ -73,17 +74,9 @@ def motion(c, x, v, f_trac, f_brake, f_e, f_bdem, mp, geo, masks, stop_x, e_trac
             f_const = f_trac[i] - f_brake[i] - da
             q = (f_const - f_g - f_c) * inv_m[i]
             v1_ = vs[i]
-            k1 = q - v1_ * (cb[i] + cc[i] * v1_)
-            v2 = v1_ + h2 * k1
-            k2 = q - v2 * (cb[i] + cc[i] * v2)
-            v3 = v1_ + h2 * k2
-            k3 = q - v3 * (cb[i] + cc[i] * v3)
-            v4 = v1_ + h * k3
-            k4 = q - v4 * (cb[i] + cc[i] * v4)
-            vn[i] = v1_ + h6 * (k1 + 2.0 * (k2 + k3) + k4)
-            dxs[i] = h6 * (v1_ + 2.0 * (v2 + v3) + v4)
-            pr[i] = ((q * dxs[i] - h6 * (k1 * v1_ + 2.0 * (k2 * v2 + k3 * v3) + k4 * v4))
-                     * meff[i] + da * dxs[i])
+            vn[i], dxs[i], k1, kv = laws.davis_rk4_step(v1_, q, cb[i], cc[i], h)
+            # resistance work: Davis force = A + M_eff (q_A - k), by the same quadrature
+            pr[i] = (q * dxs[i] - h6 * kv) * meff[i] + da * dxs[i]
             k1s[i] = k1
             if vn[i] <= 0.0:
                 n_stop += 1
@@ -96,10 +89,10 @@ def motion(c, x, v, f_trac, f_brake, f_e, f_bdem, mp, geo, masks, stop_x, e_trac
                 if n_stop_moving == 0:  # only trains already at rest: exactly at rest
                     dxs[i] = 0.0
                     pr[i] = 0.0
-                else:  # uniform deceleration to rest (see rk4_motion)
-                    d_stop = _mn(vi * vi / (-2.0 * _mn(k1s[i], -1e-9)), h * vi)
+                else:  # uniform deceleration to rest (no roll-back)
+                    d_stop = laws.stop_distance_in_step(vi, k1s[i], h)
                     dxs[i] = d_stop
-                    pr[i] = (da + vi * (db + dc * vi)) * d_stop
+                    pr[i] = laws.davis_resistance(vi, da, db, dc) * d_stop
                     clamped[i] = True
             w_res[i] = w_res[i] + pr[i]
             w_grade[i] = w_grade[i] + fg[i] * dxs[i]
@@ -147,7 +140,6 @@ def driver(dc, x, v, stop_x, eoa, speed_code, drive_env, sbi_static, status,
     n = x.shape[0]
     n_cells = drive_env.shape[0]
     b_drive = dc[D_B_DRIVE]
-    b2 = 2.0 * b_drive
     c0, c1, c2 = dc[D_C0], dc[D_C1], dc[D_C2] + 1.0
     tol = 0.5 * dc[D_TOL]
     for i in range(n):
@@ -157,9 +149,9 @@ def driver(dc, x, v, stop_x, eoa, speed_code, drive_env, sbi_static, status,
         d_stop = stop_x[i] - xi
         d_ma = eoa[i] - xi - 3.0
         d_eff = _mn(d_stop, d_ma)
-        v_curve = math.sqrt(b2 * _mx(d_eff - la, 0.0))
+        v_curve = laws.braking_speed(d_eff - la, b_drive)
         lead = vi * (dc[D_T_SBI] + 2.0)
-        v_atp = math.sqrt(_mx(c0 + c1 * (d_ma - lead), 0.0)) - c2
+        v_atp = laws.ebi_speed_from(c0, c1, c2, d_ma - lead)
         v_ref = _mn(_mn(drive_env[kl], v_curve), _mn(v_atp, sbi_static[kl] - 1.0))
         if fixed:
             v_ref = _mn(v_ref, speed_code[i] - 0.5)

@@ -1,6 +1,6 @@
 """The metro line plant: :class:`LineSim` sequences the plant modules (ROS-free, SI units).
 
-One control period per :meth:`LineSim.step`, vectorised over trains with numpy.
+One control period per :meth:`LineSim.step`, one compiled call over the trains.
 
 Per step: timed discrete events (:mod:`.incidents`, :mod:`.stations`) -> ATP supervision and
 safety monitors (:mod:`.atp`) -> jerk-limited demand -> traction / blended brake / adhesion
@@ -9,9 +9,9 @@ snapshot (:mod:`.sensors`) -> arrivals and overruns (:mod:`.stations`).  The sta
 (geometry, rolling stock, timetable) is :mod:`metro_atc.core.line`; the KPIs are computed
 from :meth:`LineSim.run_log` (:mod:`.kpi`).  The effort is held constant over a control
 period and its rate is jerk limited (seed 001, 1.0 m/s^3; the emergency brake builds up at
-``emergency_jerk_mps3``).  The continuous part of a step (ATP to energy) runs with numpy
-(:mod:`.physics`, the reference) or as one compiled call (:mod:`.fast`; ``kernel`` /
-``METRO_ATC_PLANT_KERNEL``), bit-identical.
+``emergency_jerk_mps3``).  The continuous part of a step (ATP to energy) is one compiled
+call (:mod:`.fast`, :mod:`.kernel`, :mod:`.kernel_step`) whose physics is
+:mod:`metro_atc.core.laws`; ``NUMBA_DISABLE_JIT=1`` runs the same source uncompiled.
 """
 
 from __future__ import annotations
@@ -30,15 +30,14 @@ from metro_atc.core.line.vehicle import TrainParams
 
 from .atp import AtpSupervisor
 from .braking import N_AXLES_SENSED, Brakes
-from .driver import driver_command, simple_driver
+from .driver import simple_driver
 from .energy import EnergyMeter
-from .fast import FastSensors, NumbaStepper, resolve_kernel
+from .fast import FastSensors, NumbaStepper
 from .fast_run import DrivenRun, run_compiled
 from .fleet import (DONE, MODE_ACCEL, MODE_ATP, MODE_BRAKE, MODE_COAST, MODE_CRUISE,
                     MODE_DWELL, MODE_OUT, RUN, Fleet, Status)
 from .incidents import Incidents
 from .kpi import RunLog, compute_kpis
-from .physics import advance_numpy
 from .sensors import BrakeSensorSample, SensorBlock, Sensors, StepResult
 from .stations import Stations, TrainEvent
 from .tables import VehicleTables
@@ -108,15 +107,12 @@ class LineSim:
     _car_mass: tuple[Any, ...] = (None, None, None)
 
     def __init__(self, scn: Scenario, seed: int = 0, params: TrainParams | None = None,
-                 trace_period_s: float = 1.0, kernel: str | None = None) -> None:
+                 trace_period_s: float = 1.0) -> None:
         """Build the line, timetable and fleet of ``scn``; ``seed`` drives all randomness.
 
         ``params`` replaces the scenario's rolling stock (tests); ``trace_period_s`` > 0
-        records positions/speeds every that many seconds for the plots (0 disables);
-        ``kernel``: ``auto`` / ``numba`` / ``numpy`` step (:mod:`.fast`; default from
-        ``METRO_ATC_PLANT_KERNEL``, else auto).
+        records positions/speeds every that many seconds for the plots (0 disables).
         """
-        self.kernel = resolve_kernel(kernel)
         self.scn = scn
         self.seed = int(seed)
         self.rng = np.random.default_rng(self.seed)
@@ -145,8 +141,7 @@ class LineSim:
         self.energy = EnergyMeter(n, p, scn.energy.regen_receptivity, dt)
         self.incidents = Incidents(scn, self.n_st)
         self.stations = Stations(scn, sv, g, self.fleet, self.incidents.extra_hold, self.rng)
-        sensors_cls = FastSensors if self.kernel == "numba" else Sensors
-        self.sensors = sensors_cls(scn, self.seed, self.incidents.sensor_faults)
+        self.sensors: Sensors = FastSensors(scn, self.seed, self.incidents.sensor_faults)
         self._t_next = 0.0
         self._refresh_tsr(force=True)
         self._masks()
@@ -154,7 +149,7 @@ class LineSim:
                             if trace_period_s > 0 else 0)
         self.trace: dict[str, list[Any]] = {"t": [], "x": [], "v": [], "run": [],
                                             "atp": []}
-        self.stepper = NumbaStepper(self) if self.kernel == "numba" else None
+        self.stepper = NumbaStepper(self)
         self._car_mass = (None, None, None)  # (mass, meff, mass / cars)
 
     # ------------------------------------------------------------------ public API
@@ -310,17 +305,13 @@ class LineSim:
         dt = self.control_period_s
         if discrete and t >= self._t_next - 1e-9:
             self._discrete(t)
-        # the plant drives turning-back trains (the compiled step does it itself)
-        auto_u = driver_command(self) if fl.any_auto and self.stepper is None else None
         v = fl.v
         t_new = t + dt
         sen = self.sensors
         due = sen.due(t_new)
         ts = sen.sample_times(t_new) if due else None
-        if self.stepper is None:
-            n_int, hit, d = advance_numpy(self, ua, auto_u, due)
-        else:
-            n_int, hit, d = self.stepper.advance(self, ua, auto_u, due, ts)
+        # the compiled step also drives the turning-back trains (auto_u None)
+        n_int, hit, d = self.stepper.advance(self, ua, None, due, ts)
         v1 = fl.v
         self.t = t_new
         self.step_count += 1
@@ -349,13 +340,10 @@ class LineSim:
     def run_driven(self, until_s: float, samples: bool = True) -> DrivenRun:
         """``while not done and t < until_s: step(simple_driver(self))``, samples read if asked.
 
-        With the compiled kernel, several steps per call (:mod:`.fast_run`).
+        Several steps per compiled call (:mod:`.fast_run`).
         """
         out, st = DrivenRun(), self.stations
         while not self.done and self.t < until_s:
-            if self.stepper is None:
-                out.add(self.step(simple_driver(self)), samples)
-                continue
             u = simple_driver(self)  # before the step's discrete events, as in the loop
             if self.t >= self._t_next - 1e-9:
                 st.events_out = out.events

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from metro_atc.core.line.scenario import Scenario
 
-from .braking import N_AXLES_SENSED, AxleState
+from .braking import AxleState
 from .stations import TrainEvent
 
 FloatArray = NDArray[np.float64]
@@ -189,32 +189,12 @@ class Sensors:
                           car_mass, pre)
 
     def block(self, sn: SensorSnap) -> SensorBlock:
-        """Samples with noise and injected sensor faults from a snapshot."""
-        sen = self.spec
-        idx = sn.idx
-        rw = sn.r_w[idx]
-        _, clamp1, slip1 = sn.ax1.get()
-        slip0 = sn.ax0.get()[2]
-        v0, v1 = sn.v0[idx], sn.v1[idx]
-        om0 = (v0[:, None] * (1.0 - slip0[idx])) / rw
-        om1 = (v1[:, None] * (1.0 - slip1[idx])) / rw
-        frac = ((sn.ts - sn.t0) / (sn.t1 - sn.t0))[:, None]
-        ns, m = sn.ts.size, idx.size
-        # one standard-normal draw for the four channels, in the order (and with the
-        # values) of separate rng.normal(0, sigma, shape) calls: normal = 0 + sigma * z
-        k = ns * m * N_AXLES_SENSED
-        z = self.normals(2 * k + 2 * ns * m)
-        shape3 = (ns, m, N_AXLES_SENSED)
-        omega = om0[None] + frac[:, :, None] * (om1 - om0)[None]
-        omega += sen.wheel_omega_noise_radps * z[:k].reshape(shape3)
-        clamp = np.maximum(clamp1[idx][None] + sen.clamp_force_noise_n
-                           * z[k:2 * k].reshape(shape3), 0.0)
-        zs = z[2 * k:].reshape(2, ns, m)
-        accel = sn.acc[idx][None] + sen.accel_noise_mps2 * zs[0]
-        vref = (v0[None] + frac * (v1 - v0)[None]) + sen.ref_speed_noise_mps * zs[1]
-        if self.faults:
-            self.apply_faults(sn.ts, idx, omega, clamp, accel, vref)
-        return SensorBlock(sn.ts, idx, omega, clamp, accel, vref, sn.car_mass[idx])
+        """Samples with noise and injected sensor faults from a snapshot.
+
+        Assembled by the compiled :func:`.kernel_aux.sensor_block`
+        (:class:`metro_atc.core.plant.fast.FastSensors`, the plant's sensors).
+        """
+        raise NotImplementedError("the plant's sensors are FastSensors")
 
     def apply_faults(self, tt: FloatArray, idx: IntArray, omega: FloatArray,
                      clamp: FloatArray, accel: FloatArray, vref: FloatArray) -> None:
