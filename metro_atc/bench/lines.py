@@ -42,7 +42,8 @@ import numpy as np
 from metro_atc.bench.progress import progress_each
 from metro_atc.bench.ttobench import metro_scenario
 from metro_atc.core.closed_loop import STOP_WINDOW_M, run_closed_loop
-from metro_atc.core.linegen import load_generated
+from metro_atc.core.linegen import load_generated_named
+from metro_atc.core.line.rolling_stock import train_params_for
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.jsonsafe import json_safe
 
@@ -102,8 +103,12 @@ def run_job(job: Job, a: argparse.Namespace) -> Outcome:
     kind, what = job
     c0 = time.process_time()
     try:
-        scn = load_generated(what, incidents=a.incidents) if kind == "gen" \
-            else metro_scenario() if kind == "ttobench" else load_scenario(what)
+        stock = ""
+        if kind == "gen":
+            stock, scn = load_generated_named(what, incidents=a.incidents,
+                                              extended=getattr(a, "corpus", "") == "extended")
+        else:
+            scn = metro_scenario() if kind == "ttobench" else load_scenario(what)
         res = run_closed_loop(scn, regulator=a.regulator, planner=a.planner,
                               tracker=a.tracker, seed=a.sim_seed, brake=not a.no_brake)
     except (ScenarioError, ValueError) as exc:
@@ -112,7 +117,8 @@ def run_job(job: Job, a: argparse.Namespace) -> Outcome:
     row["line_km"] = float(np.ptp([s.position_m for s in scn.line.stations])) / 1000.0
     row["stations"] = len(scn.line.stations)
     row["trains"] = scn.trains.count
-    row["stock"] = scn.trains.preset
+    row["stock"] = stock or scn.trains.preset
+    row["empty_mass_t"] = round(train_params_for(scn).tare_mass_kg / 1000.0, 1)
     row["cpu_s"] = time.process_time() - c0
     return row, list(res.stop_errors_m), ""
 
@@ -138,6 +144,9 @@ def main(argv: Optional[List[str]] = None) -> int:
                                  description=__doc__.splitlines()[0])
     ap.add_argument("--count", type=int, default=10, help="generated lines")
     ap.add_argument("--seed", type=int, default=0, help="seed of the first generated line")
+    ap.add_argument("--corpus", choices=("extended", "classic"), default="extended",
+                    help="generated lines: extended (light and heavy stock, dense, long and "
+                    "mixed interstations; default) or classic (the four presets' variants)")
     ap.add_argument("--incidents", action="store_true", help="a TSR and a breakdown per line")
     ap.add_argument("--scenario", nargs="*", default=[],
                     help="extra scenario files or embedded names run after the generated lines")

@@ -79,7 +79,7 @@ _TRAIN_KEYS: dict[str, tuple[str, str]] = {
 }
 """TTOBench train field -> (scenario section, key)."""
 
-_REQUIRED_TRAIN = ("mass", "max traction power", "max reg braking power", "max traction force",
+_REQUIRED_TRAIN = ("mass", "length", "max traction power", "max reg braking power", "max traction force",
                    "max reg braking force", "max speed", "rolling resistance r0",
                    "rolling resistance r1", "rolling resistance r2")
 _UNREPRESENTABLE = {
@@ -274,8 +274,9 @@ def map_train(src: str, d: dict[str, Any], drop: set[str], notes: list[str]
     if "num seats" in d:
         notes.append(f"{src}: num seats = {_scalar(src, d, 'num seats'):g} (informational; "
                      "capacity_pax is the crush capacity, kept from the preset)")
-    if "length" not in d:
-        notes.append(f"{src}: no length: train length 141 m from the taipei_mrt_6car preset")
+    # TTOBench's mass is the mass it simulates (no passengers): the scenario's trains run
+    # empty, so that mass is the empty mass (mass_load_pax 0), kept to the kilogram
+    trains["mass_load_pax"] = 0.0
     if "max pn braking force" not in d:
         stock["friction_brake_force_kn"] = 0.0
     notes.append(f"{src}: guaranteed / nominal emergency deceleration not in TTOBench: "
