@@ -1,6 +1,6 @@
 """Benchmark: the ATO/ATS stack on a corpus of generated lines (issue 11 item 6).
 
-``python -m metro_atc bench lines --count N [--seed S] [--incidents] [--regulator R]
+``python -m metro_atc bench lines --count N [--seed S] [--corpus C] [--incidents] [--regulator R]
 [--planner P] [--tracker T] [--scenario FILE ...] [--jobs J] [--json]``
 
 Runs N lines of :func:`metro_atc.core.linegen.generate_line` (seeds S .. S+N-1, with a TSR
@@ -20,7 +20,11 @@ at a TSR's notice time (``atp_interventions_at_tsr_notice``, included in the
 interventions), energy per train-km [kWh] and the
 brake diagnosis of every train (issue 11 item 8,
 :class:`metro_atc.core.brake.line_monitor.LineBrakeMonitor`: false alarms = level rises of
-trains without a brake fault; injected pad/wheel faults detected; ``--no-brake`` skips it).
+trains without a brake fault; injected pad/wheel faults detected; trains whose brakes
+were never judged, ``brake_trains_not_assessed``; ``--no-brake`` skips it).  The generated
+lines are the extended corpus (:func:`metro_atc.core.linegen.generate_line` with
+``extended=True``: light and heavy stock, dense, long and mixed interstations; each row
+names its stock variant); ``--corpus classic`` runs the classic one.
 Each row has the CPU time of its line (``cpu_s``, the process time of the worker).
 ``--jobs J`` runs the lines in J worker processes (the rows and totals are the same as
 with one: every line is an independent deterministic run; rows keep the corpus order).
@@ -90,7 +94,7 @@ def _brake_totals(rows: List[dict[str, Any]]) -> dict[str, Any]:
     delays = [d for r in rows for d in r["brake_detect_after_brake_s"]]
     return {k: int(sum(r[k] for r in rows))
             for k in ("brake_false_alarms", "brake_false_errors", "brake_faults",
-                      "brake_faults_detected")} | {
+                      "brake_faults_detected", "brake_trains_not_assessed")} | {
         "brake_detect_after_brake_max_s": max(delays) if delays else math.nan}
 
 
@@ -192,7 +196,8 @@ def main(argv: Optional[List[str]] = None) -> int:
                   f"above {row['time_above_civil_limit_s']:6.1f} s "
                   f"tsr-min {row['tsr_speed_minima_max']} "
                   f"{row['energy_kwh_per_train_km']:.2f} kWh/train-km "
-                  f"brake-fa {row.get('brake_false_alarms', '-')} "
+                  f"brake-fa {row.get('brake_false_alarms', '-')} not-assessed "
+                  f"{row.get('brake_trains_not_assessed', '-')} {row['stock']} "
                   f"({row['wall_s']:.1f} s, {row['cpu_s']:.1f} CPU s)", flush=True)
     tot = totals(rows, errors)
     result = {"bench": "lines", "incidents": a.incidents, "regulator": a.regulator,

@@ -81,7 +81,8 @@ def drawn_stock(name: str, rng: np.random.Generator) -> dict[str, Any]:
     - ``heavy_metro_8car``: 8 cars of 22-24 m, empty 300-450 t, 2 400-3 000 persons at
       crush load, 1.0 m/s^2 starting acceleration (empty), 100-120 km/h line speed.
 
-    Traction force F = a_start x empty mass, constant up to 35-40 km/h then constant power;
+    Traction force F = a_start x empty mass, constant up to 35-40 km/h then constant power
+    (the electric brake's power limit too);
     Davis A and B of the Taipei 6-car (seed 002 eq. 2) per kilogram, C from the frontal
     area (estimates); brakes: 1.0-1.1 m/s^2 service, 1.2 guaranteed / 1.4 nominal emergency.
     """
@@ -107,6 +108,7 @@ def drawn_stock(name: str, rng: np.random.Generator) -> dict[str, Any]:
         "capacity_pax": cap, "max_speed_kmh": vmax_kmh,
         "stock": {"cars": cars, "traction_force_kn": round(f_n / 1000.0, 1),
                   "traction_power_kw": round(f_n * v1_kmh / 3.6 / 1000.0, 0),
+                  "regen_power_kw": round(f_n * v1_kmh / 3.6 / 1000.0, 0),
                   "davis_a_n": round(0.020084 * tare, 1),
                   "davis_b_n_per_mps": round(5.04e-4 * tare, 2), "davis_c_n_per_mps2": c_n,
                   "service_brake_mps2": round(float(rng.uniform(1.0, 1.1)), 2),

@@ -18,6 +18,8 @@ Figures (:meth:`LineBrakeMonitor.summary`):
   the onset (``brake_detect_after_brake_s``: what the observer can do at best, since
   mu_b is only observable while the pads are applied);
 * ``brake_mu_b_judged_min``: smallest judged pad-friction estimate of fault-free trains.
+* ``brake_trains_not_assessed``: trains whose pad friction was never judged (no braking
+  long enough with the filter settled: their brakes are not assessed).
 
 Sensor-data-quality WARNs (more than half of the samples rejected) cannot occur here: the
 samples come straight from the plant.
@@ -178,4 +180,5 @@ class LineBrakeMonitor:
             "brake_faults_never_braked": sum(1 for f in self.faults if math.isnan(f.braked_t)),
             "brake_mu_b_judged_min": min(judged) if judged else math.nan,
             "brake_observer_updates": int(sum(w.updates for w in self.watch.values())),
+            "brake_trains_not_assessed": sum(1 for w in self.watch.values() if not w.judged),
         }

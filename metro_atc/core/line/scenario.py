@@ -113,7 +113,7 @@ class TrainsSpec:
     preset: Literal["taipei_mrt_6car", "thsr_700t"] = _f("taipei_mrt_6car", doc="rolling stock")
     mass_kg: float | None = _f(None, 1e3, 2e6, "override: mass with mass_load_pax on board")
     mass_load_pax: float | None = _f(None, 0.0, 5000.0, "persons included in mass_kg "
-                                     "(default: the preset's nominal load)")
+                                     "(required with mass_kg; 0: mass_kg is the empty mass)")
     tare_mass_kg: float | None = _f(None, 1e3, 2e6, "empty mass (instead of mass_kg)")
     pax_mass_kg: float | None = _f(None, 30.0, 150.0, "mass of one passenger")
     length_m: float | None = _f(None, 5.0, 600.0, "override: train length")
