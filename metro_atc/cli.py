@@ -36,7 +36,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if not args or args[0] in ("-h", "--help"):
         print(__doc__.strip())
-        print("\nusage: python -m metro_atc {run,show,bench,train,import} [options]   (-h after each)")
+        print("\nusage: python -m metro_atc {run,show,bench,train,import} [options]   "
+              "(-h after each)")
         return 0 if args else 2
     cmd, rest = args[0], args[1:]
     if cmd == "run":

@@ -168,9 +168,8 @@ def line_rows(scn: Scenario, raw: dict[str, Any]) -> list[dict[str, Any]]:
     add("gradients", f"{len(gr)} entries" + (f", steepest {min(gr):g} / +{max(gr):g}"
                                              if gr else ""), "permille",
         "file (line.gradients)" if gr else "none (level)")
-    add("curves", f"{len(ln.curves)}" + (f", smallest radius "
-                                          f"{min(c.radius_m for c in ln.curves):g} m"
-                                          if ln.curves else ""), "",
+    r_min = f", smallest radius {min(c.radius_m for c in ln.curves):g} m" if ln.curves else ""
+    add("curves", f"{len(ln.curves)}{r_min}", "",
         "file (line.curves)" if ln.curves else "none")
     n_tsr = len(ln.temporary_speed_limits) + sum(i.kind == "tsr" for i in scn.incidents)
     add("temporary speed limits", n_tsr, "", "file" if n_tsr else "none")
@@ -242,8 +241,9 @@ def render(view: dict[str, Any]) -> str:
     out += ["", "timetable:",
             f"  {tt['trains']} trains, first departure {tt['first_departure_s']:.0f} s, last "
             f"departure {tt['last_departure_s']:.0f} s, last arrival at the terminus "
-            f"{tt['last_arrival_s']:.0f} s; headways {', '.join(f'{h:g}' for h in tt['headways_s'])} "
-            f"s; scheduled running time {tt['running_time_s']:.0f} s end to end",
+            f"{tt['last_arrival_s']:.0f} s; headways "
+            f"{', '.join(f'{h:g}' for h in tt['headways_s'])} s; scheduled running time "
+            f"{tt['running_time_s']:.0f} s end to end",
             f"  fleet needed: {tt['fleet_needed']} trains in service at once"]
     return "\n".join(out)
 

@@ -344,13 +344,17 @@ def map_journey(src: str, d: dict[str, Any], stops: list[float], notes: list[str
 
 
 def _trim_to_line(line: dict[str, Any], length_m: float, notes: list[str]) -> None:
-    """Drop / clip the track data outside the scenario's line (the journey may serve part
-    of the track): the loader refuses data off [first stop - length - 500 m, last stop +
-    tail track] (:func:`metro_atc.core.line.scenario.line_extent_m`); stated in ``notes``."""
-    tail = next(f.default for f in dataclasses.fields(LineSpec) if f.name == "tail_track_m")
+    """Drop / clip the track data outside the scenario's line; stated in ``notes``.
+
+    A journey may serve part of the track: the loader refuses data off [first stop -
+    length - 500 m, last stop + tail track]
+    (:func:`metro_atc.core.line.scenario.line_extent_m`).
+    """
+    tail = float(next(f.default for f in dataclasses.fields(LineSpec)  # type: ignore[arg-type]
+                      if f.name == "tail_track_m"))
     st = line["stations"]
     lo = st[0]["position_m"] - length_m - 500.0
-    hi = st[-1]["position_m"] + float(tail)
+    hi = st[-1]["position_m"] + tail
     n = 0
     for key in ("speed_limits", "gradients"):
         if key in line:

@@ -552,8 +552,11 @@ def _check(b: _Builder, s: Scenario) -> None:
 
 
 def line_extent_m(s: Scenario, length_m: float) -> tuple[float, float]:
-    """Chainage span of the line [m]: the plant's track, from a train length and 500 m
-    before the first stop point to the buffer stop ``tail_track_m`` beyond the last."""
+    """Chainage span of the line [m]: the plant's track.
+
+    From a train length and 500 m before the first stop point to the buffer stop
+    ``tail_track_m`` beyond the last.
+    """
     st = s.line.stations
     return st[0].position_m - length_m - 500.0, st[-1].position_m + s.line.tail_track_m
 
@@ -570,12 +573,11 @@ def _check_extent(b: _Builder, s: Scenario) -> None:
     length = s.trains.length_m
     lo, hi = line_extent_m(s, PRESETS[s.trains.preset].length_m if length is None else length)
     ext = f"the line spans [{lo:g}, {hi:g}] m (stations, tail track)"
-    for key, items in (("line.speed_limits", s.line.speed_limits),
-                       ("line.gradients", s.line.gradients)):
-        for i, it in enumerate(items):
-            if it.start_m >= hi:
-                raise b.err(f"{key}[{i}].start_m", f"{it.start_m:g} is beyond the end of the "
-                            f"line: {ext}")
+    starts = [("line.speed_limits", i, e.start_m) for i, e in enumerate(s.line.speed_limits)]
+    starts += [("line.gradients", i, e.start_m) for i, e in enumerate(s.line.gradients)]
+    for key, i, x in starts:
+        if x >= hi:
+            raise b.err(f"{key}[{i}].start_m", f"{x:g} is beyond the end of the line: {ext}")
     zones = [(f"line.curves[{i}]", c.start_m, c.end_m) for i, c in enumerate(s.line.curves)]
     zones += [(f"line.temporary_speed_limits[{i}]", t.start_m, t.end_m)
               for i, t in enumerate(s.line.temporary_speed_limits)]

@@ -334,7 +334,8 @@ def train_params_from_data(base: TrainParams, data: dict[str, float | int | None
 
     - ``mass_kg``: mass with ``mass_load_pax`` persons on board (default: the preset's
       ``nominal_load_pax``), or ``tare_mass_kg`` (empty) instead; ``pax_mass_kg`` per
-      person.  The empty mass must be positive (ValueError).  Without explicit Davis terms, A and B scale with the mass
+      person.  The empty mass must be positive (ValueError).  Without explicit Davis
+      terms, A and B scale with the mass
       (rolling / mechanical resistance is proportional to the weight) and C (aerodynamic)
       is kept; without an explicit traction force the preset's tractive *force* is kept
       (a1 scales with 1/mass), so a heavier train accelerates less.
@@ -475,8 +476,10 @@ def train_params_from_spec(base: TrainParams, trains: Any, energy: Any) -> Train
 
 
 def stock_data_of_spec(trains: Any, energy: Any) -> dict[str, float | int | None]:
-    """The rolling-stock data (:data:`STOCK_KEYS`, None = not given) of a scenario's
-    ``trains`` and ``energy`` sections."""
+    """Rolling-stock data of a scenario's ``trains`` and ``energy`` sections.
+
+    One entry per :data:`STOCK_KEYS` key; None = not given.
+    """
     data: dict[str, float | int | None] = {
         "mass_kg": trains.mass_kg, "tare_mass_kg": trains.tare_mass_kg,
         "mass_load_pax": trains.mass_load_pax, "pax_mass_kg": trains.pax_mass_kg,
