@@ -19,6 +19,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from metro_atc.core.line.adhesion import CURVES
+from metro_atc.core.line.guarantee import level_guaranteed_decel
 from metro_atc.core.line.rolling_stock import PRESETS, train_params_for
 from metro_atc.core.line.scenario import (SCENARIO_NAMES, Scenario, ScenarioError,
                                           load_scenario, stock_key_path)
@@ -145,7 +147,6 @@ def _src(raw: dict[str, Any], section: str, key: str) -> str:
 
 def line_rows(scn: Scenario, raw: dict[str, Any]) -> list[dict[str, Any]]:
     """The resolved line and signalling (value, unit, source) per figure."""
-    from metro_atc.core.line.atp_constants import level_guaranteed_decel
     ln, sg = scn.line, scn.signalling
     st = ln.stations
     rows: list[dict[str, Any]] = []
@@ -178,7 +179,8 @@ def line_rows(scn: Scenario, raw: dict[str, Any]) -> list[dict[str, Any]]:
                       ("tsr_notice_s", "s")):
         add(f"signalling.{key}", getattr(sg, key), unit, _src(raw, "signalling", key))
     add("signalling.guaranteed_decel_mps2",
-        level_guaranteed_decel(scn, train_params_for(scn)), "m/s^2",
+        level_guaranteed_decel(sg.guaranteed_decel_mps2, train_params_for(scn),
+                               CURVES[ln.adhesion]), "m/s^2",
         "file (signalling.guaranteed_decel_mps2)" if sg.guaranteed_decel_mps2 is not None
         else "derived: min(stock guaranteed emergency, 0.9 x locked-wheel adhesion, empty)")
     for key, unit in (("control_period_s", "s"), ("duration_s", "s"), ("grid_m", "m")):

@@ -12,6 +12,7 @@ import math
 
 from metro_atc.core.line.adhesion import CURVES, AdhesionCurve
 from metro_atc.core.line.geometry import LineGeometry
+from metro_atc.core.line.guarantee import level_guaranteed_decel
 from metro_atc.core.line.scenario import Scenario
 from metro_atc.core.line.track import G
 from metro_atc.core.line.vehicle import TrainParams
@@ -47,24 +48,6 @@ class AtpConstants:
     n_sbi: int
 
 
-def level_guaranteed_decel(scn: Scenario, p: TrainParams,
-                           curve: AdhesionCurve | None = None) -> float:
-    """Guaranteed emergency deceleration on level track [m/s^2] of a scenario's train.
-
-    ``signalling.guaranteed_decel_mps2`` when given, else the rolling stock's guaranteed
-    rate limited by the locked-wheel adhesion with a 10 % margin, for the empty train (the
-    smallest adhesion mass relative to the rotating allowance; the scenario loader refuses
-    a non-positive empty mass).
-    """
-    b_lvl = scn.signalling.guaranteed_decel_mps2
-    if b_lvl is not None:
-        return float(b_lvl)
-    curve = CURVES[scn.line.adhesion] if curve is None else curve
-    m_rot = p.rotary_allowance * p.mass_kg
-    tare = p.tare_mass_kg
-    return float(min(p.emergency_brake_mps2, 0.9 * curve.mu_slide * G * tare / (tare + m_rot)))
-
-
 def atp_constants(scn: Scenario, p: TrainParams, geom: LineGeometry,
                   curve: AdhesionCurve | None = None) -> AtpConstants:
     """The ATP constants of a scenario (``curve``: its adhesion curve by default).
@@ -73,7 +56,8 @@ def atp_constants(scn: Scenario, p: TrainParams, geom: LineGeometry,
     steepest downhill grade.
     """
     sg = scn.signalling
-    b_lvl = level_guaranteed_decel(scn, p, curve)
+    b_lvl = level_guaranteed_decel(sg.guaranteed_decel_mps2, p,
+                                   CURVES[scn.line.adhesion] if curve is None else curve)
     b_g = float(b_lvl - G * geom.max_down)
     if b_g <= 0.05:
         raise ValueError("guaranteed emergency braking is not positive on the steepest "

@@ -22,6 +22,10 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Literal, Union
 
+from metro_atc.core.line.adhesion import CURVES
+from metro_atc.core.line.guarantee import level_guaranteed_decel
+from metro_atc.core.line.vehicle import (G_MPS2, PRESETS, max_traction_force_at,
+                                         train_params_of_section)
 from metro_atc.core.safe_yaml import (YamlLimitError, load_yaml_file, load_yaml_text, one_line,
                                       short_repr)
 
@@ -569,7 +573,6 @@ def _check_extent(b: _Builder, s: Scenario) -> None:
     the extent is known before the stock is
     resolved: the scenario's ``trains.length_m`` or the preset's).
     """
-    from metro_atc.core.line.rolling_stock import PRESETS  # late: it imports this module
     length = s.trains.length_m
     lo, hi = line_extent_m(s, PRESETS[s.trains.preset].length_m if length is None else length)
     ext = f"the line spans [{lo:g}, {hi:g}] m (stations, tail track)"
@@ -613,16 +616,11 @@ def _check_stock(b: _Builder, s: Scenario) -> None:
     force of the crush-loaded train); a nominal emergency brake below the ATP's guaranteed
     deceleration.
     """
-    # late imports: these modules import this one (the Scenario type)
-    from metro_atc.core.line.adhesion import CURVES
-    from metro_atc.core.line.atp_constants import level_guaranteed_decel
-    from metro_atc.core.line.rolling_stock import train_params_for
-    from metro_atc.core.line.vehicle import G_MPS2, max_traction_force_at
     if s.trains.mass_kg is not None and s.trains.mass_load_pax is None:
         raise b.err("trains.mass_load_pax", "required with trains.mass_kg: the persons "
                     "mass_kg includes (0: mass_kg is the empty mass; or give tare_mass_kg)")
     try:
-        p = train_params_for(s)
+        p = train_params_of_section(s.trains, s.energy)
     except ValueError as exc:
         key, _, msg = str(exc).partition(": ")
         raise b.err(stock_key_path(key), msg) from None
@@ -656,7 +654,7 @@ def _check_stock(b: _Builder, s: Scenario) -> None:
                     f"persons) cannot start on the steepest grade {1000.0 * up:g} permille: "
                     f"tractive force {f_start / 1000.0:.4g} kN <= resistance + grade "
                     f"{f_need / 1000.0:.4g} kN")
-    b_guar = level_guaranteed_decel(s, p, curve)
+    b_guar = level_guaranteed_decel(s.signalling.guaranteed_decel_mps2, p, curve)
     if p.emergency_brake_actual_mps2 < b_guar:
         key = "signalling.guaranteed_decel_mps2" if s.signalling.guaranteed_decel_mps2 \
             is not None else "trains.stock.emergency_brake_actual_mps2"

@@ -311,6 +311,9 @@ THSR_700T = TrainParams(
 )
 """THSR 700T 12-car trainset (seed 004 Table 4; estimates marked)."""
 
+PRESETS: dict[str, TrainParams] = {"taipei_mrt_6car": TAIPEI_MRT_6CAR, "thsr_700t": THSR_700T}
+"""Rolling-stock presets by scenario name (``trains.preset``)."""
+
 
 STOCK_KEYS = (
     "mass_kg", "tare_mass_kg", "mass_load_pax", "pax_mass_kg", "rotating_allowance",
@@ -473,6 +476,11 @@ def train_params_from_spec(base: TrainParams, trains: Any, energy: Any) -> Train
     auxiliary power); see :func:`train_params_from_data` for the semantics.
     """
     return train_params_from_data(base, stock_data_of_spec(trains, energy))
+
+
+def train_params_of_section(trains: Any, energy: Any) -> TrainParams:
+    """Rolling stock of a scenario's ``trains`` section (its ``preset`` with the data)."""
+    return train_params_from_spec(PRESETS[trains.preset], trains, energy)
 
 
 def stock_data_of_spec(trains: Any, energy: Any) -> dict[str, float | int | None]:
