@@ -5,6 +5,7 @@
 - ``bench NAME``: the reproductions and benchmarks (``bench --list`` names them).
 - ``train {aoc,dhp}``: train the ATR critic/actor networks.
 - ``import ttobench``: a TTOBench track + train (+ journey) as a scenario YAML.
+- ``show --scenario FILE``: the resolved rolling stock, line and timetable, with sources.
 """
 
 from __future__ import annotations
@@ -35,7 +36,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if not args or args[0] in ("-h", "--help"):
         print(__doc__.strip())
-        print("\nusage: python -m metro_atc {run,bench,train,import} [options]   (-h after each)")
+        print("\nusage: python -m metro_atc {run,show,bench,train,import} [options]   "
+              "(-h after each)")
         return 0 if args else 2
     cmd, rest = args[0], args[1:]
     if cmd == "run":
@@ -43,6 +45,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return run_main(rest)
     if cmd == "bench":
         return _bench(rest)
+    if cmd == "show":
+        from metro_atc.show import main as show_main
+        return show_main(rest)
     if cmd == "import":
         if not rest or rest[0] != "ttobench":
             print("usage: python -m metro_atc import ttobench --track T.json --train R.json "
@@ -57,7 +62,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print("metro_atc train: the ATR training module is not available", file=sys.stderr)
             return 2
         return int(mod.main(rest))
-    print(f"metro_atc: unknown command {cmd!r} (expected run, bench, train or import)",
+    print(f"metro_atc: unknown command {cmd!r} (expected run, show, bench, train or import)",
           file=sys.stderr)
     return 2
 

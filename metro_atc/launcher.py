@@ -426,6 +426,8 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
     if problem:
         print(f"metro_atc run: error: {problem}", file=sys.stderr)
         return Exit.REFUSED
+    from metro_atc.show import stock_line
+    print(f"metro_atc run: {stock_line(scn)}", file=sys.stderr, flush=True)
     t0 = time.monotonic()
     memory: dict[str, float | None] = {}
     cpu: dict[str, float | None] = {}

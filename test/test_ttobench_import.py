@@ -20,12 +20,13 @@ from metro_atc.ttobench.importer import (TtobenchError, data_dir, export_ttobenc
                                          import_ttobench, load_json)
 
 TRACK, TRAIN = "CN_Songjiazhuang_Yizhuang", "CN_Beijing_Subway"
+ASSUMED_LENGTH_M = 141.0  # not in the TTOBench train (the bench states the same)
 
 
 @pytest.fixture(scope="module")
 def imported() -> dict:
     """The vendored metro instance imported as a scenario mapping."""
-    return import_ttobench(TRACK, TRAIN).scenario
+    return import_ttobench(TRACK, TRAIN, length_m=ASSUMED_LENGTH_M).scenario
 
 
 def test_vendored_files_and_licence() -> None:
@@ -82,9 +83,10 @@ def test_refusals_are_one_line(tmp_path: Path) -> None:
     tun = copy.deepcopy(t_raw)
     tun["tunnels"] = {"units": {}, "values": [[100.0, 50.0, 40.0]]}
     with pytest.raises(TtobenchError, match="'tunnels' cannot be represented") as exc:
-        import_ttobench(_write(tmp_path, "t.json", tun), TRAIN)
+        import_ttobench(_write(tmp_path, "t.json", tun), TRAIN, length_m=ASSUMED_LENGTH_M)
     assert "\n" not in str(exc.value)
-    out = import_ttobench(_write(tmp_path, "t.json", tun), TRAIN, drop=["tunnels"])
+    out = import_ttobench(_write(tmp_path, "t.json", tun), TRAIN, drop=["tunnels"],
+                          length_m=ASSUMED_LENGTH_M)
     assert any("dropped on request" in n for n in out.notes)
     bad = copy.deepcopy(r_raw)
     bad["max traction force"]["unit"] = "lbf"
@@ -97,7 +99,7 @@ def test_refusals_are_one_line(tmp_path: Path) -> None:
     neg = copy.deepcopy(t_raw)
     neg["stops"]["values"] = [0.0, 500.0, 400.0]
     with pytest.raises(TtobenchError, match="strictly increasing"):
-        import_ttobench(_write(tmp_path, "t.json", neg), TRAIN)
+        import_ttobench(_write(tmp_path, "t.json", neg), TRAIN, length_m=ASSUMED_LENGTH_M)
     assert cli_main(["import", "ttobench", "--track", "nope.json", "--train", TRAIN,
                      "--out", str(tmp_path / "x.yaml")]) == 2
 
@@ -107,13 +109,15 @@ def test_journey_selects_stations(tmp_path: Path) -> None:
     journey = {"metadata": {"id": "j"}, "timing points": {"units": {}, "values": [
         [0.0, 0, 0, 0, 0], [3906.0, 200, 260, 0, 0], [3906.0, 240, 260, 0, 0],
         [8254.0, 500, 560, 0, 0]]}}
-    out = import_ttobench(TRACK, TRAIN, _write(tmp_path, "j.json", journey))
+    out = import_ttobench(TRACK, TRAIN, _write(tmp_path, "j.json", journey),
+                          length_m=ASSUMED_LENGTH_M)
     pos = [s["position_m"] for s in out.scenario["line"]["stations"]]
     assert pos == [0.0, 3906.0, 8254.0]
     assert out.scenario["passengers"]["min_dwell_s"] == 40.0
     journey["timing points"]["values"][1][3] = 10
     with pytest.raises(TtobenchError, match="passing points"):
-        import_ttobench(TRACK, TRAIN, _write(tmp_path, "j.json", journey))
+        import_ttobench(TRACK, TRAIN, _write(tmp_path, "j.json", journey),
+                        length_m=ASSUMED_LENGTH_M)
 
 
 def test_cli_and_short_core_run(tmp_path: Path) -> None:
@@ -121,7 +125,7 @@ def test_cli_and_short_core_run(tmp_path: Path) -> None:
     violation (the whole line in the node graph is run by hand, see the README)."""
     out = tmp_path / "yz.yaml"
     assert cli_main(["import", "ttobench", "--track", TRACK, "--train", TRAIN,
-                     "--out", str(out), "--trains", "2"]) == 0
+                     "--out", str(out), "--trains", "2", "--length-m", "141"]) == 0
     scn_map = yaml.safe_load(out.read_text())
     assert scn_map["trains"]["count"] == 2 and "timetable: not in the TTOBench" \
         in out.read_text()
@@ -129,6 +133,11 @@ def test_cli_and_short_core_run(tmp_path: Path) -> None:
     scn_map["line"]["stations"] = scn_map["line"]["stations"][:n]
     scn_map["timetable"]["periods"][0]["boarding_pph"] = [0.0] * n
     scn_map["passengers"]["alight_fraction"] = [0.0] * (n - 1) + [1.0]
+    end = scn_map["line"]["stations"][-1]["position_m"] + 300.0  # the loader refuses data
+    for key in ("speed_limits", "gradients"):                      # beyond the buffer stop
+        scn_map["line"][key] = [e for e in scn_map["line"][key] if e["start_m"] < end]
+    scn_map["line"]["curves"] = [c for c in scn_map["line"].get("curves", [])
+                                 if c["end_m"] <= end]
     sim = LineSim(parse_scenario(yaml.safe_dump(scn_map), "cut.yaml"), seed=0)
     while not sim.done:
         sim.step(simple_driver(sim))

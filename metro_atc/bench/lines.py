@@ -1,6 +1,6 @@
 """Benchmark: the ATO/ATS stack on a corpus of generated lines (issue 11 item 6).
 
-``python -m metro_atc bench lines --count N [--seed S] [--incidents] [--regulator R]
+``python -m metro_atc bench lines --count N [--seed S] [--corpus C] [--incidents] [--regulator R]
 [--planner P] [--tracker T] [--scenario FILE ...] [--jobs J] [--json]``
 
 Runs N lines of :func:`metro_atc.core.linegen.generate_line` (seeds S .. S+N-1, with a TSR
@@ -20,7 +20,11 @@ at a TSR's notice time (``atp_interventions_at_tsr_notice``, included in the
 interventions), energy per train-km [kWh] and the
 brake diagnosis of every train (issue 11 item 8,
 :class:`metro_atc.core.brake.line_monitor.LineBrakeMonitor`: false alarms = level rises of
-trains without a brake fault; injected pad/wheel faults detected; ``--no-brake`` skips it).
+trains without a brake fault; injected pad/wheel faults detected; trains whose brakes
+were never judged, ``brake_trains_not_assessed``; ``--no-brake`` skips it).  The generated
+lines are the extended corpus (:func:`metro_atc.core.linegen.generate_line` with
+``extended=True``: light and heavy stock, dense, long and mixed interstations; each row
+names its stock variant); ``--corpus classic`` runs the classic one.
 Each row has the CPU time of its line (``cpu_s``, the process time of the worker).
 ``--jobs J`` runs the lines in J worker processes (the rows and totals are the same as
 with one: every line is an independent deterministic run; rows keep the corpus order).
@@ -42,7 +46,8 @@ import numpy as np
 from metro_atc.bench.progress import progress_each
 from metro_atc.bench.ttobench import metro_scenario
 from metro_atc.core.closed_loop import STOP_WINDOW_M, run_closed_loop
-from metro_atc.core.linegen import load_generated
+from metro_atc.core.linegen import load_generated_named
+from metro_atc.core.line.rolling_stock import train_params_for
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.jsonsafe import json_safe
 
@@ -121,8 +126,12 @@ def run_job(job: Job, a: argparse.Namespace) -> Outcome:
     kind, what = job
     c0 = time.process_time()
     try:
-        scn = load_generated(what, incidents=a.incidents) if kind == "gen" \
-            else metro_scenario() if kind == "ttobench" else load_scenario(what)
+        stock = ""
+        if kind == "gen":
+            stock, scn = load_generated_named(what, incidents=a.incidents,
+                                              extended=getattr(a, "corpus", "") == "extended")
+        else:
+            scn = metro_scenario() if kind == "ttobench" else load_scenario(what)
         res = run_closed_loop(scn, regulator=a.regulator, planner=a.planner,
                               tracker=a.tracker, seed=a.sim_seed, brake=not a.no_brake)
     except (ScenarioError, ValueError) as exc:
@@ -131,7 +140,8 @@ def run_job(job: Job, a: argparse.Namespace) -> Outcome:
     row["line_km"] = float(np.ptp([s.position_m for s in scn.line.stations])) / 1000.0
     row["stations"] = len(scn.line.stations)
     row["trains"] = scn.trains.count
-    row["stock"] = scn.trains.preset
+    row["stock"] = stock or scn.trains.preset
+    row["empty_mass_t"] = round(train_params_for(scn).tare_mass_kg / 1000.0, 1)
     row["cpu_s"] = time.process_time() - c0
     return row, list(res.stop_errors_m), ""
 
@@ -157,6 +167,9 @@ def main(argv: Optional[List[str]] = None) -> int:
                                  description=__doc__.splitlines()[0])
     ap.add_argument("--count", type=int, default=10, help="generated lines")
     ap.add_argument("--seed", type=int, default=0, help="seed of the first generated line")
+    ap.add_argument("--corpus", choices=("extended", "classic"), default="extended",
+                    help="generated lines: extended (light and heavy stock, dense, long and "
+                    "mixed interstations; default) or classic (the four presets' variants)")
     ap.add_argument("--incidents", action="store_true", help="a TSR and a breakdown per line")
     ap.add_argument("--scenario", nargs="*", default=[],
                     help="extra scenario files or embedded names run after the generated lines")
@@ -202,7 +215,7 @@ def main(argv: Optional[List[str]] = None) -> int:
                   f"above {row['time_above_civil_limit_s']:6.1f} s "
                   f"tsr-min {row['tsr_speed_minima_max']} "
                   f"{row['energy_kwh_per_train_km']:.2f} kWh/train-km "
-                  f"brake-fa {_false_alarms(row)} "
+                  f"brake-fa {_false_alarms(row)} {row['stock']} "
                   f"({row['wall_s']:.1f} s, {row['cpu_s']:.1f} CPU s)", flush=True)
     tot = totals(rows, errors)
     result = {"bench": "lines", "incidents": a.incidents, "regulator": a.regulator,

@@ -63,9 +63,13 @@ ASSUMPTIONS = (
 """What the reference energies assume (written into the reference file)."""
 
 
+ASSUMED_LENGTH_M = 141.0
+"""Train length of the Beijing Subway train [m]: not in TTOBench (assumption, stated)."""
+
+
 def metro_scenario() -> Scenario:
-    """The imported TTOBench metro instance (vendored files)."""
-    imp = import_ttobench(TRACK, TRAIN)
+    """The imported TTOBench metro instance (vendored files; length ``ASSUMED_LENGTH_M``)."""
+    imp = import_ttobench(TRACK, TRAIN, length_m=ASSUMED_LENGTH_M)
     return parse_scenario(imp.yaml_text(), f"ttobench_{TRACK}.yaml")
 
 

@@ -19,7 +19,11 @@ the scenario key says otherwise):
   2-12 k persons/h per station;
 - **rolling stock**: the presets ``taipei_mrt_6car`` (optionally a 4-car variant through the
   length/mass/capacity overrides, or a +-10 % mass override) and ``thsr_700t`` (regional
-  use; grades to +-20 per mille, line speed 130 km/h);
+  use; grades to +-20 per mille, line speed 130 km/h); in the extended corpus
+  (``extended=True``, ``python -m metro_atc bench lines``) also light stock (two cars,
+  20-40 m, 30-70 t empty) and heavy 8-car stock (300-450 t empty, 100-120 km/h),
+  every figure given (:func:`drawn_stock`), and interstations dense (300-600 m), long
+  (3-6 km, at most 8 stations) or mixed;
 - **incidents** (``incidents=True``): one TSR of 25-40 km/h on 150-400 m between two
   stations (preferably on a descent), in force for 900 s from the second train's departure;
   a breakdown of one train for 60-150 s in mid-run.
@@ -43,15 +47,75 @@ STOCKS: dict[str, dict[str, Any]] = {
                         "max_grade_permille": 40.0, "overrides": {}},
     "taipei_mrt_6car_heavy": {"preset": "taipei_mrt_6car", "line_speed_kmh": 80.0,
                               "max_grade_permille": 40.0,
-                              "overrides": {"mass_kg": 235_000.0}},
+                              "overrides": {"mass_kg": 235_000.0, "mass_load_pax": 1000.0}},
     "taipei_mrt_4car": {"preset": "taipei_mrt_6car", "line_speed_kmh": 80.0,
                         "max_grade_permille": 40.0,
-                        "overrides": {"mass_kg": 143_000.0, "length_m": 94.0,
-                                      "capacity_pax": 1260.0}},
+                        "overrides": {"mass_kg": 143_000.0, "mass_load_pax": 1000.0,
+                                      "length_m": 94.0, "capacity_pax": 1260.0}},
     "thsr_700t_regional": {"preset": "thsr_700t", "line_speed_kmh": 130.0,
                            "max_grade_permille": 20.0, "overrides": {}},
+    "light_metro": {"preset": "taipei_mrt_6car", "line_speed_kmh": 70.0,
+                    "max_grade_permille": 40.0, "overrides": {}},
+    "heavy_metro_8car": {"preset": "taipei_mrt_6car", "line_speed_kmh": 110.0,
+                         "max_grade_permille": 30.0, "overrides": {}},
 }
-"""Rolling-stock variants the generator draws from (today's presets plus overrides)."""
+"""Rolling-stock variants the generator draws from (presets plus overrides).  The first four
+are the classic corpus; ``light_metro`` and ``heavy_metro_8car`` (extended corpus) get their
+figures drawn per line by :func:`drawn_stock`."""
+
+CLASSIC_STOCKS = ("taipei_mrt_6car", "taipei_mrt_6car_heavy", "taipei_mrt_4car",
+                  "thsr_700t_regional")
+"""The stocks of the classic corpus (drawn with probabilities 0.4, 0.2, 0.25, 0.15)."""
+
+SPACINGS: dict[str, tuple[float, float]] = {
+    "classic": (500.0, 3000.0), "dense": (300.0, 600.0), "long": (3000.0, 6000.0)}
+"""Interstation ranges [m]: metro practice, dense downtown, long suburban / regional."""
+
+
+def drawn_stock(name: str, rng: np.random.Generator) -> dict[str, Any]:
+    """Scenario ``trains`` keys of a drawn light or heavy stock (every figure given).
+
+    - ``light_metro``: two cars (a motor and a trailer car), 20-40 m, empty 30-70 t, 5
+      persons per metre at crush
+      load, 1.1-1.3 m/s^2 starting acceleration (empty), 60-80 km/h;
+    - ``heavy_metro_8car``: 8 cars of 22-24 m, empty 300-450 t, 2 400-3 000 persons at
+      crush load, 1.0 m/s^2 starting acceleration (empty), 100-120 km/h line speed.
+
+    Traction force F = a_start x empty mass, constant up to 35-40 km/h then constant power
+    (the electric brake's power limit too);
+    Davis A and B of the Taipei 6-car (seed 002 eq. 2) per kilogram, C from the frontal
+    area (estimates); brakes: 1.0-1.1 m/s^2 service, 1.2 guaranteed / 1.4 nominal emergency.
+    """
+    if name == "light_metro":
+        cars = 2
+        length = round(float(rng.uniform(20.0, 40.0)), 1)
+        tare = round(float(rng.uniform(30.0, 70.0)), 1) * 1000.0
+        cap = round(5.0 * length, 0)
+        a0, v1_kmh, vmax_kmh, c_n = float(rng.uniform(1.1, 1.3)), 35.0, 80.0, 3.0
+        aux_kw = round(float(rng.uniform(20.0, 40.0)), 0)
+    elif name == "heavy_metro_8car":
+        cars = 8
+        length = round(8 * float(rng.uniform(22.0, 24.0)), 1)
+        tare = round(float(rng.uniform(300.0, 450.0)), 1) * 1000.0
+        cap = round(float(rng.uniform(2400.0, 3000.0)), -1)
+        a0, v1_kmh, vmax_kmh, c_n = 1.0, 40.0, 130.0, 12.0
+        aux_kw = round(float(rng.uniform(250.0, 400.0)), 0)
+    else:
+        raise ValueError(f"no drawn figures for rolling stock {name!r}")
+    f_n = a0 * tare
+    return {
+        "tare_mass_kg": tare, "mass_load_pax": 0.0, "length_m": length,
+        "capacity_pax": cap, "max_speed_kmh": vmax_kmh,
+        "stock": {"cars": cars, "traction_force_kn": round(f_n / 1000.0, 1),
+                  "traction_power_kw": round(f_n * v1_kmh / 3.6 / 1000.0, 0),
+                  "regen_power_kw": round(f_n * v1_kmh / 3.6 / 1000.0, 0),
+                  "davis_a_n": round(0.020084 * tare, 1),
+                  "davis_b_n_per_mps": round(5.04e-4 * tare, 2), "davis_c_n_per_mps2": c_n,
+                  "service_brake_mps2": round(float(rng.uniform(1.0, 1.1)), 2),
+                  "emergency_brake_mps2": 1.2, "emergency_brake_actual_mps2": 1.4},
+        "aux": aux_kw,
+    }
+
 
 LAT_ACCEL_MPS2 = 0.65
 """Lateral acceleration allowed in curves (cant + cant deficiency) [m/s^2]."""
@@ -119,12 +183,23 @@ def _curves(rng: np.random.Generator, stations: list[float], line_kmh: float
 
 
 def generate_line(seed: int, incidents: bool = False, n_stations: Optional[int] = None,
-                  n_trains: Optional[int] = None, stock: Optional[str] = None
+                  n_trains: Optional[int] = None, stock: Optional[str] = None,
+                  extended: bool = False, spacing_kind: Optional[str] = None
                   ) -> dict[str, Any]:
-    """One random line as a scenario mapping (module docstring); deterministic in ``seed``."""
+    """One random line as a scenario mapping (module docstring); deterministic in ``seed``.
+
+    ``extended``: the extended corpus: the stock is drawn from every :data:`STOCKS` entry
+    (light and heavy included) and the interstations from :data:`SPACINGS` or a mix of them
+    (``spacing_kind`` forces one: ``classic``, ``dense``, ``long``, ``mixed``).  These draws
+    come from a second random stream, so the classic corpus (``extended=False``) is the
+    same line for line.
+    """
     rng = np.random.default_rng([int(seed), 11])
+    ext = np.random.default_rng([int(seed), 11, 2026])
     stock_name = stock if stock is not None else str(rng.choice(
-        list(STOCKS), p=[0.4, 0.2, 0.25, 0.15]))
+        list(CLASSIC_STOCKS), p=[0.4, 0.2, 0.25, 0.15]))
+    if extended and stock is None:
+        stock_name = str(ext.choice(list(STOCKS)))
     if stock_name not in STOCKS:
         raise ValueError(f"unknown rolling stock {stock_name!r}; expected one of "
                          f"{', '.join(STOCKS)}")
@@ -135,8 +210,23 @@ def generate_line(seed: int, incidents: bool = False, n_stations: Optional[int] 
     spacing = rng.uniform(500.0, 3000.0, n_st - 1)
     if rs["preset"] == "thsr_700t":
         spacing = rng.uniform(2000.0, 3000.0, n_st - 1)  # a 304 m train, 130 km/h
+    kind = spacing_kind if spacing_kind is not None else \
+        str(ext.choice(["classic", "dense", "long", "mixed"])) if extended else "classic"
+    if kind not in (*SPACINGS, "mixed"):
+        raise ValueError(f"unknown spacing {kind!r}; expected one of "
+                         f"{', '.join(SPACINGS)}, mixed")
+    if kind != "classic" and rs["preset"] != "thsr_700t":
+        if kind == "long" and n_stations is None:
+            n_st = min(n_st, 8)  # a 3-6 km interstation line of 15 stations is 80 km
+        kinds = [kind] * (n_st - 1) if kind != "mixed" else \
+            [str(k) for k in ext.choice(list(SPACINGS), n_st - 1)]
+        spacing = np.array([ext.uniform(*SPACINGS[k]) for k in kinds])
+    drawn = drawn_stock(stock_name, ext) if not rs["overrides"] and \
+        stock_name in ("light_metro", "heavy_metro_8car") else None
     pos = [0.0] + [round(float(x), 1) for x in np.cumsum(spacing)]
     line_kmh = float(rs["line_speed_kmh"])
+    if drawn is not None and stock_name == "heavy_metro_8car":
+        line_kmh = float(ext.choice([100.0, 110.0, 120.0]))
     grades = _profile(rng, pos, float(rs["max_grade_permille"]))
     limits, curves = _curves(rng, pos, line_kmh)
     headway = float(rng.integers(18, 61) * 5)  # 90 .. 300 s
@@ -150,10 +240,16 @@ def generate_line(seed: int, incidents: bool = False, n_stations: Optional[int] 
     duration = first_dep + n_tr * headway + t_line + 900.0
     trains: dict[str, Any] = {"count": n_tr, "preset": rs["preset"], "initial_load_pax": 200}
     trains.update(rs["overrides"])
+    energy: dict[str, Any] = {}
+    if drawn is not None:
+        energy["aux_power_kw"] = drawn.pop("aux")
+        trains.update(drawn)
+        trains["initial_load_pax"] = min(200, int(0.5 * drawn["capacity_pax"]))
     scn: dict[str, Any] = {
         "name": f"gen_{int(seed):04d}{'_inc' if incidents else ''}",
         "description": (f"generated line (metro_atc.core.linegen, seed {int(seed)}): "
                         f"{n_st} stations over {pos[-1] / 1000.0:.1f} km, {stock_name}, "
+                        f"{kind} interstations, "
                         f"headway {headway:.0f} s"),
         "sources": ["all data generated (estimates of metro practice, see linegen docs)"],
         "sim": {"control_period_s": 0.25, "duration_s": round(duration, 0)},
@@ -162,7 +258,9 @@ def generate_line(seed: int, incidents: bool = False, n_stations: Optional[int] 
             "stations": [{"name": f"Station {j + 1}", "code": f"G{j + 1:02d}",
                           "position_m": x} for j, x in enumerate(pos)],
             "line_speed_kmh": line_kmh, "speed_limits": limits, "gradients": grades,
-            "curves": curves, "tail_track_m": 400.0 if rs["preset"] == "thsr_700t" else 300.0,
+            "curves": curves,
+            "tail_track_m": 400.0 if rs["preset"] == "thsr_700t" or
+            stock_name == "heavy_metro_8car" else 300.0,
             "turnback_s": 60.0},
         "signalling": {"mode": "moving_block", "safety_margin_m": 50.0},
         "timetable": {"first_departure_s": first_dep, "periods": [
@@ -172,6 +270,8 @@ def generate_line(seed: int, incidents: bool = False, n_stations: Optional[int] 
                        "door_overhead_s": 12.0, "min_dwell_s": 20.0,
                        "alight_fraction": alight},
     }
+    if energy:
+        scn["energy"] = energy
     if incidents:
         scn["incidents"] = _incidents(rng, pos, grades, n_tr, headway, first_dep)
     return scn
@@ -212,8 +312,16 @@ def scenario_yaml(scn: dict[str, Any]) -> str:
 
 def load_generated(seed: int, incidents: bool = False, **kwargs: Any) -> Scenario:
     """:func:`generate_line` validated by the scenario loader."""
+    return load_generated_named(seed, incidents, **kwargs)[1]
+
+
+def load_generated_named(seed: int, incidents: bool = False, **kwargs: Any
+                         ) -> tuple[str, Scenario]:
+    """(rolling-stock variant name of :data:`STOCKS`, scenario) of :func:`load_generated`."""
     scn = generate_line(seed, incidents=incidents, **kwargs)
-    return parse_scenario(scenario_yaml(scn), src=f"<generated line {scn['name']}>")
+    name = next(k for k in sorted(STOCKS, key=len, reverse=True)
+                if f", {k}, " in scn["description"])
+    return name, parse_scenario(scenario_yaml(scn), src=f"<generated line {scn['name']}>")
 
 
 def elevation_m(scn: dict[str, Any], x_m: float) -> float:

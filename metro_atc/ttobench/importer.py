@@ -1,7 +1,8 @@
 """Import TTOBench tracks, trains and journeys as a metro_atc scenario (and export back).
 
 ``python -m metro_atc import ttobench --track T.json --train R.json [--journey J.json]
---out scenario.yaml [--trains N] [--headway-s H] [--dwell-s D] [--margin M] [--drop FIELD]``
+--out scenario.yaml [--trains N] [--headway-s H] [--dwell-s D] [--margin M] [--drop FIELD]
+[--length-m L]``
 
 ``T`` / ``R`` are file paths or the names of the vendored files (``CN_Songjiazhuang_Yizhuang``,
 ``CN_Beijing_Subway``).  Every TTOBench field is mapped onto a scenario key or refused with a
@@ -16,6 +17,7 @@ formats (the round-trip test).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -26,7 +28,7 @@ from typing import Any, Optional, Sequence
 
 import yaml
 
-from metro_atc.core.line.scenario import Scenario, ScenarioError, parse_scenario
+from metro_atc.core.line.scenario import LineSpec, Scenario, ScenarioError, parse_scenario
 
 KMH_PER_MPS = 3.6
 
@@ -253,9 +255,14 @@ def map_track(src: str, d: dict[str, Any], drop: set[str], notes: list[str]
     return stops, line, str(meta["id"])
 
 
-def map_train(src: str, d: dict[str, Any], drop: set[str], notes: list[str]
-              ) -> tuple[dict[str, Any], dict[str, Any], str]:
-    """(scenario ``trains`` mapping, ``energy`` mapping, train id) of a TTOBench train."""
+def map_train(src: str, d: dict[str, Any], drop: set[str], notes: list[str],
+              length_m: Optional[float] = None) -> tuple[dict[str, Any], dict[str, Any], str]:
+    """(scenario ``trains`` mapping, ``energy`` mapping, train id) of a TTOBench train.
+
+    ``length_m``: the train length [m] when the file has none (most TTOBench trains); a
+    file without it and no ``length_m`` is refused (the length sets the platform stop, the
+    ATP's rear and the separation).
+    """
     _check_fields(src, d, {"metadata"} | set(_UNITS) | set(_UNREPRESENTABLE), drop, notes)
     for key in _REQUIRED_TRAIN:
         if key not in d:
@@ -274,8 +281,23 @@ def map_train(src: str, d: dict[str, Any], drop: set[str], notes: list[str]
     if "num seats" in d:
         notes.append(f"{src}: num seats = {_scalar(src, d, 'num seats'):g} (informational; "
                      "capacity_pax is the crush capacity, kept from the preset)")
-    if "length" not in d:
-        notes.append(f"{src}: no length: train length 141 m from the taipei_mrt_6car preset")
+    # TTOBench's mass is the mass it simulates (no passengers): the scenario's trains run
+    # empty, so that mass is the empty mass (mass_load_pax 0), kept to the kilogram
+    trains["mass_load_pax"] = 0.0
+    if "length" in d:
+        if length_m is not None:
+            raise TtobenchError(f"ttobench {src}: length: given by the file "
+                                f"({trains['length_m']:g} m) and by --length-m; give one")
+    elif length_m is None:
+        raise TtobenchError(f"ttobench {src}: missing field 'length' (this train has none: "
+                            "give it with --length-m)")
+    else:
+        if not (math.isfinite(length_m) and 5.0 <= length_m <= 600.0):
+            raise TtobenchError(f"ttobench {src}: --length-m: expected a length in [5, 600] m, "
+                                f"got {length_m!r}")
+        trains["length_m"] = float(length_m)
+        notes.append(f"{src}: no length in TTOBench: train length {length_m:g} m given with "
+                     "the import (--length-m)")
     if "max pn braking force" not in d:
         stock["friction_brake_force_kn"] = 0.0
     notes.append(f"{src}: guaranteed / nominal emergency deceleration not in TTOBench: "
@@ -321,10 +343,45 @@ def map_journey(src: str, d: dict[str, Any], stops: list[float], notes: list[str
     return served, (max(dwells) if dwells else None)
 
 
+def _trim_to_line(line: dict[str, Any], length_m: float, notes: list[str]) -> None:
+    """Drop / clip the track data outside the scenario's line; stated in ``notes``.
+
+    A journey may serve part of the track: the loader refuses data off [first stop -
+    length - 500 m, last stop + tail track]
+    (:func:`metro_atc.core.line.scenario.line_extent_m`).
+    """
+    tail = float(next(f.default for f in dataclasses.fields(LineSpec)  # type: ignore[arg-type]
+                      if f.name == "tail_track_m"))
+    st = line["stations"]
+    lo = st[0]["position_m"] - length_m - 500.0
+    hi = st[-1]["position_m"] + tail
+    n = 0
+    for key in ("speed_limits", "gradients"):
+        if key in line:
+            keep = [e for e in line[key] if e["start_m"] < hi]
+            n += len(line[key]) - len(keep)
+            line[key] = keep
+    if "curves" in line:
+        curves = []
+        for c in line["curves"]:
+            a, z = max(c["start_m"], lo), min(c["end_m"], hi)
+            n += int((a, z) != (c["start_m"], c["end_m"]))
+            if z > a:
+                curves.append({**c, "start_m": a, "end_m": z})
+        line["curves"] = curves
+    if n:
+        notes.append(f"{n} speed-limit, gradient or curve entries beyond the served line "
+                     f"[{lo:g}, {hi:g}] m dropped or clipped")
+
+
 def import_ttobench(track: str, train: str, journey: Optional[str] = None, *,
                     n_trains: int = 3, headway_s: float = 300.0, dwell_s: float = 30.0,
-                    margin: float = 0.10, drop: Sequence[str] = ()) -> Imported:
-    """Scenario mapping of a TTOBench track + train (+ journey); raises TtobenchError."""
+                    margin: float = 0.10, drop: Sequence[str] = (),
+                    length_m: Optional[float] = None) -> Imported:
+    """Scenario mapping of a TTOBench track + train (+ journey); raises TtobenchError.
+
+    ``length_m``: the train length [m] for a train file without one (:func:`map_train`).
+    """
     drop_set = set(drop)
     bad = drop_set - set(_UNREPRESENTABLE)
     if bad:
@@ -334,7 +391,7 @@ def import_ttobench(track: str, train: str, journey: Optional[str] = None, *,
     t_src, t_raw = load_json(track)
     r_src, r_raw = load_json(train)
     stops, line, track_id = map_track(t_src, t_raw, drop_set, notes)
-    trains, energy, train_id = map_train(r_src, r_raw, drop_set, notes)
+    trains, energy, train_id = map_train(r_src, r_raw, drop_set, notes, length_m)
     served = list(range(len(stops)))
     if journey is not None:
         j_src, j_raw = load_json(journey)
@@ -342,6 +399,7 @@ def import_ttobench(track: str, train: str, journey: Optional[str] = None, *,
         if j_dwell is not None:
             dwell_s = j_dwell
         line["stations"] = [line["stations"][k] for k in served]
+    _trim_to_line(line, float(trains["length_m"]), notes)
     n_st = len(line["stations"])
     length = line["stations"][-1]["position_m"] - line["stations"][0]["position_m"]
     # duration: every train's journey at >= 8 m/s average plus dwells, turnback and a margin
@@ -430,13 +488,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--dwell-s", type=float, default=30.0, help="dwell [s] (30)")
     ap.add_argument("--margin", type=float, default=0.10,
                     help="scheduled running time = flat-out x (1 + margin) (0.10)")
+    ap.add_argument("--length-m", type=float, default=None,
+                    help="train length [m] when the train file has none (else refused)")
     ap.add_argument("--drop", action="append", default=[],
                     help="leave out an unrepresentable field on purpose (repeatable)")
     a = ap.parse_args(list(argv) if argv is not None else None)
     try:
         imp = import_ttobench(a.track, a.train, a.journey, n_trains=a.trains,
                               headway_s=a.headway_s, dwell_s=a.dwell_s, margin=a.margin,
-                              drop=a.drop)
+                              drop=a.drop, length_m=a.length_m)
         Path(a.out).write_text(imp.yaml_text(), encoding="utf-8")
     except (TtobenchError, OSError) as exc:
         print(f"metro_atc import: {exc}", file=sys.stderr)

@@ -13,6 +13,7 @@ import math
 from metro_atc.core import laws
 from metro_atc.core.line.adhesion import CURVES, AdhesionCurve
 from metro_atc.core.line.geometry import LineGeometry
+from metro_atc.core.line.guarantee import level_guaranteed_decel
 from metro_atc.core.line.scenario import Scenario
 from metro_atc.core.line.vehicle import TrainParams
 
@@ -55,15 +56,8 @@ def atp_constants(scn: Scenario, p: TrainParams, geom: LineGeometry,
     steepest downhill grade.
     """
     sg = scn.signalling
-    curve = CURVES[scn.line.adhesion] if curve is None else curve
-    b_lvl = sg.guaranteed_decel_mps2
-    if b_lvl is None:
-        # adhesion-limited guarantee: locked-wheel adhesion with 10 % margin
-        # (empty train: smallest adhesion mass relative to the rotating allowance)
-        m_rot = p.rotary_allowance * p.mass_kg
-        tare = max(p.mass_kg - p.nominal_load_pax * p.pax_mass_kg, 0.3 * p.mass_kg)
-        b_lvl = min(p.emergency_brake_mps2,
-                    laws.adhesion_guaranteed_decel(curve.mu_slide, tare, m_rot))
+    b_lvl = level_guaranteed_decel(sg.guaranteed_decel_mps2, p,
+                                   CURVES[scn.line.adhesion] if curve is None else curve)
     b_g = float(laws.guaranteed_decel_on_grade(b_lvl, geom.max_down))
     if b_g <= 0.05:
         raise ValueError("guaranteed emergency braking is not positive on the steepest "

@@ -22,6 +22,10 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Literal, Union
 
+from metro_atc.core.line.adhesion import CURVES
+from metro_atc.core.line.guarantee import level_guaranteed_decel
+from metro_atc.core.line.vehicle import (G_MPS2, PRESETS, max_traction_force_at,
+                                         train_params_of_section)
 from metro_atc.core.safe_yaml import (YamlLimitError, load_yaml_file, load_yaml_text, one_line,
                                       short_repr)
 
@@ -91,6 +95,18 @@ class RollingStockSpec:
     emergency_brake_actual_mps2: float | None = _f(None, 0.1, 4.0, "nominal emergency "
                                                    "deceleration (plant)")
     jerk_max_mps3: float | None = _f(None, 0.1, 10.0, "jerk limit")
+    emergency_jerk_mps3: float | None = _f(None, 0.1, 50.0, "rate at which the emergency "
+                                           "brake builds up [m/s^3]")
+    regen_fade_speed_kmh: float | None = _f(None, 0.0, 50.0, "below this speed the electric "
+                                            "brake fades out linearly [km/h]")
+    axles_per_car: int | None = _f(None, 2, 8, "axles per car")
+    motored_axle_fraction: float | None = _f(None, 0.0, 1.0, "share of motored axles "
+                                             "(traction adhesion, electric brake)")
+    wheel_radius_m: float | None = _f(None, 0.2, 0.7, "wheel rolling radius")
+    wheel_inertia_kgm2: float | None = _f(None, 1.0, 2000.0, "wheelset inertia incl. discs "
+                                          "[kg m^2]")
+    brake_radius_m: float | None = _f(None, 0.05, 0.6, "effective disc-pad friction radius")
+    pad_mu_nominal: float | None = _f(None, 0.05, 1.0, "nominal disc-pad friction coefficient")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -99,7 +115,11 @@ class TrainsSpec:
 
     count: int = _f(dataclasses.MISSING, 1, 60, "number of train services (train_01..)")
     preset: Literal["taipei_mrt_6car", "thsr_700t"] = _f("taipei_mrt_6car", doc="rolling stock")
-    mass_kg: float | None = _f(None, 1e3, 2e6, "override: loaded mass incl. nominal load")
+    mass_kg: float | None = _f(None, 1e3, 2e6, "override: mass with mass_load_pax on board")
+    mass_load_pax: float | None = _f(None, 0.0, 5000.0, "persons included in mass_kg "
+                                     "(required with mass_kg; 0: mass_kg is the empty mass)")
+    tare_mass_kg: float | None = _f(None, 1e3, 2e6, "empty mass (instead of mass_kg)")
+    pax_mass_kg: float | None = _f(None, 30.0, 150.0, "mass of one passenger")
     length_m: float | None = _f(None, 5.0, 600.0, "override: train length")
     max_speed_kmh: float | None = _f(None, 10.0, 400.0, "override: design max speed")
     capacity_pax: float | None = _f(None, 1.0, 5000.0, "override: crush capacity")
@@ -530,7 +550,116 @@ def _check(b: _Builder, s: Scenario) -> None:
         raise b.err("signalling.response_time_s",
                     f"expected >= sim.control_period_s ({s.sim.control_period_s}), "
                     f"got {s.signalling.response_time_s}")
+    _check_extent(b, s)
     _check_budget(b, s)
+    _check_stock(b, s)
+
+
+def line_extent_m(s: Scenario, length_m: float) -> tuple[float, float]:
+    """Chainage span of the line [m]: the plant's track.
+
+    From a train length and 500 m before the first stop point to the buffer stop
+    ``tail_track_m`` beyond the last.
+    """
+    st = s.line.stations
+    return st[0].position_m - length_m - 500.0, st[-1].position_m + s.line.tail_track_m
+
+
+def _check_extent(b: _Builder, s: Scenario) -> None:
+    """Track data must lie on the line (:func:`line_extent_m`).
+
+    Step functions (speed limits, grades) may start before the line (they apply from its
+    start) but not beyond its end; curves and TSR zones lie within it.  The train length of
+    the extent is known before the stock is
+    resolved: the scenario's ``trains.length_m`` or the preset's).
+    """
+    length = s.trains.length_m
+    lo, hi = line_extent_m(s, PRESETS[s.trains.preset].length_m if length is None else length)
+    ext = f"the line spans [{lo:g}, {hi:g}] m (stations, tail track)"
+    starts = [("line.speed_limits", i, e.start_m) for i, e in enumerate(s.line.speed_limits)]
+    starts += [("line.gradients", i, e.start_m) for i, e in enumerate(s.line.gradients)]
+    for key, i, x in starts:
+        if x >= hi:
+            raise b.err(f"{key}[{i}].start_m", f"{x:g} is beyond the end of the line: {ext}")
+    zones = [(f"line.curves[{i}]", c.start_m, c.end_m) for i, c in enumerate(s.line.curves)]
+    zones += [(f"line.temporary_speed_limits[{i}]", t.start_m, t.end_m)
+              for i, t in enumerate(s.line.temporary_speed_limits)]
+    zones += [(f"incidents[{i}]", c.start_m, c.end_m) for i, c in enumerate(s.incidents)
+              if c.kind == "tsr"]
+    for key, a, z in zones:
+        if a < lo or z > hi:
+            raise b.err(f"{key}.start_m" if a < lo else f"{key}.end_m",
+                        f"[{a:g}, {z:g}] m is not on the line: {ext}")
+
+
+# TrainsSpec keys of the rolling stock (the others are trains.stock.* or energy.*)
+_TRAINS_STOCK_KEYS = ("mass_kg", "tare_mass_kg", "mass_load_pax", "pax_mass_kg", "length_m",
+                      "max_speed_kmh", "capacity_pax")
+_ENERGY_STOCK_KEYS = ("traction_efficiency", "regen_efficiency", "aux_power_kw")
+
+
+def stock_key_path(key: str) -> str:
+    """Scenario key path of a rolling-stock data key (``STOCK_KEYS`` of the vehicle model)."""
+    if key in _TRAINS_STOCK_KEYS:
+        return f"trains.{key}"
+    if key in _ENERGY_STOCK_KEYS:
+        return f"energy.{key}"
+    return f"trains.stock.{key}"
+
+
+def _check_stock(b: _Builder, s: Scenario) -> None:
+    """The resolved rolling stock is physical at every load from empty to crush.
+
+    Refused: an empty mass <= 0; an initial load above the capacity; a train that cannot
+    start on the line's steepest up grade at crush load (tractive force at standstill,
+    limited by the motored axles' peak adhesion, not above the Davis A term plus the grade
+    force of the crush-loaded train); a nominal emergency brake below the ATP's guaranteed
+    deceleration.
+    """
+    if s.trains.mass_kg is not None and s.trains.mass_load_pax is None:
+        raise b.err("trains.mass_load_pax", "required with trains.mass_kg: the persons "
+                    "mass_kg includes (0: mass_kg is the empty mass; or give tare_mass_kg)")
+    try:
+        p = train_params_of_section(s.trains, s.energy)
+    except ValueError as exc:
+        key, _, msg = str(exc).partition(": ")
+        raise b.err(stock_key_path(key), msg) from None
+    if p.tare_mass_kg <= 0.0:  # a preset's figures cannot do this; a guard for new presets
+        raise b.err("trains.mass_kg", f"empty mass {p.tare_mass_kg:g} kg, expected > 0")
+    load_key = "trains.mass_load_pax" if s.trains.mass_load_pax is not None else \
+        "trains.capacity_pax"
+    if p.nominal_load_pax > p.capacity_pax:
+        raise b.err(load_key, f"the load mass_kg includes ({p.nominal_load_pax:g} persons) "
+                    f"exceeds the capacity ({p.capacity_pax:g})")
+    if s.trains.initial_load_pax > p.capacity_pax:
+        raise b.err("trains.initial_load_pax", f"expected <= capacity_pax "
+                    f"({p.capacity_pax:g}), got {s.trains.initial_load_pax:g}")
+    curve = CURVES[s.line.adhesion]
+    m_crush = p.mass_at_load(p.capacity_pax)
+    n_ax = p.cars * p.axles_per_car
+    n_mot = int(round(p.motored_axle_fraction * n_ax))
+    if n_mot < 1 or n_ax - n_mot < 4:
+        raise b.err("trains.stock.motored_axle_fraction",
+                    f"{n_mot} motored axles of {n_ax}: expected >= 1 and a 4-axle trailer "
+                    f"car (the instrumented brake car) (fraction {p.motored_axle_fraction:g})")
+    if s.trains.instrumented_car > p.cars:
+        raise b.err("trains.instrumented_car", f"expected <= cars ({p.cars}), "
+                    f"got {s.trains.instrumented_car}")
+    f_start = min(max_traction_force_at(p, 0.0), m_crush * G_MPS2 * curve.mu_peak * n_mot / n_ax)
+    up = max([0.0] + [g.grade_permille / 1000.0 for g in s.line.gradients])
+    f_need = p.davis_a_n + m_crush * G_MPS2 * math.sin(math.atan(up))
+    if f_start <= f_need:
+        raise b.err("trains.stock.traction_force_kn",
+                    f"the crush-loaded train ({m_crush / 1000.0:.4g} t, {p.capacity_pax:g} "
+                    f"persons) cannot start on the steepest grade {1000.0 * up:g} permille: "
+                    f"tractive force {f_start / 1000.0:.4g} kN <= resistance + grade "
+                    f"{f_need / 1000.0:.4g} kN")
+    b_guar = level_guaranteed_decel(s.signalling.guaranteed_decel_mps2, p, curve)
+    if p.emergency_brake_actual_mps2 < b_guar:
+        key = "signalling.guaranteed_decel_mps2" if s.signalling.guaranteed_decel_mps2 \
+            is not None else "trains.stock.emergency_brake_actual_mps2"
+        raise b.err(key, f"the nominal emergency brake {p.emergency_brake_actual_mps2:g} "
+                    f"m/s^2 is below the ATP's guaranteed deceleration {b_guar:.4g} m/s^2")
 
 
 _G = 9.80665

@@ -109,6 +109,19 @@ class TrainParams:
     """Auxiliary (HVAC, lighting) power drawn while in service [W] (estimate)."""
 
     @property
+    def tare_mass_kg(self) -> float:
+        """Empty mass [kg]: ``mass_kg`` less its nominal load ``nominal_load_pax``."""
+        return self.mass_kg - self.nominal_load_pax * self.pax_mass_kg
+
+    def mass_at_load(self, load_pax: Any) -> Any:
+        """Mass [kg] with ``load_pax`` passengers on board (float or array of loads).
+
+        ``mass_kg`` includes ``nominal_load_pax`` persons; each one more or less adds or
+        removes ``pax_mass_kg``.
+        """
+        return self.mass_kg + (load_pax - self.nominal_load_pax) * self.pax_mass_kg
+
+    @property
     def effective_mass_kg(self) -> float:
         """Mass including the rotating-mass allowance [kg]."""
         return self.mass_kg * (1.0 + self.rotary_allowance)
@@ -303,13 +316,19 @@ THSR_700T = TrainParams(
 )
 """THSR 700T 12-car trainset (seed 004 Table 4; estimates marked)."""
 
+PRESETS: dict[str, TrainParams] = {"taipei_mrt_6car": TAIPEI_MRT_6CAR, "thsr_700t": THSR_700T}
+"""Rolling-stock presets by scenario name (``trains.preset``)."""
+
 
 STOCK_KEYS = (
-    "mass_kg", "rotating_allowance", "length_m", "cars", "max_speed_kmh",
+    "mass_kg", "tare_mass_kg", "mass_load_pax", "pax_mass_kg", "rotating_allowance",
+    "length_m", "cars", "max_speed_kmh",
     "davis_a_n", "davis_b_n_per_mps", "davis_c_n_per_mps2",
     "traction_force_kn", "traction_power_kw", "accel_max_mps2",
     "service_brake_mps2", "regen_force_kn", "regen_power_kw", "friction_brake_force_kn",
     "emergency_brake_mps2", "emergency_brake_actual_mps2", "jerk_max_mps3",
+    "emergency_jerk_mps3", "regen_fade_speed_kmh", "axles_per_car", "motored_axle_fraction",
+    "wheel_radius_m", "wheel_inertia_kgm2", "brake_radius_m", "pad_mu_nominal",
     "capacity_pax", "traction_efficiency", "regen_efficiency", "aux_power_kw",
 )
 """Keys accepted by :func:`train_params_from_data` (units in the suffix, km/h, kN, kW)."""
@@ -321,7 +340,10 @@ def train_params_from_data(base: TrainParams, data: dict[str, float | int | None
 
     Keys (:data:`STOCK_KEYS`, SI unless the suffix says km/h, kN or kW):
 
-    - ``mass_kg``: loaded mass.  Without explicit Davis terms, A and B scale with the mass
+    - ``mass_kg``: mass with ``mass_load_pax`` persons on board (default: the preset's
+      ``nominal_load_pax``), or ``tare_mass_kg`` (empty) instead; ``pax_mass_kg`` per
+      person.  The empty mass must be positive (ValueError).  Without explicit Davis
+      terms, A and B scale with the mass
       (rolling / mechanical resistance is proportional to the weight) and C (aerodynamic)
       is kept; without an explicit traction force the preset's tractive *force* is kept
       (a1 scales with 1/mass), so a heavier train accelerates less.
@@ -336,11 +358,14 @@ def train_params_from_data(base: TrainParams, data: dict[str, float | int | None
       divided by the mass (the smaller of the two when both are given);
       ``regen_power_kw``: electric brake power limit;
     - ``emergency_brake_mps2`` (guaranteed, used by ATP), ``emergency_brake_actual_mps2``
-      (nominal), ``jerk_max_mps3``;
+      (nominal), ``jerk_max_mps3``, ``emergency_jerk_mps3`` (build-up rate);
+    - ``regen_fade_speed_kmh``, ``axles_per_car``, ``motored_axle_fraction``,
+      ``wheel_radius_m``, ``wheel_inertia_kgm2``, ``brake_radius_m``, ``pad_mu_nominal``;
     - ``traction_efficiency``, ``regen_efficiency`` [-], ``aux_power_kw``.
 
     Every key left None keeps the preset's value, so ``train_params_from_data(p, {})`` is
-    ``p`` itself.  Raises ValueError on an unknown key or an inconsistent set (emergency
+    ``p`` itself.  Raises ValueError whose message starts with the key at fault on an
+    unknown key or an inconsistent set (emergency
     deceleration below the service brake's guaranteed part is allowed; a non-positive value is
     not).
     """
@@ -352,12 +377,10 @@ def train_params_from_data(base: TrainParams, data: dict[str, float | int | None
         return base
     for k, v in d.items():
         if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0.0):
-            raise ValueError(f"rolling stock {k}: expected a finite number >= 0, got {v!r}")
+            raise ValueError(f"{k}: expected a finite number >= 0, got {v!r}")
     over: dict[str, Any] = {}
     m0 = base.mass_kg
-    m = float(d.get("mass_kg", m0))
-    if m <= 0.0:
-        raise ValueError("rolling stock mass_kg: expected > 0")
+    m = _loaded_mass(base, d, over)
     if m != m0:
         over["mass_kg"] = m
         over["davis_a_n"] = base.davis_a_n * m / m0
@@ -369,13 +392,19 @@ def train_params_from_data(base: TrainParams, data: dict[str, float | int | None
               "emergency_brake_mps2": "emergency_brake_mps2",
               "emergency_brake_actual_mps2": "emergency_brake_actual_mps2",
               "jerk_max_mps3": "max_jerk_mps3", "capacity_pax": "capacity_pax",
+              "emergency_jerk_mps3": "emergency_jerk_mps3", "axles_per_car": "axles_per_car",
+              "motored_axle_fraction": "motored_axle_fraction",
+              "wheel_radius_m": "wheel_radius_m", "wheel_inertia_kgm2": "wheel_inertia_kgm2",
+              "brake_radius_m": "brake_radius_m", "pad_mu_nominal": "pad_mu_nominal",
               "traction_efficiency": "traction_efficiency",
               "regen_efficiency": "regen_efficiency"}
     for key, attr in simple.items():
         if key in d:
-            over[attr] = int(d[key]) if attr == "cars" else float(d[key])
+            over[attr] = int(d[key]) if attr in ("cars", "axles_per_car") else float(d[key])
     if "max_speed_kmh" in d:
         over["max_speed_mps"] = float(d["max_speed_kmh"]) / 3.6
+    if "regen_fade_speed_kmh" in d:
+        over["regen_fade_speed_mps"] = float(d["regen_fade_speed_kmh"]) / 3.6
     if "aux_power_kw" in d:
         over["aux_power_w"] = float(d["aux_power_kw"]) * 1e3
     if "traction_force_kn" in d or "traction_power_kw" in d or "accel_max_mps2" in d:
@@ -384,12 +413,12 @@ def train_params_from_data(base: TrainParams, data: dict[str, float | int | None
         if "accel_max_mps2" in d:
             a1 = min(a1, float(d["accel_max_mps2"]))
         if a1 <= 0.0:
-            raise ValueError("rolling stock: traction force / acceleration must be > 0")
+            raise ValueError("traction_force_kn: traction force / acceleration must be > 0")
         over["a1_mps2"] = a1
         if "traction_power_kw" in d:
             p_w = float(d["traction_power_kw"]) * 1e3
             if p_w <= 0.0:
-                raise ValueError("rolling stock traction_power_kw: expected > 0")
+                raise ValueError("traction_power_kw: expected > 0")
             over["v1_mps"] = p_w / (m * a1)
             over["v2_mps"] = 1e9
             over["b2_mps"] = 0.0
@@ -403,11 +432,45 @@ def train_params_from_data(base: TrainParams, data: dict[str, float | int | None
     if brake:
         b = min(brake)
         if b <= 0.0:
-            raise ValueError("rolling stock: service brake deceleration must be > 0")
+            raise ValueError("service_brake_mps2: service brake deceleration must be > 0")
         over["max_service_brake_mps2"] = b
     if "regen_power_kw" in d:
         over["max_regen_power_w"] = float(d["regen_power_kw"]) * 1e3
     return dataclasses.replace(base, **over) if over else base
+
+
+def _loaded_mass(base: TrainParams, d: dict[str, float | int], over: dict[str, Any]
+                 ) -> float:
+    """Mass incl. its nominal load [kg] from ``mass_kg`` or ``tare_mass_kg`` (module doc).
+
+    ``mass_load_pax`` (the persons ``mass_kg`` includes; the preset's nominal load when
+    absent) and ``pax_mass_kg`` go into ``over``; raises ValueError naming the key when the
+    empty mass would not be positive.
+    """
+    if "mass_kg" in d and "tare_mass_kg" in d:
+        raise ValueError("tare_mass_kg: give mass_kg (with mass_load_pax) or tare_mass_kg, "
+                         "not both")
+    if "mass_load_pax" in d and "mass_kg" not in d and "tare_mass_kg" not in d:
+        raise ValueError("mass_load_pax: the load mass_kg includes needs mass_kg or "
+                         "tare_mass_kg with it")
+    pax = float(d.get("pax_mass_kg", base.pax_mass_kg))
+    load = float(d.get("mass_load_pax", base.nominal_load_pax))
+    if "pax_mass_kg" in d:
+        over["pax_mass_kg"] = pax
+    if "mass_load_pax" in d:
+        over["nominal_load_pax"] = load
+    if "tare_mass_kg" in d:
+        tare = float(d["tare_mass_kg"])
+        if tare <= 0.0:
+            raise ValueError(f"tare_mass_kg: expected > 0, got {tare:g}")
+        return tare + load * pax
+    m = float(d.get("mass_kg", base.mass_kg))
+    if m - load * pax <= 0.0:
+        key = "mass_kg" if "mass_kg" in d else "pax_mass_kg"
+        raise ValueError(f"{key}: empty mass mass_kg - mass_load_pax x pax_mass_kg = "
+                         f"{m:g} - {load:g} x {pax:g} = {m - load * pax:g} kg, expected > 0 "
+                         f"(mass_load_pax: the load mass_kg includes; or give tare_mass_kg)")
+    return m
 
 
 def train_params_from_spec(base: TrainParams, trains: Any, energy: Any) -> TrainParams:
@@ -417,8 +480,23 @@ def train_params_from_spec(base: TrainParams, trains: Any, energy: Any) -> Train
     capacity_pax and the ``stock`` mapping), ``energy`` its ``energy`` section (efficiencies,
     auxiliary power); see :func:`train_params_from_data` for the semantics.
     """
+    return train_params_from_data(base, stock_data_of_spec(trains, energy))
+
+
+def train_params_of_section(trains: Any, energy: Any) -> TrainParams:
+    """Rolling stock of a scenario's ``trains`` section (its ``preset`` with the data)."""
+    return train_params_from_spec(PRESETS[trains.preset], trains, energy)
+
+
+def stock_data_of_spec(trains: Any, energy: Any) -> dict[str, float | int | None]:
+    """Rolling-stock data of a scenario's ``trains`` and ``energy`` sections.
+
+    One entry per :data:`STOCK_KEYS` key; None = not given.
+    """
     data: dict[str, float | int | None] = {
-        "mass_kg": trains.mass_kg, "length_m": trains.length_m,
+        "mass_kg": trains.mass_kg, "tare_mass_kg": trains.tare_mass_kg,
+        "mass_load_pax": trains.mass_load_pax, "pax_mass_kg": trains.pax_mass_kg,
+        "length_m": trains.length_m,
         "max_speed_kmh": trains.max_speed_kmh, "capacity_pax": trains.capacity_pax,
         "traction_efficiency": energy.traction_efficiency,
         "regen_efficiency": energy.regen_efficiency, "aux_power_kw": energy.aux_power_kw,
@@ -426,4 +504,4 @@ def train_params_from_spec(base: TrainParams, trains: Any, energy: Any) -> Train
     stock = trains.stock
     for f in dataclasses.fields(stock):
         data[f.name] = getattr(stock, f.name)
-    return train_params_from_data(base, data)
+    return data

@@ -64,16 +64,15 @@ class Fleet:
         self.broken_until = np.full(n, -math.inf)
         self.trac_level = np.ones(n)
         self.load = np.full(n, float(load_pax))
-        self.mass = p.mass_kg + (self.load - p.nominal_load_pax) * p.pax_mass_kg
+        self.mass = p.mass_at_load(self.load)
         self.m_rot = p.rotary_allowance * p.mass_kg
         self.mass_changed()
         self.n_done = 0
         self.update_masks(0.0)
 
     def set_mass_from_load(self, i: int) -> None:
-        """Mass of train i [kg] from its passenger load."""
-        p = self.p
-        self.mass[i] = p.mass_kg + (self.load[i] - p.nominal_load_pax) * p.pax_mass_kg
+        """Mass of train i [kg] from its passenger load (positive: the loader checks it)."""
+        self.mass[i] = self.p.mass_at_load(self.load[i])
         self.mass_changed()
 
     def mass_changed(self) -> None:
