@@ -12,6 +12,7 @@ same order (no fused multiply-add, no reassociation), so no tolerance is needed.
 from __future__ import annotations
 
 import json
+from operator import attrgetter
 from typing import Any
 
 import numpy as np
@@ -25,9 +26,11 @@ from metro_atc.core.plant.line import LineSim
 
 needs_numba = pytest.mark.skipif(not numba_available(), reason="numba not installed")
 
-STATE = ("x", "v", "acc", "a_dem", "u_last", "eb", "sb", "eoa", "atp_limit", "speed_code",
-         "interventions", "violations", "e_trac", "e_elec", "e_fric", "e_res", "e_curve",
-         "e_grade", "e_stop_corr", "n_in_service", "status", "load", "fx", "clamp", "slip")
+STATE = ("fleet.x", "fleet.v", "fleet.acc", "fleet.a_dem", "fleet.u_last", "atp.eb", "atp.sb",
+         "atp.eoa", "atp.atp_limit", "atp.speed_code", "atp.interventions", "atp.violations",
+         "energy.e_trac", "energy.e_elec", "energy.e_fric", "energy.e_res", "energy.e_curve",
+         "energy.e_grade", "energy.e_stop_corr", "energy.n_in_service", "fleet.status",
+         "fleet.load", "fx", "clamp", "slip")
 
 
 def _line(seed: int, incidents: bool, wet: bool) -> Any:
@@ -39,7 +42,7 @@ def _line(seed: int, incidents: bool, wet: bool) -> Any:
 
 def _compare(a: LineSim, b: LineSim, ra: Any, rb: Any, where: str) -> None:
     for name in STATE:
-        np.testing.assert_array_equal(getattr(a, name), getattr(b, name),
+        np.testing.assert_array_equal(attrgetter(name)(a), attrgetter(name)(b),
                                       err_msg=f"{where}: {name}")
     assert a.atp.min_sep == b.atp.min_sep, where
     assert a.atp.steps_above_civil == b.atp.steps_above_civil, where
