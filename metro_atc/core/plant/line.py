@@ -119,11 +119,6 @@ class LineSim:
     # ------------------------------------------------------------------ public API
 
     @property
-    def n_done(self) -> int:
-        """Trains out of service."""
-        return self.fleet.n_done
-
-    @property
     def done(self) -> bool:
         """True when every train has completed its service or the duration is reached."""
         return self.fleet.n_done == self.n or self.t >= self.duration_s - 1e-9
