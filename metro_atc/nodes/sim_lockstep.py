@@ -1,7 +1,8 @@
 """The line_simulator's stepping loop: lockstep on the ATOs' commands, or free-run.
 
 :func:`lockstep_loop` drives a ``LineSimulator`` node (passed in: this module does not
-import the node) through its public interface: it waits for the graph, then steps the plant
+import the node) through the members named by :class:`LockstepNode`, a Protocol the type
+checker holds the node to: it waits for the graph, then steps the plant
 whenever every command of the step arrived (or the step timed out), re-sending the fleet
 state to late or restarted ATOs, and at the end drains the brake sensor outbox and announces
 the finished run.  Wall times are ``time.monotonic`` seconds.
