@@ -170,9 +170,10 @@ def test_fixed_block_speed_codes() -> None:
         run = st["in_service"]
         codes.extend((st["speed_code_mps"][run] * 3.6).tolist())
         eoa = st["movement_authority_m"][run]
-        on_block = np.isclose(((eoa + sim.atp.margin - sim.geometry.x0) / sim.atp.block_len) % 1.0, 0.0) | \
-            np.isclose(((eoa + sim.atp.margin - sim.geometry.x0) / sim.atp.block_len) % 1.0, 1.0) | \
-            (eoa >= sim.geometry.eoa_end - 1e-9) | (eoa + sim.atp.margin > sim.geometry.x_switch)
+        atp, geo = sim.atp, sim.geometry
+        on_block = np.isclose(((eoa + atp.margin - geo.x0) / atp.block_len) % 1.0, 0.0) | \
+            np.isclose(((eoa + atp.margin - geo.x0) / atp.block_len) % 1.0, 1.0) | \
+            (eoa >= geo.eoa_end - 1e-9) | (eoa + atp.margin > geo.x_switch)
         assert np.all(on_block)
     c = np.array(codes)
     assert np.allclose(c / 5.0, np.round(c / 5.0), atol=1e-6)

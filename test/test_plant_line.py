@@ -211,6 +211,7 @@ def test_ats_dwell_cut_leaves_passengers_for_the_next_train(tmp_path: Any) -> No
     ps = scn.passengers
     assert cut.stations.boarded[0, 1] < ref.stations.boarded[0, 1] - 100.0
     # boarding time after the door overhead bounds the boarders
-    assert cut.stations.boarded[0, 1] <= (cut_dwell - ps.door_overhead_s) / ps.boarding_s_per_pax + 1e-6
+    assert cut.stations.boarded[0, 1] \
+        <= (cut_dwell - ps.door_overhead_s) / ps.boarding_s_per_pax + 1e-6
     # the passengers left behind board the next train
     assert cut.stations.boarded[1, 1] > ref.stations.boarded[1, 1] + 100.0

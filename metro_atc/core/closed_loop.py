@@ -202,7 +202,9 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
             mon.on_step(res)
         # ---- measurements on the state after the step (public plant state)
         x, v = sim.fleet.x, sim.fleet.v
-        k = np.clip(((x - sim.geometry.x0) * sim.geometry.inv_dx).astype(np.int64), 0, sim.atp.ceiling_phys.size - 1)
+        geo = sim.geometry
+        k = np.clip(((x - geo.x0) * geo.inv_dx).astype(np.int64), 0,
+                    sim.atp.ceiling_phys.size - 1)
         civil = sim.atp.ceiling_phys[k] - sim.geometry.ceiling_tol
         above += dt * float(np.count_nonzero(run & (v > civil + CIVIL_TOL_MPS)))
         moved = np.where(run, np.abs(x - x_prev), 0.0)

@@ -283,7 +283,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, node: LockstepNode,
     log.info(f"scenario finished at t={node.sim.t:.1f} s after {node.k} steps, "
              f"{time.monotonic() - t0:.1f} s wall ({node.loop_wall_s:.1f} s from step {k0})")
     node.sensors.drain(float(node.sim.t),
-                      lambda timeout_s: executor.spin_once(timeout_sec=timeout_s))
+                       lambda timeout_s: executor.spin_once(timeout_sec=timeout_s))
     executor.spin_once(timeout_sec=0.0)
     # the other nodes may stop now (the launcher's finished_file), while this one writes
     # its outputs; the last samples' acknowledgements are awaited after those (close)
