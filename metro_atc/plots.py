@@ -199,13 +199,13 @@ def plot_train_graph(sim: "LineSim", path: Path) -> None:
     ax.set_yticks(pos_km, _station_labels(sim), fontsize=8)
     cols = _train_colours(sim.n)
     for i in ran:
-        tt = np.column_stack([sim.sched_arr[i], sim.sched_dep[i]]).ravel()
+        tt = np.column_stack([sim.service.sched_arr[i], sim.service.sched_dep[i]]).ravel()
         xx = np.repeat(pos_km, 2)
         keep = np.isfinite(tt) & (tt <= t_end + 60.0)
         ax.plot(tt[keep] / 60.0, xx[keep], ls="--", lw=0.7, color=cols[i], alpha=0.7)
     ends: list[tuple[float, float, str, Any]] = []
     for i in ran:
-        xi = np.where(run[:, i] & (x[:, i] <= sim.x_end), x[:, i], np.nan) / 1000.0
+        xi = np.where(run[:, i] & (x[:, i] <= sim.geometry.x_end), x[:, i], np.nan) / 1000.0
         ax.plot(t / 60.0, xi, lw=1.4, color=cols[i])
         ok = np.flatnonzero(np.isfinite(xi))
         if ok.size:
@@ -254,18 +254,18 @@ def plot_speed_profile(sim: "LineSim", train_idx: int, path: Path,
     t, x, v, run, atp = _trace_arrays(sim)
     fig, (ax, axg) = plt.subplots(2, 1, figsize=(15, 6.5), sharex=True,
                                   gridspec_kw={"height_ratios": [4, 1]})
-    gx = sim.grid_x
+    gx = sim.geometry.grid_x
     sel = run[:, train_idx] if t.size else np.zeros(0, dtype=bool)
-    lo = sim.x_first_stop - 50.0
-    hi = sim.x_end
+    lo = sim.geometry.x_first_stop - 50.0
+    hi = sim.geometry.x_end
     if sel.any():  # only the stretch the train ran (plus a little)
         hi = min(hi, float(np.nanmax(x[sel, train_idx])) + 300.0)
     m = (gx >= lo) & (gx <= hi)
     km = gx[m] / 1000.0
-    ax.plot(km, sim.limit_eff[m] * KMH, color="k", lw=1.1, label="civil speed limit")
-    ax.plot(km, sim.ceiling_phys[m] * KMH, color="tab:red", lw=0.8, ls=":",
+    ax.plot(km, sim.atp.limit_eff[m] * KMH, color="k", lw=1.1, label="civil speed limit")
+    ax.plot(km, sim.atp.ceiling_phys[m] * KMH, color="tab:red", lw=0.8, ls=":",
             label="overspeed ceiling (limit + margin)")
-    ax.plot(km, np.maximum(sim.ebi_static[m], 0.0) * KMH, color="tab:orange", lw=0.9,
+    ax.plot(km, np.maximum(sim.atp.ebi_static[m], 0.0) * KMH, color="tab:orange", lw=0.9,
             label="ATP EBI curve (static)")
     if sel.any():
         ax.plot(x[sel, train_idx] / 1000.0, np.maximum(atp[sel, train_idx], 0.0) * KMH,
@@ -289,7 +289,7 @@ def plot_speed_profile(sim: "LineSim", train_idx: int, path: Path,
     top_ax = ax.secondary_xaxis("top")
     top_ax.set_xticks([sim.station_positions_m[j] / 1000.0 for j in shown],
                       [names[j] for j in shown], fontsize=7, rotation=30, ha="left")
-    top = float(np.nanmax(sim.ceiling_phys[m])) * KMH if m.any() else float("nan")
+    top = float(np.nanmax(sim.atp.ceiling_phys[m])) * KMH if m.any() else float("nan")
     ax.set_ylim(0.0, top * 1.1 if math.isfinite(top) else None)
     ax.set_ylabel("speed [km/h]")
     ax.set_title(f"{sim.scn.name}: {sim.train_ids[train_idx]} speed vs position")

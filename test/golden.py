@@ -136,9 +136,9 @@ def _snapshot(sim: LineSim) -> dict[str, np.ndarray]:
     out = {f"s_{k}": np.asarray(st[k], dtype=float) for k in STATE_KEYS}
     e = sim.energy_breakdown()
     out.update({f"e_{k}": np.asarray(e[k], dtype=float) for k in ENERGY_KEYS})
-    out["atp_eb"] = np.asarray(sim.eb, dtype=float)
-    out["atp_sb"] = np.asarray(sim.sb, dtype=float)
-    out["atp_violations"] = np.asarray(sim.violations, dtype=float)
+    out["atp_eb"] = np.asarray(sim.atp.eb, dtype=float)
+    out["atp_sb"] = np.asarray(sim.atp.sb, dtype=float)
+    out["atp_violations"] = np.asarray(sim.atp.violations, dtype=float)
     return out
 
 

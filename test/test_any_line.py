@@ -99,8 +99,8 @@ def test_atp_model_matches_the_plant_supervision_with_a_tsr() -> None:
         sim.step(np.full(sim.n, -1.0))
     atp = atp_model_for(scn, train_for(scn))
     xs = np.arange(tsr.start_m - 400.0, tsr.start_m, 10.0)
-    k = ((xs - sim.x0) * sim.inv_dx).astype(int)
-    plant = sim.sbi_static[k] - 0.3
+    k = ((xs - sim.geometry.x0) * sim.geometry.inv_dx).astype(int)
+    plant = sim.atp.sbi_static[k] - 0.3
     static = np.array([atp.static_sbi(x, x) for x in xs])
     ours = np.minimum([atp.sbi_speed_to(tsr.start_m - x, tsr.limit_kmh / 3.6) for x in xs],
                       static)

@@ -127,7 +127,7 @@ def test_property_no_violation_under_fuzzed_commands(run: int) -> None:
     interventions = _drive(sim, run % 3, rng)
     k = sim.kpis()
     assert k["atp_violations"] == 0
-    assert k["min_separation_m"] is None or k["min_separation_m"] >= sim.margin - 1e-6
+    assert k["min_separation_m"] is None or k["min_separation_m"] >= sim.atp.margin - 1e-6
     if run % 3 != 0:  # full traction cannot go unchecked
         assert interventions > 0
 
@@ -135,8 +135,8 @@ def test_property_no_violation_under_fuzzed_commands(run: int) -> None:
 def test_monitor_detects_violations_without_atp() -> None:
     """Negative control: with the ATP curves disabled the same fuzzing violates."""
     sim = fuzz_sim(1, "moving_block", False)
-    sim.ebi_static = np.full_like(sim.ebi_static, 1e9)
-    sim.sbi_static = np.full_like(sim.sbi_static, 1e9)
+    sim.atp.ebi_static = np.full_like(sim.atp.ebi_static, 1e9)
+    sim.atp.sbi_static = np.full_like(sim.atp.sbi_static, 1e9)
     sim.atp.curve.c1 = 1e12  # unlimited movement authority
     _drive(sim, 1, np.random.default_rng(1))
     assert sim.kpis()["atp_violations"] > 0
@@ -147,15 +147,15 @@ def test_tsr_is_respected_and_eb_latches() -> None:
     intervention once per onset and holds the emergency brake to standstill."""
     sim = fuzz_sim(3, "moving_block", False)
     rng = np.random.default_rng(3)
-    tsr = [t for t in sim.tsrs]
+    tsr = [t for t in sim.incidents.tsrs]
     assert tsr
     saw_eb = False
     while not sim.done:
-        eb_before = sim.eb.copy()
+        eb_before = sim.atp.eb.copy()
         sim.step(adversarial_driver(sim, rng))
         # once applied, the EB stays until standstill
-        assert not np.any(eb_before & ~sim.eb & (sim.v > 0.0) & sim.run)
-        saw_eb = saw_eb or bool(sim.eb.any())
+        assert not np.any(eb_before & ~sim.atp.eb & (sim.fleet.v > 0.0) & sim.fleet.run)
+        saw_eb = saw_eb or bool(sim.atp.eb.any())
     assert saw_eb
     assert sim.kpis()["atp_violations"] == 0
 
@@ -170,9 +170,10 @@ def test_fixed_block_speed_codes() -> None:
         run = st["in_service"]
         codes.extend((st["speed_code_mps"][run] * 3.6).tolist())
         eoa = st["movement_authority_m"][run]
-        on_block = np.isclose(((eoa + sim.margin - sim.x0) / sim.block_len) % 1.0, 0.0) | \
-            np.isclose(((eoa + sim.margin - sim.x0) / sim.block_len) % 1.0, 1.0) | \
-            (eoa >= sim.eoa_end - 1e-9) | (eoa + sim.margin > sim.x_switch)
+        atp, geo = sim.atp, sim.geometry
+        on_block = np.isclose(((eoa + atp.margin - geo.x0) / atp.block_len) % 1.0, 0.0) | \
+            np.isclose(((eoa + atp.margin - geo.x0) / atp.block_len) % 1.0, 1.0) | \
+            (eoa >= geo.eoa_end - 1e-9) | (eoa + atp.margin > geo.x_switch)
         assert np.all(on_block)
     c = np.array(codes)
     assert np.allclose(c / 5.0, np.round(c / 5.0), atol=1e-6)

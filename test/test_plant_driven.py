@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import copy
 import json
+from operator import attrgetter
 from typing import Any
 from unittest import mock
 
@@ -28,10 +29,12 @@ from metro_atc.core.plant.driver import simple_driver
 from metro_atc.core.plant.line import LineSim, SensorBlock
 
 
-STATE = ("x", "v", "acc", "a_dem", "u_last", "eb", "sb", "eoa", "atp_limit", "speed_code",
-         "interventions", "violations", "e_trac", "e_elec", "e_fric", "e_res", "e_curve",
-         "e_grade", "e_stop_corr", "n_in_service", "status", "load", "fx", "clamp", "slip",
-         "act_arr", "act_dep", "boarded", "left_behind")
+STATE = ("fleet.x", "fleet.v", "fleet.acc", "fleet.a_dem", "fleet.u_last", "atp.eb", "atp.sb",
+         "atp.eoa", "atp.atp_limit", "atp.speed_code", "atp.interventions", "atp.violations",
+         "energy.e_trac", "energy.e_elec", "energy.e_fric", "energy.e_res", "energy.e_curve",
+         "energy.e_grade", "energy.e_stop_corr", "energy.n_in_service", "fleet.status",
+         "fleet.load", "fx", "clamp", "slip", "stations.act_arr", "stations.act_dep",
+         "stations.boarded", "stations.left_behind")
 
 
 def _rows(blocks: list[SensorBlock]) -> Any:
@@ -75,7 +78,7 @@ def _compare(a: LineSim, b: LineSim, ev_a: list[Any], ev_b: list[Any],
              bl_a: list[SensorBlock], bl_b: list[SensorBlock]) -> None:
     assert a.t == b.t and a.step_count == b.step_count
     for name in STATE:
-        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+        np.testing.assert_array_equal(attrgetter(name)(a), attrgetter(name)(b), err_msg=name)
     assert a.atp.min_sep == b.atp.min_sep
     assert a.atp.steps_above_civil == b.atp.steps_above_civil
     assert [repr(e) for e in ev_a] == [repr(e) for e in ev_b]

@@ -49,13 +49,13 @@ def run(sim: LineSim, u: float, until: Any) -> list[tuple[float, float, float]]:
         if until(sim):
             break
         sim.step(np.array([u]))
-        out.append((sim.t, float(sim.x[0]), float(sim.v[0])))
+        out.append((sim.t, float(sim.fleet.x[0]), float(sim.fleet.v[0])))
     return out
 
 
 def released(sim: LineSim) -> bool:
     """The train has left the first platform."""
-    return bool(sim.status[0] == 1 and not sim.dwelling[0])
+    return bool(sim.fleet.status[0] == 1 and not sim.fleet.dwelling[0])
 
 
 def test_coasting_matches_seed002_eq7() -> None:
@@ -68,15 +68,15 @@ def test_coasting_matches_seed002_eq7() -> None:
     """
     sim = flat_sim()
     run(sim, 0.0, released)
-    run(sim, 1.0, lambda s: s.v[0] >= 20.0)
-    run(sim, 0.0, lambda s: s.a_dem[0] == 0.0)  # jerk-limited release of the traction
+    run(sim, 1.0, lambda s: s.fleet.v[0] >= 20.0)
+    run(sim, 0.0, lambda s: s.fleet.a_dem[0] == 0.0)  # jerk-limited release of the traction
     p = sim.p
-    meff = sim.mass[0] + sim.m_rot
+    meff = sim.fleet.mass[0] + sim.fleet.m_rot
     c0, c1, c2 = p.davis_a_n / meff, p.davis_b_n_per_mps / meff, p.davis_c_n_per_mps2 / meff
     alpha = math.sqrt(c0 / c2 - c1 * c1 / (4 * c2 * c2))
     beta = -c1 / (2 * c2)
     gamma = alpha * c2
-    tc, vc = sim.t, float(sim.v[0])
+    tc, vc = sim.t, float(sim.fleet.v[0])
     cv = tc + math.atan((vc - beta) / alpha) / gamma  # eq. 8
     traj = run(sim, 0.0, lambda s: s.t >= tc + 120.0)
     t = np.array([r[0] for r in traj])
@@ -98,8 +98,8 @@ def test_constant_acceleration_run() -> None:
     """No resistance, constant-torque region: a = a1 m / M_eff exactly; x = v t + a t^2/2."""
     sim = flat_sim(_frictionless())
     run(sim, 0.0, released)
-    traj = run(sim, 1.0, lambda s: s.v[0] >= 8.0)
-    a_exp = sim.p.a1_mps2 * sim.mass[0] / (sim.mass[0] + sim.m_rot)
+    traj = run(sim, 1.0, lambda s: s.fleet.v[0] >= 8.0)
+    a_exp = sim.p.a1_mps2 * sim.fleet.mass[0] / (sim.fleet.mass[0] + sim.fleet.m_rot)
     arr = np.array(traj)
     acc = np.diff(np.concatenate([[0.0], arr[:, 2]])) / sim.control_period_s
     # the jerk limit (seed 001: 1.0 m/s^3) ramps the effort from the holding brake
@@ -116,12 +116,12 @@ def test_stopping_distance_service_brake() -> None:
     """No resistance: once the full service brake is built up, s = v^2 / (2 b) exactly."""
     sim = flat_sim(_frictionless())
     run(sim, 0.0, released)
-    run(sim, 1.0, lambda s: s.v[0] >= 18.0)
-    run(sim, -1.0, lambda s: s.a_dem[0] <= -s.p.max_service_brake_mps2)
-    x0, v0 = float(sim.x[0]), float(sim.v[0])
-    run(sim, -1.0, lambda s: s.v[0] <= 0.0)
+    run(sim, 1.0, lambda s: s.fleet.v[0] >= 18.0)
+    run(sim, -1.0, lambda s: s.fleet.a_dem[0] <= -s.p.max_service_brake_mps2)
+    x0, v0 = float(sim.fleet.x[0]), float(sim.fleet.v[0])
+    run(sim, -1.0, lambda s: s.fleet.v[0] <= 0.0)
     b = sim.p.max_service_brake_mps2
-    assert float(sim.x[0]) - x0 == pytest.approx(v0 * v0 / (2 * b), abs=1e-6)
+    assert float(sim.fleet.x[0]) - x0 == pytest.approx(v0 * v0 / (2 * b), abs=1e-6)
 
 
 def test_grade_force_and_no_rollback() -> None:
@@ -129,18 +129,18 @@ def test_grade_force_and_no_rollback() -> None:
     held on a 30 per mille uphill with zero traction it never rolls back."""
     sim = flat_sim(grades="[{start_m: -1000, grade_permille: -20}]")
     run(sim, 0.0, released)
-    run(sim, 0.0, lambda s: s.v[0] > 0.0 and s.a_dem[0] == 0.0)
-    v0, t0 = float(sim.v[0]), sim.t
+    run(sim, 0.0, lambda s: s.fleet.v[0] > 0.0 and s.fleet.a_dem[0] == 0.0)
+    v0, t0 = float(sim.fleet.v[0]), sim.t
     run(sim, 0.0, lambda s: s.t >= t0 + 0.25)
-    p, m = sim.p, sim.mass[0]
-    v_mid = 0.5 * (v0 + float(sim.v[0]))
+    p, m = sim.p, sim.fleet.mass[0]
+    v_mid = 0.5 * (v0 + float(sim.fleet.v[0]))
     a_exp = (m * G * math.sin(math.atan(0.02)) - (p.davis_a_n + p.davis_b_n_per_mps * v_mid
                                                   + p.davis_c_n_per_mps2 * v_mid ** 2)) \
-        / (m + sim.m_rot)
-    assert (float(sim.v[0]) - v0) / 0.25 == pytest.approx(a_exp, rel=1e-4)
+        / (m + sim.fleet.m_rot)
+    assert (float(sim.fleet.v[0]) - v0) / 0.25 == pytest.approx(a_exp, rel=1e-4)
     up = flat_sim(grades="[{start_m: -1000, grade_permille: 30}]")
     run(up, 0.0, released)
-    x_start = float(up.x[0])
+    x_start = float(up.fleet.x[0])
     traj = run(up, 0.0, lambda s: s.t >= 120.0)
     assert min(r[1] for r in traj) >= x_start
     assert all(r[2] >= 0.0 for r in traj)

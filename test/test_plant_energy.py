@@ -50,15 +50,15 @@ def test_balance_without_stops() -> None:
     """
     sim = LineSim(parse_scenario(HILLY, "hilly.yaml"), seed=0)
     seq = [(1.0, 60.0), (0.0, 30.0), (-0.6, 10.0), (0.7, 40.0), (-1.0, 8.0), (0.0, 20.0)]
-    while sim.dwelling[0] or sim.status[0] != 1:
+    while sim.fleet.dwelling[0] or sim.fleet.status[0] != 1:
         sim.step(np.zeros(1))
     started = False
     for u, dur in seq:
         t_end = sim.t + dur
         while sim.t < t_end - 1e-9:
             sim.step(np.array([u]))
-            started = started or sim.v[0] > 0.0
-            assert sim.v[0] > 0.0 or not started
+            started = started or sim.fleet.v[0] > 0.0
+            assert sim.fleet.v[0] > 0.0 or not started
     resid, trac = _balance(sim)
     e = sim.energy_breakdown()
     assert e["stop_correction"][0] == 0.0

@@ -15,6 +15,7 @@ moved number is explained.
 from __future__ import annotations
 
 import json
+from operator import attrgetter
 import sys
 from pathlib import Path
 from typing import Any, Callable
@@ -27,9 +28,16 @@ from metro_atc.core.linegen import generate_line, scenario_yaml
 from metro_atc.core.plant.driver import simple_driver
 from metro_atc.core.plant.line import LineSim
 
-STATE = ("x", "v", "acc", "a_dem", "u_last", "eb", "sb", "eoa", "atp_limit", "speed_code",
-         "interventions", "violations", "e_trac", "e_elec", "e_fric", "e_res", "e_curve",
-         "e_grade", "e_stop_corr", "n_in_service", "status", "load", "fx", "clamp", "slip")
+STATE = {"x": "fleet.x", "v": "fleet.v", "acc": "fleet.acc", "a_dem": "fleet.a_dem",
+         "u_last": "fleet.u_last", "eb": "atp.eb", "sb": "atp.sb", "eoa": "atp.eoa",
+         "atp_limit": "atp.atp_limit", "speed_code": "atp.speed_code",
+         "interventions": "atp.interventions", "violations": "atp.violations",
+         "e_trac": "energy.e_trac", "e_elec": "energy.e_elec", "e_fric": "energy.e_fric",
+         "e_res": "energy.e_res", "e_curve": "energy.e_curve", "e_grade": "energy.e_grade",
+         "e_stop_corr": "energy.e_stop_corr", "n_in_service": "energy.n_in_service",
+         "status": "fleet.status", "load": "fleet.load", "fx": "fx", "clamp": "clamp",
+         "slip": "slip"}
+"""Recorded state: its key in the traces -> its path on :class:`LineSim`."""
 SENSORS = ("omega", "clamp", "accel", "vref", "car_mass")
 CASES = [(1, False, False, False), (2, True, False, False), (3, True, True, True),
          (4, False, True, True), (5, True, False, True), (6, False, False, True)]
@@ -72,7 +80,8 @@ def trace(case: tuple[int, bool, bool, bool], t_end: float = T_END_S,
         if pulses and (k // 200) % 3 == 0:  # bursts of full traction (ATP, wheel slides)
             u[: max(sim.n // 3, 1)] = 1.0
         res = sim.step(u)
-        row = [float(np.sum(np.asarray(getattr(sim, name), dtype=float))) for name in STATE]
+        row = [float(np.sum(np.asarray(attrgetter(path)(sim), dtype=float)))
+               for path in STATE.values()]
         sa = res.sensor_arrays
         for ch in SENSORS:
             a = np.asarray(getattr(sa, ch), dtype=float) if sa is not None else np.zeros(0)
@@ -81,7 +90,7 @@ def trace(case: tuple[int, bool, bool, bool], t_end: float = T_END_S,
         rows.append(row)
         if k % FULL_EVERY == 0:
             for name in STATE:
-                full[name].append(np.asarray(getattr(sim, name), dtype=float).copy())
+                full[name].append(np.asarray(attrgetter(STATE[name])(sim), dtype=float).copy())
         events += [repr(e) for e in res.events]
         if slid is not None:
             slid.append(int(sim.brakes.any_slide))

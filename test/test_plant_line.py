@@ -52,7 +52,7 @@ def test_full_run_events_and_kpis(mini_run: LineSim) -> None:
     json.dumps(k, allow_nan=False)
     assert k["completed_trains"] == k["trains"] == 2
     assert k["atp_violations"] == 0 and k["atp_interventions"] == 0
-    assert k["min_separation_m"] >= sim.margin
+    assert k["min_separation_m"] >= sim.atp.margin
     assert k["skipped_stops"] == 0
     assert 0.0 < k["energy_kwh"] < 1000.0
     for i in range(sim.n):
@@ -80,9 +80,9 @@ def test_trajectories_monotone_within_limits(mini_run: LineSim) -> None:
     for i in range(sim.n):
         xi = x[run[:, i], i]
         assert np.all(np.diff(xi) >= -1e-9)
-        k = ((xi - sim.x0) * sim.inv_dx).astype(int)
-        assert np.all(v[run[:, i], i] <= sim.ceiling_phys[k] + 1e-9)
-    arr = sim.act_arr[:, 1:]
+        k = ((xi - sim.geometry.x0) * sim.geometry.inv_dx).astype(int)
+        assert np.all(v[run[:, i], i] <= sim.atp.ceiling_phys[k] + 1e-9)
+    arr = sim.stations.act_arr[:, 1:]
     assert np.all(np.isfinite(arr))
     # the reference driver stops within the tolerance: arrival implies |x - stop| <= tol
     assert sim.tol_stop == 1.0
@@ -112,40 +112,40 @@ def test_ats_departure_command_holds_train() -> None:
         scn.disturbances, departure_delay_prob=0.0))
     sim = LineSim(scn, seed=0)
     sim.set_departure(0, 1, 400.0, 95.0, 30.0)
-    _until(sim, lambda s: not math.isnan(s.act_dep[0, 1]))
-    assert sim.act_dep[0, 1] == pytest.approx(400.0, abs=sim.control_period_s + 1e-9)
+    _until(sim, lambda s: not math.isnan(s.stations.act_dep[0, 1]))
+    assert sim.stations.act_dep[0, 1] == pytest.approx(400.0, abs=sim.control_period_s + 1e-9)
     assert sim.states()["target_running_time_s"][0] == pytest.approx(95.0)
     # a command during the dwell that asks for less than the passenger exchange is ignored
     sim2 = LineSim(scn, seed=0)
-    _until(sim2, lambda s: s.dwelling[0] and s.cur_station[0] == 1)
-    t_arr = float(sim2.arr_t[0])
+    _until(sim2, lambda s: s.fleet.dwelling[0] and s.fleet.cur_station[0] == 1)
+    t_arr = float(sim2.fleet.arr_t[0])
     sim2.set_departure(0, 1, t_arr + 1.0)
     assert sim2.states()["mode"][0] == MODE_DWELL
-    _until(sim2, lambda s: not math.isnan(s.act_dep[0, 1]))
-    assert sim2.act_dep[0, 1] - t_arr >= scn.passengers.min_dwell_s - 1e-9
+    _until(sim2, lambda s: not math.isnan(s.stations.act_dep[0, 1]))
+    assert sim2.stations.act_dep[0, 1] - t_arr >= scn.passengers.min_dwell_s - 1e-9
 
 
 def test_nan_command_keeps_last() -> None:
     """A NaN entry keeps the previous command for that train."""
     sim = LineSim(load_scenario("mini"), seed=0)
-    _until(sim, lambda s: s.active_mask()[0] and not s.dwelling[0],
+    _until(sim, lambda s: s.active_mask()[0] and not s.fleet.dwelling[0],
            u=lambda s: np.zeros(s.n))
     for _ in range(8):
         sim.step(np.array([1.0, 0.0]))
-    a_full = float(sim.acc[0])
+    a_full = float(sim.fleet.acc[0])
     sim.step(np.array([np.nan, 0.0]))
-    assert sim.u_last[0] == 1.0
-    assert sim.acc[0] == pytest.approx(a_full, rel=0.05)
+    assert sim.fleet.u_last[0] == 1.0
+    assert sim.fleet.acc[0] == pytest.approx(a_full, rel=0.05)
 
 
 def test_initial_delay_incident() -> None:
     """taipei_blue_delay: train_01 leaves BL01 180 s late (seed 000 Exp. 2) and the train
     behind is delayed by the knock-on effect."""
     sim = LineSim(load_scenario("taipei_blue_delay"), seed=0)
-    _until(sim, lambda s: not math.isnan(s.act_dep[1, 0]), limit=600.0)
-    d0 = sim.act_dep[0, 0] - sim.sched_dep[0, 0]
+    _until(sim, lambda s: not math.isnan(s.stations.act_dep[1, 0]), limit=600.0)
+    d0 = sim.stations.act_dep[0, 0] - sim.service.sched_dep[0, 0]
     assert 180.0 <= d0 <= 180.0 + sim.control_period_s + 40.0
-    assert sim.act_dep[1, 0] - sim.sched_dep[1, 0] > 60.0
+    assert sim.stations.act_dep[1, 0] - sim.service.sched_dep[1, 0] > 60.0
 
 
 def test_breakdown_and_turnback() -> None:
@@ -158,16 +158,16 @@ def test_breakdown_and_turnback() -> None:
     x_stop = None
     while sim.t < 140.0:
         sim.step(simple_driver(sim))
-        if sim.v[0] == 0.0 and x_stop is None:
-            x_stop = float(sim.x[0])
+        if sim.fleet.v[0] == 0.0 and x_stop is None:
+            x_stop = float(sim.fleet.x[0])
         if x_stop is not None:
-            assert float(sim.x[0]) == x_stop
+            assert float(sim.fleet.x[0]) == x_stop
     _until(sim, lambda s: s.done)
     assert sim.kpis()["completed_trains"] == 2
     assert np.all(sim.states()["next_station"] == -1)
     assert np.all(sim.states()["mode"] == MODE_OUT)
     # the terminal departure is followed by the turnback time before leaving service
-    assert sim.t >= sim.act_dep[1, -1] + scn.line.turnback_s
+    assert sim.t >= sim.stations.act_dep[1, -1] + scn.line.turnback_s
 
 
 def test_sensor_rate_and_content(mini_run: LineSim) -> None:
@@ -198,19 +198,20 @@ def test_ats_dwell_cut_leaves_passengers_for_the_next_train(tmp_path: Any) -> No
     scn = load_scenario(str(path))
     ref, cut = LineSim(scn, seed=0), LineSim(scn, seed=0)
     for sim in (ref, cut):
-        _until(sim, lambda s: s.dwelling[0] and s.cur_station[0] == 1)
-    t_arr = float(cut.arr_t[0])
+        _until(sim, lambda s: s.fleet.dwelling[0] and s.fleet.cur_station[0] == 1)
+    t_arr = float(cut.fleet.arr_t[0])
     cut.set_departure(0, 1, t_arr, math.nan, 5.0)   # below the minimum dwell: 20 s applies
     for sim in (ref, cut):
-        _until(sim, lambda s: not math.isnan(s.act_dep[1, 1]), limit=3000.0)
-    ref_dwell = ref.act_dep[0, 1] - ref.act_arr[0, 1]
-    cut_dwell = cut.act_dep[0, 1] - cut.act_arr[0, 1]
+        _until(sim, lambda s: not math.isnan(s.stations.act_dep[1, 1]), limit=3000.0)
+    ref_dwell = ref.stations.act_dep[0, 1] - ref.stations.act_arr[0, 1]
+    cut_dwell = cut.stations.act_dep[0, 1] - cut.stations.act_arr[0, 1]
     assert ref_dwell > 30.0                                   # passenger-driven dwell
     assert cut_dwell == pytest.approx(scn.passengers.min_dwell_s,
                                       abs=cut.control_period_s + 1e-9)
     ps = scn.passengers
-    assert cut.boarded[0, 1] < ref.boarded[0, 1] - 100.0
+    assert cut.stations.boarded[0, 1] < ref.stations.boarded[0, 1] - 100.0
     # boarding time after the door overhead bounds the boarders
-    assert cut.boarded[0, 1] <= (cut_dwell - ps.door_overhead_s) / ps.boarding_s_per_pax + 1e-6
+    assert cut.stations.boarded[0, 1] \
+        <= (cut_dwell - ps.door_overhead_s) / ps.boarding_s_per_pax + 1e-6
     # the passengers left behind board the next train
-    assert cut.boarded[1, 1] > ref.boarded[1, 1] + 100.0
+    assert cut.stations.boarded[1, 1] > ref.stations.boarded[1, 1] + 100.0

@@ -70,7 +70,7 @@ def test_defective_wheel_slides_on_wet_rail() -> None:
     while sim.t < 300.0:
         sim.step(simple_driver(sim))
         max_slip = np.maximum(max_slip, sim.slip[0])
-        if sim.wsp[0, 2]:
+        if sim.brakes.wsp[0, 2]:
             wsp_seen = True
             assert sim.clamp[0, 2] < 0.5 * sim.clamp[0, 0]
     assert max_slip[2] > sim.curve.slip_peak
@@ -91,7 +91,7 @@ def test_emergency_brake_on_wet_rail_slides_all_axles() -> None:
         if sim.t > 70.0:
             slid |= sim.slip[0] > sim.curve.slip_peak
     assert slid.all()
-    assert sim.v[0] == 0.0
+    assert sim.fleet.v[0] == 0.0
 
 
 def test_sensor_dropout_and_stuck() -> None:
@@ -122,7 +122,8 @@ def test_sensor_subset_and_no_feedback_on_plant() -> None:
     sim_b = LineSim(mini(sensors=sens), seed=0)
     while sim_b.t < sim_a.t:
         sim_b.step(simple_driver(sim_b))
-    assert np.array_equal(sim_a.x, sim_b.x) and np.array_equal(sim_a.v, sim_b.v)
+    assert np.array_equal(sim_a.fleet.x, sim_b.fleet.x)
+    assert np.array_equal(sim_a.fleet.v, sim_b.fleet.v)
     assert math.isclose(sim_a.t, sim_b.t)
 
 

@@ -39,7 +39,7 @@ def test_only_trains_that_ran_and_incident_shading(tmp_path: Path) -> None:
     import matplotlib.pyplot as plt
 
     sim = _sim(120.0)
-    first_dep = float(np.nanmin(sim.sched_dep[1]))
+    first_dep = float(np.nanmin(sim.service.sched_dep[1]))
     assert first_dep > 120.0, "scenario changed: train_02 should start after 120 s"
     assert ran_trains(sim) == [0]
     captured = {}

@@ -119,8 +119,8 @@ def run_core(scenario: str, seed: int, sim_limit_s: float | None, sensors: bool,
         "kpis": sim.kpis(), "energy_balance_error": energy_balance_error(sim), "sim": sim,
         "plant_kernel": "numba",  # the only plant step (kept for the JSON's readers)
         "kernel_warmup_s": float(getattr(sim.stepper, "warm_s", 0.0)),
-        "stop_correction_share": float(sim.e_stop_corr.sum()
-                                       / max(float(sim.e_brake_rail.sum()), 1.0)),
+        "stop_correction_share": float(sim.energy.e_stop_corr.sum()
+                                       / max(float(sim.energy.e_brake_rail.sum()), 1.0)),
     }
     if prof is not None:
         s = io.StringIO()

@@ -27,7 +27,7 @@ ATO that drives inside the ATP envelope (all SI):
   ATP supervises a TSR from its notice time and the ATO learns of it at that same instant,
   so a train already too close to brake for it (or inside it) meets the ATP whatever it does;
 - time above the civil limit [s]: train-seconds of trains in service whose speed exceeds the
-  permanent/temporary limit in force for the whole train (``LineSim.ceiling_phys`` minus
+  permanent/temporary limit in force for the whole train (``LineSim.atp.ceiling_phys`` minus
   the overspeed margin) by more than ``CIVIL_TOL_MPS``;
 - speed minima per TSR approach (hunting): the speed of each train from
   ``TSR_APPROACH_M`` before a zone in force (or the last platform before it) to where its
@@ -169,15 +169,15 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
     above = 0.0
     stop_err: list[float] = []
     arrivals: list[tuple[int, int, float, float, bool]] = []
-    x_prev = sim.x.copy()
+    x_prev = sim.fleet.x.copy()
     dist = 0.0
     approaches: dict[tuple[int, int], SpeedMinima] = {}
     minima: list[SpeedMinima] = []
-    itv_prev = np.asarray(sim.interventions).copy()
+    itv_prev = np.asarray(sim.atp.interventions).copy()
     at_notice = 0
-    reach = int(math.ceil(LIMIT_REACH_M * sim.inv_dx))
-    perm = window_min_ahead(window_min_behind(np.asarray(sim.static_limit, dtype=float),
-                                              int(sim.n_len) + reach), reach)
+    reach = int(math.ceil(LIMIT_REACH_M * sim.geometry.inv_dx))
+    perm = window_min_ahead(window_min_behind(np.asarray(sim.geometry.static_limit, dtype=float),
+                                              int(sim.geometry.n_len) + reach), reach)
     step = 0
     while not sim.done and sim.t < limit_s - 1e-9:
         st = sim.states()
@@ -201,23 +201,25 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
         if mon is not None:
             mon.on_step(res)
         # ---- measurements on the state after the step (public plant state)
-        x, v = sim.x, sim.v
-        k = np.clip(((x - sim.x0) * sim.inv_dx).astype(np.int64), 0, sim.ceiling_phys.size - 1)
-        civil = sim.ceiling_phys[k] - sim.ceiling_tol
+        x, v = sim.fleet.x, sim.fleet.v
+        geo = sim.geometry
+        k = np.clip(((x - geo.x0) * geo.inv_dx).astype(np.int64), 0,
+                    sim.atp.ceiling_phys.size - 1)
+        civil = sim.atp.ceiling_phys[k] - sim.geometry.ceiling_tol
         above += dt * float(np.count_nonzero(run & (v > civil + CIVIL_TOL_MPS)))
         moved = np.where(run, np.abs(x - x_prev), 0.0)
         dist += float(np.sum(np.minimum(moved, 100.0)))
         x_prev = x.copy()
         _watch_tsrs(sim, tsrs, run, approaches, minima, perm)
-        itv = np.asarray(sim.interventions)
+        itv = np.asarray(sim.atp.interventions)
         if (itv != itv_prev).any():
             at_notice += _at_tsr_notice(sim, tsrs, np.flatnonzero(itv > itv_prev))
             itv_prev = itv.copy()
         for ev in res.events:
             if ev.kind == "arrival":
                 j = int(ev.train_idx)
-                err = float(sim.x[j] - sim.station_positions_m[ev.station_idx])
-                hit = bool(sim.broken[j] or sim.eb[j])
+                err = float(sim.fleet.x[j] - sim.station_positions_m[ev.station_idx])
+                hit = bool(sim.fleet.broken[j] or sim.atp.eb[j])
                 if not hit:
                     stop_err.append(err)
                 arrivals.append((j, int(ev.station_idx), float(ev.t_s), err, hit))
@@ -229,9 +231,9 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
     return ClosedLoopResult(
         scenario=scn.name, regulator=regulator, planner=planner, tracker=tracker,
         stops=len(arrivals), stop_errors_m=stop_err,
-        missed_stops=int(sim.skipped_stops),
+        missed_stops=int(sim.stations.skipped_stops),
         atp_violations=int(kp["atp_violations"]),
-        atp_interventions=int(np.sum(sim.interventions)), time_above_civil_s=above,
+        atp_interventions=int(np.sum(sim.atp.interventions)), time_above_civil_s=above,
         tsr_minima=minima, energy_kwh=float(kp["energy_kwh"]), train_km=dist / 1000.0,
         sim_time_s=float(sim.t), wall_s=time.perf_counter() - w0, finished=bool(sim.done),
         kpis=kp, arrivals=arrivals,
@@ -244,7 +246,7 @@ def _at_tsr_notice(sim: LineSim, tsrs: list[Any], trains: Any) -> int:
     t = float(sim.t)
     n = 0
     for i in trains:
-        x = float(sim.x[i])
+        x = float(sim.fleet.x[i])
         n += any(0.0 <= t - z.known_s <= TSR_NOTICE_ONSET_S
                  and z.start_m - TSR_APPROACH_M <= x <= z.end_m + sim.length_m for z in tsrs)
     return n
@@ -267,7 +269,7 @@ def _watch_tsrs(sim: LineSim, tsrs: list[Any], run: Any,
         w0 = max(z.start_m - TSR_APPROACH_M, float(before[-1]) + 1.0 if before.size
                  else -math.inf)
         for i in np.flatnonzero(run):
-            x, v = float(sim.x[i]), float(sim.v[i])
+            x, v = float(sim.fleet.x[i]), float(sim.fleet.v[i])
             key = (z_i, int(i))
             inside = w0 <= x <= z.end_m + sim.length_m
             a = approaches.get(key)
@@ -278,6 +280,6 @@ def _watch_tsrs(sim: LineSim, tsrs: list[Any], run: Any,
                 continue
             if a is None:
                 a = approaches[key] = SpeedMinima()
-            k = min(max(int((x - sim.x0) * sim.inv_dx), 0), perm.size - 1)
+            k = min(max(int((x - sim.geometry.x0) * sim.geometry.inv_dx), 0), perm.size - 1)
             a.feed(v, explain(v, float(perm[k]), float(np.min(np.abs(st - x))),
-                              bool(sim.broken[i]), float(sim.eoa[i]) - x))
+                              bool(sim.fleet.broken[i]), float(sim.atp.eoa[i]) - x))

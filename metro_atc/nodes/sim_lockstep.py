@@ -1,7 +1,8 @@
 """The line_simulator's stepping loop: lockstep on the ATOs' commands, or free-run.
 
 :func:`lockstep_loop` drives a ``LineSimulator`` node (passed in: this module does not
-import the node) through its public interface: it waits for the graph, then steps the plant
+import the node) through the members named by :class:`LockstepNode`, a Protocol the type
+checker holds the node to: it waits for the graph, then steps the plant
 whenever every command of the step arrived (or the step timed out), re-sending the fleet
 state to late or restarted ATOs, and at the end drains the brake sensor outbox and announces
 the finished run.  Wall times are ``time.monotonic`` seconds.
@@ -10,13 +11,23 @@ the finished run.  Wall times are ``time.monotonic`` seconds.
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import Protocol
 
 import numpy as np
+from numpy.typing import NDArray
+from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.impl.rcutils_logger import RcutilsLogger
+from rclpy.node import Node
+from rclpy.subscription import Subscription
 
+from metro_atc.core.plant.line import LineSim
 from metro_atc.nodes.common import SubscriptionPoller, stop_requested
+from metro_atc.nodes.sim_checkpoints import Checkpoints
 from metro_atc.nodes.sim_domain import ALONE_CHECK_S, check_alone, check_not_refused
+from metro_atc.nodes.sim_fleet import FleetStatePublisher
+from metro_atc.nodes.sim_params import SimParams
+from metro_atc.nodes.sim_sensors import SensorOutbox
 
 RECORDER_SYNC_STEPS = 250
 """While a recorder is waited for (``wait_for_subscribers``), every this many steps the
@@ -35,7 +46,78 @@ FLEET_RESEND_S = 2.0
 of the trains not answered are published again [s] (a state lost with a killed ATO)."""
 
 
-def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
+class LockstepNode(Protocol):
+    """What :func:`lockstep_loop` uses of the simulator node (``LineSimulator`` has it).
+
+    The node is also an rclpy ``Node`` (its graph is looked at by :mod:`.sim_domain`;
+    checked at the start of the loop).
+    """
+
+    params: SimParams
+    """startup_timeout_s, ato_absent_timeout_s, lockstep, step_timeout_s [s], rtf,
+    wait_for_subscribers."""
+    sim: LineSim
+    """The plant (its time ``t`` [s] and ``control_period_s`` [s])."""
+    fleet: FleetStatePublisher
+    sensors: SensorOutbox
+    checkpoints: Checkpoints
+    ids: list[str]
+    fleet_sub: Subscription
+    cmd_subs: list[Subscription]
+    dep_subs: list[Subscription]
+    profile_subs: list[Subscription]
+    diag_subs: list[Subscription]
+    k: int
+    """The lockstep step index."""
+    cmd_step: NDArray[np.int64]
+    """The step of each train's last command."""
+    finished: bool
+    started: bool
+    wall0: float
+    """Wall time of the first step [s] (``time.monotonic``)."""
+    loop_wall_s: float | None
+    loop_sim_s: float
+
+    @property
+    def context(self) -> Context:
+        """The rclpy context of the node."""
+
+    def get_logger(self) -> RcutilsLogger:
+        """The node's logger."""
+
+    def graph_ready(self) -> bool:
+        """Every ATO/ATS endpoint was discovered."""
+
+    def graph_missing(self) -> list[str]:
+        """The endpoints :meth:`graph_ready` waits for that are not there (short names)."""
+
+    def waited_trains(self) -> NDArray[np.bool_]:
+        """Trains whose per-train command the lockstep waits for."""
+
+    def pending_departures(self) -> list[tuple[int, int]]:
+        """(train, station) of the departure commands the lockstep waits for."""
+
+    def wait_acked(self, timeout_s: float = 5.0) -> None:
+        """Wait until every reliable reader acknowledged what was published."""
+
+    def publish_step(self) -> NDArray[np.bool_]:
+        """Publish the state of the step; the trains that must answer."""
+
+    def commands_complete(self, active: NDArray[np.bool_]) -> bool:
+        """Every command of the step arrived."""
+
+    def step_and_publish(self, active: NDArray[np.bool_],
+                         timed_out: bool) -> NDArray[np.bool_] | None:
+        """Step the plant, publish the next state; the trains that must answer."""
+
+    def advance(self, active: NDArray[np.bool_], timed_out: bool) -> None:
+        """Step the plant (free run)."""
+
+    def announce_finished(self) -> None:
+        """Say that the run finished (the launcher's finished file)."""
+
+
+def lockstep_loop(executor: SingleThreadedExecutor, node: LockstepNode,
                   fast_path: bool = True) -> None:
     """Drive the simulator: lockstep on commands, or free-run paced at the real-time factor.
 
@@ -46,8 +128,10 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
     Without it (the single-process graph, where other nodes' callbacks share the executor)
     every wait is an executor spin.
     """
-    log = sim.get_logger()
-    params = sim.params
+    if not isinstance(node, Node):  # the domain checks look at the node's ROS graph
+        raise TypeError(f"lockstep_loop drives an rclpy Node, not {type(node).__name__}")
+    log = node.get_logger()
+    params = node.params
     lock_pollers: dict[tuple[bytes, tuple[int, ...]], SubscriptionPoller] = {}
     echo_pollers: dict[bytes, SubscriptionPoller] = {}
 
@@ -64,29 +148,31 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
         wait, and waking for every echo cost more than the step (issue 13).  Made again
         when those sets change (cached).
         """
-        own = sim.waited_trains()
-        pend = tuple(sorted({i for i, _ in sim.pending_departures()}))
+        own = node.waited_trains()
+        pend = tuple(sorted({i for i, _ in node.pending_departures()}))
         okey = own.tobytes()
         lock = lock_pollers.get((okey, pend))
         if lock is None:
             if len(lock_pollers) > 256:
                 lock_pollers.clear()
             lock = lock_pollers[(okey, pend)] = SubscriptionPoller(
-                sim.context, [sim.fleet_sub, *(sim.cmd_subs[i] for i in np.flatnonzero(own)),
-                              *(sim.dep_subs[i] for i in pend)])
+                node.context,
+                [node.fleet_sub, *(node.cmd_subs[i] for i in np.flatnonzero(own)),
+                 *(node.dep_subs[i] for i in pend)])
         return lock
 
     def echo_poller() -> SubscriptionPoller:
         """Return the poller of everything the lockstep does not wait on (see lock_poller)."""
-        own = sim.waited_trains()
+        own = node.waited_trains()
         okey = own.tobytes()
         echo = echo_pollers.get(okey)
         if echo is None:
             if len(echo_pollers) > 64:
                 echo_pollers.clear()
             echo = echo_pollers[okey] = SubscriptionPoller(
-                sim.context, [*(s for i, s in enumerate(sim.cmd_subs) if not own[i]),
-                              *sim.profile_subs, *sim.dep_subs, *sim.diag_subs])
+                node.context,
+                [*(s for i, s in enumerate(node.cmd_subs) if not own[i]),
+                 *node.profile_subs, *node.dep_subs, *node.diag_subs])
         return echo
 
     def wait(timeout_s: float) -> None:
@@ -97,32 +183,32 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
             executor.spin_once(timeout_sec=timeout_s)
 
     t0 = time.monotonic()
-    alone_until = t0 + ALONE_CHECK_S if sim.checkpoints.first_start else t0
+    alone_until = t0 + ALONE_CHECK_S if node.checkpoints.first_start else t0
     next_alone = t0  # the graph query costs: once a second, as in the stepping loop
-    while not sim.graph_ready() and time.monotonic() - t0 < params.startup_timeout_s:
+    while not node.graph_ready() and time.monotonic() - t0 < params.startup_timeout_s:
         if stop_requested():
             return
         executor.spin_once(timeout_sec=0.05)
         now = time.monotonic()
         if next_alone <= now < alone_until:
             next_alone = now + 1.0
-            check_alone(sim, sim.fleet.fleet_pub.topic_name)
-    if not sim.graph_ready():
-        missing = sim.graph_missing()
+            check_alone(node, node.fleet.fleet_pub.topic_name)
+    if not node.graph_ready():
+        missing = node.graph_missing()
         log.warning(f"startup: after {params.startup_timeout_s:g} s {len(missing)} endpoints "
                     f"not discovered ({', '.join(missing[:4])}{' ...' if len(missing) > 4 else ''}"
                     f"); starting anyway (no ATO answer for {params.ato_absent_timeout_s:g} s "
                     "ends the run)")
     log.info(f"graph ready after {time.monotonic() - t0:.2f} s")
-    sim.started = True
-    sim.fleet.new_subscribers(np.ones(len(sim.ids), dtype=bool))
-    sim.sensors.resend_new_readers(float(sim.sim.t), sim.started)  # the readers of step 0:
+    node.started = True
+    node.fleet.new_subscribers(np.ones(len(node.ids), dtype=bool))
+    node.sensors.resend_new_readers(float(node.sim.t), node.started)  # readers of step 0:
     # nothing kept yet, nothing sent
     next_sensor_check = time.monotonic() + 1.0
-    sim.fleet.new_fleet_subscribers()
-    wall0, sim0 = time.monotonic(), float(sim.sim.t)
-    sim.wall0 = wall0
-    k0 = int(sim.k)  # the first step of this loop (a resumed run's is not 0)
+    node.fleet.new_fleet_subscribers()
+    wall0, sim0 = time.monotonic(), float(node.sim.t)
+    node.wall0 = wall0
+    k0 = int(node.k)  # the first step of this loop (a resumed run's is not 0)
     last_slow = time.monotonic()
 
     last_executor = time.monotonic()
@@ -140,73 +226,73 @@ def lockstep_loop(executor: SingleThreadedExecutor, sim: Any,
                 executor.spin_once(timeout_sec=0.0)
 
     active: np.ndarray | None = None
-    while not sim.finished and not stop_requested():
+    while not node.finished and not stop_requested():
         if time.monotonic() >= next_sensor_check:
             next_sensor_check = time.monotonic() + 1.0
-            sim.sensors.resend_new_readers(float(sim.sim.t), sim.started)
+            node.sensors.resend_new_readers(float(node.sim.t), node.started)
             if time.monotonic() < alone_until:
-                check_alone(sim, sim.fleet.fleet_pub.topic_name)
+                check_alone(node, node.fleet.fleet_pub.topic_name)
             else:
-                check_not_refused(sim, sim.fleet.fleet_pub.topic_name)
+                check_not_refused(node, node.fleet.fleet_pub.topic_name)
         if active is None:  # else published with the step before (step_and_publish)
-            if params.wait_for_subscribers and sim.k > 0 and sim.k % RECORDER_SYNC_STEPS == 0:
-                sim.wait_acked(timeout_s=30.0)
-            active = sim.publish_step()
+            if params.wait_for_subscribers and node.k > 0 and node.k % RECORDER_SYNC_STEPS == 0:
+                node.wait_acked(timeout_s=30.0)
+            active = node.publish_step()
         if params.lockstep:
             deadline = time.monotonic() + params.step_timeout_s
             resend = time.monotonic() + 0.5
             fleet_resend = time.monotonic() + FLEET_RESEND_S
             while True:
                 # the barrier (looked at once per wake: nothing arrives between two looks)
-                complete = sim.commands_complete(active)
+                complete = node.commands_complete(active)
                 if complete or time.monotonic() >= deadline:
                     break
                 if stop_requested():
                     return
                 wait(0.02)
-                if time.monotonic() > resend and not sim.commands_complete(active):
+                if time.monotonic() > resend and not node.commands_complete(active):
                     # a state may have been published before a late (or restarted) ATO
                     # matched: only then, and only to that train, is it sent again
                     resend = time.monotonic() + 0.5
-                    again = sim.fleet.new_subscribers(active)
+                    again = node.fleet.new_subscribers(active)
                     if again.any():
-                        sim.fleet.publish_states(sim.k, again)
-                    if sim.fleet.new_fleet_subscribers():
-                        sim.fleet.publish_again(sim.k, sim.cmd_step)
+                        node.fleet.publish_states(node.k, again)
+                    if node.fleet.new_fleet_subscribers():
+                        node.fleet.publish_again(node.k, node.cmd_step)
                     elif time.monotonic() >= fleet_resend:
                         # no answer for a while: the state may have been lost with a
                         # killed ATO process whose successor matched between two checks
                         fleet_resend = time.monotonic() + FLEET_RESEND_S
-                        sim.fleet.publish_again(sim.k, sim.cmd_step, active)
-            active = sim.step_and_publish(active, timed_out=not complete)
+                        node.fleet.publish_again(node.k, node.cmd_step, active)
+            active = node.step_and_publish(active, timed_out=not complete)
         else:
-            target = wall0 + (float(sim.sim.t) + sim.sim.control_period_s - sim0) / params.rtf
+            target = wall0 + (float(node.sim.t) + node.sim.control_period_s - sim0) / params.rtf
             while True:
                 rest = target - time.monotonic()
                 if rest <= 0:
                     break
                 wait(min(rest, 0.01))
             wait(0.0)
-            sim.advance(active, timed_out=False)
+            node.advance(active, timed_out=False)
             active = None
         if fast_path:
             slow_path()
         else:
             executor.spin_once(timeout_sec=0.0)
-    sim.sensors.flush(float(sim.sim.t), force=True)  # stopped by a signal: what was
+    node.sensors.flush(float(node.sim.t), force=True)  # stopped by a signal: what was
     # sampled goes out
-    sim.checkpoints.wait()
+    node.checkpoints.wait()
     if params.wait_for_subscribers:
-        sim.wait_acked()
-    if not sim.finished:
-        log.info(f"stopped by a signal at t={sim.sim.t:.1f} s, step {sim.k}")
+        node.wait_acked()
+    if not node.finished:
+        log.info(f"stopped by a signal at t={node.sim.t:.1f} s, step {node.k}")
         return
-    sim.loop_wall_s, sim.loop_sim_s = time.monotonic() - wall0, float(sim.sim.t) - sim0
-    log.info(f"scenario finished at t={sim.sim.t:.1f} s after {sim.k} steps, "
-             f"{time.monotonic() - t0:.1f} s wall ({sim.loop_wall_s:.1f} s from step {k0})")
-    sim.sensors.drain(float(sim.sim.t),
-                      lambda timeout_s: executor.spin_once(timeout_sec=timeout_s))
+    node.loop_wall_s, node.loop_sim_s = time.monotonic() - wall0, float(node.sim.t) - sim0
+    log.info(f"scenario finished at t={node.sim.t:.1f} s after {node.k} steps, "
+             f"{time.monotonic() - t0:.1f} s wall ({node.loop_wall_s:.1f} s from step {k0})")
+    node.sensors.drain(float(node.sim.t),
+                       lambda timeout_s: executor.spin_once(timeout_sec=timeout_s))
     executor.spin_once(timeout_sec=0.0)
     # the other nodes may stop now (the launcher's finished_file), while this one writes
     # its outputs; the last samples' acknowledgements are awaited after those (close)
-    sim.announce_finished()
+    node.announce_finished()

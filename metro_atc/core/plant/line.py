@@ -52,56 +52,15 @@ __all__ = ["DrivenRun", "KMH", "MODE_ACCEL", "MODE_ATP", "MODE_BRAKE", "MODE_COA
            "LineSim", "SensorBlock", "Status", "StepResult", "TrainEvent", "train_params_for"]
 
 
-class _Alias:
-    """Attribute of a component exposed on :class:`LineSim` (read and write)."""
-
-    def __init__(self, part: str, name: str = "") -> None:
-        self.part, self.name = part, name
-
-    def __set_name__(self, owner: type, name: str) -> None:
-        self.name = self.name or name
-
-    def __get__(self, obj: Any, owner: type | None = None) -> Any:
-        return getattr(getattr(obj, self.part), self.name)
-
-    def __set__(self, obj: Any, value: Any) -> None:
-        setattr(getattr(obj, self.part), self.name, value)
-
-
 class LineSim:
     """Lockstep simulator of one metro line scenario (see module docstring).
 
     The components are public: ``fleet``, ``atp``, ``brakes``, ``energy``, ``stations``,
-    ``incidents``, ``sensors`` and the static ``geometry``/``service``/``p``.  The flat names
-    below (``sim.x``, ``sim.eb``, ``sim.sched_dep``, ...) are read/write aliases of their
-    attributes, kept for the nodes, benches, plots and tests written against them.
+    ``incidents``, ``sensors`` and the static ``geometry``/``service``/``p``; their state is
+    read and written there (``sim.fleet.x``, ``sim.atp.eb``, ``sim.service.sched_dep``), or
+    through the read-only views of :mod:`.views`.  LineSim forwards none of their attributes.
     """
 
-    # fleet state
-    x, v, acc, a_dem, u_last, status, dwelling, mass, m_rot, load, stop_x, next_stop, \
-        cur_station, release_t, broken_until, trac_level, run, arr_t, done_t, x_done, broken, \
-        hold, cand, auto = (_Alias("fleet") for _ in range(24))
-    # ATP view
-    eb, sb, interventions, violations, eoa, atp_limit, speed_code, min_sep, margin, t_r, \
-        t_sbi, b_g, a_w, b_drive, fixed_block, block_len, ebi_static, sbi_static, limit_eff, \
-        ceiling_phys, drive_env = (_Alias("atp") for _ in range(21))
-    curve_atp = _Alias("atp", "curve")
-    # static geometry and service
-    x0, dx, inv_dx, n_cells, grid_x, x_first_stop, x_last_stop, x_end, x_tail_stop, \
-        x_switch, eoa_end, x_park, static_limit, grade_cell, sin_avg, curve_avg, \
-        ceiling_tol, n_sid, n_len, gsin_avg = (_Alias("geometry") for _ in range(20))
-    sched_arr, sched_dep, sched_dwell, dispatch, min_running_s, sched_running_s, flow, \
-        headways, alight_frac = (_Alias("service") for _ in range(9))
-    # stations, energy, brakes, incidents, sensors
-    act_arr, act_dep, cmd_dep, cmd_rt, cmd_dwell_limit, boarded, left_behind, \
-        skipped_stops, events, next_entry, pending_board, pending_alight, dwell_cut, \
-        last_dep_t = (_Alias("stations") for _ in range(14))
-    e_trac, e_elec, e_fric, e_res, e_curve, e_grade, e_stop_corr, n_in_service, \
-        e_brake_rail, e_regen, e_aux = (_Alias("energy") for _ in range(11))
-    pad_mu, adh_factor, r_w, sliding, wsp = (_Alias("brakes") for _ in range(5))
-    tsrs, sensor_faults = _Alias("incidents"), _Alias("incidents")
-    sensed, sensed_mask, sensor_dt, next_sample_t = (_Alias("sensors") for _ in range(4))
-    rng_sensors = _Alias("sensors", "rng")
     checkpoint_transient = ("_car_mass",)
     """A cache of the load-weigh signal (recomputed when the masses change)."""
     _car_mass: tuple[Any, ...] = (None, None, None)
@@ -153,11 +112,6 @@ class LineSim:
         self._car_mass = (None, None, None)  # (mass, meff, mass / cars)
 
     # ------------------------------------------------------------------ public API
-
-    @property
-    def n_done(self) -> int:
-        """Trains out of service."""
-        return self.fleet.n_done
 
     @property
     def done(self) -> bool:
