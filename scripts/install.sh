@@ -81,7 +81,12 @@ K_SHA="$(printf '%s\n' "$SRC_SHA" "$(basename "${NUMBA_DIST:-none}")" "$CPU_ID" 
   | cut -d' ' -f1)"
 if [ "$(cat "$KSTAMP" 2>/dev/null || true)" = "$K_SHA" ]; then
   echo "[install] numba kernels up to date"
-elif PYTHONPATH="$SITE${PYTHONPATH:+:$PYTHONPATH}" "$VENV/bin/python" -P -c \
+elif
+  # numba's cache of a kernel is keyed on its own file only: a kernel that calls a changed
+  # function of another module (core/laws.py) would load its stale compiled code. New
+  # sources: every cache goes (the installed ones and those a ROS-free run left in the tree)
+  find "$ROOT/install/metro_atc" "$ROOT/metro_atc" -name '*.nb[ic]' -delete 2>/dev/null || true
+  PYTHONPATH="$SITE${PYTHONPATH:+:$PYTHONPATH}" "$VENV/bin/python" -P -c \
     'from metro_atc.core.precompile import precompile_graph_kernels as f; assert f() == 3'
 then
   echo "$K_SHA" > "$KSTAMP"
