@@ -80,15 +80,17 @@ USERS: dict[str, list[str]] = {
     "downhill_accel": ["core/line/atp_constants.py"],
     "guaranteed_decel_on_grade": ["core/line/atp_constants.py"],
     "response_accel": ["core/line/atp_constants.py"],
-    "adhesion_guaranteed_decel": ["core/line/atp_constants.py"],
+    "adhesion_guaranteed_decel": ["core/line/guarantee.py"],
 }
 """Modules (under ``metro_atc/``) that must call each law (directly or its ``*_array``).
 
 The ATO's change adds ``core/ato/step_kernel.py``, ``core/ato/control_kernel.py``,
 ``core/ato/strategy.py``, ``core/ato/oracle.py`` (traction, Davis) and
 ``core/ato/onboard.py`` (ATP curve) here."""
-INTERNAL = {"fmin", "fmax", "grade_sine", "on_array"}
-"""Helpers and laws used by the other laws (no module calls them directly)."""
+INTERNAL = {"fmin", "fmax", "grade_sine", "on_array", "njit", "_compile", "_plain",
+            "__getattr__"}
+"""Helpers and laws used by the other laws (no module calls them directly), and the
+module's lazy-compilation machinery."""
 
 PENDING: dict[str, set[str]] = {
     "core/ato/step_kernel.py": {"traction", "davis"},
@@ -142,7 +144,11 @@ def _law_calls(path: Path) -> set[str]:
     names: set[str] = set()
     for node in ast.walk(tree):
         if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
-                and node.value.id == "laws"):
+                and node.value.id in ("laws", "law")):
+            names.add(node.attr)
+        elif (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Attribute)
+              and node.value.attr == "plain" and isinstance(node.value.value, ast.Name)
+              and node.value.value.id == "laws"):  # laws.plain.x: the same law uncompiled
             names.add(node.attr)
         elif isinstance(node, ast.ImportFrom) and node.module == "metro_atc.core.laws":
             names.update(a.name for a in node.names)

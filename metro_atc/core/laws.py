@@ -12,6 +12,13 @@ Squares are products ``x * x`` (correctly rounded; C ``pow(x, 2)``, which CPytho
 ulp on some arguments, so array callers go through the ``*_array`` loops below.
 ``NUMBA_DISABLE_JIT=1`` runs the same source as plain Python (debugging).
 
+The laws are compiled at their first use, not at import: the first attribute access of a
+law (``laws.traction_accel``, from Python or while numba compiles a kernel that calls it)
+imports numba and wraps every law at once (:func:`__getattr__`), so a module that only
+reads a scenario (the ATS, the recorder) does not pay numba's import.  :data:`plain` holds
+the same laws uncompiled, for one-off evaluations (the scenario loader's checks) that should
+not import numba at all.
+
 numba's on-disk cache does not follow imports: a kernel that inlines a law keeps its cached
 machine code when only this file changes.  After editing a law, delete the caches
 (``find metro_atc install -name '*.nb[ic]' -delete``) or rebuild (``make setup``).
@@ -33,8 +40,10 @@ from __future__ import annotations
 
 import math
 
+import types
+from typing import Any, Callable
+
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
@@ -47,6 +56,17 @@ EBRAKE_MIN_SPEED_MPS = 1e-3
 """Speed floor of the electric brake's power limit ``P / v`` [m/s]."""
 STOP_DECEL_MIN_MPS2 = 1e-9
 """Smallest deceleration of the uniform stop inside an integration step [m/s^2]."""
+
+_LAWS: dict[str, tuple[Callable[..., Any], dict[str, Any]]] = {}
+"""Every law by name: its Python function and its ``numba.njit`` options."""
+
+
+def njit(**options: Any) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """Register a law, compiled with ``numba.njit(**options)`` at first use (module doc)."""
+    def register(fn: Callable[..., Any]) -> Callable[..., Any]:
+        _LAWS[fn.__name__] = (fn, options)
+        return fn
+    return register
 
 
 @njit(cache=True, inline="always")
@@ -520,3 +540,35 @@ def on_array(fn, x, *args):  # type: ignore[no-untyped-def]
     xa = np.asarray(x, dtype=np.float64)
     out = fn(np.ascontiguousarray(xa).reshape(-1), *args).reshape(xa.shape)
     return out[()] if out.ndim == 0 else out
+
+
+def _compile() -> None:
+    """Bind every law to its numba dispatcher (compiled lazily by numba, cached on disk)."""
+    from numba import njit as numba_njit
+    g = globals()
+    for name, (fn, options) in _LAWS.items():
+        g[name] = numba_njit(**options)(fn)
+
+
+def __getattr__(name: str) -> Any:
+    """The compiled law ``name`` (the first access compiles them all: module docstring)."""
+    if name in _LAWS:
+        _compile()
+        return globals()[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _plain() -> types.SimpleNamespace:
+    """Every law as plain Python (calling each other uncompiled), without numba."""
+    g = dict(globals())
+    fns = {name: types.FunctionType(fn.__code__, g, name, fn.__defaults__, fn.__closure__)
+           for name, (fn, _) in _LAWS.items()}
+    g.update(fns)
+    return types.SimpleNamespace(**fns)
+
+
+plain = _plain()
+"""The laws uncompiled (``laws.plain.traction_force(...)``): the same source, no numba."""
+
+for _name in _LAWS:  # reached through __getattr__ until compiled
+    del globals()[_name]

@@ -46,13 +46,13 @@ class AdhesionCurve:
 
     @property
     def mu_peak(self) -> float:
-        """Peak adhesion coefficient [-]."""
-        return float(self.mu(self.slip_peak))
+        """Peak adhesion coefficient [-] (the law uncompiled: read at load time)."""
+        return float(laws.plain.burckhardt_mu(self.slip_peak, self.c1, self.c2, self.c3))
 
     @property
     def mu_slide(self) -> float:
-        """Adhesion coefficient of a locked wheel (s = 1) [-]."""
-        return float(self.mu(1.0))
+        """Adhesion coefficient of a locked wheel (s = 1) [-] (uncompiled, as ``mu_peak``)."""
+        return float(laws.plain.burckhardt_mu(1.0, self.c1, self.c2, self.c3))
 
     def slip_for(self, mu_demand: ArrayLike) -> FloatArray:
         """Slip on the stable (rising) branch giving ``mu_demand`` (clipped to the peak).

@@ -25,4 +25,4 @@ def level_guaranteed_decel(given_mps2: float | None, p: TrainParams,
     m_rot = p.rotary_allowance * p.mass_kg
     tare = p.tare_mass_kg
     return float(min(p.emergency_brake_mps2,
-                     laws.adhesion_guaranteed_decel(curve.mu_slide, tare, m_rot)))
+                     laws.plain.adhesion_guaranteed_decel(curve.mu_slide, tare, m_rot)))

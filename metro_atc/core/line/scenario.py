@@ -22,10 +22,10 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Literal, Union
 
+from metro_atc.core import laws
 from metro_atc.core.line.adhesion import CURVES
 from metro_atc.core.line.guarantee import level_guaranteed_decel
-from metro_atc.core.line.vehicle import (G_MPS2, PRESETS, max_traction_force_at,
-                                         train_params_of_section)
+from metro_atc.core.line.vehicle import PRESETS, train_params_of_section
 from metro_atc.core.safe_yaml import (YamlLimitError, load_yaml_file, load_yaml_text, one_line,
                                       short_repr)
 
@@ -645,9 +645,12 @@ def _check_stock(b: _Builder, s: Scenario) -> None:
     if s.trains.instrumented_car > p.cars:
         raise b.err("trains.instrumented_car", f"expected <= cars ({p.cars}), "
                     f"got {s.trains.instrumented_car}")
-    f_start = min(max_traction_force_at(p, 0.0), m_crush * G_MPS2 * curve.mu_peak * n_mot / n_ax)
+    law = laws.plain  # one-off evaluations: the laws uncompiled (no numba at load time)
+    f_start = min(law.traction_force(0.0, p.mass_kg, *p.traction_law),
+                  law.adhesion_limit(curve.mu_peak, law.axle_load(m_crush, n_ax)) * n_mot)
     up = max([0.0] + [g.grade_permille / 1000.0 for g in s.line.gradients])
-    f_need = p.davis_a_n + m_crush * G_MPS2 * math.sin(math.atan(up))
+    f_need = law.davis_resistance(0.0, p.davis_a_n, p.davis_b_n_per_mps,
+                                  p.davis_c_n_per_mps2) + law.grade_force(up, m_crush)
     if f_start <= f_need:
         raise b.err("trains.stock.traction_force_kn",
                     f"the crush-loaded train ({m_crush / 1000.0:.4g} t, {p.capacity_pax:g} "

@@ -129,13 +129,13 @@ class TrainParams:
     @property
     def a2(self) -> float:
         """Constant a_2 of seed 002 eq. 4 [m^2/s^3], from continuity at v_1."""
-        return float(laws.traction_a2(self.a1_mps2, self.v1_mps, self.b2_mps))
+        return float(laws.plain.traction_a2(self.a1_mps2, self.v1_mps, self.b2_mps))
 
     @property
     def a3(self) -> float:
         """Constant a_3 of seed 002 eq. 5 [m^3/s^4], from continuity at v_2."""
-        return float(laws.traction_a3(self.a1_mps2, self.v1_mps, self.v2_mps, self.b2_mps,
-                                      self.b3_mps))
+        return float(laws.plain.traction_a3(self.a1_mps2, self.v1_mps, self.v2_mps,
+                                            self.b2_mps, self.b3_mps))
 
     @functools.cached_property
     def traction_law(self) -> tuple[float, float, float, float, float, float, float]:
