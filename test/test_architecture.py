@@ -237,7 +237,7 @@ def _fields(obj: Any) -> dict[str, Any]:
 
 def _mini_line(cls: type) -> Any:
     from metro_atc.core.line.scenario import load_scenario
-    return cls(load_scenario("mini"), seed=0, kernel="numpy")
+    return cls(load_scenario("mini"), seed=0)
 
 
 def test_line_sim_forwards_no_part_attribute() -> None:

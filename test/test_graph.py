@@ -288,7 +288,9 @@ def test_run_fails_fast_when_a_node_cannot_start(failing_starts: dict[str, Any])
     print(f"\nrun refused after {failing_starts['pre_wall']:.1f} s: {lines[0]}")
     r = failing_starts["node"]
     assert r.returncode == 3, r.stderr
-    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    # the run's start line names the resolved rolling stock; then the one error line
+    lines = [ln for ln in r.stderr.splitlines()
+             if ln.strip() and not ln.startswith("metro_atc run: rolling stock ")]
     assert len(lines) == 1 and "ats_regulator" in lines[0] and "weights" in lines[0], lines
     print(f"run with a failing ATS exited {r.returncode} after "
           f"{failing_starts['node_wall']:.1f} s: {lines[0]}")

@@ -79,6 +79,12 @@ def _stub_graph(monkeypatch: pytest.MonkeyPatch, kpis: dict[str, Any] | None,
     monkeypatch.setattr(launcher, "start_zygote", lambda names: None)
 
 
+def _said(capsys: pytest.CaptureFixture[str]) -> list[str]:
+    """The launcher's stderr lines but its start line naming the resolved rolling stock."""
+    return [ln for ln in capsys.readouterr().err.strip().splitlines()
+            if not ln.startswith("metro_atc run: rolling stock ")]
+
+
 def test_launcher_exit_code_follows_the_kpis(monkeypatch: pytest.MonkeyPatch,
                                              tmp_path: Path,
                                              capsys: pytest.CaptureFixture[str]) -> None:
@@ -89,7 +95,7 @@ def test_launcher_exit_code_follows_the_kpis(monkeypatch: pytest.MonkeyPatch,
          **service_end(60, 22, 600.0, True, None, 600.0)}
     _stub_graph(monkeypatch, k)
     assert launcher.main(base + ["--out", str(tmp_path / "a")]) == Exit.SERVICE_INCOMPLETE
-    err = capsys.readouterr().err.strip().splitlines()
+    err = _said(capsys)
     assert len(err) == 1 and "SERVICE_INCOMPLETE (exit 5)" in err[0] and "38 of 60" in err[0]
     k = {"trains": 2, "completed_trains": 0, "sim_time_s": 120.0,
          **service_end(2, 0, 120.0, True, 120.0, 1200.0)}
@@ -100,13 +106,13 @@ def test_launcher_exit_code_follows_the_kpis(monkeypatch: pytest.MonkeyPatch,
     assert json.loads(out.out)["cut_at_s"] == 120.0 and "CUT (exit 6)" in out.err
     _stub_graph(monkeypatch, None)
     assert launcher.main(base + ["--out", str(tmp_path / "c")]) == Exit.OUTPUTS_NOT_WRITTEN
-    err = capsys.readouterr().err.strip().splitlines()
+    err = _said(capsys)
     assert len(err) == 1 and "kpis.json" in err[0]
     k = {"trains": 2, "completed_trains": 2, "sim_time_s": 900.0,
          **service_end(2, 2, 900.0, True, None, 1200.0)}
     _stub_graph(monkeypatch, k)
     assert launcher.main(base + ["--out", str(tmp_path / "d")]) == Exit.OK
-    assert capsys.readouterr().err == ""
+    assert _said(capsys) == []
 
 
 def test_graph_reports_a_truncated_and_a_cut_service(ros_env: dict[str, str],

@@ -68,7 +68,7 @@ from metro_atc.nodes.sim_departures import DepartureBook
 from metro_atc.nodes.sim_domain import (LINGER_S, RECORDER_GATE_TOPIC, linger, subscribed_by,
                                         wait_acked)
 from metro_atc.nodes.sim_fleet import FleetStatePublisher
-from metro_atc.nodes.sim_lockstep import RECORDER_SYNC_STEPS, lockstep_loop
+from metro_atc.nodes.sim_lockstep import RECORDER_SYNC_STEPS, SilenceWatch, lockstep_loop
 from metro_atc.exit_codes import Exit, outcome
 from metro_atc.nodes.sim_outputs import regulator_label, write_finished_file, write_outputs
 from metro_atc.nodes.sim_params import SimParams
@@ -127,8 +127,7 @@ class LineSimulator(Node):
         self._next_status_t = 0.0
         self.finished = False
         self.started = False
-        self.cut_at_s: float | None = None
-        self.silent_since: float | None = None
+        self.silence = SilenceWatch()
         """Wall time (``time.monotonic``) of the first of the consecutive timed-out lockstep
         steps in which no active train's ATO answered (None: an ATO answered the last step)."""
         """Simulated time at which ``max_sim_time_s`` ended the run [s] (None: it did not)."""
@@ -184,7 +183,6 @@ class LineSimulator(Node):
         self.profile_subs = [bulk_subscription(self, SpeedProfile, f"/{t}/speed_profile",
                                                self._on_profile, QOS_LATCHED)
                              for t in self.ids]
-        self.brake_assessed = [False] * n
         """Per train: its brake diagnosis said the brake was assessed (its latest, latched
         BrakeDiagnosis: cumulative, so a restarted simulator has it back at once)."""
         self.diag_subs = [bulk_subscription(self, BrakeDiagnosis, f"/{t}/brake_diagnosis",
@@ -373,8 +371,7 @@ class LineSimulator(Node):
         except conv.MessageRejected as exc:
             self._reject(f"/{self.ids[i]}/brake_diagnosis", exc)
             return
-        self.sensors.acknowledge(i, t)
-        self.brake_assessed[i] = bool(msg.assessed)
+        self.sensors.acknowledge(i, t, bool(msg.assessed))
 
     def _set_progress_period(self, value: float) -> None:
         self.params.progress_period_s = float(value)
@@ -559,7 +556,7 @@ class LineSimulator(Node):
                 "lockstep", f"lockstep step {self.k}: no command from {', '.join(missing[:5])}"
                 f"{' ...' if len(missing) > 5 else ''}; applying the last command")
         else:
-            self.silent_since = None
+            self.silence.answered()
         effort, wd_events = self.watchdog.apply(self.k, active, self.cmd_step >= self.k,
                                                 self.cmd_effort)
         for e in wd_events:
@@ -569,8 +566,6 @@ class LineSimulator(Node):
         t = float(self.sim.t)
         end = self.params.max_sim_time_s
         cut = end > 0 and t >= end
-        if cut:
-            self.cut_at_s = t
         done = bool(self.sim.done) or cut
         return res, done
 
@@ -582,17 +577,15 @@ class LineSimulator(Node):
         would otherwise step once per ``step_timeout_s`` until the scenario's end.
         """
         answered = bool(active.any()) and bool((self.cmd_step[active] >= self.k).any())
-        now = time.monotonic()
         if answered or not active.any():
-            self.silent_since = None
+            self.silence.answered()
             return
-        if self.silent_since is None:
-            self.silent_since = now - self.params.step_timeout_s  # the step waited that long
+        silent_s = self.silence.timed_out(time.monotonic(), self.params.step_timeout_s)
         limit = self.params.ato_absent_timeout_s
-        if now - self.silent_since >= limit:
+        if silent_s >= limit:
             missing = self.graph_missing()
             raise GraphNotReady(
-                f"no ATO answered for {now - self.silent_since:.0f} s of wall time "
+                f"no ATO answered for {silent_s:.0f} s of wall time "
                 f"(ato_absent_timeout_s {limit:g} s; step {self.k}, t={float(self.sim.t):.1f} "
                 f"s); missing: {', '.join(missing[:6]) or 'no endpoint (commands lost)'}"
                 f"{' ...' if len(missing) > 6 else ''}; giving up")
@@ -659,16 +652,24 @@ class LineSimulator(Node):
         k["planners_seen"] = sorted(self.planners)  # names only: latched, depth-1 reader
         k["regulator"] = regulator_label(k["regulators_seen"])
         k["planner"] = ",".join(k["planners_seen"]) or "none"
-        k["brake_assessed"] = dict(zip(self.ids, self.brake_assessed))
-        k["brake_trains_not_assessed"] = [t for t, a in zip(self.ids, self.brake_assessed)
+        k["brake_assessed"] = dict(zip(self.ids, self.sensors.assessed))
+        k["brake_trains_not_assessed"] = [t for t, a in zip(self.ids, self.sensors.assessed)
                                           if not a]
         return k
+
+    def _cut_at_s(self) -> float | None:
+        """Simulated time [s] at which ``max_sim_time_s`` (``--duration``) cut the run.
+
+        None when it was not cut (the plant's own end came first, or no cut was set).
+        """
+        end, t = self.params.max_sim_time_s, float(self.sim.t)
+        return t if end > 0 and t >= end and not self.sim.done else None
 
     def final_kpis(self) -> dict[str, Any]:
         """:meth:`kpis` with whether the whole service ran (:func:`service_end`)."""
         k = self.kpis()
         k.update(service_end(int(k["trains"]), int(k["completed_trains"]), float(self.sim.t),
-                             self.finished, self.cut_at_s, float(self.sim.duration_s)))
+                             self.finished, self._cut_at_s(), float(self.sim.duration_s)))
         return k
 
     def exit_code(self) -> int:

@@ -46,6 +46,28 @@ FLEET_RESEND_S = 2.0
 of the trains not answered are published again [s] (a state lost with a killed ATO)."""
 
 
+class SilenceWatch:
+    """Wall time for which no ATO answered the lockstep's timed-out steps [s] (ROS-free)."""
+
+    def __init__(self) -> None:
+        """No silence yet."""
+        self.since: float | None = None
+
+    def answered(self) -> None:
+        """An ATO answered: the silence ends."""
+        self.since = None
+
+    def timed_out(self, now: float, step_timeout_s: float) -> float:
+        """A step timed out unanswered at wall time ``now`` [s]; the silence so far [s].
+
+        The first such step starts the silence ``step_timeout_s`` before ``now`` (the step
+        waited that long).
+        """
+        if self.since is None:
+            self.since = now - step_timeout_s
+        return now - self.since
+
+
 class LockstepNode(Protocol):
     """What :func:`lockstep_loop` uses of the simulator node (``LineSimulator`` has it).
 

@@ -132,6 +132,9 @@ class SensorOutbox:
         self._resend_due = np.zeros(n, dtype=bool)
         self._readers_known = False
         self.ack_t = np.full(n, -np.inf)
+        self.assessed = [False] * n
+        """Per train: its brake diagnosis said the brake was assessed (a braked update at
+        speed, or mu_b judged)."""
         """Per train: the newest sensor sample its BrakeDiagnosis acknowledged [s] (-inf: no
         diagnosis heard). Samples after it are kept for a re-send however old."""
         self._ack_wall = np.full(n, -np.inf)
@@ -142,8 +145,13 @@ class SensorOutbox:
         self.dropped = 0
         """Kept samples dropped beyond ``sensor_keep_max``."""
 
-    def acknowledge(self, i: int, t_s: float) -> None:
-        """Train ``i``'s brake diagnosis acknowledged the sample of stamp ``t_s`` [s]."""
+    def acknowledge(self, i: int, t_s: float, assessed: bool = False) -> None:
+        """Train ``i``'s brake diagnosis acknowledged the sample of stamp ``t_s`` [s].
+
+        ``assessed``: the diagnosis says the train's brake was assessed (kept per train in
+        :attr:`assessed` for the KPIs).
+        """
+        self.assessed[i] = bool(assessed)
         now = time.monotonic()
         self._ack_seen_wall[i] = now
         if t_s != self.ack_t[i]:
