@@ -1,10 +1,11 @@
 """The ROS-free fleet CDR codec against rclpy's own (de)serialisation (issue 13).
 
-:mod:`metro_atc.nodes.cdr_fleet` (the ATO's end) must read every FleetState rclpy writes
-field for field (bit for bit: NaN payloads, signed zeros, infinities), write FleetCommands
-rclpy reads back identically (and byte for byte, but for padding, what rclpy writes), and
-give None -- never raise, never a wrong value -- on hostile bytes: truncated at every
-length, counts that overrun, corrupted bytes, another encapsulation.
+:mod:`metro_atc.nodes.wire` (the ATO's end: ``fleet_state.decode``,
+``fleet_command.encode``) must read every FleetState rclpy writes field for field (bit for
+bit: NaN payloads, signed zeros, infinities), write FleetCommands rclpy reads back
+identically (and byte for byte, but for padding, what rclpy writes), and give None --
+never raise, never a wrong value -- on hostile bytes: truncated at every length, counts
+that overrun, corrupted bytes, another encapsulation.
 """
 
 from __future__ import annotations

@@ -149,7 +149,7 @@ def samples(msg: FleetBrakeSensorData, topic: str, index: Mapping[str, int],
     those too).  The sample dicts are those of :func:`conv.sensor_from_msg` (``omega``, ``clamp``
     float arrays of ``n_axles``; ``car_mass`` NaN when not finite).  With ``lists`` they
     are float lists instead (a sample dict is then its own JSON round trip: the
-    ``brake_diagnostic`` node journals it as it is, issue 13).  ``rows``: a list that gets
+    ``brake_diagnostic`` node journals it as it is).  ``rows``: a list that gets
     each sample's values in binary, one ``bytes`` per returned entry (little-endian float64
     ``t_s``, ``omega``, ``clamp``, ``accel``, ``ref_speed``, ``car_mass``, the sample dict's
     values bit for bit; meaningless for a rejected sample): the node's packed journal lines.
