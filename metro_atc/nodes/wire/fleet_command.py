@@ -168,12 +168,14 @@ def decode(data: bytes) -> Decoded | None:
         step = r.u64()
         step_at = r.pos - 8
         ids = r.strings_raw()
-        arrays, at, ends = [], [], []
+        arrays: list[np.ndarray] = []
+        at: list[int] = []
+        ends: list[int] = []
         for f in ARRAYS:
-            a = r.array(f.dtype)
-            arrays.append(a)
+            values = r.array(f.dtype)
+            arrays.append(values)
             ends.append(r.pos)
-            at.append(r.pos - a.nbytes)
+            at.append(r.pos - values.nbytes)
     except (ValueError, TypeError, struct.error):  # pragma: no cover - bounds checked above
         return None
     if not r.finished():
@@ -182,9 +184,9 @@ def decode(data: bytes) -> Decoded | None:
     if n and all(a.size == n for a in arrays):
         fixed = [(12, step_at, bytes(data[12:step_at]))]
         start = step_at + 8
-        for a, e in zip(at, ends):
-            fixed.append((start, a, bytes(data[start:a])))
-            start = e
+        for begin, end in zip(at, ends):
+            fixed.append((start, begin, bytes(data[start:begin])))
+            start = end
         _remember(len(data), _Layout(tuple(fixed), step_at, tuple(at), n, frame, ids))
     return Decoded(sec, nsec, frame, step, ids, tuple(arrays))
 
