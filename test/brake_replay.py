@@ -3,7 +3,7 @@
 The ``brake_diagnostic`` node's verdicts are a deterministic function of the sample stream of
 each train.  This module keeps the ``/line/brake_sensors`` batches of a run (read from a
 ``run --record`` bag), replays them the way the node handles them (validation by
-:func:`metro_atc.nodes.conversions.fleet_sensor_samples`, one
+:func:`metro_atc.nodes.wire.fleet_sensors.samples`, one
 :class:`~metro_atc.core.brake.train_watch.TrainBrakeWatch` per train, the level checked after
 every sample) and summarises per train the final diagnosis (result, counters, judged
 estimates, observer state) and every level change (the alarm events: stamp, level, text).
@@ -167,6 +167,7 @@ def replay(batches: Sequence[dict[str, Any]], scenario: str) -> tuple[dict[str, 
     from metro_atc.core.line.scenario import load_scenario
     from metro_atc.core.validate import bounds_for
     from metro_atc.nodes import conversions as conv
+    from metro_atc.nodes.wire import fleet_sensors
 
     scn = load_scenario(scenario)
     setup = observer_setup(scn)
@@ -177,13 +178,13 @@ def replay(batches: Sequence[dict[str, Any]], scenario: str) -> tuple[dict[str, 
     levels = {t: -1 for t in ids}
     events: dict[str, list[Any]] = {t: [] for t in ids}
     # the node's own options where this code version has them (an older one: defaults)
-    kw = ({"lists": True} if "lists" in inspect.signature(conv.fleet_sensor_samples).parameters
+    kw = ({"lists": True} if "lists" in inspect.signature(fleet_sensors.samples).parameters
           else {})
     fast_level = hasattr(TrainBrakeWatch, "level")
     t0 = time.process_time()
     for bt in batches:
-        items = conv.fleet_sensor_samples(SimpleNamespace(**bt), "/line/brake_sensors", index,
-                                          N_AXLES, bounds, **kw)
+        items = fleet_sensors.samples(SimpleNamespace(**bt), "/line/brake_sensors", index,
+                                      N_AXLES, bounds, **kw)
         for tid, _, s in items:
             if tid is None:
                 continue

@@ -61,7 +61,7 @@ def _fleet_states(n: int = 900) -> list[Any]:
     from metro_atc.core.line.scenario import load_scenario
     from metro_atc.core.plant.driver import simple_driver
     from metro_atc.core.plant.line import LineSim
-    from metro_atc.nodes import conversions as conv
+    from metro_atc.nodes.wire import fleet_state
 
     scn = load_scenario("taipei_blue")
     sim = LineSim(scn, seed=1)
@@ -69,8 +69,8 @@ def _fleet_states(n: int = 900) -> list[Any]:
     out = []
     for k in range(n):
         st = sim.states()
-        out.append(conv.fleet_state_msg(ids, np.arange(len(ids)), st, k, float(sim.t),
-                                        np.arange(len(ids)) % 4 == 0))
+        out.append(fleet_state.to_msg(ids, np.arange(len(ids)), st, k, float(sim.t),
+                                      np.arange(len(ids)) % 4 == 0))
         sim.step(simple_driver(sim))
     return out
 
@@ -81,7 +81,7 @@ def test_bytes_and_messages_give_the_same_commands(links: Any) -> None:
     from metro_atc_msgs.msg import FleetCommand
     from rclpy.serialization import deserialize_message, serialize_message
 
-    from metro_atc.nodes import cdr
+    from metro_atc.nodes.wire import cdr, fleet_command, fleet_state
 
     by_msg, by_raw, sent_msg, sent_raw = links
     assert by_raw.sub.raw
@@ -95,9 +95,9 @@ def test_bytes_and_messages_give_the_same_commands(links: Any) -> None:
         if rng.random() < 0.1:  # hostile bytes before the genuine message
             # rclpy's buffer runs past the message (rmw's size estimate): cut inside it
             t = m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
-            exact = cdr.fleet_state(t, m.step, cdr.string_seq(list(m.train_id)), [
+            exact = fleet_state.encode(t, m.step, cdr.string_seq(list(m.train_id)), [
                 np.frombuffer(a, np.uint8) if isinstance(a, bytes) else np.asarray(a)
-                for a in (getattr(m, n) for n, _ in cdr.FLEET_STATE_ARRAYS)])
+                for a in (getattr(m, n) for n in fleet_state.NAMES)])
             assert raw.startswith(exact[:16])
             bad = rng.choice((b"", b"\x00\x01\x00\x00", raw[:rng.randrange(len(exact))],
                               b"\x00\x01\x00\x00" + b"\xff" * 40))
@@ -112,13 +112,13 @@ def test_bytes_and_messages_give_the_same_commands(links: Any) -> None:
     for a, b in zip(sent_msg, sent_raw):
         assert isinstance(b, bytes)
         ma = serialize_message(a) if not isinstance(a, bytes) else a
-        va = cdr.read_fleet_command(ma)
-        vb = cdr.read_fleet_command(b)
+        va = fleet_command.decode(ma)
+        vb = fleet_command.decode(b)
         assert va is not None and vb is not None
         assert va[:5] == vb[:5] and va.mode.tolist() == vb.mode.tolist()
         assert [x.hex() for x in va.effort.tolist()] == [x.hex() for x in vb.effort.tolist()]
         back = deserialize_message(b, FleetCommand)  # what the simulator takes
         assert [x.hex() for x in back.effort] == [x.hex() for x in vb.effort]
-    moving = sum(1 for b in sent_raw for u in cdr.read_fleet_command(b).effort  # type: ignore
+    moving = sum(1 for b in sent_raw for u in fleet_command.decode(b).effort  # type: ignore
                  if u > 0.05)
     assert moving > 50  # trains were driven, not only held

@@ -211,6 +211,7 @@ def _lost_fleet_state(ros_env: dict[str, str], probe: Any, tmp_path: Path) -> di
 
     from harness import NodeProcess
     from metro_atc.nodes import conversions as conv
+    from metro_atc.nodes.wire import fleet_command
     from metro_atc.nodes.common import QOS_RELIABLE
 
     drop = 110
@@ -225,8 +226,8 @@ def _lost_fleet_state(ros_env: dict[str, str], probe: Any, tmp_path: Path) -> di
             if k == drop and seen[k] == 1:
                 return  # lost on its way
         n = len(m.train_id)
-        pub.publish(conv.fleet_command_msg(k, conv.from_time(m.header.stamp),
-                                           list(m.train_id), [0.0] * n, [2] * n))
+        pub.publish(fleet_command.to_msg(k, conv.from_time(m.header.stamp),
+                                         list(m.train_id), [0.0] * n, [2] * n))
 
     probe.node.create_subscription(FleetState, "/line/fleet_state", answer, QOS_RELIABLE)
     ats = NodeProcess.installed("ats_regulator", ["-p", "scenario:=mini"], ros_env,

@@ -212,7 +212,7 @@ def test_decoder_rows_are_the_samples_bit_for_bit(seed: int) -> None:
 
     from metro_atc.core.line.scenario import load_scenario
     from metro_atc.core.validate import bounds_for
-    from metro_atc.nodes import conversions as conv
+    from metro_atc.nodes.wire import fleet_sensors
     from metro_atc.nodes.brake_diagnostic import PACKED_KEY, unpacked_entries
 
     scn = load_scenario("mini_pad_fault")
@@ -223,8 +223,8 @@ def test_decoder_rows_are_the_samples_bit_for_bit(seed: int) -> None:
     n = 0
     for b in batches:
         rows: list[bytes] = []
-        items = conv.fleet_sensor_samples(SimpleNamespace(**b), "/x", index, 4,
-                                          bounds_for(scn), lists=True, rows=rows)
+        items = fleet_sensors.samples(SimpleNamespace(**b), "/x", index, 4,
+                                      bounds_for(scn), lists=True, rows=rows)
         assert len(rows) == len(items)
         for (_, _, s), row in zip(items, rows):
             if not isinstance(s, dict):

@@ -19,7 +19,10 @@ from rclpy.serialization import deserialize_message, serialize_message
 from metro_atc_msgs.msg import FleetBrakeSensorData, FleetCommand, FleetState
 from rosgraph_msgs.msg import Clock
 
-from metro_atc.nodes import cdr, cdr_fleet
+from metro_atc.nodes.wire import cdr, fleet_command, fleet_sensors, fleet_state
+
+STATE_ARRAYS = [(f.name, f.dtype) for f in fleet_state.ARRAYS]
+SENSOR_ARRAYS = [(f.name, f.dtype) for f in fleet_sensors.ARRAYS]
 
 RNG_SEED = 20261124
 N_RANDOM = 300
@@ -86,8 +89,8 @@ def _random_fleet_state(rng: np.random.Generator) -> FleetState:
     m.header.frame_id = "line" if rng.random() < 0.7 else _ids(rng, 1)[0]
     m.step = int(rng.integers(0, 2**64, dtype=np.uint64))
     m.train_id = _ids(rng, n)
-    lens = _lengths(rng, n, len(cdr.FLEET_STATE_ARRAYS))
-    for (name, dt), k in zip(cdr.FLEET_STATE_ARRAYS, lens):
+    lens = _lengths(rng, n, len(STATE_ARRAYS))
+    for (name, dt), k in zip(STATE_ARRAYS, lens):
         if dt == "<f8":
             setattr(m, name, _floats(rng, k).tolist())
         elif dt == "<i4":
@@ -119,8 +122,8 @@ def _random_fleet_sensors(rng: np.random.Generator) -> FleetBrakeSensorData:
     m.header.stamp.sec, m.header.stamp.nanosec = _stamp(rng)
     m.header.frame_id = "line"
     m.train_id = _ids(rng, n)
-    lens = _lengths(rng, s, len(cdr.FLEET_SENSOR_ARRAYS))
-    for (name, dt), k in zip(cdr.FLEET_SENSOR_ARRAYS, lens):
+    lens = _lengths(rng, s, len(SENSOR_ARRAYS))
+    for (name, dt), k in zip(SENSOR_ARRAYS, lens):
         if dt == "<f8":
             setattr(m, name, _floats(rng, 4 * k if "radps" in name or "clamp" in name
                                      else k).tolist())
@@ -143,7 +146,7 @@ def test_clock_bytes_are_rclpys() -> None:
 
 def test_fleet_state_both_ways() -> None:
     """FleetState: rclpy reads our bytes as the message; the ATO's decoder
-    (:func:`cdr_fleet.decode_fleet_state`) reads rclpy's bytes as it, or refuses arrays of
+    (:func:`fleet_state.decode`) reads rclpy's bytes as it, or refuses arrays of
     unequal lengths (then rclpy's reader is used)."""
     rng = np.random.default_rng(RNG_SEED)
     decoded = 0
@@ -151,15 +154,15 @@ def test_fleet_state_both_ways() -> None:
         m = _random_fleet_state(rng)
         ref = serialize_message(m)
         arrays = [np.frombuffer(a, np.uint8) if isinstance(a, bytes) else np.asarray(a)
-                  for a in (getattr(m, n) for n, _ in cdr.FLEET_STATE_ARRAYS)]
-        view = cdr_fleet.decode_fleet_state(ref)
+                  for a in (getattr(m, n) for n, _ in STATE_ARRAYS)]
+        view = fleet_state.decode(ref)
         if len({len(a) for a in arrays} | {len(m.train_id)}) == 1:
             assert view is not None
             decoded += 1
             assert (view.header.stamp.sec, view.header.stamp.nanosec, view.header.frame_id,
                     view.step, view.train_id) == (m.header.stamp.sec, m.header.stamp.nanosec,
                                                   m.header.frame_id, m.step, list(m.train_id))
-            for name, a in zip((n for n, _ in cdr.FLEET_STATE_ARRAYS), arrays):
+            for name, a in zip((n for n, _ in STATE_ARRAYS), arrays):
                 assert _same(np.asarray(getattr(view, name)).astype(a.dtype), a), name
         else:
             assert view is None
@@ -167,9 +170,9 @@ def test_fleet_state_both_ways() -> None:
             t = m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
             if cdr.stamp_parts(t) != (m.header.stamp.sec, m.header.stamp.nanosec):
                 continue  # a stamp no float time rounds to
-            ours = cdr.fleet_state(t, m.step, cdr.string_seq(list(m.train_id)), arrays)
+            ours = fleet_state.encode(t, m.step, cdr.string_seq(list(m.train_id)), arrays)
             assert len(ours) <= len(ref)  # rclpy's buffer can have bytes after the message
-            assert _msg_same(deserialize_message(ours, FleetState), m, cdr.FLEET_STATE_ARRAYS)
+            assert _msg_same(deserialize_message(ours, FleetState), m, STATE_ARRAYS)
     assert decoded > 0  # ~13 % of the random states have equal lengths; test_cdr_fleet has more
 
 
@@ -179,7 +182,7 @@ def test_fleet_command_both_ways() -> None:
     for _ in range(N_RANDOM):
         m = _random_fleet_command(rng)
         ref = serialize_message(m)
-        got = cdr.read_fleet_command(ref)
+        got = fleet_command.decode(ref)
         assert got is not None
         assert [cdr.text(b) for b in got.train_id_raw] == list(m.train_id)
         assert got.step == m.step and (got.sec, got.nanosec) == (m.header.stamp.sec,
@@ -190,7 +193,7 @@ def test_fleet_command_both_ways() -> None:
             t = m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
             if cdr.stamp_parts(t) != (m.header.stamp.sec, m.header.stamp.nanosec):
                 continue
-            ours = cdr_fleet.encode_fleet_command(
+            ours = fleet_command.encode(
                 (m.header.stamp.sec, m.header.stamp.nanosec), m.header.frame_id, m.step,
                 m.train_id, m.effort, np.frombuffer(m.mode, np.uint8).tolist())
             assert len(ours) <= len(ref)
@@ -204,29 +207,29 @@ def test_fleet_sensors_both_ways() -> None:
     for _ in range(N_RANDOM):
         m = _random_fleet_sensors(rng)
         ref = serialize_message(m)
-        got = cdr.read_fleet_sensors(ref)
+        got = fleet_sensors.decode(ref)
         assert got is not None
         assert got.train_id == list(m.train_id)
-        for name, _ in cdr.FLEET_SENSOR_ARRAYS:
+        for name, _ in SENSOR_ARRAYS:
             assert _same(got.arrays[name], np.asarray(getattr(m, name)).astype(
                 got.arrays[name].dtype)), name
         if m.header.stamp.sec >= 0:
             t = m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
             if cdr.stamp_parts(t) != (m.header.stamp.sec, m.header.stamp.nanosec):
                 continue
-            ours = cdr.fleet_sensors(t, cdr.string_seq(list(m.train_id)),
-                                     [got.arrays[n] for n, _ in cdr.FLEET_SENSOR_ARRAYS])
+            ours = fleet_sensors.encode(t, cdr.string_seq(list(m.train_id)),
+                                        [got.arrays[n] for n, _ in SENSOR_ARRAYS])
             assert len(ours) <= len(ref)
             assert _msg_same(deserialize_message(ours, FleetBrakeSensorData), m,
-                             cdr.FLEET_SENSOR_ARRAYS)
+                             SENSOR_ARRAYS)
 
 
 def test_damaged_bytes_give_none_never_raise() -> None:
     """Truncated, corrupted and foreign bytes: None (or, for a corruption that still
     parses, a message rclpy reads too), never an exception."""
     rng = np.random.default_rng(RNG_SEED + 3)
-    makers = ((_random_fleet_command, cdr.read_fleet_command, FleetCommand),
-              (_random_fleet_sensors, cdr.read_fleet_sensors, FleetBrakeSensorData))
+    makers = ((_random_fleet_command, fleet_command.decode, FleetCommand),
+              (_random_fleet_sensors, fleet_sensors.decode, FleetBrakeSensorData))
     nones = 0
     for k in range(2 * N_RANDOM):
         make, read, typ = makers[k % 2]
@@ -263,7 +266,6 @@ def test_fleet_state_cdr_is_fleet_state_msg() -> None:
     from metro_atc.core.line.scenario import load_scenario
     from metro_atc.core.plant.driver import simple_driver
     from metro_atc.core.plant.line import LineSim
-    from metro_atc.nodes import conversions as conv
 
     sim = LineSim(load_scenario("mini"), seed=3)
     ids = list(sim.train_ids)
@@ -275,29 +277,28 @@ def test_fleet_state_cdr_is_fleet_state_msg() -> None:
             idx = np.flatnonzero(rng.random(len(ids)) < 0.7)
             echo = rng.random(idx.size) < 0.5
             t = float(sim.t)
-            want = conv.fleet_state_msg(ids, idx, st, k, t, echo)
+            want = fleet_state.to_msg(ids, idx, st, k, t, echo)
             block = cdr.string_seq([ids[i] for i in idx])
-            ours = conv.fleet_state_cdr(cdr.FleetStateBuilder(block, idx.size), idx, st, k, t,
-                                        echo)
+            ours = fleet_state.from_core(fleet_state.Builder(block, idx.size), idx, st, k, t,
+                                         echo)
             got = deserialize_message(ours, FleetState)
-            assert _msg_same(got, want, cdr.FLEET_STATE_ARRAYS)
+            assert _msg_same(got, want, STATE_ARRAYS)
             # the template's bytes are those of the plain encoder
-            assert ours == cdr.fleet_state(t, k, block, [
+            assert ours == fleet_state.encode(t, k, block, [
                 getattr(got, f) if not isinstance(getattr(got, f), bytes)
                 else np.frombuffer(getattr(got, f), np.uint8)
-                for f, _ in cdr.FLEET_STATE_ARRAYS])
+                for f, _ in STATE_ARRAYS])
             checked += 1
         sim.step(simple_driver(sim))
     assert checked > 100
 
 
 def test_fleet_command_cdr_takes_what_the_object_path_takes() -> None:
-    """conv.fleet_command_efforts_cdr on random (partly hostile) FleetCommands: where it
-    answers, the answer is conv.fleet_command_efforts's on the message; where it declines
+    """fleet_command.efforts_cdr on random (partly hostile) FleetCommands: where it
+    answers, the answer is fleet_command.efforts's on the message; where it declines
     (FALLBACK), the object path would not take the message whole (it rejects it, or goes
     entry by entry)."""
     from metro_atc.core.validate import Rejected
-    from metro_atc.nodes import conversions as conv
 
     ids = [f"train_{i:02d}" for i in range(1, 31)]
     index = {t: i for i, t in enumerate(ids)}
@@ -324,16 +325,16 @@ def test_fleet_command_cdr_takes_what_the_object_path_takes() -> None:
             mode[0] = 200
         k = step + int(rng.choice([0, 0, 0, -1, -5, 1]))
         ts = t + (0.0 if rng.random() < 0.9 else 0.125)
-        m = conv.fleet_command_msg(k, ts, tids, eff, mode)
+        m = fleet_command.to_msg(k, ts, tids, eff, mode)
         if rng.random() < 0.05 and n:
             m.effort = list(m.effort)[:-1]  # wrong length
-        got = conv.fleet_command_efforts_cdr(serialize_message(m), topic, raw_index, cache,
-                                             step, t)
+        got = fleet_command.efforts_cdr(serialize_message(m), topic, raw_index, cache,
+                                        step, t)
         try:
-            want = conv.fleet_command_efforts(m, topic, index, step, t)
+            want = fleet_command.efforts(m, topic, index, step, t)
         except Rejected:
             want = None
-        if got is conv.FALLBACK:
+        if got is fleet_command.FALLBACK:
             declined += 1
             assert want is None  # whole-message rejection or the entry-by-entry path
             continue
@@ -345,7 +346,7 @@ def test_fleet_command_cdr_takes_what_the_object_path_takes() -> None:
             assert np.array_equal(got[1], want[1])
     assert answered > 1000 and declined > 100
     for junk in (b"", b"\x00\x01\x00\x00", b"\x00\x01\x00\x00" + b"\x07" * 40):
-        assert conv.fleet_command_efforts_cdr(junk, topic, raw_index, cache, 0, 0.0) is None
+        assert fleet_command.efforts_cdr(junk, topic, raw_index, cache, 0, 0.0) is None
 
 
 def test_fleet_command_layouts_read_as_the_reader_does() -> None:
@@ -353,14 +354,14 @@ def test_fleet_command_layouts_read_as_the_reader_does() -> None:
     to rclpy's reading for new stamps, steps, efforts and modes; a message of the same size
     with other ids, frame or counts is not read at that layout."""
     rng = np.random.default_rng(RNG_SEED + 7)
-    cdr._LAYOUTS.clear()
+    fleet_command._LAYOUTS.clear()
     for _ in range(200):
         n = int(rng.integers(1, 16))
         ids = [f"train_{int(x):02d}" for x in rng.choice(99, n, replace=False)]
         base = FleetCommand(train_id=ids, effort=_floats(rng, n).tolist(),
                             mode=[int(x) for x in rng.integers(0, 256, n)])
         base.header.frame_id = "line" if rng.random() < 0.8 else _ids(rng, 1)[0]
-        cdr.read_fleet_command(serialize_message(base))  # remembered
+        fleet_command.decode(serialize_message(base))  # remembered
         for _ in range(3):
             m = FleetCommand(header=base.header, train_id=ids,
                              effort=_floats(rng, n).tolist(),
@@ -368,8 +369,8 @@ def test_fleet_command_layouts_read_as_the_reader_does() -> None:
             m.header.stamp.sec, m.header.stamp.nanosec = _stamp(rng)
             m.step = int(rng.integers(0, 2**63))
             data = serialize_message(m)
-            assert any(len(data) == lay.size for lay in cdr._LAYOUTS.get(len(data), ()))
-            got = cdr.read_fleet_command(data)
+            assert fleet_command._LAYOUTS.get(len(data))
+            got = fleet_command.decode(data)
             assert got is not None and got.frame_id == m.header.frame_id
             assert [cdr.text(b) for b in got.train_id_raw] == ids
             assert (got.sec, got.nanosec, got.step) == (m.header.stamp.sec,
@@ -381,12 +382,12 @@ def test_fleet_command_layouts_read_as_the_reader_does() -> None:
         other[-1] = "train_99" if ids[-1] != "train_99" else "train_98"
         m = FleetCommand(header=base.header, train_id=other, effort=base.effort,
                          mode=base.mode)
-        got = cdr.read_fleet_command(serialize_message(m))
+        got = fleet_command.decode(serialize_message(m))
         assert got is not None and [cdr.text(b) for b in got.train_id_raw] == other
         # fewer modes than efforts (same size as a full one with one more id byte): the
         # reader's result, never the layout's
         m = FleetCommand(header=base.header, train_id=ids, effort=base.effort,
                          mode=base.mode[:-1])
-        got = cdr.read_fleet_command(serialize_message(m))
+        got = fleet_command.decode(serialize_message(m))
         assert got is not None and got.mode.size == n - 1
-    assert sum(len(v) for v in cdr._LAYOUTS.values()) <= cdr._LAYOUTS_MAX
+    assert sum(len(v) for v in fleet_command._LAYOUTS.values()) <= fleet_command._LAYOUTS_MAX

@@ -1,10 +1,11 @@
 """The ROS-free fleet CDR codec against rclpy's own (de)serialisation (issue 13).
 
-:mod:`metro_atc.nodes.cdr_fleet` (the ATO's end) must read every FleetState rclpy writes
-field for field (bit for bit: NaN payloads, signed zeros, infinities), write FleetCommands
-rclpy reads back identically (and byte for byte, but for padding, what rclpy writes), and
-give None -- never raise, never a wrong value -- on hostile bytes: truncated at every
-length, counts that overrun, corrupted bytes, another encapsulation.
+:mod:`metro_atc.nodes.wire` (the ATO's end: ``fleet_state.decode``,
+``fleet_command.encode``) must read every FleetState rclpy writes field for field (bit for
+bit: NaN payloads, signed zeros, infinities), write FleetCommands rclpy reads back
+identically (and byte for byte, but for padding, what rclpy writes), and give None --
+never raise, never a wrong value -- on hostile bytes: truncated at every length, counts
+that overrun, corrupted bytes, another encapsulation.
 """
 
 from __future__ import annotations
@@ -19,8 +20,8 @@ import pytest
 from metro_atc_msgs.msg import FleetCommand, FleetState
 from rclpy.serialization import deserialize_message, serialize_message
 
-from metro_atc.nodes import cdr as codec
-from metro_atc.nodes import cdr_fleet as cdr
+from metro_atc.nodes.wire import cdr as codec
+from metro_atc.nodes.wire import fleet_command, fleet_state, traction_command
 
 F64 = ("position_m", "speed_mps", "acceleration_mps2", "departure_time_s",
        "target_running_time_s", "supervision_speed_mps", "movement_authority_m")
@@ -84,7 +85,7 @@ def random_command(rng: random.Random) -> FleetCommand:
     return m
 
 
-def assert_state_equal(view: cdr.FleetStateView, m: FleetState) -> None:
+def assert_state_equal(view: fleet_state.FleetStateView, m: FleetState) -> None:
     """Every field of the decoded view equals the message's, bit for bit."""
     assert view.header.stamp == (m.header.stamp.sec, m.header.stamp.nanosec)
     assert view.header.frame_id == m.header.frame_id
@@ -102,7 +103,7 @@ def test_decode_equals_rclpy_on_random_states() -> None:
     ragged = 0
     for _ in range(2000):
         m = random_state(rng)
-        view = cdr.decode_fleet_state(serialize_message(m))
+        view = fleet_state.decode(serialize_message(m))
         lengths = {len(getattr(m, f)) for f in ("train_id",) + F64 + (
             "current_station", "next_station", "mode", "echo")}
         if len(lengths) > 1:  # ragged: refused, the node falls back to rclpy's reader
@@ -133,18 +134,18 @@ def test_encode_command_equals_rclpy() -> None:
         st = (m.header.stamp.sec, m.header.stamp.nanosec)
         if not len(m.effort) == len(m.mode) == len(m.train_id):
             with pytest.raises(ValueError):  # the node then publishes the message object
-                cdr.encode_fleet_command(st, m.header.frame_id, m.step, m.train_id,
-                                         m.effort, m.mode)
+                fleet_command.encode(st, m.header.frame_id, m.step, m.train_id,
+                                     m.effort, m.mode)
             continue
-        ours = cdr.encode_fleet_command(st, m.header.frame_id, m.step, m.train_id, m.effort,
-                                        m.mode)
+        ours = fleet_command.encode(st, m.header.frame_id, m.step, m.train_id, m.effort,
+                                    m.mode)
         assert _masked_equal(ours, serialize_message(m))
         back = deserialize_message(ours, FleetCommand)
         assert (back.header.stamp.sec, back.header.stamp.nanosec) == st
         assert back.header.frame_id == m.header.frame_id and back.step == m.step
         assert back.train_id == m.train_id and list(back.mode) == list(m.mode)
         assert _bits(list(back.effort)) == _bits(list(m.effort))
-        view = codec.read_fleet_command(ours)  # the simulator's reader
+        view = fleet_command.decode(ours)  # the simulator's reader
         assert view is not None and [codec.text(b) for b in view.train_id_raw] == m.train_id
         assert _bits(view.effort.tolist()) == _bits(list(m.effort))
 
@@ -191,27 +192,27 @@ def test_hostile_bytes_never_raise_and_never_misread() -> None:
         cases.append(bytes(bad))
     accepted = 0
     for b in cases:
-        view = cdr.decode_fleet_state(b)  # must not raise
+        view = fleet_state.decode(b)  # must not raise
         if view is None:
             continue
         accepted += 1
         assert _rclpy_reads(b), "decoded bytes rclpy refuses"
         assert_state_equal(view, deserialize_message(b, FleetState))
     assert accepted > 50  # corrupted values inside arrays still decode (and equal rclpy)
-    assert cdr.decode_fleet_state(bytearray(serialize_message(FleetState()))) is not None
-    assert cdr.decode_fleet_state(None) is None
-    assert codec.read_fleet_command(b"\x00\x01\x00\x00\x01") is None
+    assert fleet_state.decode(bytearray(serialize_message(FleetState()))) is not None
+    assert fleet_state.decode(None) is None
+    assert fleet_command.decode(b"\x00\x01\x00\x00\x01") is None
 
 
 def test_bad_command_values_raise_like_rclpy() -> None:
     """Values a FleetCommand cannot hold raise (as rclpy's setters do), never encode."""
     st = (0, 0)
     with pytest.raises((ValueError, struct.error)):
-        cdr.encode_fleet_command(st, "line", 1, ["a"], [0.0], [256])
+        fleet_command.encode(st, "line", 1, ["a"], [0.0], [256])
     with pytest.raises((ValueError, struct.error)):
-        cdr.encode_fleet_command(st, "line", -1, ["a"], [0.0], [1])
+        fleet_command.encode(st, "line", -1, ["a"], [0.0], [1])
     with pytest.raises(ValueError):
-        cdr.encode_fleet_command(st, "li\x00ne", 1, ["a"], [0.0], [1])
+        fleet_command.encode(st, "li\x00ne", 1, ["a"], [0.0], [1])
 
 
 def _states(d: dict[str, Any]) -> list[Any]:
@@ -240,8 +241,8 @@ def test_validated_entries_of_a_decoded_view_equal_the_messages() -> None:
     for k in range(900):
         if k % 29 == 0:
             st = {a: np.array(v, copy=True) for a, v in sim.states().items()}
-            m = conv.fleet_state_msg(ids, np.arange(len(ids)), st, k, float(sim.t),
-                                     np.arange(len(ids)) % 2 == 0)
+            m = fleet_state.to_msg(ids, np.arange(len(ids)), st, k, float(sim.t),
+                                   np.arange(len(ids)) % 2 == 0)
             if k % 58 == 0:  # one bad value
                 f = rng.choice(F64 + ("current_station", "mode"))
                 vals = list(getattr(m, f))
@@ -250,19 +251,19 @@ def test_validated_entries_of_a_decoded_view_equal_the_messages() -> None:
                     else (math.nan, math.inf, -1e9)) if f != "mode" else 200
                 setattr(m, f, [int(v) for v in vals] if f in ("current_station", "mode")
                         else vals)
-            view = cdr.decode_fleet_state(serialize_message(m))
+            view = fleet_state.decode(serialize_message(m))
             assert view is not None
             for hosted in ({i: None for i in ids}, {ids[-1]: None}):
-                a = conv.fleet_states_checked(m, topic, hosted, b)
-                c = conv.fleet_states_checked(view, topic, hosted, b)  # type: ignore[arg-type]
+                a = fleet_state.checked(m, topic, hosted, b)
+                c = fleet_state.checked(view, topic, hosted, b)  # type: ignore[arg-type]
                 assert (a is None) == (c is None)
                 if a is not None:
                     assert _bits(_states(c)) == _bits(_states(a))  # type: ignore[arg-type]
                     assert [type(v) for _, s, _ in c for v in s.values()] == \
                         [type(v) for _, s, _ in a for v in s.values()]  # type: ignore
                     n += len(a)
-                ea = conv.fleet_state_entries(m, topic, hosted)
-                ec = conv.fleet_state_entries(view, topic, hosted)  # type: ignore[arg-type]
+                ea = fleet_state.entries(m, topic, hosted)
+                ec = fleet_state.entries(view, topic, hosted)  # type: ignore[arg-type]
                 for (ta, xa), (tc, xc) in zip(ea, ec, strict=True):
                     assert ta == tc
                     try:
@@ -298,7 +299,7 @@ def test_encode_traction_command_equals_rclpy() -> None:
         m = conv.traction_msg(tid, step, t, u, md)
         m.header.frame_id = frame
         st = codec.stamp_parts(t)
-        ours = cdr.encode_traction_command(st, frame, tid, step, u, md)
+        ours = traction_command.encode(st, frame, tid, step, u, md)
         assert _masked_equal(ours, serialize_message(m))
         back = deserialize_message(ours, TractionCommand)
         assert (back.header.stamp.sec, back.header.stamp.nanosec) == st \
@@ -307,6 +308,6 @@ def test_encode_traction_command_equals_rclpy() -> None:
         assert back.step == step and back.mode == md and _bits([back.effort]) == _bits([u])
     for bad in ((1, 0.0, 256), (-1, 0.0, 1), (1 << 64, 0.0, 1), (1, 1, 1), (1.0, 0.0, 1)):
         with pytest.raises((ValueError, struct.error)):
-            cdr.encode_traction_command((0, 0), "line", "a", *bad)
+            traction_command.encode((0, 0), "line", "a", *bad)
     with pytest.raises(ValueError):
-        cdr.encode_traction_command((0, 0), "line", "a\x00", 1, 0.0, 1)
+        traction_command.encode((0, 0), "line", "a\x00", 1, 0.0, 1)

@@ -13,6 +13,7 @@ from metro_atc.core.plant.line import LineSim
 from metro_atc.core.plant.driver import simple_driver
 from metro_atc.core.validate import Rejected, StepWindow, bounds_for
 from metro_atc.nodes import conversions as conv
+from metro_atc.nodes.wire import fleet_command, fleet_state
 
 
 def _states_along_a_run(steps: int = 1200, every: int = 37) -> list[tuple[int, float, Any]]:
@@ -37,9 +38,9 @@ def test_fleet_entries_validate_to_the_per_train_states() -> None:
     for k, t, st in _states_along_a_run():
         idx = np.flatnonzero(np.ones(len(ids), dtype=bool))
         echo = np.arange(idx.size) % 2 == 0
-        fleet = conv.fleet_state_msg(ids, idx, st, k, t, echo)
+        fleet = fleet_state.to_msg(ids, idx, st, k, t, echo)
         per = dict(conv.state_msgs(ids, idx, st, k, t))
-        entries = conv.fleet_state_entries(fleet, "/line/fleet_state", {i: None for i in ids})
+        entries = fleet_state.entries(fleet, "/line/fleet_state", {i: None for i in ids})
         assert [tid for tid, _ in entries] == [ids[i] for i in idx]
         for j, (tid, e) in enumerate(entries):
             i = ids.index(tid)
@@ -65,16 +66,16 @@ def test_fleet_entries_of_other_trains_are_skipped() -> None:
     scn = load_scenario("mini")
     ids = list(scn.train_ids)
     _, t, st = _states_along_a_run(1, 1)[0]
-    fleet = conv.fleet_state_msg(ids, np.arange(len(ids)), st, 0, t)
-    got = conv.fleet_state_entries(fleet, "/line/fleet_state", {ids[-1]: None})
+    fleet = fleet_state.to_msg(ids, np.arange(len(ids)), st, 0, t)
+    got = fleet_state.entries(fleet, "/line/fleet_state", {ids[-1]: None})
     assert [tid for tid, _ in got] == [ids[-1]]
 
 
 def test_fleet_command_round_trip_and_rules() -> None:
     """FleetCommand entries pass traction_from_msg like /<train>/command messages."""
     index = {"train_01": 0, "train_02": 1}
-    m = conv.fleet_command_msg(12, 3.0, ["train_02", "train_01"], [0.25, -1.0], [2, 5])
-    got = conv.fleet_command_entries(m, "/line/fleet_command", index)
+    m = fleet_command.to_msg(12, 3.0, ["train_02", "train_01"], [0.25, -1.0], [2, 5])
+    got = fleet_command.entries(m, "/line/fleet_command", index)
     assert [i for i, _ in got] == [1, 0]
     eff = [conv.traction_from_msg(e, "/line/fleet_command", e.train_id, 12, 3.0)
            for _, e in got]
@@ -100,8 +101,8 @@ def test_malformed_fleet_messages_are_rejected(bad: str) -> None:
     scn = load_scenario("mini")
     ids = list(scn.train_ids)
     _, t, st = _states_along_a_run(1, 1)[0]
-    fleet = conv.fleet_state_msg(ids, np.arange(len(ids)), st, 0, t)
-    cmd = conv.fleet_command_msg(0, 0.0, ids, [0.0] * len(ids), [2] * len(ids))
+    fleet = fleet_state.to_msg(ids, np.arange(len(ids)), st, 0, t)
+    cmd = fleet_command.to_msg(0, 0.0, ids, [0.0] * len(ids), [2] * len(ids))
     if bad == "length":
         fleet.speed_mps = list(fleet.speed_mps)[:-1]
         cmd.mode = [2] * (len(ids) + 1)
@@ -116,11 +117,11 @@ def test_malformed_fleet_messages_are_rejected(bad: str) -> None:
         kind = "train_id"
     index = {tid: i for i, tid in enumerate(ids)}
     with pytest.raises(Rejected) as e:
-        conv.fleet_command_entries(cmd, "/line/fleet_command", index)
+        fleet_command.entries(cmd, "/line/fleet_command", index)
     assert e.value.kind == kind
     if bad != "unknown":  # an unknown train in a fleet state is another process's
         with pytest.raises(Rejected) as e:
-            conv.fleet_state_entries(fleet, "/line/fleet_state", index)
+            fleet_state.entries(fleet, "/line/fleet_state", index)
         assert e.value.kind == kind
 
 
@@ -129,7 +130,7 @@ def _slow_fleet_command(msg: Any, index: dict[str, int], step: int, t: float
     """What the simulator took from a FleetCommand entry by entry: (trains, efforts or
     None, rejected entries)."""
     trains, efforts, rejected = [], [], 0
-    for i, e in conv.fleet_command_entries(msg, "/line/fleet_command", index):
+    for i, e in fleet_command.entries(msg, "/line/fleet_command", index):
         try:
             u = conv.traction_from_msg(e, "/line/fleet_command", e.train_id, step, t,
                                        late_echo=True)
@@ -142,7 +143,7 @@ def _slow_fleet_command(msg: Any, index: dict[str, int], step: int, t: float
 
 
 def test_fleet_command_fast_path_equals_entry_by_entry() -> None:
-    """conv.fleet_command_efforts (the simulator's whole-message path) gives what the
+    """fleet_command.efforts (the simulator's whole-message path) gives what the
     entry-by-entry rules give whenever it answers, and declines (None) exactly when some
     entry would be rejected: random valid and broken commands (efforts out of range or
     NaN, undefined modes, other steps, wrong stamps)."""
@@ -171,9 +172,9 @@ def test_fleet_command_fast_path_equals_entry_by_entry() -> None:
             msg_t = msg_step * 0.25
         elif kind == 5:
             msg_t = t + 0.1  # the stamp is not the step's time
-        m = conv.fleet_command_msg(msg_step, msg_t, chosen, eff.tolist(), modes.tolist())
+        m = fleet_command.to_msg(msg_step, msg_t, chosen, eff.tolist(), modes.tolist())
         trains, efforts, rejected = _slow_fleet_command(m, index, step, t)
-        fast = conv.fleet_command_efforts(m, "/line/fleet_command", index, step, t)
+        fast = fleet_command.efforts(m, "/line/fleet_command", index, step, t)
         if fast is None:
             seen["declined"] += 1
             assert rejected > 0
@@ -195,7 +196,7 @@ def test_fleet_command_fast_path_rejects_malformed_messages(bad: str) -> None:
     """The whole-message path raises the same kinds as fleet_command_entries."""
     ids = ["train_01", "train_02", "train_03"]
     index = {tid: i for i, tid in enumerate(ids)}
-    cmd = conv.fleet_command_msg(4, 1.0, ids, [0.0] * 3, [2] * 3)
+    cmd = fleet_command.to_msg(4, 1.0, ids, [0.0] * 3, [2] * 3)
     if bad == "length":
         cmd.mode = [2] * 4
     elif bad == "duplicate":
@@ -203,9 +204,9 @@ def test_fleet_command_fast_path_rejects_malformed_messages(bad: str) -> None:
     else:
         cmd.train_id = ["train_99"] + ids[1:]
     with pytest.raises(Rejected) as fast:
-        conv.fleet_command_efforts(cmd, "/line/fleet_command", index, 4, 1.0)
+        fleet_command.efforts(cmd, "/line/fleet_command", index, 4, 1.0)
     with pytest.raises(Rejected) as slow:
-        conv.fleet_command_entries(cmd, "/line/fleet_command", index)
+        fleet_command.entries(cmd, "/line/fleet_command", index)
     assert fast.value.kind == slow.value.kind and str(fast.value) == str(slow.value)
 
 
@@ -238,7 +239,7 @@ def test_refilled_sensor_message_equals_a_fresh_one() -> None:
 def _per_entry(fleet: Any, hosted: dict[str, Any], b: Any) -> list[tuple[str, Any, bool]]:
     """The slow path: fleet_state_entries + state_from_msg per entry (``again`` dropped)."""
     out = []
-    for tid, e in conv.fleet_state_entries(fleet, "/line/fleet_state", hosted):
+    for tid, e in fleet_state.entries(fleet, "/line/fleet_state", hosted):
         s = conv.state_from_msg(e, "/line/fleet_state", tid, b, StepWindow())
         del s["again"]
         out.append((tid, s, e.echo))
@@ -254,13 +255,13 @@ def test_checked_fast_path_equals_the_per_entry_path() -> None:
     for k, t, st in _states_along_a_run():
         for hosted in ({i: None for i in ids}, {ids[-1]: None}, {"train_99": None}):
             echo = np.arange(len(ids)) % 3 == 0
-            fleet = conv.fleet_state_msg(ids, np.arange(len(ids)), st, k, t, echo)
+            fleet = fleet_state.to_msg(ids, np.arange(len(ids)), st, k, t, echo)
             try:
                 slow = _per_entry(fleet, hosted, b)
             except Rejected:
-                assert conv.fleet_states_checked(fleet, "/line/fleet_state", hosted, b) is None
+                assert fleet_state.checked(fleet, "/line/fleet_state", hosted, b) is None
                 continue
-            fast = conv.fleet_states_checked(fleet, "/line/fleet_state", hosted, b)
+            fast = fleet_state.checked(fleet, "/line/fleet_state", hosted, b)
             assert fast is not None
             assert [(tid, list(s.items()), e) for tid, s, e in fast] == \
                 [(tid, list(s.items()), e) for tid, s, e in slow]
@@ -285,9 +286,9 @@ def test_checked_fast_path_refuses_what_the_per_entry_path_rejects(field: str,
     b = bounds_for(scn)
     ids = list(scn.train_ids)
     k, t, st = _states_along_a_run(40, 39)[-1]
-    fleet = conv.fleet_state_msg(ids, np.arange(len(ids)), st, k, t)
+    fleet = fleet_state.to_msg(ids, np.arange(len(ids)), st, k, t)
     hosted = {i: None for i in ids}
-    assert conv.fleet_states_checked(fleet, "/line/fleet_state", hosted, b) is not None
+    assert fleet_state.checked(fleet, "/line/fleet_state", hosted, b) is not None
     if field == "stamp":
         fleet.header.stamp = conv.to_time(t + value)
     elif field == "length":
@@ -300,4 +301,4 @@ def test_checked_fast_path_refuses_what_the_per_entry_path_rejects(field: str,
         setattr(fleet, field, vals)
     with pytest.raises(Rejected):
         _per_entry(fleet, hosted, b)
-    assert conv.fleet_states_checked(fleet, "/line/fleet_state", hosted, b) is None
+    assert fleet_state.checked(fleet, "/line/fleet_state", hosted, b) is None

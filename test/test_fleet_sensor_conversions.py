@@ -18,6 +18,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from metro_atc.core.line.scenario import load_scenario
 from metro_atc.core.validate import Rejected, bounds_for
 from metro_atc.nodes import conversions as conv
+from metro_atc.nodes.wire import fleet_sensors
 
 SCN = load_scenario("mini")
 B = bounds_for(SCN)
@@ -42,7 +43,7 @@ def _batch(rng: np.random.Generator, n: int, nan_share: float = 0.2) -> dict[str
 
 
 def _msg(d: dict[str, Any], t_step: float = 100.0, ids: list[str] = IDS) -> Any:
-    return conv.fleet_sensor_msg(ids, t_step, **d)
+    return fleet_sensors.to_msg(ids, t_step, **d)
 
 
 def _same(a: Any, b: Any) -> bool:
@@ -61,7 +62,7 @@ def test_fleet_samples_validate_to_the_per_train_samples() -> None:
     for n in (0, 1, 2, 7, 40, 300):
         d = _batch(rng, n)
         m = deserialize_message(serialize_message(_msg(d)), FleetBrakeSensorData)
-        got = conv.fleet_sensor_samples(m, TOPIC, INDEX, 4, B)
+        got = fleet_sensors.samples(m, TOPIC, INDEX, 4, B)
         assert len(got) == n
         for s, (tid, stamp, sample) in enumerate(got):
             i = int(d["trains"][s])
@@ -92,7 +93,7 @@ def test_wrong_lengths_reject_the_message(field: str) -> None:
         vals = list(getattr(m, field))
         setattr(m, field, vals[:-1] if delta < 0 else vals + [vals[-1]])
         with pytest.raises(Rejected) as exc:
-            conv.fleet_sensor_samples(m, TOPIC, INDEX, 4, B)
+            fleet_sensors.samples(m, TOPIC, INDEX, 4, B)
         assert exc.value.kind == "length", (field, delta, exc.value)
 
 
@@ -105,7 +106,7 @@ def test_hostile_samples_are_rejected_one_by_one() -> None:
     d["t_s"][3] = 1e6                           # beyond the horizon: time
     d["ref_speed_mps"][4] = np.nan              # a dropout: passes
     m = _msg(d)
-    got = conv.fleet_sensor_samples(m, TOPIC, INDEX, 4, B)
+    got = fleet_sensors.samples(m, TOPIC, INDEX, 4, B)
     kinds = [s.kind if isinstance(s, Rejected) else "ok" for _, _, s in got]
     assert kinds == ["ok", "range", "range", "time", "ok", "ok"]
     assert math.isnan(got[4][2]["ref_speed"])  # type: ignore[index]
@@ -117,14 +118,14 @@ def test_hostile_samples_are_rejected_one_by_one() -> None:
     m.axle_count = [4, 3, 4]
     m.wheel_angular_speed_radps = w[:4] + w[4:7] + w[8:]
     m.clamp_force_n = c[:4] + c[4:7] + c[8:]
-    got = conv.fleet_sensor_samples(m, TOPIC, INDEX, 4, B)
+    got = fleet_sensors.samples(m, TOPIC, INDEX, 4, B)
     assert [s.kind if isinstance(s, Rejected) else "ok" for _, _, s in got] == \
         ["ok", "axles", "ok"]
     np.testing.assert_array_equal(got[2][2]["omega"], np.asarray(w[8:]))  # type: ignore
     # an unknown train: no train, kind train_id; the others pass
     d = _batch(rng, 4, nan_share=0.0)
     d["trains"] = np.array([0, 1, 0, 1])
-    got = conv.fleet_sensor_samples(_msg(d, ids=["train_01", "train_99"]), TOPIC, INDEX, 4, B)
+    got = fleet_sensors.samples(_msg(d, ids=["train_01", "train_99"]), TOPIC, INDEX, 4, B)
     assert [(t, isinstance(s, Rejected) and s.kind) for t, _, s in got] == \
         [("train_01", False), (None, "train_id"), ("train_01", False), (None, "train_id")]
 
@@ -132,20 +133,20 @@ def test_hostile_samples_are_rejected_one_by_one() -> None:
 def test_huge_and_out_of_range_index_messages_are_rejected() -> None:
     """Too many samples, absurd axle counts, indices past train_id: kind length."""
     rng = np.random.default_rng(8)
-    n = conv.FLEET_SENSOR_MAX_SAMPLES + 1
+    n = fleet_sensors.MAX_SAMPLES + 1
     d = _batch(rng, n, nan_share=0.0)
     with pytest.raises(Rejected) as exc:
-        conv.fleet_sensor_samples(_msg(d), TOPIC, INDEX, 4, B)
+        fleet_sensors.samples(_msg(d), TOPIC, INDEX, 4, B)
     assert exc.value.kind == "length"
     m = _msg(_batch(rng, 2, nan_share=0.0))
     m.axle_count = [1_000_000_000, 0]
     with pytest.raises(Rejected) as exc:
-        conv.fleet_sensor_samples(m, TOPIC, INDEX, 4, B)
+        fleet_sensors.samples(m, TOPIC, INDEX, 4, B)
     assert exc.value.kind == "length"
     m = _msg(_batch(rng, 2, nan_share=0.0))
     m.sample_train = [0, 7]
     with pytest.raises(Rejected) as exc:
-        conv.fleet_sensor_samples(m, TOPIC, INDEX, 4, B)
+        fleet_sensors.samples(m, TOPIC, INDEX, 4, B)
     assert exc.value.kind == "length"
 
 
@@ -173,7 +174,7 @@ def test_random_damage_never_raises_anything_else() -> None:
                 vals = vals[:int(rng.integers(0, len(vals) + 1))]
             setattr(m, f, vals)
         try:
-            got = conv.fleet_sensor_samples(m, TOPIC, INDEX, 4, B)
+            got = fleet_sensors.samples(m, TOPIC, INDEX, 4, B)
         except Rejected:
             outcomes["rejected"] += 1
             continue

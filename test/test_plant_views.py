@@ -11,8 +11,7 @@ from metro_atc.core.line.scenario import load_scenario
 from metro_atc.core.plant.driver import simple_driver
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.plant.views import FLEET_KEYS, dwelling_in_service, fleet_state_rows
-from metro_atc.nodes import cdr
-from metro_atc.nodes import conversions as conv
+from metro_atc.nodes.wire import cdr, fleet_state
 
 
 def _check(sim: LineSim, rng: np.random.Generator) -> int:
@@ -60,9 +59,9 @@ def test_fleet_state_rows_cdr_is_fleet_state_cdr() -> None:
     idx = np.flatnonzero(np.asarray(sim.active_mask(), dtype=bool))
     assert idx.size > 2
     ids = [f"train_{i:02d}" for i in idx]
-    builder = cdr.FleetStateBuilder(cdr.string_seq(ids), idx.size)
+    builder = fleet_state.Builder(cdr.string_seq(ids), idx.size)
     echo = np.arange(idx.size) % 2 == 0
-    want = conv.fleet_state_cdr(builder, idx, sim.states(), 1500, float(sim.t), echo)
-    got = conv.fleet_state_rows_cdr(builder, idx.size, fleet_state_rows(sim, idx), 1500,
-                                    float(sim.t), echo)
+    want = fleet_state.from_core(builder, idx, sim.states(), 1500, float(sim.t), echo)
+    got = fleet_state.from_core_rows(builder, idx.size, fleet_state_rows(sim, idx), 1500,
+                                     float(sim.t), echo)
     assert got == want

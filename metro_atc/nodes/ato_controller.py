@@ -62,9 +62,9 @@ from metro_atc.core.bridge import timetable_for
 from metro_atc.core.journal import read_entries
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, StepWindow, bounds_for
-from metro_atc.nodes import cdr_fleet
 from metro_atc.nodes import conversions as conv
-from metro_atc.nodes.cdr import stamp_parts
+from metro_atc.nodes.wire import fleet_command, fleet_state, traction_command
+from metro_atc.nodes.wire.cdr import stamp_parts
 from metro_atc.nodes.common import (OK, QOS_LATCHED, QOS_LATCHED_IN, QOS_RELIABLE, WARN,
                                     NodeConfigError, RuntimeParams, bulk_publisher,
                                     bulk_subscription, declare, diag_status, run_nodes,
@@ -492,7 +492,7 @@ class FleetLink:
         self.nodes = {n.train_id: n for n in nodes}
         host = nodes[0]
         self.pub = bulk_publisher(host, FleetCommand, self.TOPIC_COMMAND, QOS_RELIABLE)
-        # the CDR bytes, read by cdr_fleet (rclpy's message objects cost more than the
+        # the CDR bytes, read by wire.fleet_state (rclpy's message objects cost more than the
         # answers, issue 13); the commands go out as CDR bytes too
         self.sub = host.create_subscription(
             FleetState, self.TOPIC_STATE, self.on_fleet_state, QOS_RELIABLE, raw=True,
@@ -506,13 +506,13 @@ class FleetLink:
         """Answer the hosted trains of a fleet state (a malformed message: counted, dropped).
 
         ``data``: the message's CDR bytes (the subscription's) or a FleetState.  Bytes are
-        read by :func:`cdr_fleet.decode_fleet_state`; what it does not read exactly goes
+        read by :func:`fleet_state.decode`; what it does not read exactly goes
         through rclpy's deserialisation (then validated as before), and bytes rclpy cannot
         read either are counted as a rejected fleet state (kind ``cdr``).
         """
         msg: Any = data
         if isinstance(data, bytes):
-            msg = cdr_fleet.decode_fleet_state(data)
+            msg = fleet_state.decode(data)
             if msg is None:
                 try:
                     msg = deserialize_message(data, FleetState)
@@ -521,11 +521,11 @@ class FleetLink:
                         "cdr", f"{self.TOPIC_STATE}: undecodable CDR ({exc})"))
                     return
         topic = self.TOPIC_STATE
-        checked = conv.fleet_states_checked(msg, topic, self.nodes, self.bounds) \
+        checked = fleet_state.checked(msg, topic, self.nodes, self.bounds) \
             if self.bounds is not None else None
         if checked is None:
             try:
-                entries = conv.fleet_state_entries(msg, topic, self.nodes)
+                entries = fleet_state.entries(msg, topic, self.nodes)
             except conv.MessageRejected as exc:
                 next(iter(self.nodes.values()))._reject("fleet state", exc)
                 return
@@ -560,10 +560,10 @@ class FleetLink:
             sec, nsec = stamp_parts(stamp)
             stamp = float(sec) + 1e-9 * float(nsec)
             try:
-                out: Any = cdr_fleet.encode_fleet_command(stamp_parts(stamp), "line", step,
-                                                          ids, efforts, modes)
+                out: Any = fleet_command.encode(stamp_parts(stamp), "line", step, ids,
+                                                efforts, modes)
             except (ValueError, struct.error):
-                out = conv.fleet_command_msg(step, stamp, ids, efforts, modes)  # rclpy decides
+                out = fleet_command.to_msg(step, stamp, ids, efforts, modes)  # rclpy decides
             self.pub.publish(out)
         # the per-train echoes after the fleet command: the simulator waits for the latter
         # only (an echo arriving after the step is a stale duplicate to it, late_echo), so
@@ -573,13 +573,13 @@ class FleetLink:
 
 
 def echo_bytes(train_id: str, cmd: Cmd) -> Any:
-    """The ``/<train>/command`` echo of a command as CDR bytes (:mod:`cdr_fleet`).
+    """The ``/<train>/command`` echo of a command as CDR bytes (:mod:`wire.traction_command`).
 
     Values the encoder refuses give the message object (rclpy's setters decide).
     """
     try:
-        return cdr_fleet.encode_traction_command(stamp_parts(cmd.t_s), "line", train_id,
-                                                 cmd.step, cmd.effort, cmd.mode)
+        return traction_command.encode(stamp_parts(cmd.t_s), "line", train_id, cmd.step,
+                                       cmd.effort, cmd.mode)
     except (ValueError, struct.error):
         return conv.traction_msg(train_id, cmd.step, cmd.t_s, cmd.effort, cmd.mode)
 
@@ -587,7 +587,7 @@ def echo_bytes(train_id: str, cmd: Cmd) -> Any:
 class _Lazy:
     """A fleet entry validated on the fast path: its state dict, its message view on demand.
 
-    Reads like the TrainState-like view of :func:`conversions.fleet_state_entries` (built
+    Reads like the TrainState-like view of :func:`fleet_state.entries` (built
     only when a train's step falls outside its window and :meth:`AtoController.answer`
     takes over).
     """
@@ -599,7 +599,7 @@ class _Lazy:
     def __getattr__(self, name: str) -> Any:
         """A field of the entry's TrainState-like view (built on first use)."""
         if self._view is None:
-            views = conv.fleet_state_entries(self.msg, FleetLink.TOPIC_STATE, {self.tid: None})
+            views = fleet_state.entries(self.msg, FleetLink.TOPIC_STATE, {self.tid: None})
             self._view = dict(views)[self.tid]
         return getattr(self._view, name)
 

@@ -25,7 +25,7 @@ single-threaded node serves ``N x rate`` samples per second as long as that stay
 those figures.  On Taipei Blue the used samples are few at any instant (0.4 trains per
 sample instant on average over 1 800 s), so batching the filters across trains would
 batch nothing; the per-sample costs are cut instead: one message per step for all trains,
-validated in one vectorised pass (:func:`metro_atc.nodes.conversions.fleet_sensor_samples`,
+validated in one vectorised pass (:func:`metro_atc.nodes.wire.fleet_sensors.samples`,
 its samples as float lists that are their own journal entries, and their values packed),
 each sample one packed journal line (:func:`packed_entries`), a train's lines of a burst
 written at once, a standing or slow train's sample (most of them) counted by
@@ -45,7 +45,7 @@ publication period of ``/diagnostics`` is wall time.
 **Robustness.**  A batch whose arrays disagree in length (or are absurdly large) is one
 rejection (kind ``length``); within a batch, a sample of a train not in the scenario, with a
 wrong number of axles, a stamp outside the run's horizon, an implausible channel value
-(:func:`metro_atc.nodes.conversions.fleet_sensor_samples`, the rules of
+(:func:`metro_atc.nodes.wire.fleet_sensors.samples`, the rules of
 :func:`~metro_atc.nodes.conversions.sensor_from_msg`), or a stamp not after the previous
 one (out of order / duplicate) is rejected (not used at all; ``RESYNC_SAMPLES`` in-order
 samples behind a future-stamped one re-synchronise the stream and restart the filter).
@@ -104,6 +104,7 @@ from metro_atc.core.journal import Journal
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.nodes import conversions as conv
+from metro_atc.nodes.wire import fleet_sensors
 from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_FLEET_SENSOR, QOS_LATCHED,
                                     NodeConfigError, RuntimeParams,
                                     SubscriptionPoller, bulk_publisher, run_nodes, static,
@@ -349,8 +350,8 @@ class BrakeDiagnostic(Node):
         """
         rows: list[bytes] = []  # each sample's values packed, for the journal
         try:
-            items = conv.fleet_sensor_samples(msg, FLEET_SENSOR_TOPIC, self.index, N_AXLES,
-                                              self.bounds, lists=True, rows=rows)
+            items = fleet_sensors.samples(msg, FLEET_SENSOR_TOPIC, self.index, N_AXLES,
+                                          self.bounds, lists=True, rows=rows)
         except conv.MessageRejected as exc:
             self.rejections.add(exc.kind)
             self._log_bounded("", exc.kind, f"skipped sample batch ({exc.kind}): {exc}")

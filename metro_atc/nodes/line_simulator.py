@@ -9,7 +9,7 @@ fleet command), ``/line/brake_sensors`` (one FleetBrakeSensorData per
 has a reader), ``/line/events`` and ``/line/status``; subscribes to ``/line/fleet_command``
 (the commands of one ATO process per message, taken as CDR bytes), ``/<train>/command``
 (ATO traction/brake of one train) and ``/<train>/departure_command`` (ATS).  The fleet
-state, ``/clock`` and the sensor batches go out as CDR bytes (:mod:`metro_atc.nodes.cdr`).
+state, ``/clock`` and the sensor batches go out as CDR bytes (:mod:`metro_atc.nodes.wire`).
 
 Lockstep (default): step k -> k+1 happens only once every active train's command for step
 k has arrived; on ``step_timeout_s`` the last command is applied (ATP still supervises), the
@@ -73,6 +73,7 @@ from metro_atc.exit_codes import Exit, outcome
 from metro_atc.nodes.sim_outputs import regulator_label, write_finished_file, write_outputs
 from metro_atc.nodes.sim_params import SimParams
 from metro_atc.nodes.sim_sensors import SensorOutbox
+from metro_atc.nodes.wire import fleet_command
 
 
 _REGULATOR_NAMES = {code: name for name, code in conv.REGULATOR_CODES.items()}
@@ -163,7 +164,7 @@ class LineSimulator(Node):
             clock_pub, state_every=max(1, int(round(p.train_state_period_s / dt))),
             clock_every=max(1, int(round(clock_period / dt))))
         """The fleet state, per-train states and /clock (:mod:`metro_atc.nodes.sim_fleet`)."""
-        # raw: the commands are read from their CDR bytes (conv.fleet_command_efforts_cdr)
+        # raw: the commands are read from their CDR bytes (fleet_command.efforts_cdr)
         self.fleet_sub = self.create_subscription(
             FleetCommand, "/line/fleet_command", self._on_fleet_command, QOS_RELIABLE,
             raw=True, event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
@@ -237,7 +238,7 @@ class LineSimulator(Node):
         """Take the commands of one ATO process for step k (each entry as a /<t>/command).
 
         ``msg``: the serialized message (the raw subscription) or a message object. The
-        bytes of a clean message are read with :func:`conv.fleet_command_efforts_cdr`;
+        bytes of a clean message are read with :func:`fleet_command.efforts_cdr`;
         anything else is deserialized and takes the object path (its rejections counted
         as for a message object; bytes rclpy cannot read: kind ``cdr``).
         """
@@ -245,8 +246,8 @@ class LineSimulator(Node):
         if isinstance(msg, bytes):
             if len(self._ix_cache) > 256:
                 self._ix_cache.clear()  # a writer cycling through train lists
-            fast = conv.fleet_command_efforts_cdr(msg, topic, self._id_bytes, self._ix_cache,
-                                                  self.k, float(self.sim.t))
+            fast = fleet_command.efforts_cdr(msg, topic, self._id_bytes, self._ix_cache,
+                                             self.k, float(self.sim.t))
             if fast is not None:
                 self._take_fleet(*fast)
                 return
@@ -257,12 +258,11 @@ class LineSimulator(Node):
                     "cdr", f"{topic}: not a FleetCommand ({str(exc)[:80]})"))
                 return
         try:
-            fast = conv.fleet_command_efforts(msg, topic, self.index, self.k,
-                                              float(self.sim.t))
+            fast = fleet_command.efforts(msg, topic, self.index, self.k, float(self.sim.t))
             if fast is not None:
                 self._take_fleet(*fast)
                 return
-            entries = conv.fleet_command_entries(msg, topic, self.index)
+            entries = fleet_command.entries(msg, topic, self.index)
         except conv.MessageRejected as exc:
             self._reject("fleet command", exc)
             return

@@ -18,8 +18,8 @@ import numpy as np
 from rclpy.publisher import Publisher
 
 from metro_atc.core.plant.views import fleet_state_rows
-from metro_atc.nodes import cdr
 from metro_atc.nodes import conversions as conv
+from metro_atc.nodes.wire import cdr, fleet_state
 
 
 class FleetStatePublisher:
@@ -61,7 +61,7 @@ class FleetStatePublisher:
         """The serialized fleet state of step k (published again to a late ATO process)."""
         self._ids_blocks: dict[bytes, bytes] = {}
         """Serialized train id lists (cdr.string_seq) by the train indices' bytes."""
-        self._state_builders: dict[bytes, cdr.FleetStateBuilder] = {}
+        self._state_builders: dict[bytes, fleet_state.Builder] = {}
         """FleetState layouts by the train indices' bytes."""
         self._step_rows: tuple[int, np.ndarray, dict[str, np.ndarray]] = (-1, np.zeros(0), {})
         """(k, the active trains, their fleet-state arrays published at step k): a re-send
@@ -94,8 +94,8 @@ class FleetStatePublisher:
         # every train: the lockstep's critical path, issue 13), the same values
         rows = fleet_state_rows(line, idx)
         self._step_rows = (k, idx, rows)
-        self._fleet_msg = conv.fleet_state_rows_cdr(self.state_builder(idx), idx.size, rows,
-                                                    k, t, per_train[idx])
+        self._fleet_msg = fleet_state.from_core_rows(self.state_builder(idx), idx.size, rows,
+                                                     k, t, per_train[idx])
         self.fleet_pub.publish(self._fleet_msg)
         if per_train.any():
             self.publish_states(k, per_train)
@@ -157,19 +157,19 @@ class FleetStatePublisher:
         else:  # not one of them (never in the loop): their states now
             again = fleet_state_rows(self.line, missing)
         self.resends += 1
-        self.fleet_pub.publish(conv.fleet_state_rows_cdr(
+        self.fleet_pub.publish(fleet_state.from_core_rows(
             self.state_builder(missing), missing.size, again, k, float(self.line.t),
             self._echo_mask[missing]))
 
-    def state_builder(self, idx: np.ndarray) -> cdr.FleetStateBuilder:
+    def state_builder(self, idx: np.ndarray) -> fleet_state.Builder:
         """The FleetState layout of the trains ``idx`` (cached per index list)."""
         key = np.asarray(idx, dtype=np.int64).tobytes()
         got = self._state_builders.get(key)
         if got is None:
             if len(self._state_builders) > 256:
                 self._state_builders.clear()
-            got = self._state_builders[key] = cdr.FleetStateBuilder(self.ids_block(idx),
-                                                                    len(idx))
+            got = self._state_builders[key] = fleet_state.Builder(self.ids_block(idx),
+                                                                  len(idx))
         return got
 
     def ids_block(self, idx: np.ndarray) -> bytes:

@@ -24,9 +24,9 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 
-from metro_atc.nodes import cdr
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import stop_requested, subscriber_gids
+from metro_atc.nodes.wire import fleet_sensors
 
 RESEND_BATCH = 64
 """Kept sensor samples re-sent per FleetBrakeSensorData (a pause after each)."""
@@ -276,7 +276,7 @@ class SensorOutbox:
         names, which = np.unique(trains, return_inverse=True)
         n = trains.size
         omega = batch.omega.reshape(n, -1)
-        self.fleet_pub.publish(cdr.fleet_sensors(t_s, self._ids_block(
+        self.fleet_pub.publish(fleet_sensors.encode(t_s, self._ids_block(
             names), (which, conv.stamps_ns(batch.t), np.full(n, omega.shape[1]), omega,
                      batch.clamp, batch.accel, batch.vref, batch.mass)))
         if not live:
