@@ -52,7 +52,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 
 from metro_atc.bag import BagWriter, Qos, qos_profile
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
-from metro_atc.nodes import cdr
+from metro_atc.nodes.wire import cdr
 from metro_atc.nodes.common import (OK, FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_DIAGNOSTICS,
                                     QOS_EVENTS, QOS_FLEET_SENSOR, QOS_LATCHED,
                                     QOS_RELIABLE, WARN, NodeConfigError,
