@@ -435,29 +435,37 @@ class AtoCore:
         self._kplan = (run, ref, out)
         return out
 
-    def kernel_state(self) -> Optional[list[float]]:
-        """The per-train state the compiled step reads (``control_kernel.S_HAS_T`` .. ``S_TU``).
+    def kernel_state(self, st: Any) -> bool:
+        """Write the per-train state the compiled step reads into the record ``st``.
 
-        None when the tracker's state is not a plain one-train state.
+        ``st``: a ``control_kernel.STATE`` record (its ``CORE_STATE_FIELDS``). False (``st``
+        untouched) when the tracker's state is not a plain one-train state.
         """
         ts = self.tracker.scalar_state() if isinstance(self.tracker, FuzzyController) \
             else None
         if ts is None:
-            return None
+            return False
         lt = self._last_t
-        return [0.0 if lt is None else 1.0, 0.0 if lt is None else lt, self._last_u,
-                self._last_ff, 1.0 if self._arrived else 0.0, self._still_s,
-                1.0 if ts[0] else 0.0, ts[1], ts[2]]
+        st["has_t"] = 0.0 if lt is None else 1.0
+        st["t"] = 0.0 if lt is None else lt
+        st["u"] = self._last_u
+        st["ff"] = self._last_ff
+        st["arrived"] = 1.0 if self._arrived else 0.0
+        st["still"] = self._still_s
+        st["has_e"] = 1.0 if ts[0] else 0.0
+        st["e"] = ts[1]
+        st["tu"] = ts[2]
+        return True
 
-    def set_kernel_state(self, st: list[float], reason: str) -> None:
-        """Take the state back from the compiled step (:meth:`kernel_state`'s layout)."""
-        self._last_t = st[1] if st[0] != 0.0 else None
-        self._last_u = st[2]
-        self._last_ff = st[3]
-        self._arrived = st[4] != 0.0
-        self._still_s = st[5]
+    def set_kernel_state(self, st: Any, reason: str) -> None:
+        """Take the state back from the compiled step (the record of :meth:`kernel_state`)."""
+        self._last_t = float(st["t"]) if st["has_t"] != 0.0 else None
+        self._last_u = float(st["u"])
+        self._last_ff = float(st["ff"])
+        self._arrived = bool(st["arrived"] != 0.0)
+        self._still_s = float(st["still"])
         assert isinstance(self.tracker, FuzzyController)
-        self.tracker.set_scalar_state(st[6] != 0.0, st[7], st[8])
+        self.tracker.set_scalar_state(bool(st["has_e"] != 0.0), float(st["e"]), float(st["tu"]))
         self.last_reason = reason
 
     @property

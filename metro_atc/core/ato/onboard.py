@@ -37,7 +37,7 @@ import numpy as np
 
 from metro_atc.core.ato.controller import (JOIN_BAND_MPS, JOIN_MIN_SPEED_MPS, PREVIEW_PERIODS,
                                            AtoCore)
-from metro_atc.core.ato.control_kernel import REASONS
+from metro_atc.core.ato.control_kernel import REASONS, STATE
 from metro_atc.core.ato.control_kernel_pack import (control_step_fn, pack_constants, pack_line,
                                                     pack_plan, resolve_ato_kernel)
 from metro_atc.core.ato.envelope import OperatingLimits
@@ -261,8 +261,9 @@ class OnboardAto:
         kp = core.kernel_plan()
         if kp is None or atp._sbi_list is None:
             return None
-        ks = core.kernel_state()
-        if ks is None:
+        sr = np.zeros(1, dtype=STATE)
+        st = sr[0]
+        if not core.kernel_state(st):
             return None
         if self._kconst is None:
             cc = core.kernel_constants()
@@ -287,21 +288,23 @@ class OnboardAto:
         if not -2 ** 62 < nxt < 2 ** 62:
             return None
         ma = self._ma_prev
-        st = np.array(ks + [0.0 if ma is None else 1.0, 0.0 if ma is None else ma[0],
-                            0.0 if ma is None else ma[1], self.authority_speed_mps,
-                            self._peak_mps, self._next_stop_m, self._held_mps])
-        u, code = self._kstep(self._kconst, self._kplan[2], self._kline, st, t,
+        if ma is not None:
+            st["has_ma"], st["ma_t"], st["ma"] = 1.0, ma[0], ma[1]
+        st["v_ma"] = self.authority_speed_mps
+        st["peak"] = self._peak_mps
+        st["next_stop"] = self._next_stop_m
+        st["held"] = self._held_mps
+        u, code = self._kstep(self._kconst, self._kplan[2], self._kline, sr, t,
                               float(s["x_m"]), float(s["v_mps"]),
                               float(s["supervision_speed_mps"]),
                               float(s["movement_authority_m"]), nxt)
         if code < 0:
             return None
-        vals = st.tolist()
-        core.set_kernel_state(vals[:9], REASONS[code])
-        self._ma_prev = (vals[10], vals[11])
-        self.authority_speed_mps = vals[12]
-        self._peak_mps = vals[13]
-        self._next_stop_m = vals[14]
+        core.set_kernel_state(st, REASONS[code])
+        self._ma_prev = (float(st["ma_t"]), float(st["ma"]))
+        self.authority_speed_mps = float(st["v_ma"])
+        self._peak_mps = float(st["peak"])
+        self._next_stop_m = float(st["next_stop"])
         self._held_mps = 0.0
         self.kernel_steps += 1
         mode = MODE_ACCELERATE if u > 0.05 else (MODE_BRAKE if u < -0.05 else MODE_COAST)
