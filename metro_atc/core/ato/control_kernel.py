@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from metro_atc.core.ato.step_kernel import jit
+from metro_atc.core.laws import davis_resistance
 
 _POW = "powf64" if hasattr(ctypes.CDLL(None), "powf64") else "pow"
 """The C library's pow under a name the compiler does not rewrite (glibc's alias of pow).
@@ -126,7 +127,6 @@ AUTH_MARGIN = 10.0
 STOP_GUARD = 0.85
 GUARD_GAIN = 0.8
 GUARD_SLACK = 0.3
-G = 9.80665
 
 
 def _rules() -> tuple[float, ...]:
@@ -221,9 +221,8 @@ def atp_traction(c, v):  # type: ignore[no-untyped-def]
 
 @jit
 def resistance(c, v):  # type: ignore[no-untyped-def]
-    """``resistance_force_at`` [N]."""
-    va = abs(v)
-    return c.davis_a + c.davis_b * va + c.davis_c * va * va
+    """``resistance_force_at`` [N]: :func:`metro_atc.core.laws.davis_resistance`."""
+    return davis_resistance(v, c.davis_a, c.davis_b, c.davis_c)
 
 
 @jit

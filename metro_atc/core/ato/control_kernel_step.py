@@ -11,12 +11,13 @@ from __future__ import annotations
 import math
 
 from metro_atc.core.ato.control_kernel import (
-    APPROACH_MIN, AUTH_MARGIN, BERTH, FALLBACK, G, GUARD_GAIN, GUARD_SLACK, HOLD_BRAKE,
+    APPROACH_MIN, AUTH_MARGIN, BERTH, FALLBACK, GUARD_GAIN, GUARD_SLACK, HOLD_BRAKE,
     JOIN_BAND, JOIN_MIN, LOOKAHEAD, N_PH, P_DIR, P_LEN, P_NB, P_NENV, P_NGBP, P_NREF, P_PSS,
     P_X0, PREVIEW, R_ENVELOPE, R_PSS, R_STOPPED, R_TRACKING, RESTART_MAX, SAFE_BRAKE,
     SPEED_MARGIN, STOP_GUARD, approach_bound, atp_traction, bisect_right, brake_onset_bound,
     ceiling_e, feedforward, flc, pmax, pmin, speed_at, stop_bound)
 from metro_atc.core.ato.step_kernel import jit
+from metro_atc.core.laws import ebi_speed_from, guaranteed_decel_on_grade
 
 N_LH = 3
 """Line vector header length."""
@@ -47,10 +48,7 @@ def cap_at(c, p, ln, x, v, cap, ma, c0, c2, authority):  # type: ignore[no-untyp
         cc = math.sqrt(2.0 * b * (0.0 if 0.0 > d else d))
         if cc < cap:
             cap = cc
-        q = c0 + c.two_b * (d - c.t_sbi * v)
-        if q < 0.0:
-            q = 0.0
-        cc = ((math.sqrt(q) if q == q else q) - c2) - c.sbi_offset - SPEED_MARGIN
+        cc = ebi_speed_from(c0, c.two_b, c2, d - c.t_sbi * v) - c.sbi_offset - SPEED_MARGIN
         if cc < cap:
             cap = cc
     return 0.0 if 0.0 > cap else cap
@@ -70,7 +68,7 @@ def brake_capability(c, ln, x):  # type: ignore[no-untyped-def]
     if not (math.isfinite(lo) and math.isfinite(hi) and i1 - i0 <= 1):
         return math.nan
     g = pmin(ln[so + ng + i0], ln[so + ng + i1])
-    return pmax(c.brake_service + G * pmin(g, 0.0), 0.05)
+    return pmax(guaranteed_decel_on_grade(c.brake_service, -pmin(g, 0.0)), 0.05)
 
 
 @jit

@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from metro_atc.core.ato.envelope import MODE_COAST, MODE_CRUISE, OperatingLimits
+from metro_atc.core import laws
 from metro_atc.core.kernel_choice import numba_available
 from metro_atc.core.line.vehicle import TrainParams
 
@@ -77,16 +78,13 @@ def mn(a: float, b: float) -> float:
 
 @jit
 def traction_accel(c: FloatArray, v: float, fg: float, delta: float) -> float:
-    """:func:`metro_atc.core.ato.strategy.traction_accel` of one speed [m/s^2]."""
-    va = abs(v)
-    if va <= c[K_V1]:
-        phi = c[K_A1]
-    elif va <= c[K_V2]:
-        phi = c[K_A2] / (va + c[K_B2] + 1e-12)
-    else:
-        q = va + c[K_B3] + 1e-12
-        phi = c[K_A3] / (q * q)
-    f = delta * (c[K_MASS] * phi) - (c[K_DA] + c[K_DB] * v + c[K_DC] * v * v) - fg
+    """:func:`metro_atc.core.ato.strategy.traction_accel` of one speed v >= 0 [m/s^2].
+
+    Level ``delta`` of :func:`metro_atc.core.laws.traction_accel` less
+    :func:`metro_atc.core.laws.davis_resistance` and the grade force, capped at a_max.
+    """
+    phi = laws.traction_accel(v, c[K_A1], c[K_V1], c[K_V2], c[K_A2], c[K_A3], c[K_B2], c[K_B3])
+    f = delta * (c[K_MASS] * phi) - laws.davis_resistance(v, c[K_DA], c[K_DB], c[K_DC]) - fg
     return mn(f / c[K_MEFF], c[K_AMAX])  # type: ignore[no-any-return]
 
 

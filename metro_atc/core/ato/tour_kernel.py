@@ -29,6 +29,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from metro_atc.core import laws
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, MODE_CRUISE, OperatingLimits
 from metro_atc.core.ato.sections import SectionTables
 from metro_atc.core.line.vehicle import TrainParams
@@ -69,15 +70,10 @@ def pack_params(train: TrainParams, limits: OperatingLimits, delta: float, h: fl
 
 @njit(cache=True, error_model="numpy")
 def _trac_acc(p: FloatArray, v: float, fg: float) -> float:  # pragma: no cover - compiled
-    """:func:`strategy.traction_accel` for one speed [m/s^2]."""
-    va = abs(v)
-    if va <= p[P_V1]:
-        phi = p[P_A1]
-    elif va <= p[P_V2]:
-        phi = p[P_A2] / (va + p[P_B2] + 1e-12)
-    else:
-        phi = p[P_A3] / (va + p[P_B3] + 1e-12) ** 2
-    f = p[P_DELTA] * (p[P_MASS] * phi) - (p[P_DA] + p[P_DB] * va + p[P_DC] * va * va) - fg
+    """:func:`strategy.traction_accel` for one speed [m/s^2] (the laws of :mod:`.laws`)."""
+    phi = laws.traction_accel(v, p[P_A1], p[P_V1], p[P_V2], p[P_A2], p[P_A3], p[P_B2], p[P_B3])
+    f = p[P_DELTA] * (p[P_MASS] * phi) - laws.davis_resistance(v, p[P_DA], p[P_DB], p[P_DC]) \
+        - fg
     a = f / p[P_MEFF]
     return a if a <= p[P_AMAX] else p[P_AMAX]
 
