@@ -1,12 +1,11 @@
-"""Compiled (numba) twin of the numpy simulation of traction-then-coast strategies.
+"""Compiled (numba) simulation of traction-then-coast strategies (ECTP, ACTP).
 
-:func:`simulate_kernel` reproduces :func:`metro_atc.core.ato.coasting.simulate_switching_numpy`
-(the numpy reference: :func:`metro_atc.core.ato.strategy.strategy_step` in accelerate /
-coast mode with no speed code, closed-form coasting of seed 002 eq. 7-8) element by element,
-in the same operation order (no fast-math, no fused multiply-add), one strategy at a time:
-the numpy path pays ~60 array calls per distance step whatever the number of strategies,
-this loop pays a few hundred nanoseconds per step and strategy.  Both paths agree to
-round-off (``test/test_ato_switching_kernel.py`` compares them on generated lines).
+:func:`simulate_kernel` runs :func:`metro_atc.core.ato.coasting.simulate_switching`: per
+strategy and distance step, :func:`metro_atc.core.ato.step_kernel.strategy_step_one` in
+accelerate / coast mode with no speed code (closed-form coasting, Taipei MRT ACTP paper,
+eq. 7-8), a coasting point inside a step splitting it.  ``test/test_ato_switching_kernel.py``
+holds it to the numbers of the former numpy reference (frozen in ``test/data``) on generated
+lines.
 
 The step itself is :func:`metro_atc.core.ato.step_kernel.strategy_step_one` (shared with
 the DP's kernel); the train's constants come packed by
