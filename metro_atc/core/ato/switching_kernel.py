@@ -28,16 +28,17 @@ FloatArray = NDArray[np.float64]
 
 
 @njit(cache=True, error_model="numpy")
-def simulate_kernel(c: FloatArray, s: FloatArray, h: float, fg: FloatArray, cap: FloatArray,
-                    yc: FloatArray, delta: FloatArray, record: bool
+def simulate_kernel(c: NDArray[np.void], s: FloatArray, h: float, fg: FloatArray,
+                    cap: FloatArray, yc: FloatArray, delta: FloatArray, record: bool
                     ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], FloatArray]:
     """Time [s], energy [J], stalled flag and (if ``record``) e = v^2/2 history per strategy.
 
-    c: :func:`metro_atc.core.ato.step_kernel.pack_train`; s: (n+1,) uniform grid [m] of
-    step h [m]; fg: (n,) mean grade force of each step [N]; cap: (n,) envelope e at each
+    c: :func:`metro_atc.core.ato.step_kernel.pack_train` (one record); s: (n+1,) uniform grid
+    [m] of step h [m]; fg: (n,) mean grade force of each step [N]; cap: (n,) envelope e at each
     step's end; yc, delta: (K,) coasting points [m] and traction levels.  The history has
     shape (K, n+1) (or (0, 0) without ``record``).
     """
+    tr = c[0]
     n = s.shape[0] - 1
     k_n = yc.shape[0]
     t_out = np.zeros(k_n)
@@ -56,11 +57,11 @@ def simulate_kernel(c: FloatArray, s: FloatArray, h: float, fg: FloatArray, cap:
             sw = (y > sk + 1e-9) and (y < s[k + 1] - 1e-9)
             accel = sk + 1e-9 < y
             h1 = y - sk if sw else h
-            e1, dt, de, st1 = strategy_step_one(c, e, h1, fg[k], cap[k],
+            e1, dt, de, st1 = strategy_step_one(tr, e, h1, fg[k], cap[k],
                                                 MODE_ACCEL if accel else MODE_COAST,
                                                 np.inf, dl)
             if sw:
-                e2, dt2, de2, st2 = strategy_step_one(c, e1, h - h1, fg[k], cap[k],
+                e2, dt2, de2, st2 = strategy_step_one(tr, e1, h - h1, fg[k], cap[k],
                                                       MODE_COAST, np.inf, dl)
                 e1 = e2
                 dt += dt2
