@@ -13,7 +13,7 @@ values only).  Compiled with ``cache=True`` and numba's numpy error model (IEEE 
 instead of exceptions: the Python path's divisions never divide by zero on the states the
 kernel takes).
 
-The kernel reads the per-train state from a record (:data:`STATE`), works on local copies and
+The kernel reads the per-train state as a record (:data:`STATE`), works on local copies and
 writes them back only when it finished: a state it cannot take (``FALLBACK``) leaves
 everything untouched and the caller runs the Python path, so the hand-over in both
 directions is the Python objects' own state.  Plan tables travel as one vector (``P_*``
@@ -87,7 +87,8 @@ period [s], swing [s], effort rate [1/s], brake share [-], approach jerk [m/s^3]
 feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-].
 """
 CONSTANTS = np.dtype([(f, np.float64) for f in CONSTANT_FIELDS])
-"""The constants the kernel reads, by name (one-element arrays of this dtype)."""
+"""The constants the kernel reads, by name: it takes a float vector and reads it through
+this record view (``c.view(CONSTANTS)[0]``), which costs nothing in compiled code."""
 
 (P_X0, P_DIR, P_LEN, P_PSS, P_TAILB, P_RLEN, P_DEP, P_SC, P_SB, P_CV2, P_D2, P_B2, P_CV,
  P_NREF, P_NGBP, P_NENV, P_NB, N_PH) = range(18)
@@ -103,7 +104,10 @@ feedforward, arrival flag, time stood still [s], the tracker's last error [m/s] 
 integrated effort, the last movement authority's time [s] and end [m], the authority speed
 [m/s], the speed peak [m/s], the next stop point [m], the held speed [m/s]."""
 STATE = np.dtype([(f, np.float64) for f in STATE_FIELDS])
-"""The per-train state the kernel reads and updates, by name (one-element arrays)."""
+"""The per-train state the kernel reads and updates, by name (a float vector viewed as this
+record in compiled code; numpy's record fields are slow from Python, ~1 us each)."""
+STATE_INDEX = {f: i for i, f in enumerate(STATE_FIELDS)}
+"""Position of each state field in the float vector (the Python side's hand-over)."""
 
 FALLBACK = -1
 """Reason code: the kernel did not take the state (nothing changed; run the Python path)."""

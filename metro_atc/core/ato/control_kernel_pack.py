@@ -41,7 +41,7 @@ def resolve_ato_kernel(name: Optional[str] = None) -> str:
 
 def pack_constants(train: TrainParams, atp_train: TrainParams, core: Sequence[float],
                    atp: Sequence[float]) -> FloatArray:
-    """The constants record (one-element :data:`.control_kernel.CONSTANTS` array).
+    """The constants vector (float64, read as :data:`.control_kernel.CONSTANTS` by the kernel).
 
     ``core``: (period [s], swing [s], effort rate [1/s], brake share [-], approach jerk
     [m/s^3], feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-]);
@@ -65,7 +65,7 @@ def pack_constants(train: TrainParams, atp_train: TrainParams, core: Sequence[fl
             r[pre + name] = val
     for name, val in zip(ATP_FIELDS + CORE_FIELDS, list(atp) + list(core)):
         r[name] = float(val)
-    return c
+    return c.view(np.float64)
 
 
 def pack_plan(head: Sequence[float], ref_s: FloatArray, ref_e: FloatArray,
@@ -104,10 +104,8 @@ def control_step_fn():  # type: ignore[no-untyped-def]
     """
     from metro_atc.core.ato.control_kernel_step import control_step
     if not _LOADED and hasattr(control_step, "compile"):
-        from numba import from_dtype, types
+        from numba import types
         arr = types.float64[::1]
-        con = types.Array(from_dtype(ck.CONSTANTS), 1, "C")
-        sta = types.Array(from_dtype(ck.STATE), 1, "C")
-        control_step.compile((con, arr, arr, sta) + (types.float64,) * 5 + (types.int64,))
+        control_step.compile((arr, arr, arr, arr) + (types.float64,) * 5 + (types.int64,))
         _LOADED.append(True)
     return control_step

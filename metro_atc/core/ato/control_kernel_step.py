@@ -11,10 +11,10 @@ from __future__ import annotations
 import math
 
 from metro_atc.core.ato.control_kernel import (
-    APPROACH_MIN, AUTH_MARGIN, BERTH, FALLBACK, GUARD_GAIN, GUARD_SLACK, HOLD_BRAKE,
+    APPROACH_MIN, AUTH_MARGIN, BERTH, CONSTANTS, FALLBACK, GUARD_GAIN, GUARD_SLACK, HOLD_BRAKE,
     JOIN_BAND, JOIN_MIN, LOOKAHEAD, N_PH, P_DIR, P_LEN, P_NB, P_NENV, P_NGBP, P_NREF, P_PSS,
     P_X0, PREVIEW, R_ENVELOPE, R_PSS, R_STOPPED, R_TRACKING, RESTART_MAX, SAFE_BRAKE,
-    SPEED_MARGIN, STOP_GUARD, approach_bound, atp_traction, bisect_right, brake_onset_bound,
+    SPEED_MARGIN, STATE, STOP_GUARD, approach_bound, atp_traction, bisect_right, brake_onset_bound,
     ceiling_e, feedforward, flc, pmax, pmin, speed_at, stop_bound)
 from metro_atc.core.ato.step_kernel import jit
 from metro_atc.core.laws import ebi_speed_from, guaranteed_decel_on_grade
@@ -75,12 +75,12 @@ def brake_capability(c, ln, x):  # type: ignore[no-untyped-def]
 def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyped-def]
     """One control step: (effort u, reason code) or (nan, FALLBACK) with ``sr`` untouched.
 
-    cr: the constants (one-element ``control_kernel.CONSTANTS`` array); t [s], x [m], v [m/s], sup:
-    supervision speed [m/s], ma: end of authority [m], nxt: the next station index of the
-    state; sr: the per-train state (one-element ``control_kernel.STATE`` array), updated.
+    cr: the constants (float vector of ``control_kernel.CONSTANTS``); t [s], x [m], v [m/s],
+    sup: supervision speed [m/s], ma: end of authority [m], nxt: the next station index of
+    the state; sr: the per-train state (float vector of ``control_kernel.STATE``), updated.
     """
-    c = cr[0]
-    st = sr[0]
+    c = cr.view(CONSTANTS)[0]
+    st = sr.view(STATE)[0]
     period = c.period
     if not (math.isfinite(t) and math.isfinite(x) and math.isfinite(v)):
         return math.nan, FALLBACK

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from typing import Any, Optional
 
 
+from metro_atc.core.ato.control_kernel import STATE_INDEX
 from metro_atc.core.ato.envelope import OperatingLimits, RunModel
 from metro_atc.core.ato.fuzzy import FuzzyController, FuzzyParams
 from metro_atc.core.ato.pi import PIController, PIParams
@@ -435,37 +436,31 @@ class AtoCore:
         self._kplan = (run, ref, out)
         return out
 
-    def kernel_state(self, st: Any) -> bool:
-        """Write the per-train state the compiled step reads into the record ``st``.
+    def kernel_state(self) -> Optional[list[float]]:
+        """The per-train state the compiled step reads: ``control_kernel.CORE_STATE_FIELDS``.
 
-        ``st``: a ``control_kernel.STATE`` record (its ``CORE_STATE_FIELDS``). False (``st``
-        untouched) when the tracker's state is not a plain one-train state.
+        Their values in that order; None when the tracker's state is not a plain one-train
+        state.
         """
         ts = self.tracker.scalar_state() if isinstance(self.tracker, FuzzyController) \
             else None
         if ts is None:
-            return False
+            return None
         lt = self._last_t
-        st["has_t"] = 0.0 if lt is None else 1.0
-        st["t"] = 0.0 if lt is None else lt
-        st["u"] = self._last_u
-        st["ff"] = self._last_ff
-        st["arrived"] = 1.0 if self._arrived else 0.0
-        st["still"] = self._still_s
-        st["has_e"] = 1.0 if ts[0] else 0.0
-        st["e"] = ts[1]
-        st["tu"] = ts[2]
-        return True
+        return [0.0 if lt is None else 1.0, 0.0 if lt is None else lt, self._last_u,
+                self._last_ff, 1.0 if self._arrived else 0.0, self._still_s,
+                1.0 if ts[0] else 0.0, ts[1], ts[2]]
 
-    def set_kernel_state(self, st: Any, reason: str) -> None:
-        """Take the state back from the compiled step (the record of :meth:`kernel_state`)."""
-        self._last_t = float(st["t"]) if st["has_t"] != 0.0 else None
-        self._last_u = float(st["u"])
-        self._last_ff = float(st["ff"])
-        self._arrived = bool(st["arrived"] != 0.0)
-        self._still_s = float(st["still"])
+    def set_kernel_state(self, st: list[float], reason: str) -> None:
+        """Take the state back from the compiled step (``control_kernel.STATE_FIELDS``' values)."""
+        i = STATE_INDEX
+        self._last_t = st[i["t"]] if st[i["has_t"]] != 0.0 else None
+        self._last_u = st[i["u"]]
+        self._last_ff = st[i["ff"]]
+        self._arrived = st[i["arrived"]] != 0.0
+        self._still_s = st[i["still"]]
         assert isinstance(self.tracker, FuzzyController)
-        self.tracker.set_scalar_state(bool(st["has_e"] != 0.0), float(st["e"]), float(st["tu"]))
+        self.tracker.set_scalar_state(st[i["has_e"]] != 0.0, st[i["e"]], st[i["tu"]])
         self.last_reason = reason
 
     @property

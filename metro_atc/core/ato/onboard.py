@@ -37,7 +37,7 @@ import numpy as np
 
 from metro_atc.core.ato.controller import (JOIN_BAND_MPS, JOIN_MIN_SPEED_MPS, PREVIEW_PERIODS,
                                            AtoCore)
-from metro_atc.core.ato.control_kernel import REASONS, STATE
+from metro_atc.core.ato.control_kernel import REASONS, STATE_FIELDS, STATE_INDEX
 from metro_atc.core.ato.control_kernel_pack import (control_step_fn, pack_constants, pack_line,
                                                     pack_plan, resolve_ato_kernel)
 from metro_atc.core.ato.envelope import OperatingLimits
@@ -261,9 +261,8 @@ class OnboardAto:
         kp = core.kernel_plan()
         if kp is None or atp._sbi_list is None:
             return None
-        sr = np.zeros(1, dtype=STATE)
-        st = sr[0]
-        if not core.kernel_state(st):
+        ks = core.kernel_state()
+        if ks is None:
             return None
         if self._kconst is None:
             cc = core.kernel_constants()
@@ -288,23 +287,24 @@ class OnboardAto:
         if not -2 ** 62 < nxt < 2 ** 62:
             return None
         ma = self._ma_prev
-        if ma is not None:
-            st["has_ma"], st["ma_t"], st["ma"] = 1.0, ma[0], ma[1]
-        st["v_ma"] = self.authority_speed_mps
-        st["peak"] = self._peak_mps
-        st["next_stop"] = self._next_stop_m
-        st["held"] = self._held_mps
-        u, code = self._kstep(self._kconst, self._kplan[2], self._kline, sr, t,
+        own = {"has_ma": 0.0 if ma is None else 1.0, "ma_t": 0.0 if ma is None else ma[0],
+               "ma": 0.0 if ma is None else ma[1], "v_ma": self.authority_speed_mps,
+               "peak": self._peak_mps, "next_stop": self._next_stop_m,
+               "held": self._held_mps}
+        st = np.array(ks + [own[f] for f in STATE_FIELDS[len(ks):]])
+        u, code = self._kstep(self._kconst, self._kplan[2], self._kline, st, t,
                               float(s["x_m"]), float(s["v_mps"]),
                               float(s["supervision_speed_mps"]),
                               float(s["movement_authority_m"]), nxt)
         if code < 0:
             return None
-        core.set_kernel_state(st, REASONS[code])
-        self._ma_prev = (float(st["ma_t"]), float(st["ma"]))
-        self.authority_speed_mps = float(st["v_ma"])
-        self._peak_mps = float(st["peak"])
-        self._next_stop_m = float(st["next_stop"])
+        vals = st.tolist()
+        core.set_kernel_state(vals, REASONS[code])
+        i = STATE_INDEX
+        self._ma_prev = (vals[i["ma_t"]], vals[i["ma"]])
+        self.authority_speed_mps = vals[i["v_ma"]]
+        self._peak_mps = vals[i["peak"]]
+        self._next_stop_m = vals[i["next_stop"]]
         self._held_mps = 0.0
         self.kernel_steps += 1
         mode = MODE_ACCELERATE if u > 0.05 else (MODE_BRAKE if u < -0.05 else MODE_COAST)
