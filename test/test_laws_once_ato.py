@@ -113,14 +113,18 @@ def test_patterns_find_the_old_forms() -> None:
 
 
 def test_control_kernel_has_named_records() -> None:
-    """No numbered constant or state slots (``C_*``, ``S_*``) and no ``c[C_TWO]`` constants."""
-    assert not [n for n in vars(control_kernel) if re.match(r"[CS]_[A-Z]", n)]
+    """No numbered slots (``C_*``, ``S_*``, ``P_*``, ``K_*``, ``M_*``), no ``c[C_TWO]``."""
+    from metro_atc.core.ato import step_kernel, tour_kernel
+    for mod in (control_kernel, step_kernel, tour_kernel):
+        assert not [n for n in vars(mod) if re.match(r"[CSPKM]_[A-Z]", n)], mod.__name__
     for name in ("control_kernel.py", "control_kernel_step.py", "control_kernel_pack.py"):
         code = _code(ATO_DIR / name)
         assert not re.search(r"\b[cC]\s*\[\s*(C_|k\b)", code), name
         assert not re.search(r"\bst\s*\[\s*S_", code), name
+        assert not re.search(r"\bp\s*\[\s*P_", code), name
     assert control_kernel.CONSTANTS.names == control_kernel.CONSTANT_FIELDS
     assert control_kernel.STATE.names == control_kernel.STATE_FIELDS
+    assert control_kernel.PLAN.names == control_kernel.PLAN_FIELDS
     assert set(np.dtype(control_kernel.STATE).fields) >= set(control_kernel.CORE_STATE_FIELDS)
 
 

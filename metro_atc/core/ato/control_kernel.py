@@ -90,10 +90,19 @@ CONSTANTS = np.dtype([(f, np.float64) for f in CONSTANT_FIELDS])
 """The constants the kernel reads, by name: it takes a float vector and reads it through
 this record view (``c.view(CONSTANTS)[0]``), which costs nothing in compiled code."""
 
-(P_X0, P_DIR, P_LEN, P_PSS, P_TAILB, P_RLEN, P_DEP, P_SC, P_SB, P_CV2, P_D2, P_B2, P_CV,
- P_NREF, P_NGBP, P_NENV, P_NB, N_PH) = range(18)
-"""Plan header; then ref s, ref v^2, grade breakpoints, grade-force integral, envelope s,
-ceiling energy, planned-deceleration table (``P_N*`` long each)."""
+PLAN_FIELDS = ("x0", "direction", "length", "pss_start", "tail_brake", "ref_length",
+               "departure_speed", "creep_start", "brake_start", "creep_v2", "two_decel",
+               "two_brake", "creep_speed", "n_ref", "n_grade", "n_env", "n_brake")
+"""Plan header (:data:`PLAN`): the run's start x [m], direction (+1/-1), length [m], PSS
+start [m], tail brake [m/s^2]; the reference's length [m], departure speed [m/s], creep
+start [m], brake start [m], creep speed^2, 2 decel, 2 brake, creep speed [m/s]; the table
+lengths.  The plan vector holds it, then ref s, ref v^2, grade breakpoints, grade-force
+integral, envelope s, ceiling energy and the planned-deceleration table (``n_*`` long
+each)."""
+PLAN = np.dtype([(f, np.float64) for f in PLAN_FIELDS])
+"""The plan header by name (the plan vector's first :data:`N_PH` floats, viewed)."""
+N_PH = len(PLAN_FIELDS)
+"""Length of the plan header in the plan vector."""
 
 CORE_STATE_FIELDS = ("has_t", "t", "u", "ff", "arrived", "still", "has_e", "e", "tu")
 """The part of :data:`STATE` the controller core holds (``AtoCore.kernel_state``)."""
@@ -140,6 +149,12 @@ def _rules() -> tuple[float, ...]:
 
 RULES = _rules()
 R0, R1, R2, R3, R4, R5, R6, R7, R8, R9, R10, R11, R12, R13, R14 = RULES
+
+
+@jit
+def head(p):  # type: ignore[no-untyped-def]
+    """The plan vector's header as a :data:`PLAN` record."""
+    return p[:N_PH].view(PLAN)[0]
 
 
 @jit
@@ -232,7 +247,7 @@ def resistance(c, v):  # type: ignore[no-untyped-def]
 @jit
 def speed_at(p, s):  # type: ignore[no-untyped-def]
     """``ProfileReference.speed_at`` (finite s) [m/s]."""
-    n = int(p[P_NREF])
+    n = int(head(p).n_ref)
     xo = N_PH
     fo = xo + n
     j = bisect_right(p, xo, n, s) - 1
@@ -250,19 +265,19 @@ def speed_at(p, s):  # type: ignore[no-untyped-def]
             if e != e:
                 e = interp1(s, p, xo, fo, n)
     plan = math.sqrt(e) if e >= 0.0 else math.nan
-    length = p[P_RLEN]
+    length = head(p).ref_length
     if s < 0.5 * length:
-        dep = p[P_DEP]
+        dep = head(p).departure_speed
         if not (plan != plan or plan >= dep):
             plan = dep
-    if s < p[P_SC]:
-        m = p[P_SC] - s
-        tail = math.sqrt(p[P_CV2] + p[P_D2] * (m if m != m or m >= 0.0 else 0.0))
-    elif s < p[P_SB]:
-        tail = p[P_CV]
+    if s < head(p).creep_start:
+        m = head(p).creep_start - s
+        tail = math.sqrt(head(p).creep_v2 + head(p).two_decel * (m if m != m or m >= 0.0 else 0.0))
+    elif s < head(p).brake_start:
+        tail = head(p).creep_speed
     else:
         m = length - s
-        tail = math.sqrt(p[P_B2] * (m if m != m or m >= 0.0 else 0.0))
+        tail = math.sqrt(head(p).two_brake * (m if m != m or m >= 0.0 else 0.0))
     if s >= length:
         return 0.0
     return plan if plan != plan or plan <= tail else tail
@@ -272,10 +287,10 @@ def speed_at(p, s):  # type: ignore[no-untyped-def]
 def grade_force(c, p, s):  # type: ignore[no-untyped-def]
     """``RunModel.mean_grade_force_at(s - train length, s)`` (non-degenerate) [N]."""
     s0 = s - c.length
-    nr = int(p[P_NREF])
-    n = int(p[P_NGBP])
+    nr = int(head(p).n_ref)
+    n = int(head(p).n_grade)
     xo = N_PH + 2 * nr
-    length = p[P_LEN]
+    length = head(p).length
     a = clip1(s, 0.0, length)
     b = clip1(s0, 0.0, length)
     i1 = interp1(a, p, xo, xo + n, n)
@@ -286,7 +301,7 @@ def grade_force(c, p, s):  # type: ignore[no-untyped-def]
 @jit
 def ceiling_e(p, s):  # type: ignore[no-untyped-def]
     """``RunModel.ceiling_e_at`` [m^2/s^2]."""
-    nr, ng, ne = int(p[P_NREF]), int(p[P_NGBP]), int(p[P_NENV])
+    nr, ng, ne = int(head(p).n_ref), int(head(p).n_grade), int(head(p).n_env)
     xo = N_PH + 2 * nr + 2 * ng
     return interp1(s, p, xo, xo + ne, ne)
 
@@ -352,7 +367,7 @@ def brake_onset_bound(c, p, s, s_p, v, r, dt, u0):  # type: ignore[no-untyped-de
 @jit
 def stop_distance(c, p, v, a):  # type: ignore[no-untyped-def]
     """``AtoCore.stop_distance`` [m]."""
-    j, t, b = c.approach_jerk, c.period, pmax(p[P_TAILB], 0.05)
+    j, t, b = c.approach_jerk, c.period, pmax(head(p).tail_brake, 0.05)
     v0 = v + a * t
     x0 = v * t + 0.5 * a * t * t
     tau = (a + b) / j
@@ -367,7 +382,7 @@ def stop_distance(c, p, v, a):  # type: ignore[no-untyped-def]
 @jit
 def stop_bound(c, p, s, v, u_last):  # type: ignore[no-untyped-def]
     """``AtoCore.stop_bound``."""
-    d = p[P_LEN] - s
+    d = head(p).length - s
     meff = c.meff
     f_hold = resistance(c, v) + grade_force(c, p, s)
     f_max = pmax(c.mass * train_traction(c, v), 1.0)

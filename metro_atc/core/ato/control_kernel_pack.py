@@ -71,7 +71,7 @@ def pack_constants(train: TrainParams, atp_train: TrainParams, core: Sequence[fl
 def pack_plan(head: Sequence[float], ref_s: FloatArray, ref_e: FloatArray,
               grade_bp: FloatArray, grade_cum: FloatArray, s_env: FloatArray,
               e_ceiling: FloatArray, b_tab: FloatArray) -> FloatArray:
-    """The plan vector: ``head`` (``P_X0`` .. ``P_CV``), the counts, then the tables."""
+    """The plan vector: ``head`` (the ``PLAN`` fields up to ``creep_speed``), counts, tables."""
     tabs = (ref_s, ref_e, grade_bp, grade_cum, s_env, e_ceiling, b_tab)
     hdr = [float(a) for a in head] + [float(len(ref_s)), float(len(grade_bp)),
                                       float(len(s_env)), float(len(b_tab))]

@@ -12,10 +12,10 @@ import math
 
 from metro_atc.core.ato.control_kernel import (
     APPROACH_MIN, AUTH_MARGIN, BERTH, CONSTANTS, FALLBACK, GUARD_GAIN, GUARD_SLACK, HOLD_BRAKE,
-    JOIN_BAND, JOIN_MIN, LOOKAHEAD, N_PH, P_DIR, P_LEN, P_NB, P_NENV, P_NGBP, P_NREF, P_PSS,
-    P_X0, PREVIEW, R_ENVELOPE, R_PSS, R_STOPPED, R_TRACKING, RESTART_MAX, SAFE_BRAKE,
-    SPEED_MARGIN, STATE, STOP_GUARD, approach_bound, atp_traction, bisect_right, brake_onset_bound,
-    ceiling_e, feedforward, flc, pmax, pmin, speed_at, stop_bound)
+    JOIN_BAND, JOIN_MIN, LOOKAHEAD, N_PH, PREVIEW, R_ENVELOPE, R_PSS, R_STOPPED, R_TRACKING,
+    RESTART_MAX, SAFE_BRAKE, SPEED_MARGIN, STATE, STOP_GUARD, approach_bound, atp_traction,
+    bisect_right, brake_onset_bound, ceiling_e, feedforward, flc, head, pmax, pmin, speed_at,
+    stop_bound)
 from metro_atc.core.ato.step_kernel import jit
 from metro_atc.core.laws import ebi_speed_from, guaranteed_decel_on_grade
 
@@ -39,9 +39,9 @@ def cap_at(c, p, ln, x, v, cap, ma, c0, c2, authority):  # type: ignore[no-untyp
     cc = m - c.sbi_offset - SPEED_MARGIN
     if cc < cap:
         cap = cc
-    nb = int(p[P_NB])
-    bo = N_PH + 2 * int(p[P_NREF]) + 2 * int(p[P_NGBP]) + 2 * int(p[P_NENV])
-    i = int((p[P_DIR] * (x - p[P_X0]) + 50.0) / 10.0)
+    nb = int(head(p).n_brake)
+    bo = N_PH + 2 * int(head(p).n_ref) + 2 * int(head(p).n_grade) + 2 * int(head(p).n_env)
+    i = int((head(p).direction * (x - head(p).x0) + 50.0) / 10.0)
     b = p[bo + (0 if i < 0 else (i if i < nb else nb - 1))]
     if authority and math.isfinite(ma):
         d = ma - x - AUTH_MARGIN
@@ -92,8 +92,8 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
     dt = period if not has_t else t - st.t
     if dt <= 0.0:
         return math.nan, FALLBACK
-    length = p[P_LEN]
-    s = p[P_DIR] * (x - p[P_X0])
+    length = head(p).length
+    s = head(p).direction * (x - head(p).x0)
     arrived = st.arrived != 0.0
     if (not arrived) and s > length + 2.0:
         return math.nan, FALLBACK
@@ -122,7 +122,7 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
     ns, ng = int(ln[0]), int(ln[1])
     n_st = int(ln[2])
     x_stop = ln[N_LH + ns + 2 * ng + nxt] if 0 <= nxt < n_st else math.inf
-    cc = math.sqrt(2.0 * pmax(ceiling_e(p, p[P_DIR] * (x - p[P_X0])), 0.0))
+    cc = math.sqrt(2.0 * pmax(ceiling_e(p, head(p).direction * (x - head(p).x0)), 0.0))
     peak = st.peak
     if v >= cc - JOIN_BAND or v > peak:
         peak = v
@@ -196,7 +196,7 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
         q = 2.0 * ceiling_e(p, pmin(pmax(s, 0.0), length))
         ceiling = math.sqrt(q) if q >= 0.0 else math.nan
         reason = R_TRACKING
-        if s >= p[P_PSS]:
+        if s >= head(p).pss_start:
             reason = R_PSS
         if vc > ceiling + 1.0 and s < length:
             u = SAFE_BRAKE
