@@ -100,7 +100,8 @@ lengths.  The plan vector holds it, then ref s, ref v^2, grade breakpoints, grad
 integral, envelope s, ceiling energy and the planned-deceleration table (``n_*`` long
 each)."""
 PLAN = np.dtype([(f, np.float64) for f in PLAN_FIELDS])
-"""The plan header by name (the plan vector's first :data:`N_PH` floats, viewed)."""
+"""The plan header by name: the plan vector's first :data:`N_PH` floats, viewed once per
+step as this record (``ph``) and handed with the vector (``p``) to the functions below."""
 N_PH = len(PLAN_FIELDS)
 """Length of the plan header in the plan vector."""
 
@@ -149,12 +150,6 @@ def _rules() -> tuple[float, ...]:
 
 RULES = _rules()
 R0, R1, R2, R3, R4, R5, R6, R7, R8, R9, R10, R11, R12, R13, R14 = RULES
-
-
-@jit
-def head(p):  # type: ignore[no-untyped-def]
-    """The plan vector's header as a :data:`PLAN` record."""
-    return p[:N_PH].view(PLAN)[0]
 
 
 @jit
@@ -245,9 +240,9 @@ def resistance(c, v):  # type: ignore[no-untyped-def]
 
 
 @jit
-def speed_at(p, s):  # type: ignore[no-untyped-def]
+def speed_at(ph, p, s):  # type: ignore[no-untyped-def]
     """``ProfileReference.speed_at`` (finite s) [m/s]."""
-    n = int(head(p).n_ref)
+    n = int(ph.n_ref)
     xo = N_PH
     fo = xo + n
     j = bisect_right(p, xo, n, s) - 1
@@ -265,32 +260,32 @@ def speed_at(p, s):  # type: ignore[no-untyped-def]
             if e != e:
                 e = interp1(s, p, xo, fo, n)
     plan = math.sqrt(e) if e >= 0.0 else math.nan
-    length = head(p).ref_length
+    length = ph.ref_length
     if s < 0.5 * length:
-        dep = head(p).departure_speed
+        dep = ph.departure_speed
         if not (plan != plan or plan >= dep):
             plan = dep
-    if s < head(p).creep_start:
-        m = head(p).creep_start - s
-        tail = math.sqrt(head(p).creep_v2 + head(p).two_decel * (m if m != m or m >= 0.0 else 0.0))
-    elif s < head(p).brake_start:
-        tail = head(p).creep_speed
+    if s < ph.creep_start:
+        m = ph.creep_start - s
+        tail = math.sqrt(ph.creep_v2 + ph.two_decel * (m if m != m or m >= 0.0 else 0.0))
+    elif s < ph.brake_start:
+        tail = ph.creep_speed
     else:
         m = length - s
-        tail = math.sqrt(head(p).two_brake * (m if m != m or m >= 0.0 else 0.0))
+        tail = math.sqrt(ph.two_brake * (m if m != m or m >= 0.0 else 0.0))
     if s >= length:
         return 0.0
     return plan if plan != plan or plan <= tail else tail
 
 
 @jit
-def grade_force(c, p, s):  # type: ignore[no-untyped-def]
+def grade_force(c, ph, p, s):  # type: ignore[no-untyped-def]
     """``RunModel.mean_grade_force_at(s - train length, s)`` (non-degenerate) [N]."""
     s0 = s - c.length
-    nr = int(head(p).n_ref)
-    n = int(head(p).n_grade)
+    nr = int(ph.n_ref)
+    n = int(ph.n_grade)
     xo = N_PH + 2 * nr
-    length = head(p).length
+    length = ph.length
     a = clip1(s, 0.0, length)
     b = clip1(s0, 0.0, length)
     i1 = interp1(a, p, xo, xo + n, n)
@@ -299,9 +294,9 @@ def grade_force(c, p, s):  # type: ignore[no-untyped-def]
 
 
 @jit
-def ceiling_e(p, s):  # type: ignore[no-untyped-def]
+def ceiling_e(ph, p, s):  # type: ignore[no-untyped-def]
     """``RunModel.ceiling_e_at`` [m^2/s^2]."""
-    nr, ng, ne = int(head(p).n_ref), int(head(p).n_grade), int(head(p).n_env)
+    nr, ng, ne = int(ph.n_ref), int(ph.n_grade), int(ph.n_env)
     xo = N_PH + 2 * nr + 2 * ng
     return interp1(s, p, xo, xo + ne, ne)
 
@@ -315,31 +310,31 @@ def as_effort(c, f, v):  # type: ignore[no-untyped-def]
 
 
 @jit
-def feedforward(c, p, s, v, r, has_cap, a_cap):  # type: ignore[no-untyped-def]
+def feedforward(c, ph, p, s, v, r, has_cap, a_cap):  # type: ignore[no-untyped-def]
     """``AtoCore._feedforward`` (``has_cap``: a_cap given, not None)."""
     a_ref = a_cap if has_cap and math.isfinite(a_cap) else 0.0
     if (not has_cap) and r > 0.0:
         h = pmax(v * c.period, 0.5)
-        r1 = speed_at(p, s + h)
+        r1 = speed_at(ph, p, s + h)
         a_ref = (r1 * r1 - r * r) / (2.0 * h)
-    f = c.meff * a_ref + resistance(c, v) + grade_force(c, p, s)
+    f = c.meff * a_ref + resistance(c, v) + grade_force(c, ph, p, s)
     if r < STOP_FF:
         f = pmin(f, 0.0)
     return as_effort(c, f, v)
 
 
 @jit
-def approach_bound(c, p, s, v, r_end):  # type: ignore[no-untyped-def]
+def approach_bound(c, ph, p, s, v, r_end):  # type: ignore[no-untyped-def]
     """``AtoCore.approach_bound``."""
     j, t = c.approach_jerk, c.period
     gap = pmax(r_end - v, 0.0)
     a_ex = j * (-t + math.sqrt(t * t + 2.0 * gap / j))
-    f = resistance(c, v) + grade_force(c, p, s) + c.meff * a_ex
+    f = resistance(c, v) + grade_force(c, ph, p, s) + c.meff * a_ex
     return as_effort(c, f, v)
 
 
 @jit
-def brake_onset_bound(c, p, s, s_p, v, r, dt, u0):  # type: ignore[no-untyped-def]
+def brake_onset_bound(c, ph, p, s, s_p, v, r, dt, u0):  # type: ignore[no-untyped-def]
     """``AtoCore.brake_onset_bound`` (u0: the last effort)."""
     rho = c.du_max
     h = pmax(v * c.period, 0.5)
@@ -348,14 +343,14 @@ def brake_onset_bound(c, p, s, s_p, v, r, dt, u0):  # type: ignore[no-untyped-de
     r_a = r
     for _ in range(2):
         s_a = s_p + 0.5 * v * tau
-        r_a = speed_at(p, s_a)
-        r_h = speed_at(p, s_a + h)
+        r_a = speed_at(ph, p, s_a)
+        r_h = speed_at(ph, p, s_a + h)
         # _braking_needed(s, v, r_a, r_h, h) (h > 0)
         a_ref = (r_a * r_a - r_h * r_h) / (2.0 * h)
-        a_coast = (resistance(c, v) + grade_force(c, p, s)) / c.meff
+        a_coast = (resistance(c, v) + grade_force(c, ph, p, s)) / c.meff
         if not a_ref > a_coast:
             return 1.0
-        u_c = feedforward(c, p, s, v, r_a, True, (r_h * r_h - r_a * r_a) / (2.0 * h))
+        u_c = feedforward(c, ph, p, s, v, r_a, True, (r_h * r_h - r_a * r_a) / (2.0 * h))
         tau = pmax(u0 - u_c, 0.0) / rho
         if tau <= 0.0:
             return 1.0
@@ -365,9 +360,9 @@ def brake_onset_bound(c, p, s, s_p, v, r, dt, u0):  # type: ignore[no-untyped-de
 
 
 @jit
-def stop_distance(c, p, v, a):  # type: ignore[no-untyped-def]
+def stop_distance(c, ph, p, v, a):  # type: ignore[no-untyped-def]
     """``AtoCore.stop_distance`` [m]."""
-    j, t, b = c.approach_jerk, c.period, pmax(head(p).tail_brake, 0.05)
+    j, t, b = c.approach_jerk, c.period, pmax(ph.tail_brake, 0.05)
     v0 = v + a * t
     x0 = v * t + 0.5 * a * t * t
     tau = (a + b) / j
@@ -380,22 +375,22 @@ def stop_distance(c, p, v, a):  # type: ignore[no-untyped-def]
 
 
 @jit
-def stop_bound(c, p, s, v, u_last):  # type: ignore[no-untyped-def]
+def stop_bound(c, ph, p, s, v, u_last):  # type: ignore[no-untyped-def]
     """``AtoCore.stop_bound``."""
-    d = head(p).length - s
+    d = ph.length - s
     meff = c.meff
-    f_hold = resistance(c, v) + grade_force(c, p, s)
+    f_hold = resistance(c, v) + grade_force(c, ph, p, s)
     f_max = pmax(c.mass * train_traction(c, v), 1.0)
     a_hi = pmax((f_max - f_hold) / meff, 0.0)
     a_last = pmax((u_last * f_max - f_hold) / meff, 0.0) if u_last > 0.0 else 0.0
-    if stop_distance(c, p, v, a_last) >= d:
+    if stop_distance(c, ph, p, v, a_last) >= d:
         return 0.0
-    if stop_distance(c, p, v, a_hi) <= d:
+    if stop_distance(c, ph, p, v, a_hi) <= d:
         return 1.0
     lo, hi = 0.0, a_hi
     for _ in range(30):
         mid = 0.5 * (lo + hi)
-        if stop_distance(c, p, v, pmax(mid, a_last)) <= d:
+        if stop_distance(c, ph, p, v, pmax(mid, a_last)) <= d:
             lo = mid
         else:
             hi = mid

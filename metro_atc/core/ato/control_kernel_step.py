@@ -12,9 +12,9 @@ import math
 
 from metro_atc.core.ato.control_kernel import (
     APPROACH_MIN, AUTH_MARGIN, BERTH, CONSTANTS, FALLBACK, GUARD_GAIN, GUARD_SLACK, HOLD_BRAKE,
-    JOIN_BAND, JOIN_MIN, LOOKAHEAD, N_PH, PREVIEW, R_ENVELOPE, R_PSS, R_STOPPED, R_TRACKING,
+    JOIN_BAND, JOIN_MIN, LOOKAHEAD, N_PH, PLAN, PREVIEW, R_ENVELOPE, R_PSS, R_STOPPED, R_TRACKING,
     RESTART_MAX, SAFE_BRAKE, SPEED_MARGIN, STATE, STOP_GUARD, approach_bound, atp_traction,
-    bisect_right, brake_onset_bound, ceiling_e, feedforward, flc, head, pmax, pmin, speed_at,
+    bisect_right, brake_onset_bound, ceiling_e, feedforward, flc, pmax, pmin, speed_at,
     stop_bound)
 from metro_atc.core.ato.step_kernel import jit
 from metro_atc.core.laws import ebi_speed_from, guaranteed_decel_on_grade
@@ -24,7 +24,7 @@ N_LH = 3
 
 
 @jit
-def cap_at(c, p, ln, x, v, cap, ma, c0, c2, authority):  # type: ignore[no-untyped-def]
+def cap_at(c, ph, p, ln, x, v, cap, ma, c0, c2, authority):  # type: ignore[no-untyped-def]
     """``OnboardAto._cap_at`` with no TSR known (cap: the supervision cap) [m/s]."""
     n = int(ln[0])
     x0, dx = c.grid_x0, c.grid_dx
@@ -39,9 +39,9 @@ def cap_at(c, p, ln, x, v, cap, ma, c0, c2, authority):  # type: ignore[no-untyp
     cc = m - c.sbi_offset - SPEED_MARGIN
     if cc < cap:
         cap = cc
-    nb = int(head(p).n_brake)
-    bo = N_PH + 2 * int(head(p).n_ref) + 2 * int(head(p).n_grade) + 2 * int(head(p).n_env)
-    i = int((head(p).direction * (x - head(p).x0) + 50.0) / 10.0)
+    nb = int(ph.n_brake)
+    bo = N_PH + 2 * int(ph.n_ref) + 2 * int(ph.n_grade) + 2 * int(ph.n_env)
+    i = int((ph.direction * (x - ph.x0) + 50.0) / 10.0)
     b = p[bo + (0 if i < 0 else (i if i < nb else nb - 1))]
     if authority and math.isfinite(ma):
         d = ma - x - AUTH_MARGIN
@@ -81,6 +81,7 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
     """
     c = cr.view(CONSTANTS)[0]
     st = sr.view(STATE)[0]
+    ph = p[:N_PH].view(PLAN)[0]
     period = c.period
     if not (math.isfinite(t) and math.isfinite(x) and math.isfinite(v)):
         return math.nan, FALLBACK
@@ -92,8 +93,8 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
     dt = period if not has_t else t - st.t
     if dt <= 0.0:
         return math.nan, FALLBACK
-    length = head(p).length
-    s = head(p).direction * (x - head(p).x0)
+    length = ph.length
+    s = ph.direction * (x - ph.x0)
     arrived = st.arrived != 0.0
     if (not arrived) and s > length + 2.0:
         return math.nan, FALLBACK
@@ -114,19 +115,19 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
         cap0 = sup - c.sbi_offset - SPEED_MARGIN
     c0 = c.c0a + c.btt * a_w
     c2 = c.bt + c.t_r * a_w
-    cap_p = cap_at(c, p, ln, xp, v, cap0, ma, c0, c2, True)
+    cap_p = cap_at(c, ph, p, ln, xp, v, cap0, ma, c0, c2, True)
     if cap_p - v > JOIN_BAND and v > JOIN_MIN and u_last > 0.0:
         xp += v * c.swing
-        cap_p = pmin(cap_p, cap_at(c, p, ln, xp, v, cap0, ma, c0, c2, True))
+        cap_p = pmin(cap_p, cap_at(c, ph, p, ln, xp, v, cap0, ma, c0, c2, True))
     # _speed_dip (its state; no TSR known: no hold)
     ns, ng = int(ln[0]), int(ln[1])
     n_st = int(ln[2])
     x_stop = ln[N_LH + ns + 2 * ng + nxt] if 0 <= nxt < n_st else math.inf
-    cc = math.sqrt(2.0 * pmax(ceiling_e(p, head(p).direction * (x - head(p).x0)), 0.0))
+    cc = math.sqrt(2.0 * pmax(ceiling_e(ph, p, ph.direction * (x - ph.x0)), 0.0))
     peak = st.peak
     if v >= cc - JOIN_BAND or v > peak:
         peak = v
-    cap_h = cap_at(c, p, ln, xp + h, v, cap0, ma, c0, c2, True)
+    cap_h = cap_at(c, ph, p, ln, xp + h, v, cap0, ma, c0, c2, True)
     slope = (cap_h * cap_h - cap_p * cap_p) / (2.0 * h) \
         if math.isfinite(cap_p) and math.isfinite(cap_h) else 0.0
     # _authority_speed
@@ -136,7 +137,7 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
     elif 0.0 < t - st.ma_t <= 2.0:
         v_ma = pmax((ma - st.ma) / (t - st.ma_t), 0.0)
     if slope < 0.0 and v_ma > 0.0 and v > 0.0 \
-            and cap_p < cap_at(c, p, ln, xp, v, cap0, ma, c0, c2, False) - 1e-9:
+            and cap_p < cap_at(c, ph, p, ln, xp, v, cap0, ma, c0, c2, False) - 1e-9:
         slope *= pmin(pmax(1.0 - v_ma / v, 0.0), 1.0)
     # ---- AtoCore.command_ex
     vc = pmax(v, 0.0)
@@ -150,16 +151,16 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
         u_new_last = HOLD_BRAKE
     else:
         s_p = s + PREVIEW * vc * period
-        r = speed_at(p, s_p)
+        r = speed_at(ph, p, s_p)
         r_swing = math.nan
         if r - vc > JOIN_BAND and vc > JOIN_MIN and u_last > 0.0:
-            r_swing = speed_at(p, s_p + vc * c.swing)
+            r_swing = speed_at(ph, p, s_p + vc * c.swing)
             r = pmin(r, r_swing)
         r_plan = r
         capped = cap_p < r
         if capped:
             r = pmax(cap_p, 0.0)
-        u_ff = feedforward(c, p, s, vc, r, capped, slope) if c.feedforward != 0.0 else 0.0
+        u_ff = feedforward(c, ph, p, s, vc, r, capped, slope) if c.feedforward != 0.0 else 0.0
         last_ff = u_ff
         # FuzzyController._step_at
         e = r - vc
@@ -178,25 +179,25 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
         bounded = False
         if u > 0.0 and vc > APPROACH_MIN:
             if not capped and r_swing != r_swing:
-                r_swing = speed_at(p, s_p + vc * c.swing)
+                r_swing = speed_at(ph, p, s_p + vc * c.swing)
             r_end = r if capped else pmin(pmax(r, r_swing), cap_p)
-            u_b = approach_bound(c, p, s, vc, r_end)
+            u_b = approach_bound(c, ph, p, s, vc, r_end)
             if u_b < u:
                 u, bounded = u_b, True
         if not capped and vc > JOIN_MIN and u_last > -c.brake_share:
-            u_b = brake_onset_bound(c, p, s, s_p, vc, r, dt, u_last)
+            u_b = brake_onset_bound(c, ph, p, s, s_p, vc, r, dt, u_last)
             if u_b < u:
                 u, bounded = u_b, True
         if u > 0.0 and vc < RESTART_MAX and s > 0.5 * length:
-            u_b = stop_bound(c, p, s, vc, u_last)
+            u_b = stop_bound(c, ph, p, s, vc, u_last)
             if u_b < u:
                 u, bounded = u_b, True
         if r_plan <= 0.0 and s >= length - BERTH:
             u = pmin(u, HOLD_BRAKE)
-        q = 2.0 * ceiling_e(p, pmin(pmax(s, 0.0), length))
+        q = 2.0 * ceiling_e(ph, p, pmin(pmax(s, 0.0), length))
         ceiling = math.sqrt(q) if q >= 0.0 else math.nan
         reason = R_TRACKING
-        if s >= head(p).pss_start:
+        if s >= ph.pss_start:
             reason = R_PSS
         if vc > ceiling + 1.0 and s < length:
             u = SAFE_BRAKE
@@ -224,7 +225,7 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
         a_req = v * v / (2.0 * pmax(dd - 0.15, 0.05))
         if a_req > STOP_GUARD * b_ach:
             bound = pmin(bound, -pmin(1.0, (a_req + bs - b_ach) / bs))
-    cap = cap_at(c, p, ln, x, v, cap0, ma, c0, c2, True)
+    cap = cap_at(c, ph, p, ln, x, v, cap0, ma, c0, c2, True)
     over = v - cap - GUARD_SLACK
     if over > 0.0:
         bound = pmin(bound, -pmin(1.0, (bs - b_ach) / bs + GUARD_GAIN * over))
