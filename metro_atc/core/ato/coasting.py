@@ -80,7 +80,7 @@ class StepTable:
 
 _STEP_TABLES: "weakref.WeakKeyDictionary[RunModel, dict[float, StepTable]]" = \
     weakref.WeakKeyDictionary()
-_CONSTANTS: "weakref.WeakKeyDictionary[RunModel, FloatArray]" = weakref.WeakKeyDictionary()
+_CONSTANTS: "weakref.WeakKeyDictionary[RunModel, NDArray[np.void]]" = weakref.WeakKeyDictionary()
 
 
 def step_table(run: RunModel, h_m: float) -> StepTable:

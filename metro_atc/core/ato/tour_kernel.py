@@ -50,8 +50,11 @@ _COA = MODE_COAST
 
 def pack_params(train: TrainParams, limits: OperatingLimits, delta: float, h: float
                 ) -> NDArray[np.void]:
-    """Constants of the kernel (a one-element :data:`TOUR` array): train (seed 002 eq. 1-5),
-    limits, traction level, step [m]."""
+    """Constants of the kernel (a one-element :data:`TOUR` array).
+
+    The train and limits (:func:`metro_atc.core.ato.step_kernel.pack_train`), the planning
+    deceleration [m/s^2], the traction level delta [-] and the sub-step h [m].
+    """
     p = np.zeros(1, dtype=TOUR)
     tr = pack_train(train, limits)
     for name in TRAIN_FIELDS:
