@@ -28,7 +28,8 @@ USES = {
     "step_kernel.py": {"traction_accel", "davis_resistance"},
     "tour_kernel.py": {"traction_accel", "davis_resistance"},
     "control_kernel.py": {"davis_resistance"},
-    "control_kernel_step.py": {"ebi_speed_from", "guaranteed_decel_on_grade"},
+    "control_kernel_step.py": {"braking_speed", "ebi_speed_from", "guaranteed_decel_on_grade"},
+    "onboard.py": {"braking_speed", "ebi_speed_from"},
     "strategy.py": {"davis_resistance_array", "on_array"},
     "planner.py": {"G_MPS2"},
     "sections.py": {"G_MPS2"},
@@ -40,6 +41,8 @@ PATTERNS = {
                         r"(davis_b\w*|\[\s*\w*_DB\s*\]|\bdb\b)\s*\*"),
     "traction": re.compile(r"(\ba3\w*|\[\s*\w*_A3\s*\])\s*/\s*(\(|cpow|math\s*\.\s*pow|q\b)"),
     "gravity": re.compile(r"9\s*\.\s*80665"),
+    "atp_curve": re.compile(r"\(\s*b\s*\*\s*tr\s*\)\s*\*\*\s*2"
+                            r"|sqrt\s*\(\s*2\.0\s*\*\s*b\s*\*|\bq\s*=\s*c0\s*\+"),
 }
 """Inline forms of the laws (on the code's tokens joined by single spaces)."""
 
@@ -56,6 +59,9 @@ ALLOWED = {
     ("step_kernel.py", "davis"): 1,
     ("strategy.py", "davis"): 1,
     ("tour_kernel.py", "davis"): 1,
+    # the ATP curve's terms (b t_r)^2 with CPython's ``** 2``, as the line's ATP model
+    # computes them (laws.ebi_coef multiplies); for the Python path and the kernel's constants
+    ("onboard.py", "atp_curve"): 2,
 }
 """(module, law) -> inline occurrences that remain (with the reason)."""
 
@@ -106,9 +112,11 @@ def test_patterns_find_the_old_forms() -> None:
            "* v * v ) - fg",
            "phi = p [ P_A3 ] / ( va + p [ P_B3 ] + 1e-12 ) ** 2",
            "return c [ k + 4 ] / math . pow ( va , 2.0 )",
-           "G = 9 . 80665")
+           "G = 9 . 80665",
+           "cc = math . sqrt ( 2.0 * b * ( 0.0 if 0.0 > d else d ) )",
+           "q = c0 + c . two_b * ( d - c . t_sbi * v )")
     hits = [any(p.search(s) for p in PATTERNS.values()) for s in old]
-    assert hits == [True, True, False, True]
+    assert hits == [True, True, False, True, True, True]
     # ``c[k + 4]``: the offset form of the old control kernel is caught by the slot check
 
 

@@ -5,8 +5,16 @@ Every function here is a scalar law on plain floats (SI units), compiled with
 array helpers at the end) and from the other numba kernels (which inline them).  Each
 reproduces, operation for operation, the expression the modules computed before it became
 the one source (no fast-math, no fused multiply-add: the same IEEE float64 results); the
-proofs are in ``test/test_laws.py``.  ``NUMBA_DISABLE_JIT=1`` runs the same source as plain
-Python (debugging).
+proofs are in ``test/test_laws.py``, the one-source check in ``test/test_laws_once.py``.
+Squares are products ``x * x`` (correctly rounded; C ``pow(x, 2)``, which CPython's
+``x ** 2`` calls, is one ulp off for about 1 value in 1 200).  Transcendentals are libm's
+(``math.exp``, ``math.sin``, ``math.atan``); numpy's vectorised ones differ from them by an
+ulp on some arguments, so array callers go through the ``*_array`` loops below.
+``NUMBA_DISABLE_JIT=1`` runs the same source as plain Python (debugging).
+
+numba's on-disk cache does not follow imports: a kernel that inlines a law keeps its cached
+machine code when only this file changes.  After editing a law, delete the caches
+(``find metro_atc install -name '*.nb[ic]' -delete``) or rebuild (``make setup``).
 
 Sources (the equations are cited where used):
 
@@ -241,12 +249,6 @@ def stop_distance_in_step(v: float, k1: float, h: float) -> float:
 
 
 @njit(cache=True)
-def service_brake_force(mass: float, brake_decel: float) -> float:
-    """Full service brake force [N]: mass [kg] x service deceleration [m/s^2]."""
-    return brake_decel * mass
-
-
-@njit(cache=True)
 def brake_demand_force(a_d: float, meff: float) -> float:
     """Brake force [N] demanded by the acceleration ``a_d`` [m/s^2]: ``max(-a_d, 0) M_eff``."""
     return fmax(-a_d, 0.0) * meff
@@ -274,17 +276,23 @@ def electric_brake_share(f_demand: float, f_e_max: float) -> float:
 
 
 @njit(cache=True)
-def pad_torque(clamp_force_n: float, mu_b: float, r_b: float) -> float:
+def pad_torque(clamp_force_n: float | FloatArray, mu_b: float | FloatArray,
+               r_b: float) -> float | FloatArray:
     """Friction brake torque [N m] of one axle ``2 mu_b R_b F_c`` (Lin and Tang 2010, eq. 4).
 
-    Clamp force [N], pad friction coefficient [-], effective pad radius [m].
+    Clamp force [N], pad friction coefficient [-], effective pad radius [m].  Plain
+    arithmetic: numba also compiles it for arrays (elementwise, the same operation order).
     """
     return 2.0 * mu_b * r_b * clamp_force_n
 
 
 @njit(cache=True)
-def clamp_force_for_torque(torque_nm: float, mu_b: float, r_b: float) -> float:
-    """Clamp force [N] giving a brake torque [N m]: the inverse of :func:`pad_torque`."""
+def clamp_force_for_torque(torque_nm: float | FloatArray, mu_b: float,
+                           r_b: float) -> float | FloatArray:
+    """Clamp force [N] giving a brake torque [N m]: the inverse of :func:`pad_torque`.
+
+    Like :func:`pad_torque`, numba also compiles it for arrays (elementwise).
+    """
     return torque_nm / (2.0 * mu_b * r_b)
 
 
@@ -308,17 +316,6 @@ def burckhardt_mu(s: float, c1: float, c2: float, c3: float) -> float:
     """Burckhardt adhesion ``mu(s) = c1 (1 - exp(-c2 s)) - c3 s`` [-], slip s clipped to [0, 1]."""
     sa = fmin(fmax(s, 0.0), 1.0)
     return c1 * (1.0 - math.exp(-c2 * sa)) - c3 * sa
-
-
-@njit(cache=True)
-def creep_adhesion(s: float, mu_max: float, k: float, fall_a: float, fall_b: float,
-                   k_scale: float) -> float:
-    """Creep-force adhesion ``mu_max (2/pi) atan(k k_scale s) ((1 - A) e^(-B |s|) + A)`` [-].
-
-    Odd in the creep s [-]; the brake observer's truth model (Lin and Tang 2010, eq. 4).
-    """
-    fall = (1.0 - fall_a) * math.exp(-fall_b * abs(s)) + fall_a
-    return mu_max * (2.0 / math.pi) * math.atan(k * k_scale * s) * fall
 
 
 # ---------------------------------------------------------------------------- ATP curves
@@ -388,18 +385,27 @@ def braking_speed(dist_m: float, decel: float) -> float:
 
 
 @njit(cache=True)
+def downhill_accel(max_down: float) -> float:
+    """Gravity acceleration [m/s^2] on a downhill grade ``max_down`` [-]: ``g max_down``.
+
+    The ATP's small-angle assumption (sin(atan(i)) <= i).
+    """
+    return G_MPS2 * max_down
+
+
+@njit(cache=True)
 def guaranteed_decel_on_grade(b_level: float, max_down: float) -> float:
     """Guaranteed deceleration [m/s^2] on the steepest downhill grade ``max_down`` [-].
 
-    ``b_level - g max_down`` (small-angle grade, as the ATP assumes).
+    ``b_level - g max_down`` (:func:`downhill_accel`).
     """
-    return b_level - G_MPS2 * max_down
+    return b_level - downhill_accel(max_down)
 
 
 @njit(cache=True)
 def response_accel(a1: float, max_down: float) -> float:
     """Worst-case acceleration during the ATP response time [m/s^2]: ``a_1 + g max_down``."""
-    return a1 + G_MPS2 * max_down
+    return a1 + downhill_accel(max_down)
 
 
 @njit(cache=True)
@@ -435,6 +441,15 @@ def davis_resistance_array(v: FloatArray, a: float, b: float, c: float) -> Float
 
 
 @njit(cache=True)
+def davis_odd_array(v: FloatArray, a: float, b: float, c: float) -> FloatArray:
+    """:func:`davis_odd` of each speed of a 1-d array [m/s]."""
+    out = np.empty(v.shape[0])
+    for i in range(v.shape[0]):
+        out[i] = davis_odd(v[i], a, b, c)
+    return out
+
+
+@njit(cache=True)
 def electric_brake_force_max_array(v: FloatArray, mass: float, brake_decel: float,
                                    power_max_w: float, fade_speed_mps: float) -> FloatArray:
     """:func:`electric_brake_force_max` of each speed of a 1-d array [m/s] -> [N]."""
@@ -464,6 +479,34 @@ def curve_resistance_per_kg_array(r: FloatArray) -> FloatArray:
 
 
 @njit(cache=True)
+def stopping_distance_array(v: FloatArray, a_w: float, t_r: float, b_g: float) -> FloatArray:
+    """:func:`stopping_distance` of each speed of a 1-d array [m/s] -> [m]."""
+    out = np.empty(v.shape[0])
+    for i in range(v.shape[0]):
+        out[i] = stopping_distance(v[i], a_w, t_r, b_g)
+    return out
+
+
+@njit(cache=True)
+def grade_force_array(grade: FloatArray, mass: float) -> FloatArray:
+    """:func:`grade_force` of each grade of a 1-d array [-] -> [N]."""
+    out = np.empty(grade.shape[0])
+    for i in range(grade.shape[0]):
+        out[i] = grade_force(grade[i], mass)
+    return out
+
+
+@njit(cache=True)
+def net_accel_array(v: FloatArray, effort_n: FloatArray, f_grade: FloatArray, a: float,
+                    b: float, c: float, meff: float) -> FloatArray:
+    """:func:`net_accel` of equal-length 1-d arrays (speed, effort, grade force)."""
+    out = np.empty(v.shape[0])
+    for i in range(v.shape[0]):
+        out[i] = net_accel(v[i], effort_n[i], f_grade[i], a, b, c, meff)
+    return out
+
+
+@njit(cache=True)
 def grade_sine_array(grade: FloatArray) -> FloatArray:
     """:func:`grade_sine` of each grade of a 1-d array [-] -> [-]."""
     out = np.empty(grade.shape[0])
@@ -475,4 +518,5 @@ def grade_sine_array(grade: FloatArray) -> FloatArray:
 def on_array(fn, x, *args):  # type: ignore[no-untyped-def]
     """Apply a ``*_array`` law to any array-like ``x`` (any shape, returns that shape)."""
     xa = np.asarray(x, dtype=np.float64)
-    return fn(np.ascontiguousarray(xa).reshape(-1), *args).reshape(xa.shape)
+    out = fn(np.ascontiguousarray(xa).reshape(-1), *args).reshape(xa.shape)
+    return out[()] if out.ndim == 0 else out

@@ -17,7 +17,7 @@ from metro_atc.core.ato.control_kernel import (
     bisect_right, brake_onset_bound, ceiling_e, feedforward, flc, pmax, pmin, speed_at,
     stop_bound)
 from metro_atc.core.ato.step_kernel import jit
-from metro_atc.core.laws import ebi_speed_from, guaranteed_decel_on_grade
+from metro_atc.core.laws import braking_speed, ebi_speed_from, guaranteed_decel_on_grade
 
 N_LH = 3
 """Line vector header length."""
@@ -45,7 +45,7 @@ def cap_at(c, ph, p, ln, x, v, cap, ma, c0, c2, authority):  # type: ignore[no-u
     b = p[bo + (0 if i < 0 else (i if i < nb else nb - 1))]
     if authority and math.isfinite(ma):
         d = ma - x - AUTH_MARGIN
-        cc = math.sqrt(2.0 * b * (0.0 if 0.0 > d else d))
+        cc = braking_speed(d, b)
         if cc < cap:
             cap = cc
         cc = ebi_speed_from(c0, c.two_b, c2, d - c.t_sbi * v) - c.sbi_offset - SPEED_MARGIN

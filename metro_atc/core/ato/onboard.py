@@ -44,6 +44,7 @@ from metro_atc.core.ato.envelope import OperatingLimits
 from metro_atc.core.ato.planner import Profile
 from metro_atc.core.ato.tsr_plan import tsrs_for_run
 from metro_atc.core.bridge import ato_limits_for
+from metro_atc.core.laws import braking_speed, ebi_speed_from
 from metro_atc.core.line.atp_constants import SBI_OFFSET_MPS, atp_constants
 from metro_atc.core.line.geometry import build_geometry
 from metro_atc.core.line.track import (braking_envelope, ebi_speed_at, window_min_ahead,
@@ -489,15 +490,12 @@ class OnboardAto:
             b = self._plan_decel(x)
         if authority and math.isfinite(ma):
             d = ma - x - AUTHORITY_MARGIN_M
-            c = math.sqrt(2.0 * b * (0.0 if 0.0 > d else d))
+            c = braking_speed(d, b)
             if c < cap:
                 cap = c
-            # AtpModel.sbi_speed -> ebi_speed_at(d - t_sbi v, 0, a_w, t_r, b_g), written out
+            # AtpModel.sbi_speed -> ebi_speed_at(d - t_sbi v, 0, a_w, t_r, b_g)
             c0, c2, two_b, t_sbi, off = terms
-            q = c0 + two_b * (d - t_sbi * v)
-            if q < 0.0:  # np.maximum(q, 0): NaN and -0.0 pass
-                q = 0.0
-            c = ((math.sqrt(q) if q == q else q) - c2) - off - SPEED_MARGIN_MPS
+            c = ebi_speed_from(c0, two_b, c2, d - t_sbi * v) - off - SPEED_MARGIN_MPS
             if c < cap:
                 cap = c
         if zones:
