@@ -5,8 +5,8 @@ The golden file was recorded from the numpy planner before the compiled strategy
 line, 3 on each of five generated lines: high-speed stock and steep grades among them), four
 running-time targets each (one below the minimum: the flat-out fallback).  Every plan must
 give the same coasting point, running time, energy, feasibility, sections and speed profile
-to float round-off (relative 1e-9).  All plans run with the default kernel; a few with the numpy
-reference as well (it costs ~0.5 s CPU per plan).
+to float round-off (relative 1e-9).  All plans run with the compiled kernel (the numpy
+reference is gone; these numbers are its).
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ import numpy as np
 import pytest
 
 import ato_golden
-from metro_atc.core.ato import coasting
 from metro_atc.core.ato.planner import plan_profile
 
 RTOL = 1e-9
@@ -58,15 +57,7 @@ def test_golden_covers_fallbacks_and_coasting() -> None:
 
 @pytest.mark.parametrize("name", [n for n, _ in ato_golden.SCENARIOS])
 def test_plans_equal_golden(name: str) -> None:
-    """Every golden plan of a scenario with the default kernel."""
+    """Every golden plan of a scenario."""
     for row in GOLDEN:
         if row["scenario"] == name:
             _check(row, _replan(row))
-
-
-@pytest.mark.parametrize("index", [1, 46, 70])
-def test_plans_equal_golden_numpy(index: int, monkeypatch: pytest.MonkeyPatch) -> None:
-    """A few golden plans with the numpy reference kernel."""
-    monkeypatch.setenv(coasting.PLAN_KERNEL_ENV, "numpy")
-    row = GOLDEN[index]
-    _check(row, _replan(row))

@@ -1,15 +1,18 @@
-"""The compiled strategy simulation (numba) against the numpy reference on generated lines.
+"""The compiled strategy simulation against frozen reference numbers on generated lines.
 
 :func:`metro_atc.core.ato.coasting.simulate_switching` runs ECTP's and ACTP's strategies
-through :mod:`metro_atc.core.ato.switching_kernel` by default; the numpy path
-(:func:`metro_atc.core.ato.coasting.simulate_switching_numpy`) is the reference.  The kernel
-repeats the numpy operations in the same order, so the comparison tolerance is float
-round-off (relative 1e-9, as the plant's golden traces), stall flags identical.
+through :mod:`metro_atc.core.ato.switching_kernel`.  ``test/data/ato_switching_golden.npz``
+holds the outputs of the numpy reference it had (one array step per distance step, the
+vectorised :func:`metro_atc.core.ato.strategy.strategy_step`) for the inputs below, taken
+before that reference was dropped; the kernel repeats its operations in the same order, so
+the tolerance is float round-off (relative 1e-9, as the plant's golden traces), stall flags
+identical.  The inputs are regenerated here (the same seeds): a changed generator fails too.
 """
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,8 +25,14 @@ from metro_atc.core.line.vehicle import TAIPEI_MRT_6CAR, Track
 from metro_atc.core.linegen import load_generated
 
 RTOL = 1e-9
-needs_numba = pytest.mark.skipif(coasting.resolve_plan_kernel("auto") != "numba",
-                                 reason="numba not installed")
+GOLDEN = Path(__file__).resolve().parent / "data" / "ato_switching_golden.npz"
+
+
+@pytest.fixture(scope="module")
+def golden() -> dict[str, np.ndarray]:
+    """The frozen reference numbers."""
+    with np.load(GOLDEN) as z:
+        return {k: z[k] for k in z.files}
 
 
 def _runs(seed: int) -> list[RunModel]:
@@ -48,38 +57,42 @@ def _strategies(run: RunModel, h: float, rng: np.random.Generator
     return yc, rng.uniform(0.3, 1.0, yc.size)
 
 
-def _same(a: coasting.SwitchingRun, b: coasting.SwitchingRun) -> None:
-    np.testing.assert_array_equal(a.stalled, b.stalled)
-    np.testing.assert_array_equal(a.s_grid, b.s_grid)
-    assert np.array_equal(np.isfinite(a.time_s), np.isfinite(b.time_s))
-    fin = np.isfinite(b.time_s)
-    np.testing.assert_allclose(a.time_s[fin], b.time_s[fin], rtol=RTOL)
-    np.testing.assert_allclose(a.energy_j, b.energy_j, rtol=RTOL,
-                               atol=RTOL * float(np.max(np.abs(b.energy_j))))
-    assert a.v.shape == b.v.shape
-    np.testing.assert_allclose(a.v, b.v, rtol=RTOL, atol=RTOL * 100.0)
+def _same(a: coasting.SwitchingRun, g: dict[str, np.ndarray], key: str) -> None:
+    """``a`` equals the golden run ``key`` to round-off (stall flags and infinities exact)."""
+    t, en, stalled, v = g[key + "_t"], g[key + "_e"], g[key + "_st"], g[key + "_v"]
+    np.testing.assert_array_equal(a.stalled, stalled)
+    assert np.array_equal(np.isfinite(a.time_s), np.isfinite(t))
+    fin = np.isfinite(t)
+    np.testing.assert_allclose(a.time_s[fin], t[fin], rtol=RTOL)
+    np.testing.assert_allclose(a.energy_j, en, rtol=RTOL, atol=RTOL * float(np.max(np.abs(en))))
+    assert a.v.shape == v.shape
+    np.testing.assert_allclose(a.v, v, rtol=RTOL, atol=RTOL * 100.0)
 
 
-@needs_numba
 @pytest.mark.parametrize("seed", [0, 12, 46])
-def test_kernel_equals_numpy_on_generated_lines(seed: int) -> None:
+def test_kernel_equals_reference_on_generated_lines(seed: int,
+                                                    golden: dict[str, np.ndarray]) -> None:
     """Every interstation of a generated line (12: high-speed stock, 46: steep grades)."""
     rng = np.random.default_rng(seed)
     steep = 0
-    for run in _runs(seed):
+    runs = _runs(seed)
+    assert f"gen{seed}_{len(runs)}_t" not in golden and f"gen{seed}_{len(runs) - 1}_t" in golden
+    for i, run in enumerate(runs):
         h = max(16.0, run.length_m / 100.0)
         yc, dl = _strategies(run, h, rng)
-        a = coasting.simulate_switching(run, yc, dl, h, record=True, kernel="numba")
-        b = coasting.simulate_switching(run, yc, dl, h, record=True, kernel="numpy")
-        _same(a, b)
+        key = f"gen{seed}_{i}"
+        np.testing.assert_array_equal(yc, golden[key + "_yc"])
+        np.testing.assert_array_equal(dl, golden[key + "_dl"])
+        a = coasting.simulate_switching(run, yc, dl, h, record=True)
+        np.testing.assert_array_equal(a.s_grid, coasting.step_table(run, h).s)
+        _same(a, golden, key)
         tab = coasting.step_table(run, h)
         steep += int(np.any(run.train.davis_a_n + tab.fg < 0.0))  # c0 < 0: the tanh branch
     if seed == 46:
-        assert steep > 0, "no descent steep enough for the tanh form of seed 002 eq. 7"
+        assert steep > 0, "no descent steep enough for the tanh form of the coasting law"
 
 
-@needs_numba
-def test_kernel_equals_numpy_with_stalls_and_limits() -> None:
+def test_kernel_equals_reference_with_stalls_and_limits(golden: dict[str, np.ndarray]) -> None:
     """A climb that stalls early coasting trains and a low limit that clamps the coast."""
     track = Track(np.array([-1e12, 300.0, 900.0]), np.array([0.0, 0.04, -0.035]),
                   np.array([-1e12, 1000.0, 1300.0]), np.array([80.0, 40.0, 80.0]) / 3.6)
@@ -87,54 +100,34 @@ def test_kernel_equals_numpy_with_stalls_and_limits() -> None:
     h = 4.0
     yc = np.array([0.0, 50.0, 120.0, 301.0, 700.0, 1000.0, 1250.0, 1901.0])
     dl = np.full(yc.size, coasting.LEVEL_II)
-    a = coasting.simulate_switching(run, yc, dl, h, record=True, kernel="numba")
-    b = coasting.simulate_switching(run, yc, dl, h, record=True, kernel="numpy")
-    assert np.any(b.stalled) and not np.all(b.stalled)
-    _same(a, b)
+    a = coasting.simulate_switching(run, yc, dl, h, record=True)
+    assert np.any(a.stalled) and not np.all(a.stalled)
+    _same(a, golden, "stall")
     # without recording: the same times and energies, no history
-    c = coasting.simulate_switching(run, yc, dl, h, kernel="numba")
+    c = coasting.simulate_switching(run, yc, dl, h)
     np.testing.assert_array_equal(c.energy_j, a.energy_j)
     assert c.v.size == 0
 
 
-@needs_numba
-def test_ectp_and_actp_equal_with_both_kernels(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Whole planners through the environment switch: the same coasting point and profile."""
+def test_ectp_and_actp_equal_the_reference(golden: dict[str, np.ndarray]) -> None:
+    """Whole planners: the reference's coasting point, level, time, energy and profile."""
     run = _runs(46)[3]
     h = 4.0
     t_min = coasting.fotp(run, math.inf, h).time_s
     ap = coasting.ActpParams(iterations=20, n_delta=4, n_coast=9)
-    res = {}
-    for kern in ("numba", "numpy"):
-        monkeypatch.setenv(coasting.PLAN_KERNEL_ENV, kern)
-        res[kern] = (coasting.ectp(run, 1.1 * t_min, h_m=h),
-                     coasting.actp(run, 1.1 * t_min, params=ap, h_m=h))
-    for x, y in zip(res["numba"], res["numpy"]):
-        assert x.coast_point_s == pytest.approx(y.coast_point_s, rel=RTOL)
-        assert x.delta == pytest.approx(y.delta, rel=RTOL)
-        assert x.time_s == pytest.approx(y.time_s, rel=RTOL)
-        assert x.energy_j == pytest.approx(y.energy_j, rel=RTOL)
-        np.testing.assert_allclose(x.v_profile, y.v_profile, rtol=RTOL, atol=RTOL * 100.0)
+    for name, res in (("ectp", coasting.ectp(run, 1.1 * t_min, h_m=h)),
+                      ("actp", coasting.actp(run, 1.1 * t_min, params=ap, h_m=h))):
+        np.testing.assert_allclose([res.coast_point_s, res.delta, res.time_s, res.energy_j],
+                                   golden[name + "_scalars"], rtol=RTOL)
+        np.testing.assert_allclose(res.v_profile, golden[name + "_v"], rtol=RTOL,
+                                   atol=RTOL * 100.0)
 
 
-def test_resolve_plan_kernel(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Argument over environment over auto; unknown names refused."""
-    monkeypatch.setenv(coasting.PLAN_KERNEL_ENV, "numpy")
-    assert coasting.resolve_plan_kernel() == "numpy"
-    assert coasting.resolve_plan_kernel("numpy") == "numpy"
-    monkeypatch.delenv(coasting.PLAN_KERNEL_ENV)
-    assert coasting.resolve_plan_kernel() in ("numba", "numpy")
-    with pytest.raises(ValueError):
-        coasting.resolve_plan_kernel("fortran")
-
-
-@needs_numba
-def test_warm_up_loads_the_kernel_and_not_for_numpy() -> None:
-    """The node's start-up call runs the compiled kernel once; the numpy path has none."""
+def test_warm_up_loads_the_kernel() -> None:
+    """The node's start-up call runs the compiled kernel once."""
     scn = load_generated(0)
     train = train_for(scn)
     limits = envelope_limits(scn, train)
-    assert coasting.warm_up_plan_kernel(train, limits, "numba")
-    assert not coasting.warm_up_plan_kernel(train, limits, "numpy")
+    coasting.warm_up_plan_kernel(train, limits)
     from metro_atc.core.ato import switching_kernel
     assert switching_kernel.simulate_kernel.signatures  # compiled (or loaded from the cache)

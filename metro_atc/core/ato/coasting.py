@@ -38,9 +38,9 @@ from typing import Optional
 import numpy as np
 from numpy.typing import NDArray
 
-from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, OperatingLimits, RunModel
-from metro_atc.core.ato.strategy import strategy_step
-from metro_atc.core.kernel_choice import resolve_kernel
+from metro_atc.core.ato.envelope import OperatingLimits, RunModel
+from metro_atc.core.ato.step_kernel import pack_train
+from metro_atc.core.ato.switching_kernel import simulate_kernel
 from metro_atc.core.line.vehicle import TrainParams
 
 FloatArray = NDArray[np.float64]
@@ -64,21 +64,6 @@ class SwitchingRun:
     v: FloatArray
 
 
-PLAN_KERNELS = ("auto", "numba", "numpy")
-"""Accepted values of the planning kernel (argument or ``METRO_ATC_PLAN_KERNEL``)."""
-PLAN_KERNEL_ENV = "METRO_ATC_PLAN_KERNEL"
-"""Environment variable selecting the kernel of :func:`simulate_switching`."""
-
-
-def resolve_plan_kernel(name: Optional[str] = None) -> str:
-    """``numba`` or ``numpy`` for the requested kernel (argument, else env, else auto).
-
-    ``auto``: the compiled loop of :mod:`metro_atc.core.ato.switching_kernel` when numba is
-    installed, else the numpy reference (:func:`simulate_switching_numpy`).
-    """
-    return resolve_kernel(name, PLAN_KERNEL_ENV, "numpy", "plan kernel")
-
-
 @dataclass(frozen=True)
 class StepTable:
     """Distance grid of one run at step h and what the strategy simulation reads from it.
@@ -95,7 +80,7 @@ class StepTable:
 
 _STEP_TABLES: "weakref.WeakKeyDictionary[RunModel, dict[float, StepTable]]" = \
     weakref.WeakKeyDictionary()
-_CONSTANTS: "weakref.WeakKeyDictionary[RunModel, FloatArray]" = weakref.WeakKeyDictionary()
+_CONSTANTS: "weakref.WeakKeyDictionary[RunModel, NDArray[np.void]]" = weakref.WeakKeyDictionary()
 
 
 def step_table(run: RunModel, h_m: float) -> StepTable:
@@ -118,42 +103,30 @@ def step_table(run: RunModel, h_m: float) -> StepTable:
     return tab
 
 
-def warm_up_plan_kernel(train: TrainParams, limits: OperatingLimits,
-                        kernel: Optional[str] = None) -> bool:
-    """Load (on a fresh install: compile) the compiled plan kernel now; True if it ran.
+def warm_up_plan_kernel(train: TrainParams, limits: OperatingLimits) -> None:
+    """Load (on a fresh install: compile) the compiled plan kernel now.
 
     A node calls it at start-up so that its first plan, computed inside the lockstep
     callback, does not pay the ~0.6 s load (several seconds to compile) of numba's kernel.
-    Nothing to do for the numpy reference.
     """
-    if resolve_plan_kernel(kernel) == "numpy":
-        return False
-    from metro_atc.core.ato.step_kernel import pack_train
-    from metro_atc.core.ato.switching_kernel import simulate_kernel
     one = np.ones(1)
     simulate_kernel(pack_train(train, limits), np.array([0.0, 1.0]), 1.0, np.zeros(1),
                     np.full(1, 1e4), np.zeros(1), one, False)
-    return True
 
 
 def simulate_switching(run: RunModel, coast_point_s: FloatArray, delta: FloatArray,
-                       h_m: float = 2.0, record: bool = False,
-                       kernel: Optional[str] = None) -> SwitchingRun:
+                       h_m: float = 2.0, record: bool = False) -> SwitchingRun:
     """Simulate "traction at level delta (cruise at the envelope) until y_c, then coast".
 
-    Vectorised over the K strategies (arrays coast_point_s [m], delta [-] of shape (K,)).
-    Coasting trajectories follow the envelope's braking curves (limits, station stop).
-    ``kernel`` (:func:`resolve_plan_kernel`): the compiled loop (``numba``, default when
-    installed) or the numpy reference (:func:`simulate_switching_numpy`); the same results
-    to round-off (``test/test_ato_switching_kernel.py``).
+    Vectorised over the K strategies (arrays coast_point_s [m], delta [-] of shape (K,)):
+    the compiled loop of :mod:`metro_atc.core.ato.switching_kernel` over the distance steps
+    of :func:`step_table` (a coasting point inside a step splits it: traction up to y_c,
+    coasting after).  Coasting trajectories follow the envelope's braking curves (limits,
+    station stop).
     """
-    if resolve_plan_kernel(kernel) == "numpy":
-        return simulate_switching_numpy(run, coast_point_s, delta, h_m, record)
-    from metro_atc.core.ato.step_kernel import pack_train
-    from metro_atc.core.ato.switching_kernel import simulate_kernel
     yc = np.array(np.atleast_1d(np.asarray(coast_point_s, dtype=float)), order="C")
     # always a fresh writable C array: a read-only view (broadcast_to of a shaped delta) is
-    # another numba signature, compiled in the first plan although warmed up (issue 13)
+    # another numba signature, compiled in the first plan although warmed up
     dl = np.array(np.broadcast_to(np.asarray(delta, dtype=float), yc.shape), order="C")
     tab = step_table(run, float(h_m))
     c = _CONSTANTS.get(run)
@@ -164,46 +137,6 @@ def simulate_switching(run: RunModel, coast_point_s: FloatArray, delta: FloatArr
                                            bool(record))
     v = np.sqrt(2.0 * hist) if record else np.zeros((0, 0))
     return SwitchingRun(time_s=t, energy_j=en, stalled=stalled, s_grid=tab.s.copy(), v=v)
-
-
-def simulate_switching_numpy(run: RunModel, coast_point_s: FloatArray, delta: FloatArray,
-                             h_m: float = 2.0, record: bool = False) -> SwitchingRun:
-    """The numpy reference of :func:`simulate_switching` (one array step per distance step)."""
-    yc = np.atleast_1d(np.asarray(coast_point_s, dtype=float))
-    dl = np.broadcast_to(np.asarray(delta, dtype=float), yc.shape).copy()
-    tab = step_table(run, float(h_m))
-    s, h, fg, cap = tab.s, tab.h, tab.fg, tab.cap
-    n = s.size - 1
-    e = np.zeros(yc.shape)
-    t = np.zeros(yc.shape)
-    en = np.zeros(yc.shape)
-    stalled = np.zeros(yc.shape, dtype=bool)
-    hist = [e.copy()] if record else []
-    for k in range(n):
-        # a coasting point inside the step splits it: traction up to y_c, coast after
-        sw = (yc > s[k] + 1e-9) & (yc < s[k + 1] - 1e-9)
-        mode = np.where(s[k] + 1e-9 < yc, MODE_ACCEL, MODE_COAST)
-        h1 = np.where(sw, yc - s[k], h)
-        e1, dt, de, st = strategy_step(run.train, run.limits, e, h1, float(fg[k]),
-                                       float(cap[k]), mode, np.inf, e, dl)
-        if np.any(sw):
-            i = np.nonzero(sw)[0]
-            e2, dt2, de2, st2 = strategy_step(run.train, run.limits, e1[i], h - h1[i],
-                                              float(fg[k]), float(cap[k]), MODE_COAST,
-                                              np.inf, e1[i], dl[i])
-            e1[i] = e2
-            dt[i] += dt2
-            de[i] += de2
-            st[i] |= st2
-        e = e1
-        t += np.where(np.isfinite(dt), dt, 0.0)
-        en += de
-        stalled |= st
-        if record:
-            hist.append(e.copy())
-    t = np.where(stalled, np.inf, t)
-    v = np.sqrt(2.0 * np.stack(hist, axis=1)) if record else np.zeros((0, 0))
-    return SwitchingRun(time_s=t, energy_j=en, stalled=stalled, s_grid=s.copy(), v=v)
 
 
 @dataclass

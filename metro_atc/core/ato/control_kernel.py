@@ -13,35 +13,111 @@ values only).  Compiled with ``cache=True`` and numba's numpy error model (IEEE 
 instead of exceptions: the Python path's divisions never divide by zero on the states the
 kernel takes).
 
-The kernel reads the per-train state from a float vector (``S_*``), works on local copies and
+The kernel reads the per-train state as a record (:data:`STATE`), works on local copies and
 writes them back only when it finished: a state it cannot take (``FALLBACK``) leaves
 everything untouched and the caller runs the Python path, so the hand-over in both
 directions is the Python objects' own state.  Plan tables travel as one vector (``P_*``
 header, :mod:`metro_atc.core.ato.control_kernel_pack`), line tables as another, the train,
-ATP and controller constants as a third (``C_*``).  Proven equal (``==``) to the Python path
-on generated lines in ``test/test_ato_control_kernel.py``.
+ATP and controller constants as a record (:data:`CONSTANTS`).  Proven equal (``==``) to the
+Python path on generated lines in ``test/test_ato_control_kernel.py``.
 """
 
 from __future__ import annotations
 
 import math
 
+import ctypes
+from typing import Any
+
+import numpy as np
+
 from metro_atc.core.ato.step_kernel import jit
+from metro_atc.core.laws import davis_resistance
 
-(C_MASS, C_MEFF, C_DA, C_DB, C_DC, C_A1, C_V1, C_V2, C_A2, C_A3, C_B2, C_B3, C_BS, C_LEN,
- C_WA1, C_WV1, C_WV2, C_WA2, C_WA3, C_WB2, C_WB3, C_GDOWN, C_OFF, C_C0A, C_BT, C_BTT,
- C_TR, C_TWOB, C_TSBI, C_GX0, C_GDX, C_PERIOD, C_SWING, C_DUMAX, C_BSHARE, C_AJERK,
- C_FF, C_ESC, C_DSC, C_GAIN, C_TWO, C_THREE, N_C) = range(43)
-"""Constants vector: train, the ATP's train (worst-case response), ATP, controller."""
+_POW = "powf64" if hasattr(ctypes.CDLL(None), "powf64") else "pow"
+"""The C library's pow under a name the compiler does not rewrite (glibc's alias of pow).
 
-(P_X0, P_DIR, P_LEN, P_PSS, P_TAILB, P_RLEN, P_DEP, P_SC, P_SB, P_CV2, P_D2, P_B2, P_CV,
- P_NREF, P_NGBP, P_NENV, P_NB, N_PH) = range(18)
-"""Plan header; then ref s, ref v^2, grade breakpoints, grade-force integral, envelope s,
-ceiling energy, planned-deceleration table (``P_N*`` long each)."""
+LLVM turns a call of ``pow`` (or ``math.pow``) with the constant exponent 2 into a product,
+which differs from CPython's ``x ** 2`` (the C ``pow``) in the last bit for about one square
+in a thousand; the alias keeps the call.  Without it (not glibc) ``pow`` is called.
+"""
 
-(S_HAS_T, S_T, S_U, S_FF, S_ARR, S_STILL, S_HAS_E, S_E, S_TU, S_HAS_MA, S_MA_T, S_MA,
- S_VMA, S_PEAK, S_NSTOP, S_HELD, N_S) = range(17)
-"""Per-train state vector (flags as 0/1)."""
+
+def _cpow_intrinsic() -> Any:
+    """:func:`cpow`: a numba intrinsic calling the C ``pow`` (plain Python without numba)."""
+    from metro_atc.core.kernel_choice import numba_available
+    if not numba_available():
+        return lambda x, y: x ** y
+    from llvmlite import ir
+    from numba import types
+    from numba.extending import intrinsic
+
+    @intrinsic  # type: ignore[misc]
+    def cpow(typingctx, x, y):  # type: ignore[no-untyped-def]
+        """CPython's float ``x ** y``: the C library's ``pow``, bit for bit."""
+        def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+            fnty = ir.FunctionType(ir.DoubleType(), [ir.DoubleType(), ir.DoubleType()])
+            fn = builder.module.globals.get(_POW)
+            if fn is None:
+                fn = ir.Function(builder.module, fnty, name=_POW)
+            return builder.call(fn, args)
+        return types.float64(types.float64, types.float64), codegen
+    return cpow
+
+
+cpow = _cpow_intrinsic()
+"""CPython's float ``x ** y`` in compiled code (the C ``pow``, never folded into products)."""
+
+CONSTANT_FIELDS = (
+    "mass", "meff", "davis_a", "davis_b", "davis_c",
+    "a1", "v1", "v2", "a2", "a3", "b2", "b3", "brake_service", "length",
+    "w_a1", "w_v1", "w_v2", "w_a2", "w_a3", "w_b2", "w_b3",
+    "g_down", "sbi_offset", "c0a", "bt", "btt", "t_r", "two_b", "t_sbi", "grid_x0",
+    "grid_dx",
+    "period", "swing", "du_max", "brake_share", "approach_jerk", "feedforward", "e_scale",
+    "d_scale", "gain")
+"""Constants record (:data:`CONSTANTS`), every field float64.
+
+Train: mass, effective mass [kg], Davis a [N], b [N s/m], c [N s^2/m^2], the traction
+curve (a1 [m/s^2], v1, v2 [m/s], a2 [m^2/s^3], a3 [m^3/s^4], b2, b3 [m/s]; Lin 2013,
+eq. 3-5), the service brake [m/s^2] and the length [m]; ``w_*``: the traction curve of the
+ATP's train (worst-case response); ATP: g_down [m/s^2], SBI offset [m/s], (b_g t_r)^2,
+b_g t_r, b_g t_r t_r, t_r [s], 2 b_g, t_sbi [s], grid x0 [m], grid dx [m]; controller:
+period [s], swing [s], effort rate [1/s], brake share [-], approach jerk [m/s^3],
+feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-].
+"""
+CONSTANTS = np.dtype([(f, np.float64) for f in CONSTANT_FIELDS])
+"""The constants the kernel reads, by name: it takes a float vector and reads it through
+this record view (``c.view(CONSTANTS)[0]``), which costs nothing in compiled code."""
+
+PLAN_FIELDS = ("x0", "direction", "length", "pss_start", "tail_brake", "ref_length",
+               "departure_speed", "creep_start", "brake_start", "creep_v2", "two_decel",
+               "two_brake", "creep_speed", "n_ref", "n_grade", "n_env", "n_brake")
+"""Plan header (:data:`PLAN`): the run's start x [m], direction (+1/-1), length [m], PSS
+start [m], tail brake [m/s^2]; the reference's length [m], departure speed [m/s], creep
+start [m], brake start [m], creep speed^2, 2 decel, 2 brake, creep speed [m/s]; the table
+lengths.  The plan vector holds it, then ref s, ref v^2, grade breakpoints, grade-force
+integral, envelope s, ceiling energy and the planned-deceleration table (``n_*`` long
+each)."""
+PLAN = np.dtype([(f, np.float64) for f in PLAN_FIELDS])
+"""The plan header by name: the plan vector's first :data:`N_PH` floats, viewed once per
+step as this record (``ph``) and handed with the vector (``p``) to the functions below."""
+N_PH = len(PLAN_FIELDS)
+"""Length of the plan header in the plan vector."""
+
+CORE_STATE_FIELDS = ("has_t", "t", "u", "ff", "arrived", "still", "has_e", "e", "tu")
+"""The part of :data:`STATE` the controller core holds (``AtoCore.kernel_state``)."""
+STATE_FIELDS = CORE_STATE_FIELDS + ("has_ma", "ma_t", "ma", "v_ma", "peak", "next_stop",
+                                    "held")
+"""Per-train state record (:data:`STATE`; flags as 0/1): the last step's time [s], effort,
+feedforward, arrival flag, time stood still [s], the tracker's last error [m/s] and
+integrated effort, the last movement authority's time [s] and end [m], the authority speed
+[m/s], the speed peak [m/s], the next stop point [m], the held speed [m/s]."""
+STATE = np.dtype([(f, np.float64) for f in STATE_FIELDS])
+"""The per-train state the kernel reads and updates, by name (a float vector viewed as this
+record in compiled code; numpy's record fields are slow from Python, ~1 us each)."""
+STATE_INDEX = {f: i for i, f in enumerate(STATE_FIELDS)}
+"""Position of each state field in the float vector (the Python side's hand-over)."""
 
 FALLBACK = -1
 """Reason code: the kernel did not take the state (nothing changed; run the Python path)."""
@@ -65,7 +141,6 @@ AUTH_MARGIN = 10.0
 STOP_GUARD = 0.85
 GUARD_GAIN = 0.8
 GUARD_SLACK = 0.3
-G = 9.80665
 
 
 def _rules() -> tuple[float, ...]:
@@ -136,27 +211,38 @@ def interp1(x, a, xo, fo, n):  # type: ignore[no-untyped-def]
 
 
 @jit
-def traction_accel(c, k, v):  # type: ignore[no-untyped-def]
-    """``max_traction_accel_at`` with the traction constants at ``c[k:k+7]`` [m/s^2]."""
+def traction_accel(a1, v1, v2, a2, a3, b2, b3, v):  # type: ignore[no-untyped-def]
+    """``max_traction_accel_at`` of the traction curve (a1 .. b3) at speed v [m/s^2]."""
     va = abs(v)
-    if va <= c[k + 1]:
-        return c[k]
-    if va <= c[k + 2]:
-        return c[k + 3] / (va + c[k + 5] + 1e-12)
-    return c[k + 4] / math.pow(va + c[k + 6] + 1e-12, c[C_TWO])
+    if va <= v1:
+        return a1
+    if va <= v2:
+        return a2 / (va + b2 + 1e-12)
+    return a3 / cpow(va + b3 + 1e-12, 2.0)
+
+
+@jit
+def train_traction(c, v):  # type: ignore[no-untyped-def]
+    """The train's maximum traction acceleration at v [m/s^2]."""
+    return traction_accel(c.a1, c.v1, c.v2, c.a2, c.a3, c.b2, c.b3, v)
+
+
+@jit
+def atp_traction(c, v):  # type: ignore[no-untyped-def]
+    """The ATP train's (worst-case response) maximum traction acceleration at v [m/s^2]."""
+    return traction_accel(c.w_a1, c.w_v1, c.w_v2, c.w_a2, c.w_a3, c.w_b2, c.w_b3, v)
 
 
 @jit
 def resistance(c, v):  # type: ignore[no-untyped-def]
-    """``resistance_force_at`` [N]."""
-    va = abs(v)
-    return c[C_DA] + c[C_DB] * va + c[C_DC] * va * va
+    """``resistance_force_at`` [N]: :func:`metro_atc.core.laws.davis_resistance`."""
+    return davis_resistance(v, c.davis_a, c.davis_b, c.davis_c)
 
 
 @jit
-def speed_at(p, s):  # type: ignore[no-untyped-def]
+def speed_at(ph, p, s):  # type: ignore[no-untyped-def]
     """``ProfileReference.speed_at`` (finite s) [m/s]."""
-    n = int(p[P_NREF])
+    n = int(ph.n_ref)
     xo = N_PH
     fo = xo + n
     j = bisect_right(p, xo, n, s) - 1
@@ -174,32 +260,32 @@ def speed_at(p, s):  # type: ignore[no-untyped-def]
             if e != e:
                 e = interp1(s, p, xo, fo, n)
     plan = math.sqrt(e) if e >= 0.0 else math.nan
-    length = p[P_RLEN]
+    length = ph.ref_length
     if s < 0.5 * length:
-        dep = p[P_DEP]
+        dep = ph.departure_speed
         if not (plan != plan or plan >= dep):
             plan = dep
-    if s < p[P_SC]:
-        m = p[P_SC] - s
-        tail = math.sqrt(p[P_CV2] + p[P_D2] * (m if m != m or m >= 0.0 else 0.0))
-    elif s < p[P_SB]:
-        tail = p[P_CV]
+    if s < ph.creep_start:
+        m = ph.creep_start - s
+        tail = math.sqrt(ph.creep_v2 + ph.two_decel * (m if m != m or m >= 0.0 else 0.0))
+    elif s < ph.brake_start:
+        tail = ph.creep_speed
     else:
         m = length - s
-        tail = math.sqrt(p[P_B2] * (m if m != m or m >= 0.0 else 0.0))
+        tail = math.sqrt(ph.two_brake * (m if m != m or m >= 0.0 else 0.0))
     if s >= length:
         return 0.0
     return plan if plan != plan or plan <= tail else tail
 
 
 @jit
-def grade_force(c, p, s):  # type: ignore[no-untyped-def]
+def grade_force(c, ph, p, s):  # type: ignore[no-untyped-def]
     """``RunModel.mean_grade_force_at(s - train length, s)`` (non-degenerate) [N]."""
-    s0 = s - c[C_LEN]
-    nr = int(p[P_NREF])
-    n = int(p[P_NGBP])
+    s0 = s - c.length
+    nr = int(ph.n_ref)
+    n = int(ph.n_grade)
     xo = N_PH + 2 * nr
-    length = p[P_LEN]
+    length = ph.length
     a = clip1(s, 0.0, length)
     b = clip1(s0, 0.0, length)
     i1 = interp1(a, p, xo, xo + n, n)
@@ -208,9 +294,9 @@ def grade_force(c, p, s):  # type: ignore[no-untyped-def]
 
 
 @jit
-def ceiling_e(p, s):  # type: ignore[no-untyped-def]
+def ceiling_e(ph, p, s):  # type: ignore[no-untyped-def]
     """``RunModel.ceiling_e_at`` [m^2/s^2]."""
-    nr, ng, ne = int(p[P_NREF]), int(p[P_NGBP]), int(p[P_NENV])
+    nr, ng, ne = int(ph.n_ref), int(ph.n_grade), int(ph.n_env)
     xo = N_PH + 2 * nr + 2 * ng
     return interp1(s, p, xo, xo + ne, ne)
 
@@ -219,52 +305,52 @@ def ceiling_e(p, s):  # type: ignore[no-untyped-def]
 def as_effort(c, f, v):  # type: ignore[no-untyped-def]
     """A force [N] as the effort the plant applies (traction or service-brake scale)."""
     if f >= 0.0:
-        return pmin(f / pmax(c[C_MASS] * traction_accel(c, C_A1, v), 1.0), 1.0)
-    return pmax(f / (c[C_MEFF] * c[C_BS]), -1.0)
+        return pmin(f / pmax(c.mass * train_traction(c, v), 1.0), 1.0)
+    return pmax(f / (c.meff * c.brake_service), -1.0)
 
 
 @jit
-def feedforward(c, p, s, v, r, has_cap, a_cap):  # type: ignore[no-untyped-def]
+def feedforward(c, ph, p, s, v, r, has_cap, a_cap):  # type: ignore[no-untyped-def]
     """``AtoCore._feedforward`` (``has_cap``: a_cap given, not None)."""
     a_ref = a_cap if has_cap and math.isfinite(a_cap) else 0.0
     if (not has_cap) and r > 0.0:
-        h = pmax(v * c[C_PERIOD], 0.5)
-        r1 = speed_at(p, s + h)
+        h = pmax(v * c.period, 0.5)
+        r1 = speed_at(ph, p, s + h)
         a_ref = (r1 * r1 - r * r) / (2.0 * h)
-    f = c[C_MEFF] * a_ref + resistance(c, v) + grade_force(c, p, s)
+    f = c.meff * a_ref + resistance(c, v) + grade_force(c, ph, p, s)
     if r < STOP_FF:
         f = pmin(f, 0.0)
     return as_effort(c, f, v)
 
 
 @jit
-def approach_bound(c, p, s, v, r_end):  # type: ignore[no-untyped-def]
+def approach_bound(c, ph, p, s, v, r_end):  # type: ignore[no-untyped-def]
     """``AtoCore.approach_bound``."""
-    j, t = c[C_AJERK], c[C_PERIOD]
+    j, t = c.approach_jerk, c.period
     gap = pmax(r_end - v, 0.0)
     a_ex = j * (-t + math.sqrt(t * t + 2.0 * gap / j))
-    f = resistance(c, v) + grade_force(c, p, s) + c[C_MEFF] * a_ex
+    f = resistance(c, v) + grade_force(c, ph, p, s) + c.meff * a_ex
     return as_effort(c, f, v)
 
 
 @jit
-def brake_onset_bound(c, p, s, s_p, v, r, dt, u0):  # type: ignore[no-untyped-def]
+def brake_onset_bound(c, ph, p, s, s_p, v, r, dt, u0):  # type: ignore[no-untyped-def]
     """``AtoCore.brake_onset_bound`` (u0: the last effort)."""
-    rho = c[C_DUMAX]
-    h = pmax(v * c[C_PERIOD], 0.5)
-    tau = (c[C_BSHARE] + u0) / rho
+    rho = c.du_max
+    h = pmax(v * c.period, 0.5)
+    tau = (c.brake_share + u0) / rho
     u_c = u0
     r_a = r
     for _ in range(2):
         s_a = s_p + 0.5 * v * tau
-        r_a = speed_at(p, s_a)
-        r_h = speed_at(p, s_a + h)
+        r_a = speed_at(ph, p, s_a)
+        r_h = speed_at(ph, p, s_a + h)
         # _braking_needed(s, v, r_a, r_h, h) (h > 0)
         a_ref = (r_a * r_a - r_h * r_h) / (2.0 * h)
-        a_coast = (resistance(c, v) + grade_force(c, p, s)) / c[C_MEFF]
+        a_coast = (resistance(c, v) + grade_force(c, ph, p, s)) / c.meff
         if not a_ref > a_coast:
             return 1.0
-        u_c = feedforward(c, p, s, v, r_a, True, (r_h * r_h - r_a * r_a) / (2.0 * h))
+        u_c = feedforward(c, ph, p, s, v, r_a, True, (r_h * r_h - r_a * r_a) / (2.0 * h))
         tau = pmax(u0 - u_c, 0.0) / rho
         if tau <= 0.0:
             return 1.0
@@ -274,37 +360,37 @@ def brake_onset_bound(c, p, s, s_p, v, r, dt, u0):  # type: ignore[no-untyped-de
 
 
 @jit
-def stop_distance(c, p, v, a):  # type: ignore[no-untyped-def]
+def stop_distance(c, ph, p, v, a):  # type: ignore[no-untyped-def]
     """``AtoCore.stop_distance`` [m]."""
-    j, t, b = c[C_AJERK], c[C_PERIOD], pmax(p[P_TAILB], 0.05)
+    j, t, b = c.approach_jerk, c.period, pmax(ph.tail_brake, 0.05)
     v0 = v + a * t
     x0 = v * t + 0.5 * a * t * t
     tau = (a + b) / j
     v1 = v0 + a * tau - 0.5 * j * tau * tau
     if v1 <= 0.0:
         ts = (a + math.sqrt(a * a + 2.0 * j * v0)) / j
-        return x0 + v0 * ts + 0.5 * a * ts * ts - j * math.pow(ts, c[C_THREE]) / 6.0
-    return x0 + v0 * tau + 0.5 * a * tau * tau - j * math.pow(tau, c[C_THREE]) / 6.0 \
+        return x0 + v0 * ts + 0.5 * a * ts * ts - j * cpow(ts, 3.0) / 6.0
+    return x0 + v0 * tau + 0.5 * a * tau * tau - j * cpow(tau, 3.0) / 6.0 \
         + v1 * v1 / (2.0 * b)
 
 
 @jit
-def stop_bound(c, p, s, v, u_last):  # type: ignore[no-untyped-def]
+def stop_bound(c, ph, p, s, v, u_last):  # type: ignore[no-untyped-def]
     """``AtoCore.stop_bound``."""
-    d = p[P_LEN] - s
-    meff = c[C_MEFF]
-    f_hold = resistance(c, v) + grade_force(c, p, s)
-    f_max = pmax(c[C_MASS] * traction_accel(c, C_A1, v), 1.0)
+    d = ph.length - s
+    meff = c.meff
+    f_hold = resistance(c, v) + grade_force(c, ph, p, s)
+    f_max = pmax(c.mass * train_traction(c, v), 1.0)
     a_hi = pmax((f_max - f_hold) / meff, 0.0)
     a_last = pmax((u_last * f_max - f_hold) / meff, 0.0) if u_last > 0.0 else 0.0
-    if stop_distance(c, p, v, a_last) >= d:
+    if stop_distance(c, ph, p, v, a_last) >= d:
         return 0.0
-    if stop_distance(c, p, v, a_hi) <= d:
+    if stop_distance(c, ph, p, v, a_hi) <= d:
         return 1.0
     lo, hi = 0.0, a_hi
     for _ in range(30):
         mid = 0.5 * (lo + hi)
-        if stop_distance(c, p, v, pmax(mid, a_last)) <= d:
+        if stop_distance(c, ph, p, v, pmax(mid, a_last)) <= d:
             lo = mid
         else:
             hi = mid

@@ -24,6 +24,14 @@ KERNEL_ENV = "METRO_ATC_ATO_KERNEL"
 """Environment variable selecting the ATO control step when the caller does not."""
 KERNELS = ("auto", "numba", "python")
 """Accepted names."""
+TRACTION_FIELDS = ("a1", "v1", "v2", "a2", "a3", "b2", "b3")
+"""The traction curve's fields of :data:`.control_kernel.CONSTANTS` (``w_``: the ATP's)."""
+ATP_FIELDS = ("g_down", "sbi_offset", "c0a", "bt", "btt", "t_r", "two_b", "t_sbi", "grid_x0",
+              "grid_dx")
+"""The ATP's fields of :data:`.control_kernel.CONSTANTS`, in :func:`pack_constants`' order."""
+CORE_FIELDS = ("period", "swing", "du_max", "brake_share", "approach_jerk", "feedforward",
+               "e_scale", "d_scale", "gain")
+"""The controller's fields of :data:`.control_kernel.CONSTANTS` (``AtoCore.kernel_constants``)."""
 
 
 def resolve_ato_kernel(name: Optional[str] = None) -> str:
@@ -31,42 +39,39 @@ def resolve_ato_kernel(name: Optional[str] = None) -> str:
     return resolve_kernel(name, KERNEL_ENV, "python", "ATO kernel")
 
 
-def traction_terms(train: TrainParams) -> list[float]:
-    """(a1, v1, v2, a2, a3, b2, b3) of ``max_traction_accel_at`` (the same floats)."""
-    return [train.a1_mps2, train.v1_mps, train.v2_mps, train.a2, train.a3, train.b2_mps,
-            train.b3_mps]
-
-
 def pack_constants(train: TrainParams, atp_train: TrainParams, core: Sequence[float],
                    atp: Sequence[float]) -> FloatArray:
-    """The ``C_*`` vector.
+    """The constants vector (float64, read as :data:`.control_kernel.CONSTANTS` by the kernel).
 
     ``core``: (period [s], swing [s], effort rate [1/s], brake share [-], approach jerk
     [m/s^3], feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-]);
     ``atp``: (g_down [m/s^2], SBI offset [m/s], (b_g t_r)^2, b_g t_r, b_g t_r t_r, t_r [s],
     2 b_g, t_sbi [s], grid x0 [m], grid dx [m]).
     """
-    c = np.zeros(ck.N_C)
-    c[ck.C_MASS] = train.mass_kg
-    c[ck.C_MEFF] = train.effective_mass_kg
-    c[ck.C_DA] = train.davis_a_n
-    c[ck.C_DB] = train.davis_b_n_per_mps
-    c[ck.C_DC] = train.davis_c_n_per_mps2
-    c[ck.C_A1:ck.C_A1 + 7] = traction_terms(train)
-    c[ck.C_BS] = train.max_service_brake_mps2
-    c[ck.C_LEN] = train.length_m
-    c[ck.C_WA1:ck.C_WA1 + 7] = traction_terms(atp_train)
-    c[ck.C_GDOWN:ck.C_GDOWN + 10] = [float(a) for a in atp]
-    c[ck.C_PERIOD:ck.C_PERIOD + 9] = [float(a) for a in core]
-    c[ck.C_TWO] = 2.0
-    c[ck.C_THREE] = 3.0
-    return c
+    if len(core) != len(CORE_FIELDS) or len(atp) != len(ATP_FIELDS):
+        raise ValueError("inconsistent ATO kernel constants")
+    c = np.zeros(1, dtype=ck.CONSTANTS)
+    r = c[0]
+    r["mass"] = train.mass_kg
+    r["meff"] = train.effective_mass_kg
+    r["davis_a"] = train.davis_a_n
+    r["davis_b"] = train.davis_b_n_per_mps
+    r["davis_c"] = train.davis_c_n_per_mps2
+    r["brake_service"] = train.max_service_brake_mps2
+    r["length"] = train.length_m
+    for pre, tr in (("", train), ("w_", atp_train)):
+        for name, val in zip(TRACTION_FIELDS, (tr.a1_mps2, tr.v1_mps, tr.v2_mps, tr.a2, tr.a3,
+                                               tr.b2_mps, tr.b3_mps)):
+            r[pre + name] = val
+    for name, val in zip(ATP_FIELDS + CORE_FIELDS, list(atp) + list(core)):
+        r[name] = float(val)
+    return c.view(np.float64)
 
 
 def pack_plan(head: Sequence[float], ref_s: FloatArray, ref_e: FloatArray,
               grade_bp: FloatArray, grade_cum: FloatArray, s_env: FloatArray,
               e_ceiling: FloatArray, b_tab: FloatArray) -> FloatArray:
-    """The plan vector: ``head`` (``P_X0`` .. ``P_CV``), the counts, then the tables."""
+    """The plan vector: ``head`` (the ``PLAN`` fields up to ``creep_speed``), counts, tables."""
     tabs = (ref_s, ref_e, grade_bp, grade_cum, s_env, e_ceiling, b_tab)
     hdr = [float(a) for a in head] + [float(len(ref_s)), float(len(grade_bp)),
                                       float(len(s_env)), float(len(b_tab))]

@@ -11,26 +11,23 @@ from __future__ import annotations
 import math
 
 from metro_atc.core.ato.control_kernel import (
-    AUTH_MARGIN, BERTH, C_BS, C_BT, C_BTT, C_C0A, C_DSC, C_DUMAX, C_ESC, C_FF, C_GAIN,
-    C_BSHARE, C_GDOWN, C_GDX, C_GX0, C_LEN, C_OFF, C_PERIOD, C_SWING, C_TR, C_TSBI, C_TWOB, C_WA1,
-    FALLBACK, G, GUARD_GAIN, GUARD_SLACK, HOLD_BRAKE, JOIN_BAND, JOIN_MIN, LOOKAHEAD,
-    P_DIR, P_LEN, P_NB, P_NENV, P_NGBP, P_NREF, P_PSS, P_X0, PREVIEW, APPROACH_MIN,
-    R_ENVELOPE, R_PSS, R_STOPPED, R_TRACKING, RESTART_MAX, S_ARR, S_E, S_FF, S_HAS_E,
-    S_HAS_MA, S_HAS_T, S_HELD, S_MA, S_MA_T, S_NSTOP, S_PEAK, S_STILL, S_T, S_TU, S_U,
-    S_VMA, SAFE_BRAKE, SPEED_MARGIN, STOP_GUARD, N_PH, approach_bound, bisect_right,
-    brake_onset_bound, ceiling_e, feedforward, flc, pmax, pmin, speed_at,
-    stop_bound, traction_accel)
+    APPROACH_MIN, AUTH_MARGIN, BERTH, CONSTANTS, FALLBACK, GUARD_GAIN, GUARD_SLACK, HOLD_BRAKE,
+    JOIN_BAND, JOIN_MIN, LOOKAHEAD, N_PH, PLAN, PREVIEW, R_ENVELOPE, R_PSS, R_STOPPED, R_TRACKING,
+    RESTART_MAX, SAFE_BRAKE, SPEED_MARGIN, STATE, STOP_GUARD, approach_bound, atp_traction,
+    bisect_right, brake_onset_bound, ceiling_e, feedforward, flc, pmax, pmin, speed_at,
+    stop_bound)
 from metro_atc.core.ato.step_kernel import jit
+from metro_atc.core.laws import braking_speed, ebi_speed_from, guaranteed_decel_on_grade
 
 N_LH = 3
 """Line vector header length."""
 
 
 @jit
-def cap_at(c, p, ln, x, v, cap, ma, c0, c2, authority):  # type: ignore[no-untyped-def]
+def cap_at(c, ph, p, ln, x, v, cap, ma, c0, c2, authority):  # type: ignore[no-untyped-def]
     """``OnboardAto._cap_at`` with no TSR known (cap: the supervision cap) [m/s]."""
     n = int(ln[0])
-    x0, dx = c[C_GX0], c[C_GDX]
+    x0, dx = c.grid_x0, c.grid_dx
     k0 = int((x - x0) / dx)
     k1 = int((x + v * LOOKAHEAD + 1.0 - x0) / dx) + 1
     k0 = 0 if k0 < 0 else (k0 if k0 < n else n - 1)
@@ -39,22 +36,19 @@ def cap_at(c, p, ln, x, v, cap, ma, c0, c2, authority):  # type: ignore[no-untyp
     for k in range(k0 + 1, k1):
         if ln[N_LH + k] < m:
             m = ln[N_LH + k]
-    cc = m - c[C_OFF] - SPEED_MARGIN
+    cc = m - c.sbi_offset - SPEED_MARGIN
     if cc < cap:
         cap = cc
-    nb = int(p[P_NB])
-    bo = N_PH + 2 * int(p[P_NREF]) + 2 * int(p[P_NGBP]) + 2 * int(p[P_NENV])
-    i = int((p[P_DIR] * (x - p[P_X0]) + 50.0) / 10.0)
+    nb = int(ph.n_brake)
+    bo = N_PH + 2 * int(ph.n_ref) + 2 * int(ph.n_grade) + 2 * int(ph.n_env)
+    i = int((ph.direction * (x - ph.x0) + 50.0) / 10.0)
     b = p[bo + (0 if i < 0 else (i if i < nb else nb - 1))]
     if authority and math.isfinite(ma):
         d = ma - x - AUTH_MARGIN
-        cc = math.sqrt(2.0 * b * (0.0 if 0.0 > d else d))
+        cc = braking_speed(d, b)
         if cc < cap:
             cap = cc
-        q = c0 + c[C_TWOB] * (d - c[C_TSBI] * v)
-        if q < 0.0:
-            q = 0.0
-        cc = ((math.sqrt(q) if q == q else q) - c2) - c[C_OFF] - SPEED_MARGIN
+        cc = ebi_speed_from(c0, c.two_b, c2, d - c.t_sbi * v) - c.sbi_offset - SPEED_MARGIN
         if cc < cap:
             cap = cc
     return 0.0 if 0.0 > cap else cap
@@ -68,110 +62,114 @@ def brake_capability(c, ln, x):  # type: ignore[no-untyped-def]
     """
     ns, ng = int(ln[0]), int(ln[1])
     so = N_LH + ns
-    lo, hi = x - c[C_LEN], pmax(x, x) + 1.0
+    lo, hi = x - c.length, pmax(x, x) + 1.0
     i0 = min(max(bisect_right(ln, so, ng, lo) - 1, 0), ng - 1)
     i1 = min(max(bisect_right(ln, so, ng, hi) - 1, 0), ng - 1)
     if not (math.isfinite(lo) and math.isfinite(hi) and i1 - i0 <= 1):
         return math.nan
     g = pmin(ln[so + ng + i0], ln[so + ng + i1])
-    return pmax(c[C_BS] + G * pmin(g, 0.0), 0.05)
+    return pmax(guaranteed_decel_on_grade(c.brake_service, -pmin(g, 0.0)), 0.05)
 
 
 @jit
-def control_step(c, p, ln, st, t, x, v, sup, ma, nxt):  # type: ignore[no-untyped-def]
-    """One control step: (effort u, reason code) or (nan, FALLBACK) with ``st`` untouched.
+def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyped-def]
+    """One control step: (effort u, reason code) or (nan, FALLBACK) with ``sr`` untouched.
 
-    t [s], x [m], v [m/s], sup: supervision speed [m/s], ma: end of authority [m], nxt: the
-    next station index of the state; ``st`` the per-train state (``S_*``), updated.
+    cr: the constants (float vector of ``control_kernel.CONSTANTS``); t [s], x [m], v [m/s],
+    sup: supervision speed [m/s], ma: end of authority [m], nxt: the next station index of
+    the state; sr: the per-train state (float vector of ``control_kernel.STATE``), updated.
     """
-    period = c[C_PERIOD]
+    c = cr.view(CONSTANTS)[0]
+    st = sr.view(STATE)[0]
+    ph = p[:N_PH].view(PLAN)[0]
+    period = c.period
     if not (math.isfinite(t) and math.isfinite(x) and math.isfinite(v)):
         return math.nan, FALLBACK
     if abs(x) > 1e12 or abs(v) > 1e6 or abs(t) > 1e15:
         return math.nan, FALLBACK
-    has_t = st[S_HAS_T] != 0.0
-    if has_t and t < st[S_T] - 1e-9:
+    has_t = st.has_t != 0.0
+    if has_t and t < st.t - 1e-9:
         return math.nan, FALLBACK
-    dt = period if not has_t else t - st[S_T]
+    dt = period if not has_t else t - st.t
     if dt <= 0.0:
         return math.nan, FALLBACK
-    length = p[P_LEN]
-    s = p[P_DIR] * (x - p[P_X0])
-    arrived = st[S_ARR] != 0.0
+    length = ph.length
+    s = ph.direction * (x - ph.x0)
+    arrived = st.arrived != 0.0
     if (not arrived) and s > length + 2.0:
         return math.nan, FALLBACK
-    if not abs(s - (s - c[C_LEN])) > 1e-12:
+    if not abs(s - (s - c.length)) > 1e-12:
         return math.nan, FALLBACK
     b_ach = brake_capability(c, ln, x)
     if b_ach != b_ach:
         return math.nan, FALLBACK
-    u_last = st[S_U]
-    last_ff = st[S_FF]
-    trk_u = st[S_TU]
+    u_last = st.u
+    last_ff = st.ff
+    trk_u = st.tu
     # ---- OnboardAto.control: caps at the preview position
     xp = x + PREVIEW * v * period
     h = pmax(v * period, 0.5)
-    a_w = traction_accel(c, C_WA1, v) + c[C_GDOWN]
+    a_w = atp_traction(c, v) + c.g_down
     cap0 = math.inf
     if math.isfinite(sup):
-        cap0 = sup - c[C_OFF] - SPEED_MARGIN
-    c0 = c[C_C0A] + c[C_BTT] * a_w
-    c2 = c[C_BT] + c[C_TR] * a_w
-    cap_p = cap_at(c, p, ln, xp, v, cap0, ma, c0, c2, True)
+        cap0 = sup - c.sbi_offset - SPEED_MARGIN
+    c0 = c.c0a + c.btt * a_w
+    c2 = c.bt + c.t_r * a_w
+    cap_p = cap_at(c, ph, p, ln, xp, v, cap0, ma, c0, c2, True)
     if cap_p - v > JOIN_BAND and v > JOIN_MIN and u_last > 0.0:
-        xp += v * c[C_SWING]
-        cap_p = pmin(cap_p, cap_at(c, p, ln, xp, v, cap0, ma, c0, c2, True))
+        xp += v * c.swing
+        cap_p = pmin(cap_p, cap_at(c, ph, p, ln, xp, v, cap0, ma, c0, c2, True))
     # _speed_dip (its state; no TSR known: no hold)
     ns, ng = int(ln[0]), int(ln[1])
     n_st = int(ln[2])
     x_stop = ln[N_LH + ns + 2 * ng + nxt] if 0 <= nxt < n_st else math.inf
-    cc = math.sqrt(2.0 * pmax(ceiling_e(p, p[P_DIR] * (x - p[P_X0])), 0.0))
-    peak = st[S_PEAK]
+    cc = math.sqrt(2.0 * pmax(ceiling_e(ph, p, ph.direction * (x - ph.x0)), 0.0))
+    peak = st.peak
     if v >= cc - JOIN_BAND or v > peak:
         peak = v
-    cap_h = cap_at(c, p, ln, xp + h, v, cap0, ma, c0, c2, True)
+    cap_h = cap_at(c, ph, p, ln, xp + h, v, cap0, ma, c0, c2, True)
     slope = (cap_h * cap_h - cap_p * cap_p) / (2.0 * h) \
         if math.isfinite(cap_p) and math.isfinite(cap_h) else 0.0
     # _authority_speed
-    v_ma = st[S_VMA]
-    if st[S_HAS_MA] == 0.0 or not (math.isfinite(ma) and math.isfinite(st[S_MA])):
+    v_ma = st.v_ma
+    if st.has_ma == 0.0 or not (math.isfinite(ma) and math.isfinite(st.ma)):
         v_ma = 0.0
-    elif 0.0 < t - st[S_MA_T] <= 2.0:
-        v_ma = pmax((ma - st[S_MA]) / (t - st[S_MA_T]), 0.0)
+    elif 0.0 < t - st.ma_t <= 2.0:
+        v_ma = pmax((ma - st.ma) / (t - st.ma_t), 0.0)
     if slope < 0.0 and v_ma > 0.0 and v > 0.0 \
-            and cap_p < cap_at(c, p, ln, xp, v, cap0, ma, c0, c2, False) - 1e-9:
+            and cap_p < cap_at(c, ph, p, ln, xp, v, cap0, ma, c0, c2, False) - 1e-9:
         slope *= pmin(pmax(1.0 - v_ma / v, 0.0), 1.0)
     # ---- AtoCore.command_ex
     vc = pmax(v, 0.0)
     dt = pmin(dt, 5.0 * period)
-    has_e = st[S_HAS_E] != 0.0
-    e_prev = st[S_E]
-    still = st[S_STILL]
+    has_e = st.has_e != 0.0
+    e_prev = st.e
+    still = st.still
     if arrived:
         u_trk = HOLD_BRAKE
         reason = R_STOPPED
         u_new_last = HOLD_BRAKE
     else:
         s_p = s + PREVIEW * vc * period
-        r = speed_at(p, s_p)
+        r = speed_at(ph, p, s_p)
         r_swing = math.nan
         if r - vc > JOIN_BAND and vc > JOIN_MIN and u_last > 0.0:
-            r_swing = speed_at(p, s_p + vc * c[C_SWING])
+            r_swing = speed_at(ph, p, s_p + vc * c.swing)
             r = pmin(r, r_swing)
         r_plan = r
         capped = cap_p < r
         if capped:
             r = pmax(cap_p, 0.0)
-        u_ff = feedforward(c, p, s, vc, r, capped, slope) if c[C_FF] != 0.0 else 0.0
+        u_ff = feedforward(c, ph, p, s, vc, r, capped, slope) if c.feedforward != 0.0 else 0.0
         last_ff = u_ff
         # FuzzyController._step_at
         e = r - vc
         d = 0.0 if not has_e else e - e_prev
-        e_n, d_n = e / c[C_ESC], d / c[C_DSC]
+        e_n, d_n = e / c.e_scale, d / c.d_scale
         if not (math.isfinite(e_n) and math.isfinite(d_n) and math.isfinite(u_ff)):
             return math.nan, FALLBACK
         has_e, e_prev = True, e
-        uu = trk_u + c[C_GAIN] * flc(e_n, d_n)
+        uu = trk_u + c.gain * flc(e_n, d_n)
         lo, hi = -1.0 - u_ff, 1.0 - u_ff
         uu = uu if not uu < lo else lo
         uu = uu if not uu > hi else hi
@@ -181,30 +179,30 @@ def control_step(c, p, ln, st, t, x, v, sup, ma, nxt):  # type: ignore[no-untype
         bounded = False
         if u > 0.0 and vc > APPROACH_MIN:
             if not capped and r_swing != r_swing:
-                r_swing = speed_at(p, s_p + vc * c[C_SWING])
+                r_swing = speed_at(ph, p, s_p + vc * c.swing)
             r_end = r if capped else pmin(pmax(r, r_swing), cap_p)
-            u_b = approach_bound(c, p, s, vc, r_end)
+            u_b = approach_bound(c, ph, p, s, vc, r_end)
             if u_b < u:
                 u, bounded = u_b, True
-        if not capped and vc > JOIN_MIN and u_last > -c[C_BSHARE]:
-            u_b = brake_onset_bound(c, p, s, s_p, vc, r, dt, u_last)
+        if not capped and vc > JOIN_MIN and u_last > -c.brake_share:
+            u_b = brake_onset_bound(c, ph, p, s, s_p, vc, r, dt, u_last)
             if u_b < u:
                 u, bounded = u_b, True
         if u > 0.0 and vc < RESTART_MAX and s > 0.5 * length:
-            u_b = stop_bound(c, p, s, vc, u_last)
+            u_b = stop_bound(c, ph, p, s, vc, u_last)
             if u_b < u:
                 u, bounded = u_b, True
         if r_plan <= 0.0 and s >= length - BERTH:
             u = pmin(u, HOLD_BRAKE)
-        q = 2.0 * ceiling_e(p, pmin(pmax(s, 0.0), length))
+        q = 2.0 * ceiling_e(ph, p, pmin(pmax(s, 0.0), length))
         ceiling = math.sqrt(q) if q >= 0.0 else math.nan
         reason = R_TRACKING
-        if s >= p[P_PSS]:
+        if s >= ph.pss_start:
             reason = R_PSS
         if vc > ceiling + 1.0 and s < length:
             u = SAFE_BRAKE
             reason = R_ENVELOPE
-        du = c[C_DUMAX] * dt
+        du = c.du_max * dt
         u_lim = pmin(pmax(u, u_last - du), u_last + du)
         if (u_lim != u or bounded) and reason != R_ENVELOPE:
             trk_u = u_lim - u_ff
@@ -221,13 +219,13 @@ def control_step(c, p, ln, st, t, x, v, sup, ma, nxt):  # type: ignore[no-untype
         u_new_last = u
     # ---- guard
     bound = 1.0
-    bs = c[C_BS]
+    bs = c.brake_service
     dd = x_stop - x
     if 0.0 < dd < 400.0 and v > 0.3:
         a_req = v * v / (2.0 * pmax(dd - 0.15, 0.05))
         if a_req > STOP_GUARD * b_ach:
             bound = pmin(bound, -pmin(1.0, (a_req + bs - b_ach) / bs))
-    cap = cap_at(c, p, ln, x, v, cap0, ma, c0, c2, True)
+    cap = cap_at(c, ph, p, ln, x, v, cap0, ma, c0, c2, True)
     over = v - cap - GUARD_SLACK
     if over > 0.0:
         bound = pmin(bound, -pmin(1.0, (bs - b_ach) / bs + GUARD_GAIN * over))
@@ -236,20 +234,20 @@ def control_step(c, p, ln, st, t, x, v, sup, ma, nxt):  # type: ignore[no-untype
         u_new_last = u
         trk_u = u - last_ff
     # ---- write the state back
-    st[S_HAS_T] = 1.0
-    st[S_T] = t
-    st[S_U] = u_new_last
-    st[S_FF] = last_ff
-    st[S_ARR] = 1.0 if arrived else 0.0
-    st[S_STILL] = still
-    st[S_HAS_E] = 1.0 if has_e else 0.0
-    st[S_E] = e_prev
-    st[S_TU] = trk_u
-    st[S_HAS_MA] = 1.0
-    st[S_MA_T] = t
-    st[S_MA] = ma
-    st[S_VMA] = v_ma
-    st[S_PEAK] = peak
-    st[S_NSTOP] = x_stop
-    st[S_HELD] = 0.0
+    st.has_t = 1.0
+    st.t = t
+    st.u = u_new_last
+    st.ff = last_ff
+    st.arrived = 1.0 if arrived else 0.0
+    st.still = still
+    st.has_e = 1.0 if has_e else 0.0
+    st.e = e_prev
+    st.tu = trk_u
+    st.has_ma = 1.0
+    st.ma_t = t
+    st.ma = ma
+    st.v_ma = v_ma
+    st.peak = peak
+    st.next_stop = x_stop
+    st.held = 0.0
     return u, reason

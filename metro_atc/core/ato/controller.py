@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from typing import Any, Optional
 
 
+from metro_atc.core.ato.control_kernel import STATE_INDEX
 from metro_atc.core.ato.envelope import OperatingLimits, RunModel
 from metro_atc.core.ato.fuzzy import FuzzyController
 from metro_atc.core.ato.pi import PIController
@@ -437,9 +438,10 @@ class AtoCore:
         return out
 
     def kernel_state(self) -> Optional[list[float]]:
-        """The per-train state the compiled step reads (``control_kernel.S_HAS_T`` .. ``S_TU``).
+        """The per-train state the compiled step reads: ``control_kernel.CORE_STATE_FIELDS``.
 
-        None when the tracker's state is not a plain one-train state.
+        Their values in that order; None when the tracker's state is not a plain one-train
+        state.
         """
         ts = self.tracker.scalar_state() if isinstance(self.tracker, FuzzyController) \
             else None
@@ -451,14 +453,15 @@ class AtoCore:
                 1.0 if ts[0] else 0.0, ts[1], ts[2]]
 
     def set_kernel_state(self, st: list[float], reason: str) -> None:
-        """Take the state back from the compiled step (:meth:`kernel_state`'s layout)."""
-        self._last_t = st[1] if st[0] != 0.0 else None
-        self._last_u = st[2]
-        self._last_ff = st[3]
-        self._arrived = st[4] != 0.0
-        self._still_s = st[5]
+        """Take the state back from the compiled step (``control_kernel.STATE_FIELDS``' values)."""
+        i = STATE_INDEX
+        self._last_t = st[i["t"]] if st[i["has_t"]] != 0.0 else None
+        self._last_u = st[i["u"]]
+        self._last_ff = st[i["ff"]]
+        self._arrived = st[i["arrived"]] != 0.0
+        self._still_s = st[i["still"]]
         assert isinstance(self.tracker, FuzzyController)
-        self.tracker.set_scalar_state(st[6] != 0.0, st[7], st[8])
+        self.tracker.set_scalar_state(st[i["has_e"]] != 0.0, st[i["e"]], st[i["tu"]])
         self.last_reason = reason
 
     @property

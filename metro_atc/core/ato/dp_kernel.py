@@ -10,7 +10,7 @@ These loops advance one trajectory at a time with
 ECTP/ACTP kernel); the numpy path stays the reference and is tested equal to this one
 (``test/test_ato_dp.py``).
 
-Train constants are packed in a float array (:func:`pack_train`).
+Train constants are packed in a record (:func:`pack_train`).
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ def simulate_batch(p, modes, levels, fg_sub, cap_sub, h):  # type: ignore[no-unt
     grade force [N] and envelope [m^2/s^2] per stage and sub-step; h: sub-step [m].  Returns
     e at the stages, cumulative energy [J] and time [s], each (n_c, n_st + 1).
     """
+    tr = p[0]
     n_c, n_st = modes.shape
     n_sub = fg_sub.shape[1]
     e_path = np.zeros((n_c, n_st + 1))
@@ -47,7 +48,7 @@ def simulate_batch(p, modes, levels, fg_sub, cap_sub, h):  # type: ignore[no-unt
         for k in range(n_st):
             hold = e
             for q in range(n_sub):
-                e, dt, de, _ = strategy_step_one(p, e, h, fg_sub[k, q], cap_sub[k, q],
+                e, dt, de, _ = strategy_step_one(tr, e, h, fg_sub[k, q], cap_sub[k, q],
                                                  modes[c, k], hold, levels[c, k])
                 energy = energy + de
                 tm = tm + dt
@@ -61,6 +62,7 @@ def simulate_batch(p, modes, levels, fg_sub, cap_sub, h):  # type: ignore[no-unt
 def simulate_stages(p, ks, e0, modes, levels, fg_sub, cap_sub, h
                     ):  # type: ignore[no-untyped-def]
     """One stage ``ks[i]`` per element from e0[i] (mode, level): (e_next, J, s) arrays."""
+    tr = p[0]
     n = ks.size
     n_sub = fg_sub.shape[1]
     e_out = np.empty(n)
@@ -72,7 +74,7 @@ def simulate_stages(p, ks, e0, modes, levels, fg_sub, cap_sub, h
         energy = 0.0
         tm = 0.0
         for q in range(n_sub):
-            e, dt, de, _ = strategy_step_one(p, e, h, fg_sub[k, q], cap_sub[k, q], modes[i],
+            e, dt, de, _ = strategy_step_one(tr, e, h, fg_sub[k, q], cap_sub[k, q], modes[i],
                                              e0[i], levels[i])
             energy += de
             tm += dt

@@ -37,13 +37,14 @@ import numpy as np
 
 from metro_atc.core.ato.controller import (JOIN_BAND_MPS, JOIN_MIN_SPEED_MPS, PREVIEW_PERIODS,
                                            AtoCore)
-from metro_atc.core.ato.control_kernel import REASONS
+from metro_atc.core.ato.control_kernel import REASONS, STATE_FIELDS, STATE_INDEX
 from metro_atc.core.ato.control_kernel_pack import (control_step_fn, pack_constants, pack_line,
                                                     pack_plan, resolve_ato_kernel)
 from metro_atc.core.ato.envelope import OperatingLimits
 from metro_atc.core.ato.planner import Profile
 from metro_atc.core.ato.tsr_plan import tsrs_for_run
 from metro_atc.core.bridge import ato_limits_for
+from metro_atc.core.laws import braking_speed, ebi_speed_from
 from metro_atc.core.line.atp_constants import SBI_OFFSET_MPS, atp_constants
 from metro_atc.core.line.geometry import build_geometry
 from metro_atc.core.line.track import (braking_envelope, ebi_speed_at, window_min_ahead,
@@ -287,9 +288,11 @@ class OnboardAto:
         if not -2 ** 62 < nxt < 2 ** 62:
             return None
         ma = self._ma_prev
-        st = np.array(ks + [0.0 if ma is None else 1.0, 0.0 if ma is None else ma[0],
-                            0.0 if ma is None else ma[1], self.authority_speed_mps,
-                            self._peak_mps, self._next_stop_m, self._held_mps])
+        own = {"has_ma": 0.0 if ma is None else 1.0, "ma_t": 0.0 if ma is None else ma[0],
+               "ma": 0.0 if ma is None else ma[1], "v_ma": self.authority_speed_mps,
+               "peak": self._peak_mps, "next_stop": self._next_stop_m,
+               "held": self._held_mps}
+        st = np.array(ks + [own[f] for f in STATE_FIELDS[len(ks):]])
         u, code = self._kstep(self._kconst, self._kplan[2], self._kline, st, t,
                               float(s["x_m"]), float(s["v_mps"]),
                               float(s["supervision_speed_mps"]),
@@ -297,11 +300,12 @@ class OnboardAto:
         if code < 0:
             return None
         vals = st.tolist()
-        core.set_kernel_state(vals[:9], REASONS[code])
-        self._ma_prev = (vals[10], vals[11])
-        self.authority_speed_mps = vals[12]
-        self._peak_mps = vals[13]
-        self._next_stop_m = vals[14]
+        core.set_kernel_state(vals, REASONS[code])
+        i = STATE_INDEX
+        self._ma_prev = (vals[i["ma_t"]], vals[i["ma"]])
+        self.authority_speed_mps = vals[i["v_ma"]]
+        self._peak_mps = vals[i["peak"]]
+        self._next_stop_m = vals[i["next_stop"]]
         self._held_mps = 0.0
         self.kernel_steps += 1
         mode = MODE_ACCELERATE if u > 0.05 else (MODE_BRAKE if u < -0.05 else MODE_COAST)
@@ -486,15 +490,12 @@ class OnboardAto:
             b = self._plan_decel(x)
         if authority and math.isfinite(ma):
             d = ma - x - AUTHORITY_MARGIN_M
-            c = math.sqrt(2.0 * b * (0.0 if 0.0 > d else d))
+            c = braking_speed(d, b)
             if c < cap:
                 cap = c
-            # AtpModel.sbi_speed -> ebi_speed_at(d - t_sbi v, 0, a_w, t_r, b_g), written out
+            # AtpModel.sbi_speed -> ebi_speed_at(d - t_sbi v, 0, a_w, t_r, b_g)
             c0, c2, two_b, t_sbi, off = terms
-            q = c0 + two_b * (d - t_sbi * v)
-            if q < 0.0:  # np.maximum(q, 0): NaN and -0.0 pass
-                q = 0.0
-            c = ((math.sqrt(q) if q == q else q) - c2) - off - SPEED_MARGIN_MPS
+            c = ebi_speed_from(c0, two_b, c2, d - t_sbi * v) - off - SPEED_MARGIN_MPS
             if c < cap:
                 cap = c
         if zones:

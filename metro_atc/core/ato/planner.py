@@ -25,6 +25,7 @@ from metro_atc.core.ato.envelope import (MODE_ACCEL, MODE_BRAKE, MODE_COAST, MOD
 from metro_atc.core.ato.mmas import MmasParams, solve_mmas
 from metro_atc.core.ato.registry import PLANNERS as PLANNER_REGISTRY
 from metro_atc.core.ato.sections import build_section_tables
+from metro_atc.core.laws import G_MPS2
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -76,7 +77,7 @@ def derive_sections(run: RunModel, s: FloatArray, v: FloatArray
     """
     _, _, force = profile_energy_time(run, s, v)
     dv = np.diff(v)
-    tol = 0.005 * run.train.mass_kg * 9.80665
+    tol = 0.005 * run.train.mass_kg * G_MPS2
     mode = np.where(np.abs(force) < tol, MODE_COAST,
                     np.where(force < 0.0, MODE_BRAKE,
                              np.where(dv > 1e-3, MODE_ACCEL, MODE_CRUISE)))

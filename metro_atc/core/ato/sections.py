@@ -30,6 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, MODE_CRUISE, RunModel
 from metro_atc.core.ato.strategy import strategy_step
+from metro_atc.core.laws import G_MPS2
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -141,7 +142,7 @@ def build_section_tables(run: RunModel, n_sections: int = 50,
     allowed[np.arange(n_sections)[has_above], first_above[has_above]] = True
     allowed[~np.any(allowed, axis=1), 0] = True
     gbar = (run.grade_force_integral(bounds[1:]) - run.grade_force_integral(bounds[:-1])) \
-        / (seg * run.train.mass_kg * 9.80665)
+        / (seg * run.train.mass_kg * G_MPS2)
     return SectionTables(run=run, bounds_s=bounds, codes_mps=codes, e_grid=e_grid,
                          e_out=out_e, time_s=out_t, energy_j=out_j, mean_grade=gbar,
                          code_allowed=allowed, substep_m=h, delta=float(delta))

@@ -8,7 +8,8 @@ eq. 7-8; envelope cap; trapezoid time), written once for the compiled loops of E
 (:mod:`metro_atc.core.ato.dp_kernel`), in the numpy path's operation order: their tests
 compare each with the numpy reference to round-off.
 
-Train and limit constants travel as one float vector (``K_*`` indices, :func:`pack_train`).
+Train and limit constants travel as one record (:data:`TRAIN`, :func:`pack_train`; the
+kernels' entry points take the one-element array and hand its record ``c[0]`` down).
 Compiled with numba when it is installed (:func:`jit`), plain Python otherwise.
 """
 
@@ -21,13 +22,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from metro_atc.core.ato.envelope import MODE_COAST, MODE_CRUISE, OperatingLimits
+from metro_atc.core import laws
 from metro_atc.core.kernel_choice import numba_available
 from metro_atc.core.line.vehicle import TrainParams
 
 FloatArray = NDArray[np.float64]
 
-(K_MASS, K_MEFF, K_DA, K_DB, K_DC, K_A1, K_V1, K_V2, K_A2, K_A3, K_B2, K_B3, K_AMAX,
- N_CONST) = range(14)
+TRAIN_FIELDS = ("mass", "meff", "davis_a", "davis_b", "davis_c", "a1", "v1", "v2", "a2", "a3",
+                "b2", "b3", "accel_max")
+"""Fields of :data:`TRAIN`: mass, effective mass [kg], Davis a [N], b [N s/m], c [N s^2/m^2],
+the traction curve (a1 [m/s^2], v1, v2 [m/s], a2 [m^2/s^3], a3 [m^3/s^4], b2, b3 [m/s]) and
+the planning acceleration limit [m/s^2]."""
+TRAIN = np.dtype([(f, np.float64) for f in TRAIN_FIELDS])
+"""The train and limit constants the kernels read, by name (one-element arrays)."""
 
 TINY = 1e-12
 
@@ -40,22 +47,23 @@ def jit(fn: Callable[..., Any]) -> Callable[..., Any]:
     return njit(cache=True, error_model="numpy")(fn)  # type: ignore[no-any-return]
 
 
-def pack_train(train: TrainParams, limits: OperatingLimits) -> FloatArray:
-    """Pack the train and limit constants the kernels read into one vector (``K_*``)."""
-    c = np.zeros(N_CONST)
-    c[K_MASS] = train.mass_kg
-    c[K_MEFF] = train.effective_mass_kg
-    c[K_DA] = train.davis_a_n
-    c[K_DB] = train.davis_b_n_per_mps
-    c[K_DC] = train.davis_c_n_per_mps2
-    c[K_A1] = train.a1_mps2
-    c[K_V1] = train.v1_mps
-    c[K_V2] = train.v2_mps
-    c[K_A2] = train.a2
-    c[K_A3] = train.a3
-    c[K_B2] = train.b2_mps
-    c[K_B3] = train.b3_mps
-    c[K_AMAX] = limits.accel_max_mps2
+def pack_train(train: TrainParams, limits: OperatingLimits) -> NDArray[np.void]:
+    """The train and limit constants the kernels read (a one-element :data:`TRAIN` array)."""
+    c = np.zeros(1, dtype=TRAIN)
+    r = c[0]
+    r["mass"] = train.mass_kg
+    r["meff"] = train.effective_mass_kg
+    r["davis_a"] = train.davis_a_n
+    r["davis_b"] = train.davis_b_n_per_mps
+    r["davis_c"] = train.davis_c_n_per_mps2
+    r["a1"] = train.a1_mps2
+    r["v1"] = train.v1_mps
+    r["v2"] = train.v2_mps
+    r["a2"] = train.a2
+    r["a3"] = train.a3
+    r["b2"] = train.b2_mps
+    r["b3"] = train.b3_mps
+    r["accel_max"] = limits.accel_max_mps2
     return c
 
 
@@ -76,22 +84,19 @@ def mn(a: float, b: float) -> float:
 
 
 @jit
-def traction_accel(c: FloatArray, v: float, fg: float, delta: float) -> float:
-    """:func:`metro_atc.core.ato.strategy.traction_accel` of one speed [m/s^2]."""
-    va = abs(v)
-    if va <= c[K_V1]:
-        phi = c[K_A1]
-    elif va <= c[K_V2]:
-        phi = c[K_A2] / (va + c[K_B2] + 1e-12)
-    else:
-        q = va + c[K_B3] + 1e-12
-        phi = c[K_A3] / (q * q)
-    f = delta * (c[K_MASS] * phi) - (c[K_DA] + c[K_DB] * v + c[K_DC] * v * v) - fg
-    return mn(f / c[K_MEFF], c[K_AMAX])  # type: ignore[no-any-return]
+def traction_accel(c: Any, v: float, fg: float, delta: float) -> float:
+    """:func:`metro_atc.core.ato.strategy.traction_accel` of one speed v >= 0 [m/s^2].
+
+    Level ``delta`` of :func:`metro_atc.core.laws.traction_accel` less
+    :func:`metro_atc.core.laws.davis_resistance` and the grade force, capped at a_max.
+    """
+    phi = laws.traction_accel(v, c.a1, c.v1, c.v2, c.a2, c.a3, c.b2, c.b3)
+    f = delta * (c.mass * phi) - laws.davis_resistance(v, c.davis_a, c.davis_b, c.davis_c) - fg
+    return mn(f / c.meff, c.accel_max)  # type: ignore[no-any-return]
 
 
 @jit
-def traction_step(c: FloatArray, e0: float, h: float, fg: float, delta: float) -> float:
+def traction_step(c: Any, e0: float, h: float, fg: float, delta: float) -> float:
     """:func:`metro_atc.core.ato.strategy.traction_step` of one trajectory (e0 >= 0)."""
     v0 = math.sqrt(2.0 * e0)
     e_p = mx(e0 + h * traction_accel(c, v0, fg, delta), 0.0)
@@ -121,12 +126,12 @@ def _rk4_f(e: float, c0: float, c1: float, c2: float) -> float:
 
 
 @jit
-def coast_step(c: FloatArray, e0: float, h: float, fg: float) -> tuple[float, float, bool]:
+def coast_step(c: Any, e0: float, h: float, fg: float) -> tuple[float, float, bool]:
     """:func:`metro_atc.core.ato.strategy.coast_step` of one trajectory: (e1, dt [s], stalled)."""
-    m = c[K_MEFF]
-    c0 = (c[K_DA] + fg) / m
-    c1 = c[K_DB] / m
-    c2 = c[K_DC] / m
+    m = c.meff
+    c0 = (c.davis_a + fg) / m
+    c1 = c.davis_b / m
+    c2 = c.davis_c / m
     v0 = math.sqrt(2.0 * e0)
     k1 = _rk4_f(e0, c0, c1, c2)
     k2 = _rk4_f(e0 + 0.5 * h * k1, c0, c1, c2)
@@ -159,7 +164,7 @@ def coast_step(c: FloatArray, e0: float, h: float, fg: float) -> tuple[float, fl
 
 
 @jit
-def strategy_step_one(c: FloatArray, e: float, h: float, fg: float, cap: float, mode: int,
+def strategy_step_one(c: Any, e: float, h: float, fg: float, cap: float, mode: int,
                       e_hold: float, delta: float) -> tuple[float, float, float, bool]:
     """:func:`metro_atc.core.ato.strategy.strategy_step` of one trajectory, no speed code.
 
@@ -182,8 +187,8 @@ def strategy_step_one(c: FloatArray, e: float, h: float, fg: float, cap: float, 
     v0 = math.sqrt(2.0 * e0)
     v1 = math.sqrt(2.0 * e1)
     vm = 0.5 * (v0 + v1)
-    force = c[K_MEFF] * (e1 - e0) / h \
-        + c[K_DA] + c[K_DB] * vm + c[K_DC] * vm * vm + fg
+    force = c.meff * (e1 - e0) / h \
+        + c.davis_a + c.davis_b * vm + c.davis_c * vm * vm + fg
     energy = 0.0 if coast else mx(force, 0.0) * h
     trap = 2.0 * h / mx(v0 + v1, 1e-300) if v0 + v1 > 0.0 else np.inf
     free_coast = coast and not clamped

@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, MODE_CRUISE, OperatingLimits
+from metro_atc.core.laws import davis_resistance_array, on_array
 from metro_atc.core.line.vehicle import TrainParams, max_traction_force
 
 FloatArray = NDArray[np.float64]
@@ -162,10 +163,14 @@ def _rk4_coast(e0: FloatArray, h: ArrayOrFloat, c0: ArrayLike, c1: float, c2: fl
 # ----------------------------------------------------------------------------- traction
 def traction_accel(train: TrainParams, limits: OperatingLimits, v: ArrayLike,
                    fg_n: ArrayLike, delta: ArrayLike) -> FloatArray:
-    """Net acceleration [m/s^2] under traction level delta (seed 002 eq. 3-5), capped at a_max."""
+    """Net acceleration [m/s^2] under traction level delta (seed 002 eq. 3-5), capped at a_max.
+
+    v >= 0 [m/s]; the resistance is :func:`metro_atc.core.laws.davis_resistance`.
+    """
     va = np.asarray(v, dtype=float)
     f = np.asarray(delta, dtype=float) * max_traction_force(train, va) \
-        - (train.davis_a_n + train.davis_b_n_per_mps * va + train.davis_c_n_per_mps2 * va * va) \
+        - on_array(davis_resistance_array, va, train.davis_a_n, train.davis_b_n_per_mps,
+                   train.davis_c_n_per_mps2) \
         - np.asarray(fg_n, dtype=float)
     return np.minimum(f / train.effective_mass_kg, limits.accel_max_mps2)
 

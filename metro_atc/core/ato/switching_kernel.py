@@ -1,12 +1,11 @@
-"""Compiled (numba) twin of the numpy simulation of traction-then-coast strategies.
+"""Compiled (numba) simulation of traction-then-coast strategies (ECTP, ACTP).
 
-:func:`simulate_kernel` reproduces :func:`metro_atc.core.ato.coasting.simulate_switching_numpy`
-(the numpy reference: :func:`metro_atc.core.ato.strategy.strategy_step` in accelerate /
-coast mode with no speed code, closed-form coasting of seed 002 eq. 7-8) element by element,
-in the same operation order (no fast-math, no fused multiply-add), one strategy at a time:
-the numpy path pays ~60 array calls per distance step whatever the number of strategies,
-this loop pays a few hundred nanoseconds per step and strategy.  Both paths agree to
-round-off (``test/test_ato_switching_kernel.py`` compares them on generated lines).
+:func:`simulate_kernel` runs :func:`metro_atc.core.ato.coasting.simulate_switching`: per
+strategy and distance step, :func:`metro_atc.core.ato.step_kernel.strategy_step_one` in
+accelerate / coast mode with no speed code (closed-form coasting, Taipei MRT ACTP paper,
+eq. 7-8), a coasting point inside a step splitting it.  ``test/test_ato_switching_kernel.py``
+holds it to the numbers of the former numpy reference (frozen in ``test/data``) on generated
+lines.
 
 The step itself is :func:`metro_atc.core.ato.step_kernel.strategy_step_one` (shared with
 the DP's kernel); the train's constants come packed by
@@ -29,16 +28,17 @@ FloatArray = NDArray[np.float64]
 
 
 @njit(cache=True, error_model="numpy")
-def simulate_kernel(c: FloatArray, s: FloatArray, h: float, fg: FloatArray, cap: FloatArray,
-                    yc: FloatArray, delta: FloatArray, record: bool
+def simulate_kernel(c: NDArray[np.void], s: FloatArray, h: float, fg: FloatArray,
+                    cap: FloatArray, yc: FloatArray, delta: FloatArray, record: bool
                     ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], FloatArray]:
     """Time [s], energy [J], stalled flag and (if ``record``) e = v^2/2 history per strategy.
 
-    c: :func:`metro_atc.core.ato.step_kernel.pack_train`; s: (n+1,) uniform grid [m] of
-    step h [m]; fg: (n,) mean grade force of each step [N]; cap: (n,) envelope e at each
+    c: :func:`metro_atc.core.ato.step_kernel.pack_train` (one record); s: (n+1,) uniform grid
+    [m] of step h [m]; fg: (n,) mean grade force of each step [N]; cap: (n,) envelope e at each
     step's end; yc, delta: (K,) coasting points [m] and traction levels.  The history has
     shape (K, n+1) (or (0, 0) without ``record``).
     """
+    tr = c[0]
     n = s.shape[0] - 1
     k_n = yc.shape[0]
     t_out = np.zeros(k_n)
@@ -57,11 +57,11 @@ def simulate_kernel(c: FloatArray, s: FloatArray, h: float, fg: FloatArray, cap:
             sw = (y > sk + 1e-9) and (y < s[k + 1] - 1e-9)
             accel = sk + 1e-9 < y
             h1 = y - sk if sw else h
-            e1, dt, de, st1 = strategy_step_one(c, e, h1, fg[k], cap[k],
+            e1, dt, de, st1 = strategy_step_one(tr, e, h1, fg[k], cap[k],
                                                 MODE_ACCEL if accel else MODE_COAST,
                                                 np.inf, dl)
             if sw:
-                e2, dt2, de2, st2 = strategy_step_one(c, e1, h - h1, fg[k], cap[k],
+                e2, dt2, de2, st2 = strategy_step_one(tr, e1, h - h1, fg[k], cap[k],
                                                       MODE_COAST, np.inf, dl)
                 e1 = e2
                 dt += dt2

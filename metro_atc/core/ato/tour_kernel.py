@@ -11,7 +11,7 @@ about 0.1 us per sub-step and tour, so that the local search of MMAS can use the
 simulation instead of the tables.  ``test_ato_mmas.py`` checks both paths agree to round-off
 on random tours (every mode, speed command, grade sign, braking).
 
-Constants of a run are packed in one float vector (indices ``P_*``, :func:`pack_params`).
+Constants of a run are packed in one record (:data:`TOUR`, :func:`pack_params`).
 Cheaper, same numbers: a coasting step re-uses the closed-form position / time of the
 previous step's end and the coefficients of the last grade force (:func:`_coast`), the
 Newton start skips the arctangent when it is multiplied by zero (Davis b = 0,
@@ -24,20 +24,24 @@ Compiled on first use and cached on disk (``cache=True``).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from metro_atc.core import laws
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, MODE_CRUISE, OperatingLimits
 from metro_atc.core.ato.sections import SectionTables
+from metro_atc.core.ato.step_kernel import TRAIN, TRAIN_FIELDS, pack_train
 from metro_atc.core.line.vehicle import TrainParams
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-(P_MASS, P_MEFF, P_DA, P_DB, P_DC, P_A1, P_V1, P_A2, P_B2, P_V2, P_A3, P_B3, P_AMAX,
- P_BRAKE, P_DELTA, P_H, N_PARAMS) = range(17)
+TOUR = np.dtype(TRAIN.descr + [(f, np.float64) for f in ("brake_decel", "delta", "h")])
+"""The kernel's constants by name: :data:`metro_atc.core.ato.step_kernel.TRAIN`'s fields, the
+planning deceleration [m/s^2], the traction level [-] and the sub-step [m]."""
 _TINY = 1e-12
 _ACC = MODE_ACCEL
 _CRU = MODE_CRUISE
@@ -45,41 +49,30 @@ _COA = MODE_COAST
 
 
 def pack_params(train: TrainParams, limits: OperatingLimits, delta: float, h: float
-                ) -> FloatArray:
-    """Constants of the kernel: train (seed 002 eq. 1-5), limits, traction level, step [m]."""
-    p = np.zeros(N_PARAMS)
-    p[P_MASS] = train.mass_kg
-    p[P_MEFF] = train.effective_mass_kg
-    p[P_DA] = train.davis_a_n
-    p[P_DB] = train.davis_b_n_per_mps
-    p[P_DC] = train.davis_c_n_per_mps2
-    p[P_A1] = train.a1_mps2
-    p[P_V1] = train.v1_mps
-    p[P_A2] = train.a2
-    p[P_B2] = train.b2_mps
-    p[P_V2] = train.v2_mps
-    p[P_A3] = train.a3
-    p[P_B3] = train.b3_mps
-    p[P_AMAX] = limits.accel_max_mps2
-    p[P_BRAKE] = limits.brake_decel_mps2
-    p[P_DELTA] = delta
-    p[P_H] = h
+                ) -> NDArray[np.void]:
+    """Constants of the kernel (a one-element :data:`TOUR` array).
+
+    The train and limits (:func:`metro_atc.core.ato.step_kernel.pack_train`), the planning
+    deceleration [m/s^2], the traction level delta [-] and the sub-step h [m].
+    """
+    p = np.zeros(1, dtype=TOUR)
+    tr = pack_train(train, limits)
+    for name in TRAIN_FIELDS:
+        p[name] = tr[name]
+    p["brake_decel"] = limits.brake_decel_mps2
+    p["delta"] = delta
+    p["h"] = h
     return p
 
 
 @njit(cache=True, error_model="numpy")
-def _trac_acc(p: FloatArray, v: float, fg: float) -> float:  # pragma: no cover - compiled
-    """:func:`strategy.traction_accel` for one speed [m/s^2]."""
-    va = abs(v)
-    if va <= p[P_V1]:
-        phi = p[P_A1]
-    elif va <= p[P_V2]:
-        phi = p[P_A2] / (va + p[P_B2] + 1e-12)
-    else:
-        phi = p[P_A3] / (va + p[P_B3] + 1e-12) ** 2
-    f = p[P_DELTA] * (p[P_MASS] * phi) - (p[P_DA] + p[P_DB] * va + p[P_DC] * va * va) - fg
-    a = f / p[P_MEFF]
-    return a if a <= p[P_AMAX] else p[P_AMAX]
+def _trac_acc(p: Any, v: float, fg: float) -> float:  # pragma: no cover - compiled
+    """:func:`strategy.traction_accel` for one speed [m/s^2] (the laws of :mod:`.laws`)."""
+    phi = laws.traction_accel(v, p.a1, p.v1, p.v2, p.a2, p.a3, p.b2, p.b3)
+    f = p.delta * (p.mass * phi) - laws.davis_resistance(v, p.davis_a, p.davis_b, p.davis_c) \
+        - fg
+    a = f / p.meff
+    return a if a <= p.accel_max else p.accel_max
 
 
 @njit(cache=True, error_model="numpy")
@@ -110,34 +103,55 @@ def _coast_x(w: float, d4: float, c2: float, bp: float, a: float
     return _coast_xt(w, d4, c2, bp, a)[0]
 
 
-M_FG, M_W, M_X, M_T, M_FGC, M_C0, M_C1, M_C2, M_BP, M_D4, M_A, N_MEMO = range(12)
-"""Slots of the coasting memo (:func:`_coast`)."""
+MEMO = np.dtype([(f, np.float64)
+                 for f in ("fg", "w", "x", "t", "fg_c", "c0", "c1", "c2", "bp", "d4", "a")])
+"""The coasting memo (:func:`_coast`): the last end-of-step evaluation (fg, w, X, T), the
+coefficients of the last grade force fg_c (c0, c1, c2, bp, d4, a)."""
 
 
 @njit(cache=True, error_model="numpy")
-def _coast(p: FloatArray, e0: float, v0: float, h: float, fg: float, memo: FloatArray
+def _new_memo():  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """An empty coasting memo (every field NaN: nothing equals it)."""
+    memo = np.empty(1, dtype=MEMO)[0]
+    memo.fg = np.nan
+    memo.w = np.nan
+    memo.x = np.nan
+    memo.t = np.nan
+    memo.fg_c = np.nan
+    memo.c0 = np.nan
+    memo.c1 = np.nan
+    memo.c2 = np.nan
+    memo.bp = np.nan
+    memo.d4 = np.nan
+    memo.a = np.nan
+    return memo
+
+
+@njit(cache=True, error_model="numpy")
+def _coast(p: Any, e0: float, v0: float, h: float, fg: float, memo: Any
            ) -> tuple[float, float, bool]:  # pragma: no cover - compiled
     """:func:`strategy.coast_step` for one element: (e1, dt [s], stalled).
 
-    e0 >= 0 [m^2/s^2] and v0 = sqrt(2 e0) [m/s] (the caller's).  memo (N_MEMO,), NaN when
-    empty: (fg, w, X, T) of the last closed-form evaluation at the end of a step; a step
-    with the same grade force starting at that w (the previous coasting step's end, bit for
-    bit) takes its start X, T from there instead of recomputing them; and the coefficients
-    c0, c1, c2, bp, d4, sqrt(|d4|) of the last grade force fg (the same expressions, so the
+    e0 >= 0 [m^2/s^2] and v0 = sqrt(2 e0) [m/s] (the caller's).  memo (a :data:`MEMO`
+    record), NaN when empty: (fg, w, X, T) of the last closed-form evaluation at the end of a
+    step; a step with the same grade force starting at that w (the previous coasting step's
+    end, bit for bit) takes its start X, T from there instead of recomputing them; and the
+    coefficients c0, c1, c2, bp, d4, sqrt(|d4|) of the last grade force fg (the same
+    expressions, so the
     same numbers).
     """
-    if memo[M_FGC] == fg:
-        c0 = memo[M_C0]
-        c1 = memo[M_C1]
-        c2 = memo[M_C2]
-        bp = memo[M_BP]
-        d4 = memo[M_D4]
-        a = memo[M_A]
+    if memo.fg_c == fg:
+        c0 = memo.c0
+        c1 = memo.c1
+        c2 = memo.c2
+        bp = memo.bp
+        d4 = memo.d4
+        a = memo.a
     else:
-        m = p[P_MEFF]
-        c0 = (p[P_DA] + fg) / m
-        c1 = p[P_DB] / m
-        c2 = p[P_DC] / m
+        m = p.meff
+        c0 = (p.davis_a + fg) / m
+        c1 = p.davis_b / m
+        c2 = p.davis_c / m
         bp = 0.0
         d4 = 0.0
         a = 0.0
@@ -147,13 +161,13 @@ def _coast(p: FloatArray, e0: float, v0: float, h: float, fg: float, memo: Float
             if abs(d4) < 1e-9:
                 d4 = 1e-9
             a = math.sqrt(d4) if d4 > 0.0 else math.sqrt(-d4)
-        memo[M_FGC] = fg
-        memo[M_C0] = c0
-        memo[M_C1] = c1
-        memo[M_C2] = c2
-        memo[M_BP] = bp
-        memo[M_D4] = d4
-        memo[M_A] = a
+        memo.fg_c = fg
+        memo.c0 = c0
+        memo.c1 = c1
+        memo.c2 = c2
+        memo.bp = bp
+        memo.d4 = d4
+        memo.a = a
     # RK4 in distance (the Newton start); the first stage's speed is v0
     k1 = -(c0 + c1 * v0 + c2 * v0 * v0)
     ee = e0 + 0.5 * h * k1
@@ -173,9 +187,9 @@ def _coast(p: FloatArray, e0: float, v0: float, h: float, fg: float, memo: Float
         dt = 2.0 * h / (v0 + v1 + 1e-300) if v0 + v1 > 0 else np.inf
         return e_guess, (np.inf if stalled else dt), stalled
     w0 = v0 + bp
-    if memo[M_FG] == fg and memo[M_W] == w0:
-        x0 = memo[M_X]
-        t0 = memo[M_T]
+    if memo.fg == fg and memo.w == w0:
+        x0 = memo.x
+        t0 = memo.t
     else:
         x0, t0 = _coast_xt(w0, d4, c2, bp, a)
     w = math.sqrt(2.0 * e_guess) + bp
@@ -187,10 +201,10 @@ def _coast(p: FloatArray, e0: float, v0: float, h: float, fg: float, memo: Float
     e1 = 0.0 if stalled else 0.5 * v1 * v1
     w1 = math.sqrt(2.0 * e1) + bp
     x1, t1 = _coast_xt(w1, d4, c2, bp, a)
-    memo[M_FG] = fg
-    memo[M_W] = w1
-    memo[M_X] = x1
-    memo[M_T] = t1
+    memo.fg = fg
+    memo.w = w1
+    memo.x = x1
+    memo.t = t1
     dt = t1 - t0
     if not (math.isfinite(dt) and dt > 0.0):
         dt = 2.0 * h / max(v0 + math.sqrt(2.0 * e1), _TINY)
@@ -198,14 +212,14 @@ def _coast(p: FloatArray, e0: float, v0: float, h: float, fg: float, memo: Float
 
 
 @njit(cache=True, error_model="numpy")
-def _step(p: FloatArray, e: float, fg: float, e_cap: float, mode: int, e_code: float,
-          e_hold: float, latch: bool, memo: FloatArray
+def _step(p: Any, e: float, fg: float, e_cap: float, mode: int, e_code: float,
+          e_hold: float, latch: bool, memo: Any
           ) -> tuple[float, float, float, bool, bool]:  # pragma: no cover - compiled
     """:func:`strategy.strategy_step` for one trajectory: (e1, dt, energy, stalled, latch).
 
     memo: the coasting step's closed-form memo (:func:`_coast`).
     """
-    h = p[P_H]  # pragma: no cover - compiled
+    h = p.h  # pragma: no cover - compiled
     e0 = max(e, 0.0)
     m = mode
     if latch and m == _ACC:
@@ -221,7 +235,7 @@ def _step(p: FloatArray, e: float, fg: float, e_cap: float, mode: int, e_code: f
         e_t = max(e0 + h * _trac_acc(p, v_m, fg), 0.0)
         e_m = e_t if m == _ACC else min(e_t, e_hold)
     is_coast = m == _COA
-    e_code_cap = max(e_code, e0 - p[P_BRAKE] * h)
+    e_code_cap = max(e_code, e0 - p.brake_decel * h)
     cap = min(e_code_cap, e_cap)
     e1 = max(min(e_m, cap), 0.0)
     clamped = e_m > cap
@@ -232,7 +246,7 @@ def _step(p: FloatArray, e: float, fg: float, e_cap: float, mode: int, e_code: f
         v1 = math.sqrt(2.0 * e1)
         if not is_coast:
             vm = 0.5 * (v0 + v1)
-            force = p[P_MEFF] * (e1 - e0) / h + p[P_DA] + p[P_DB] * vm + p[P_DC] * vm * vm \
+            force = p.meff * (e1 - e0) / h + p.davis_a + p.davis_b * vm + p.davis_c * vm * vm \
                 + fg
             energy = max(force, 0.0) * h
         if v0 + v1 > 0.0:
@@ -247,7 +261,7 @@ def _step(p: FloatArray, e: float, fg: float, e_cap: float, mode: int, e_code: f
 
 
 @njit(cache=True, error_model="numpy")
-def simulate_kernel(p: FloatArray, fg: FloatArray, cap: FloatArray, modes: IntArray,
+def simulate_kernel(params: NDArray[np.void], fg: FloatArray, cap: FloatArray, modes: IntArray,
                     e_codes: FloatArray, bounds: IntArray, first: IntArray,
                     e_out: FloatArray, t_out: FloatArray, en_out: FloatArray,
                     st_out: NDArray[np.bool_], hist: FloatArray,
@@ -276,13 +290,14 @@ def simulate_kernel(p: FloatArray, fg: FloatArray, cap: FloatArray, modes: IntAr
     time and energy +inf (not stalled): its final figures are past those bounds.  Off with
     t_cut = e_cut = inf; never while a history is recorded.
     """
+    p = params[0]
     n_k, n_s = modes.shape
     n = fg.shape[0]
     rec = hist.shape[1] == n + 1
     can_join = base.shape[1] == n + 1 and (not rec) and math.isfinite(base[1, n])
     prune = (not rec) and (t_cut < np.inf or e_cut < np.inf)
     use_lb = t_lb.shape[0] == n + 1
-    memo = np.full(N_MEMO, np.nan)
+    memo = _new_memo()
     for k in range(n_k):
         e = e_out[k]
         t = t_out[k]
@@ -330,17 +345,21 @@ def simulate_kernel(p: FloatArray, fg: FloatArray, cap: FloatArray, modes: IntAr
 
 
 @njit(cache=True, error_model="numpy")
-def history_kernel(p: FloatArray, fg: FloatArray, cap: FloatArray, modes: IntArray,
+def history_kernel(params: NDArray[np.void], fg: FloatArray, cap: FloatArray, modes: IntArray,
                    e_codes: FloatArray, bounds: IntArray, out: FloatArray
                    ) -> None:  # pragma: no cover - compiled
-    """One tour (N_s,): out (3, n + 1) = e, cumulative time [s], energy [J] per sub-step."""
+    """One tour (N_s,): out (3, n + 1) = e, cumulative time [s], energy [J] per sub-step.
+
+    params: :func:`pack_params`.
+    """
+    p = params[0]
     n_s = modes.shape[0]
     n = fg.shape[0]
     e = 0.0
     t = 0.0
     en = 0.0
     stalled = False
-    memo = np.full(N_MEMO, np.nan)
+    memo = _new_memo()
     for i in range(n_s):
         m = modes[i]
         e_code = e_codes[i]
@@ -515,7 +534,7 @@ class TourSimulator:
 
 def warm_up() -> None:
     """Compile (or load from the disk cache) the kernels once: 1-3 s on the first call."""
-    p = np.ones(N_PARAMS)
+    p = np.ones(1, dtype=TOUR)
     fg = np.zeros(2)
     cap = np.full(2, 100.0)
     m = np.zeros((1, 1), dtype=np.int64)
