@@ -27,9 +27,9 @@ ATO_DIR = Path(__file__).resolve().parents[1] / "metro_atc" / "core" / "ato"
 USES = {
     "step_kernel.py": {"traction_accel", "davis_resistance"},
     "tour_kernel.py": {"traction_accel", "davis_resistance"},
-    "control_kernel.py": {"davis_resistance"},
+    "control_kernel.py": {"davis_resistance", "traction_accel"},
     "control_kernel_step.py": {"braking_speed", "ebi_speed_from", "guaranteed_decel_on_grade"},
-    "onboard.py": {"braking_speed", "ebi_speed_from"},
+    "onboard.py": {"braking_speed", "ebi_speed_from", "ebi_coef"},
     "strategy.py": {"davis_resistance_array", "on_array"},
     "planner.py": {"G_MPS2"},
     "sections.py": {"G_MPS2"},
@@ -47,10 +47,6 @@ PATTERNS = {
 """Inline forms of the laws (on the code's tokens joined by single spaces)."""
 
 ALLOWED = {
-    # traction with CPython's ``** 2`` (the C pow), as the ATO's Python path
-    # (vehicle.max_traction_accel_at) computes it; laws.traction_accel multiplies q * q,
-    # which differs in the last bit for about one square in a thousand
-    ("control_kernel.py", "traction"): 1,
     # the tangents of the traction branches (each branch at any speed, no 1e-12 guard)
     ("oracle.py", "traction"): 1,
     # the traction energy's force M dE/ds + A + B v + C v^2 + F_g: summed left to right,
@@ -59,9 +55,6 @@ ALLOWED = {
     ("step_kernel.py", "davis"): 1,
     ("strategy.py", "davis"): 1,
     ("tour_kernel.py", "davis"): 1,
-    # the ATP curve's terms (b t_r)^2 with CPython's ``** 2``, as the line's ATP model
-    # computes them (laws.ebi_coef multiplies); for the Python path and the kernel's constants
-    ("onboard.py", "atp_curve"): 2,
 }
 """(module, law) -> inline occurrences that remain (with the reason)."""
 

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from metro_atc.core.ato.step_kernel import jit
+from metro_atc.core import laws
 from metro_atc.core.laws import davis_resistance
 
 _POW = "powf64" if hasattr(ctypes.CDLL(None), "powf64") else "pow"
@@ -211,26 +212,15 @@ def interp1(x, a, xo, fo, n):  # type: ignore[no-untyped-def]
 
 
 @jit
-def traction_accel(a1, v1, v2, a2, a3, b2, b3, v):  # type: ignore[no-untyped-def]
-    """``max_traction_accel_at`` of the traction curve (a1 .. b3) at speed v [m/s^2]."""
-    va = abs(v)
-    if va <= v1:
-        return a1
-    if va <= v2:
-        return a2 / (va + b2 + 1e-12)
-    return a3 / cpow(va + b3 + 1e-12, 2.0)
-
-
-@jit
 def train_traction(c, v):  # type: ignore[no-untyped-def]
     """The train's maximum traction acceleration at v [m/s^2]."""
-    return traction_accel(c.a1, c.v1, c.v2, c.a2, c.a3, c.b2, c.b3, v)
+    return laws.traction_accel(v, c.a1, c.v1, c.v2, c.a2, c.a3, c.b2, c.b3)
 
 
 @jit
 def atp_traction(c, v):  # type: ignore[no-untyped-def]
     """The ATP train's (worst-case response) maximum traction acceleration at v [m/s^2]."""
-    return traction_accel(c.w_a1, c.w_v1, c.w_v2, c.w_a2, c.w_a3, c.w_b2, c.w_b3, v)
+    return laws.traction_accel(v, c.w_a1, c.w_v1, c.w_v2, c.w_a2, c.w_a3, c.w_b2, c.w_b3)
 
 
 @jit

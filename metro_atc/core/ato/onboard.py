@@ -44,7 +44,7 @@ from metro_atc.core.ato.envelope import OperatingLimits
 from metro_atc.core.ato.planner import Profile
 from metro_atc.core.ato.tsr_plan import tsrs_for_run
 from metro_atc.core.bridge import ato_limits_for
-from metro_atc.core.laws import braking_speed, ebi_speed_from
+from metro_atc.core.laws import braking_speed, ebi_coef, ebi_speed_from
 from metro_atc.core.line.atp_constants import SBI_OFFSET_MPS, atp_constants
 from metro_atc.core.line.geometry import build_geometry
 from metro_atc.core.line.track import (braking_envelope, ebi_speed_at, window_min_ahead,
@@ -271,9 +271,10 @@ class OnboardAto:
                 self._kstep = None
                 return None
             b, tr = float(atp.b_g), float(atp.t_r)
+            bt2 = float(ebi_coef(b, tr, 0.0)[0])  # (b_g t_r)^2, as the ATP curve's c0
             self._kconst = pack_constants(
                 self.train, atp.train, cc,
-                [atp.g_down, atp.sbi_offset_mps, (b * tr) ** 2, b * tr, b * tr * tr, tr,
+                [atp.g_down, atp.sbi_offset_mps, bt2, b * tr, b * tr * tr, tr,
                  2.0 * b, atp.t_sbi, atp.grid_x0_m, atp.grid_dx_m])
             self._kline = pack_line(np.asarray(atp._sbi_list, dtype=float),
                                     np.asarray(self._grade_lists[0], dtype=float),
@@ -640,9 +641,8 @@ class AtpModel:
         :func:`metro_atc.core.line.track.ebi_speed_at` with target 0: then
         ``sbi_speed(d, v, a_w) = (sqrt(max(c0 + 2 b_g (d - t_sbi v), 0)) - c2) - offset``.
         """
-        b, tr = float(self.b_g), float(self.t_r)
-        return ((b * tr) ** 2 + b * tr * tr * a_w, b * tr + tr * a_w, 2.0 * b,
-                self.t_sbi, self.sbi_offset_mps)
+        c0, c1, c2 = ebi_coef(float(self.b_g), float(self.t_r), float(a_w))
+        return float(c0), float(c2), float(c1), self.t_sbi, self.sbi_offset_mps
 
     def sbi_speed(self, dist_m: float, v_mps: float, a_w: Optional[float] = None) -> float:
         """ATP service-brake intervention speed [m/s] for a stop ``dist_m`` ahead at v.
