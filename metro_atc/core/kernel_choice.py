@@ -1,9 +1,10 @@
-"""The choice between a compiled (numba) kernel and its reference path (ROS-free).
+"""The choice between the compiled ATO control step and its Python path (ROS-free).
 
-The plant step (``METRO_ATC_PLANT_KERNEL``: numba | numpy), the ATO planners' strategy
-simulation (``METRO_ATC_PLAN_KERNEL``: numba | numpy) and the ATO control step
-(``METRO_ATC_ATO_KERNEL``: numba | python) each keep a reference path that the compiled one
-is tested equal to; this module resolves a request to one of the two the same way for all.
+Only the ATO control step keeps a switch (``METRO_ATC_ATO_KERNEL``: numba | python): its
+Python path is not a twin but the path every case the kernel declines takes (a TSR in
+force, a PI tracker, a hostile state), tested equal to the kernel where both apply.  The
+plant, the brake observer and the planners always run compiled (``NUMBA_DISABLE_JIT=1``
+runs the same source as Python, for debugging).
 """
 
 from __future__ import annotations
