@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parent.parent
 PYTHON_KEYS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml",
                "matplotlib": "python3-matplotlib", "torch": "python3-torch",
                "mcap": "python3-mcap", "numba": "python3-numba",
-               "rosbags": "python3-rosbags-pip"}
+               "rosbags": "python3-rosbags-pip", "llvmlite": "python3-llvmlite"}
 """Imported Python distributions -> their rosdep keys."""
 
 LAUNCH_ONLY = {"launch", "launch_ros"}

@@ -62,7 +62,7 @@ _LAWS: dict[str, tuple[Callable[..., Any], dict[str, Any]]] = {}
 
 
 def njit(**options: Any) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
-    """Register a law, compiled with ``numba.njit(**options)`` at first use (module doc)."""
+    """Register a law: numba compiles it with these options at first use (module doc)."""
     def register(fn: Callable[..., Any]) -> Callable[..., Any]:
         _LAWS[fn.__name__] = (fn, options)
         return fn
