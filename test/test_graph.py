@@ -300,8 +300,11 @@ def test_run_timeout_and_bad_out_dir_exit_nonzero(ros_env: dict[str, str],
                                                   tmp_path: Path) -> None:
     """``--timeout`` exits 124; an --out that cannot be a directory exits 2 before any node."""
     run = [sys.executable, "-m", "metro_atc", "run", "--scenario", SCENARIO, "--no-plots"]
-    r = subprocess.run(run + ["--timeout", "2", "--out", str(tmp_path / "o")], env=ros_env,
-                       capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    # the whole Blue line: minutes of wall time, never done within the 2 s (mini can be)
+    long_run = [sys.executable, "-m", "metro_atc", "run", "--scenario", "taipei_blue",
+                "--no-plots"]
+    r = subprocess.run(long_run + ["--timeout", "2", "--out", str(tmp_path / "o")],
+                       env=ros_env, capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert r.returncode == 124 and "timeout" in r.stderr, r.stderr
     assert not [p for p in (tmp_path / "o" / "logs").glob("*.log")
                 if "Traceback" in p.read_text(errors="replace")]
