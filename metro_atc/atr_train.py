@@ -2,7 +2,7 @@ r"""``python -m metro_atc train {aoc,dhp} [--scenario NAME] (--out FILE | --cach
 
 Trains ATR regulator weights.
 
-Trains the AOC or DHP regulator of seed 000 (Exp. 2 setting: initial delays of 60-300 s at
+Trains the AOC or DHP regulator of Lin 2010a (Exp. 2 setting: initial delays of 60-300 s at
 the first station -- for half of the episodes anywhere on the line --, truth traffic model
 with saturation, crowding, knock-on delays and exponential departure delays) on the ATR
 line of ``--scenario`` (for a scenario: the model the ``ats_regulator`` node builds of it)
@@ -42,7 +42,7 @@ from metro_atc.core.atr.weights_store import (DEFAULT_EPOCHS, cached_path, train
 def main(argv: Optional[List[str]] = None) -> int:
     """Parse arguments, train, write the weights file; returns a process exit code."""
     ap = argparse.ArgumentParser(prog="metro_atc train",
-                                 description="train ATR regulator weights (seed 000 AOC/DHP)")
+                                 description="train ATR regulator weights (Lin 2010a AOC/DHP)")
     ap.add_argument("method", choices=TRAINED)
     ap.add_argument("--scenario", default="taipei_blue",
                     help="line: a scenario name or file (the ATS node's model of it), "

@@ -213,7 +213,7 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
     for group in ato_groups(train_ids, ato_per_process):
         # the ATOs take their time from the lockstep states, not from /clock: without
         # use_sim_time their 2 x 15 nodes add no /clock readers (each reader costs the
-        # simulator a delivery per step, issue 13)
+        # simulator a delivery per step)
         ato = dict(base, use_sim_time=False, train_ids=group)
         if plan_store_dir:
             ato["plan_store_dir"] = str(plan_store_dir)
@@ -712,7 +712,7 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
     # the ATO processes plan each run and target once between them (deleted at the end)
     plans = tempfile.mkdtemp(prefix="metro_atc_plans_")
     # the simulator creates it when its run is over: the other nodes are stopped then,
-    # while it writes its outputs (their shutdown no longer follows its own, issue 13)
+    # while it writes its outputs (their shutdown no longer follows its own)
     finished = Path(plans) / "line_simulator.finished"
     commands = dict(build_commands(a, train_ids, out_dir, plans, str(finished)))
     respawns = {label: 0 for label in commands}

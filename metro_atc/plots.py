@@ -141,7 +141,7 @@ def _shade_incidents(ax: Any, sim: "LineSim", t_end_s: float) -> None:
 
 LABEL_ROWS = 3
 """Rows of train labels above the trains' last positions (the trains that end at the
-terminus end a headway apart: one row of labels overlapped, issue 13)."""
+terminus end a headway apart: one row of labels overlapped)."""
 
 
 def _end_labels(fig: Any, ax: Any, ends: list[tuple[float, float, str, Any]]) -> None:
@@ -406,7 +406,7 @@ def write_outputs(sim: "LineSim", out_dir: str | Path,
     station -> planned curve) adds the ATO's plans to the speed plots.  The files are
     written in parallel
     (:func:`metro_atc.forked.run_jobs`, ``workers`` processes; default: the usable cores;
-    the six PNGs of a whole run took 5.3 s one after another, issue 13).
+    the six PNGs of a whole run took 5.3 s one after another).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

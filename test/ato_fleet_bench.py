@@ -1,4 +1,4 @@
-"""Offline bench of one ATO process's lockstep path (issue 13 item 4).
+"""Offline bench of one ATO process's lockstep path.
 
 Builds the ATO nodes of one process as ``ato_controller`` does (journal on), and feeds
 their :class:`FleetLink` the fleet states of a run, rebuilt from a checkpoint directory's

@@ -1,4 +1,4 @@
-"""ROS-free replay of recorded ATO inputs through :class:`OnboardAto` (issue 13 item 4).
+"""ROS-free replay of recorded ATO inputs through :class:`OnboardAto`.
 
 The ATO's commands are a deterministic function of the states it acted on (the node's
 journal, ``OUT/checkpoints/ato_<train>.jsonl``, holds exactly those).  This module replays

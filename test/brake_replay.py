@@ -1,4 +1,4 @@
-"""ROS-free replay of recorded fleet brake sensor batches through the brake watches (issue 13).
+"""ROS-free replay of recorded fleet brake sensor batches through the brake watches.
 
 The ``brake_diagnostic`` node's verdicts are a deterministic function of the sample stream of
 each train.  This module keeps the ``/line/brake_sensors`` batches of a run (read from a

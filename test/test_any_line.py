@@ -1,4 +1,4 @@
-"""Issue 11: generated lines, the ROS-free closed loop and the ATO inside the ATP envelope."""
+"""generated lines, the ROS-free closed loop and the ATO inside the ATP envelope."""
 
 from __future__ import annotations
 
@@ -60,7 +60,7 @@ def test_grade_aware_braking_curve_closed_form() -> None:
     d = np.array([5.0, 50.0, 150.0, 300.0])
     b = 0.8 + G_MPS2 * g
     assert run.ceiling(2000.0 - d) == pytest.approx(np.sqrt(2.0 * b * d), rel=1e-9)
-    # on level track the grade-aware curve is the seed 001 constant-deceleration one
+    # on level track the grade-aware curve is the Ke 2010 constant-deceleration one
     flat = Track(np.array([-1e12]), np.array([0.0]), np.array([-1e12]), np.array([22.0]))
     a = RunModel(TAIPEI_MRT_6CAR, flat, 0.0, 2000.0, lim)
     c = RunModel(TAIPEI_MRT_6CAR, flat, 0.0, 2000.0, OperatingLimits(brake_decel_mps2=0.8))
@@ -110,7 +110,7 @@ def test_atp_model_matches_the_plant_supervision_with_a_tsr() -> None:
 @pytest.mark.parametrize("seed,incidents", [(3, False), (7, True)])
 def test_closed_loop_on_generated_lines_stays_inside_the_envelope(
         seed: int, incidents: bool) -> None:
-    """Property (issue 11 acceptance): no violation, intervention, missed stop, overspeed."""
+    """Property: no violation, intervention, missed stop, overspeed."""
     scn = load_generated(seed, incidents=incidents, n_stations=5, n_trains=3,
                          stock="taipei_mrt_6car")
     res = run_closed_loop(scn)

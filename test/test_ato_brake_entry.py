@@ -1,4 +1,4 @@
-"""Issue 11: the ATO enters a braking curve from coasting without a step to full brake.
+"""the ATO enters a braking curve from coasting without a step to full brake.
 
 A real ATO anticipates the brake build-up: entering the stopping curve straight from
 coasting, the effort ramps (jerk limited) from 0 to the planned braking and that ramp loses
@@ -7,7 +7,7 @@ the ramp starts half its duration early.  Behind the curve, the tracker and the 
 guard catch up with a full service brake (``gen_0009_inc``: 1.5 s at full service from
 37 km/h, a brake false alarm).  Closed loop of :class:`OnboardAto` (tracker + guards) on a
 plant with the jerk-limited brake demand of :mod:`metro_atc.core.plant.physics` (RK4 of
-seed 004): level and downhill/uphill platforms, runs planned to coast into the stop.
+Li n.d.): level and downhill/uphill platforms, runs planned to coast into the stop.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""ATO core: closed-form coasting (seed 002 eq. 7-8), envelope, ECTP / ACTP profiles."""
+"""ATO core: closed-form coasting (ACTP n.d., eq. 7-8), envelope, ECTP / ACTP profiles."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ def _blue_run(length: float = 1300.0) -> RunModel:
 
 
 def test_eq7_solves_the_coasting_ode() -> None:
-    """v(t) of seed 002 eq. 7-8 satisfies dv/dt = -(c0 + c1 v + c2 v^2) and v(t_c) = v_c."""
+    """v(t) of ACTP n.d., eq. 7-8 satisfies dv/dt = -(c0 + c1 v + c2 v^2) and v(t_c) = v_c."""
     c0a, c1, c2 = coast_coefficients(P, grade_force(P, 0.005))
     c0 = float(c0a)
     t = np.linspace(3.0, 40.0, 200)
@@ -112,7 +112,7 @@ def _replay_strategy(run: RunModel, yc: float, delta: float, dt: float = 0.02) -
 
 @pytest.mark.parametrize("target", [89.0, 90.0, 95.0])
 def test_ectp_meets_running_time(target: float) -> None:
-    """ECTP's coasting point gives the scheduled running time within 0.5 s (seed 002).
+    """ECTP's coasting point gives the scheduled running time within 0.5 s (ACTP n.d.).
 
     Checked on the planner's prediction, on the distance-domain profile (trapezoid times) and
     on an independent time-domain RK4 replay of the strategy.

@@ -134,7 +134,7 @@ def test_rollout_never_worse_and_meets_time(monkeypatch: pytest.MonkeyPatch) -> 
 
 
 def test_dp_within_half_percent_of_optimum_seed001_case2() -> None:
-    """Issue 12 acceptance on seed 001 case 2 (180 s): DP within 0.5 % of the LP optimum."""
+    """Acceptance on Ke 2010, case 2 (180 s): DP within 0.5 % of the LP optimum."""
     from metro_atc.core.ato.oracle import solve_oracle
     run = _seed001_case2()
     opt = solve_oracle(run, 180.0, 2.0)

@@ -1,4 +1,4 @@
-"""The ATO's fleet lockstep on CDR bytes (issue 13): the same answers, hostile bytes dropped.
+"""The ATO's fleet lockstep on CDR bytes: the same answers, hostile bytes dropped.
 
 A :class:`FleetLink` of two hosted trains, in the test process on its own context and
 domain (nothing published reaches another test): fleet states of a recorded ROS-free run,

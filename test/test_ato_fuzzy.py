@@ -1,4 +1,4 @@
-"""ATO core: seed 004 fuzzy controller, reference motion curve and THSR stopping."""
+"""ATO core: Li n.d. fuzzy controller, reference motion curve and THSR stopping."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from metro_atc.core.line.vehicle import THSR_700T, Track
 
 
 def test_rule_table_is_seed004_table1() -> None:
-    """Rows d = P, Z, N; columns e = PB, P, Z, N, NB (seed 004 Table 1)."""
+    """Rows d = P, Z, N; columns e = PB, P, Z, N, NB (Li n.d., Table 1)."""
     expected = np.array([[1, 1, 0.5, 0, -0.5], [1, 0.5, 0, -0.5, -1],
                          [0.5, 0, -0.5, -1, -1]])
     np.testing.assert_array_equal(RULE_MATRIX, expected)
@@ -52,7 +52,7 @@ def test_reference_curve_regions_and_limits() -> None:
 
 
 def test_fuzzy_stops_at_thsr_platform() -> None:
-    """Taipei -> Banqiao (7.3 km) on RK4: stop within 0.1 m, small RMSE (seed 004 Table 5)."""
+    """Taipei -> Banqiao (7.3 km) on RK4: stop within 0.1 m, small RMSE (Li n.d., Table 5)."""
     run = RunModel(THSR_700T, Track.flat(300 / 3.6), 0.0, 7300.0)
     res = simulate_tracking([run], [ReferenceCurve(run)], FuzzyController(), dt_s=0.1)[0]
     assert res.arrived

@@ -1,4 +1,4 @@
-"""The ATO journal's written-out state line is ``json.dumps`` of the state (issue 13).
+"""The ATO journal's written-out state line is ``json.dumps`` of the state.
 
 A restarted ATO replays its journal and a resumed simulator is compared with it field for
 field: the line must stay exactly what ``json.dumps`` wrote, for every value a validated

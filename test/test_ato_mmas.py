@@ -1,4 +1,4 @@
-"""ATO core: seed 001 pre-work tables and the MAX-MIN ant system."""
+"""ATO core: Ke 2010 pre-work tables and the MAX-MIN ant system."""
 
 from __future__ import annotations
 
@@ -80,13 +80,13 @@ def test_tables_match_exact_simulation() -> None:
 
 
 def test_paper_defaults() -> None:
-    """MMAS defaults are seed 001's (50 ants, 100 iterations, [0.2, 2], rho, lambda, deltas)."""
+    """MMAS defaults are Ke 2010's (50 ants, 100 iterations, [0.2, 2], rho, lambda, deltas)."""
     p = MmasParams()
     assert (p.n_ants, p.n_iterations, p.tau_min, p.tau_max, p.rho, p.lam, p.reinit_after,
             p.delta_ib, p.delta_bsf) == (50, 100, 0.2, 2.0, 0.1, 0.5, 19, 0.28, 0.5)
 
 
-# ----------------------------------------------------------------- exact kernel, issue 12
+# ----------------------------------------------------------------- exact kernel
 def _graded_run(davis_b_zero: bool = False) -> RunModel:
     """600 m with a steep descent, a climb and a 45 km/h restriction (every branch).
 
@@ -182,7 +182,7 @@ _TTO_CASES = [(2, 1.05), (2, 1.10), (2, 1.20), (0, 1.05), (1, 1.20), (10, 1.05),
 
 @pytest.mark.parametrize("i,factor", _TTO_CASES)
 def test_mmas_within_one_percent_of_the_ttobench_optimum(i: int, factor: float) -> None:
-    """Issue 12 acceptance: MMAS (paper parameters, seed 1) <= 1.01 x the shipped LP optimum
+    """MMAS (paper parameters, seed 1) <= 1.01 x the shipped LP optimum
     of the TTOBench metro run (downhill 3 906 -> 6 272 m, the first and the worst runs), running
     time within 0.5 s of the target.
     """
@@ -291,7 +291,7 @@ def test_table_evaluation_equals_section_lookups() -> None:
     np.testing.assert_allclose(e_end, e, rtol=1e-13)
 
 
-# ------------------------------------------------- compiled colony, pruning (issue 12 CPU)
+# ------------------------------------------------- compiled colony, pruning (CPU)
 def test_colony_kernel_equals_numpy_construction() -> None:
     """Compiled ant construction = the numpy one (same uniforms: same tours, same figures)."""
     from metro_atc.core.ato.mmas_kernel import construct_ants, construct_ants_numpy

@@ -143,7 +143,7 @@ def _generated_runs(n: int, seed: int) -> list[RunModel]:
 
 @pytest.mark.parametrize("seed", [11, 12, 13])
 def test_dp_close_to_oracle_on_generated_tracks(seed: int) -> None:
-    """DP within 0.5 % of the optimum and within 0.5 s of the running time (issue 12)."""
+    """DP within 0.5 % of the optimum and within 0.5 s of the running time."""
     run = _generated_runs(1, seed)[0]
     target = 1.1 * coasting.fotp(run, np.inf).time_s
     opt = solve_oracle(run, target, 2.0)

@@ -1,6 +1,7 @@
 """ATO core: continuous switch-position polish, and the DP against the independent optimum.
 
-Thresholds are the acceptance figures of issue 12 (DP within 0.5 % of the LP optimum, running
+Thresholds are the acceptance figures of the DP's optimality (DP within 0.5 % of the LP
+optimum, running
 time within 0.5 s), not today's measurements.  CPU time is not asserted (benchmarks only).
 """
 
@@ -116,7 +117,7 @@ _CASES = [(4, 2, 1.05), (4, 2, 1.10), (4, 0, 1.10), (4, 3, 1.05), (7, 1, 1.10), 
 
 @pytest.mark.parametrize("seed,i,factor", _CASES)
 def test_dp_within_half_percent_of_the_optimum(seed: int, i: int, factor: float) -> None:
-    """Issue 12 acceptance on generated lines: DP energy <= 1.005 x the LP optimum (2 m
+    """Acceptance on generated lines: DP energy <= 1.005 x the LP optimum (2 m
     grid), running time within 0.5 s.
     """
     run = _generated(seed, i)
@@ -135,7 +136,7 @@ def _reference() -> list[dict[str, float]]:
 
 @pytest.mark.parametrize("i", range(13))
 def test_dp_within_half_percent_on_every_ttobench_interstation(i: int) -> None:
-    """Issue 12 acceptance on the TTOBench metro line, every interstation x 1.05 / 1.10 /
+    """Acceptance on the TTOBench metro line, every interstation x 1.05 / 1.10 /
     1.20 of flat-out: DP <= 1.005 x the shipped LP optimum (``reference_energies.json``,
     which ``test_bench_ttobench`` ties to the oracle), running time within 0.5 s.
     """

@@ -1,4 +1,4 @@
-"""The on-board ATO's commands equal those recorded before the tracking fast paths (issue 13).
+"""The on-board ATO's commands equal those recorded before the tracking fast paths.
 
 The per-train tracking was made cheaper (values computed once per control step instead of
 several times, plain floats instead of 0-d numpy in the fuzzy state, look-up tables as

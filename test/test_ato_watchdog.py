@@ -1,4 +1,4 @@
-"""A lost ATO is a CBTC fault (issue 15 item 3): the watchdog and its effect on the plant."""
+"""A lost ATO is a CBTC fault: the watchdog and its effect on the plant."""
 
 from __future__ import annotations
 

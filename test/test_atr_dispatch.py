@@ -117,7 +117,7 @@ def test_replay_gives_the_same_commands(regulator: str) -> None:
 
 
 def test_energy_aware_regulator_stretches_punctual_runs() -> None:
-    """``elqr`` (seed 003 option): an on-time train gets a running target above the LQR's."""
+    """``elqr`` (Sheu 2011 option): an on-time train gets a running target above the LQR's."""
     lqr, elqr = _dispatcher("lqr"), _dispatcher("elqr")
     c_lqr, c_e = _run_to(lqr, 0, 1, delay_s=0.0), _run_to(elqr, 0, 1, delay_s=0.0)
     assert c_lqr is not None and c_e is not None

@@ -1,7 +1,7 @@
-"""The ATR traffic model of a scenario predicts the plant's dwells (issue 11 item 7).
+"""The ATR traffic model of a scenario predicts the plant's dwells.
 
 The regulators (LQR, DHP, AOC) are built on the traffic model of
-:func:`metro_atc.core.atr.lines.atr_line_for` (seed 000 eq. 5).  These tests check it against
+:func:`metro_atc.core.atr.lines.atr_line_for` (Lin 2010a, eq. 5).  These tests check it against
 what the plant does, computed here from the plant's own dwell law
 (:func:`metro_atc.core.line.timetable.required_dwell`, called by
 :meth:`metro_atc.core.plant.stations.Stations.set_release` with the passengers waiting since
@@ -12,7 +12,7 @@ the previous departure, the train held to the timetable) on several generated li
   (which the plant holds a punctual train to) within 1 ms;
 - a late train: arriving ``d`` late at station j (0 <= d <= 180 s, its leader left on time,
   no control), the model's departure deviation (the traffic model's step with its
-  nonlinearities off, i.e. seed 000 eq. 5) is within ``ABS_TOL_S + slack_j + REL_TOL * d``
+  nonlinearities off, i.e. Lin 2010a, eq. 5) is within ``ABS_TOL_S + slack_j + REL_TOL * d``
   of the plant's at every intermediate station, and within ``RMS_TOL_S`` in RMS over the
   stations and delays of a line.  The tolerances are what a linear model cannot do better
   than by construction: the plant's departure deviation is piecewise linear in d (absorbed

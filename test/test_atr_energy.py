@@ -1,4 +1,4 @@
-"""Energy-aware ATR (seed 003 abstract): energy-running-time curves, affine LQR, bench."""
+"""Energy-aware ATR (Sheu 2011 abstract): energy-running-time curves, affine LQR, bench."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""AOC/DHP gradient code (seed 000 eq. 30-34, 44-48) against finite differences and autograd."""
+"""AOC/DHP gradient code (Lin 2010a, eq. 30-34, 44-48) against finite differences and autograd."""
 
 import numpy as np
 import pytest

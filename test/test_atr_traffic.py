@@ -1,4 +1,4 @@
-"""Traffic model, truth variant, TSK model and timetable (seed 000 eq. 1-10) vs hand values."""
+"""Traffic model, truth variant, TSK model and timetable (Lin 2010a, eq. 1-10) vs hand values."""
 
 import numpy as np
 import pytest

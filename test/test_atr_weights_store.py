@@ -1,4 +1,4 @@
-"""AOC/DHP weights belong to a line (issue 11 item 4): content hash, refusal, cache, training."""
+"""AOC/DHP weights belong to a line: content hash, refusal, cache, training."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Progress rows of the benches (issue 13 item 5): content, rate limit, switch, no side effect."""
+"""Progress rows of the benches: content, rate limit, switch, no side effect."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Tests of the residual evaluation and decision logic (seed 000 second paper, Fig. 3)."""
+"""Tests of the residual evaluation and decision logic (Lin 2010b, Fig. 3)."""
 from __future__ import annotations
 
 import numpy as np

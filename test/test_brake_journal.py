@@ -1,4 +1,4 @@
-"""A restarted brake_diagnostic node replays its sample journals to the same state (issue 13).
+"""A restarted brake_diagnostic node replays its sample journals to the same state.
 
 In process (no graph): the recorded ``mini_pad_fault`` batches of ``test/brake_replay.py``
 fed to a :class:`~metro_atc.nodes.brake_diagnostic.BrakeDiagnostic` with a checkpoint
@@ -187,7 +187,7 @@ def test_a_restarted_node_acknowledges_its_journal_until_the_resend_reaches_back
 
 
 def test_journal_of_one_sample_per_line_is_read(make_node: Any, tmp_path: Path) -> None:
-    """Journals written one JSON sample per line (main before issue 13) replay the same."""
+    """Journals written one JSON sample per line (the format before batches) replay the same."""
     from metro_atc.nodes.brake_diagnostic import unpacked_entries
 
     msgs = _msgs(1)[:500]

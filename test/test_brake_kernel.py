@@ -1,4 +1,4 @@
-"""The brake diagnosis's fast paths equal the reference paths (issue 13 item 4).
+"""The brake diagnosis's fast paths equal the reference paths.
 
 * :mod:`metro_atc.core.brake.metro_kernel` (compiled UKF step) against the numpy UKF of
   :mod:`metro_atc.core.brake.ukf`: single steps on random states and covariances (full and

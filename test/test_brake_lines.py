@@ -1,4 +1,4 @@
-"""Brake diagnosis on generated steep lines (issue 11 item 8), ROS-free.
+"""Brake diagnosis on generated steep lines, ROS-free.
 
 The ROS-free closed loop (plant with sensors, real ATO and ATS cores,
 :func:`metro_atc.core.closed_loop.run_closed_loop`) runs generated 3-train lines with a TSR
@@ -10,7 +10,7 @@ on their steepest descent (grades to -40 per mille) and the brake diagnosis of e
 * a pad-friction fault (mu_b 0.10 on every axle of the instrumented car of the train that
   breaks down, from 60 s), on the same lines: announced while in force and at the latest
   ``PAD_DETECT_AFTER_EB_S`` into the breakdown's emergency brake.  The bound is the
-  requirement's test, not a measurement: seed 000 (2nd paper) Table II brakes for 5 s and
+  requirement's test, not a measurement: Lin 2010b, Table II brakes for 5 s and
   the abnormal-pad case (mu_b = 0.1 < 0.2) must be flagged within that brake application
   (mu_b is only observable while the pads are applied).  Measured on seed 0: 3.4 s into the
   emergency brake while the brake watch carried a model error for the plant's wheelset
@@ -42,7 +42,7 @@ pad fault. (Seed 2 passed too and was cut: it takes the same code path, and a li
 with the diagnosis costs ~30 s of a quiet core.)"""
 PAD_DETECT_AFTER_EB_S = 5.0
 """Pad flaw announced at most this long after the emergency brake of the breakdown [s]: the
-5 s braking test of seed 000 (2nd paper) Table II (see module docstring)."""
+5 s braking test of Lin 2010b, Table II (see module docstring)."""
 
 
 def _scenario(seed: int, fault: bool = False) -> tuple[dict[str, Any], Scenario]:

@@ -25,7 +25,7 @@ def test_adhesion_curve_shape() -> None:
 
 
 def test_clamp_force_from_eq4() -> None:
-    """4 axles x 2 mu_b R_b F_c / r_w equals M a (seed 000 eq. 4 brake torque)."""
+    """4 axles x 2 mu_b R_b F_c / r_w equals M a (Lin 2010b, eq. 4 brake torque)."""
     fc = float(P.clamp_for_decel(np.array(1.0)))
     assert 4 * 2 * P.mu_b * P.r_b * fc / P.r_w == pytest.approx(P.mass * 1.0)
     assert 15e3 < fc < 30e3

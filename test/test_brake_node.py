@@ -1,4 +1,4 @@
-"""Integration tests of the brake_diagnostic node over DDS (issue 6).
+"""Integration tests of the brake_diagnostic node over DDS.
 
 * The whole graph runs ``mini_pad_fault`` (mini + the pad friction of train_01's instrumented
   car dropping to 0.10 at t = 270 s, an emergency-brake stop of train_01 at 275 s and of the

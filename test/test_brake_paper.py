@@ -1,4 +1,4 @@
-"""Tests of the paper's vehicle, tyre tables and diagnostic observer (seed 000, 2nd paper)."""
+"""Tests of the paper's vehicle, tyre tables and diagnostic observer (Lin 2010b)."""
 from __future__ import annotations
 
 import numpy as np

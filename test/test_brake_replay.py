@@ -1,4 +1,4 @@
-"""The brake watches reproduce recorded diagnoses from recorded fleet sensor batches (issue 13).
+"""The brake watches reproduce recorded diagnoses from recorded fleet sensor batches.
 
 ``test/data/brake_batches_mini_pad_fault.npz``: the first 420 s of ``/line/brake_sensors`` of
 a ``mini_pad_fault`` graph run (main d06fecf; 1 022 batches, 4 462 samples; the pad fault of

@@ -1,4 +1,4 @@
-"""Tests of the generic scaled UKF (seed 000 second paper, eq. 7-8)."""
+"""Tests of the generic scaled UKF (Lin 2010b, eq. 7-8)."""
 from __future__ import annotations
 
 import numpy as np

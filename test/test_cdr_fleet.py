@@ -1,4 +1,4 @@
-"""The ROS-free fleet CDR codec against rclpy's own (de)serialisation (issue 13).
+"""The ROS-free fleet CDR codec against rclpy's own (de)serialisation.
 
 :mod:`metro_atc.nodes.wire` (the ATO's end: ``fleet_state.decode``,
 ``fleet_command.encode``) must read every FleetState rclpy writes field for field (bit for

@@ -1,4 +1,4 @@
-"""DDS stays on loopback by default (issue 15 item 6): no UDP socket off 127.0.0.1.
+"""DDS stays on loopback by default: no UDP socket off 127.0.0.1.
 
 A node started the way users start it (``source env.sh``, nothing else set) is inspected
 through ``/proc``: every UDP socket it owns is bound to 127.0.0.1 (``ss -uanp`` shows the

@@ -1,4 +1,4 @@
-"""stdout stays clean for ``--json`` when the current directory was deleted (issue 13).
+"""stdout stays clean for ``--json`` when the current directory was deleted.
 
 Fast DDS looks for ``DEFAULT_FASTRTPS_PROFILES.xml`` in the current directory; in a deleted
 one it logs ``[XMLPARSER Error] getcwd failed`` (or ``realpath failed``) ``...

@@ -1,4 +1,4 @@
-"""Fleet lockstep messages (issue 13 item 4): the same values and rules as the per-train ones."""
+"""Fleet lockstep messages: the same values and rules as the per-train ones."""
 
 from __future__ import annotations
 

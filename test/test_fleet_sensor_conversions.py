@@ -1,4 +1,4 @@
-"""FleetBrakeSensorData (issue 13 item 4): the per-train samples' values and rules, batched.
+"""FleetBrakeSensorData: the per-train samples' values and rules, batched.
 
 Every sample of a fleet message validates to what :func:`conv.sensor_from_msg` makes of the
 same sample sent alone on ``/<train>/brake_sensors`` (bit for bit, stamps included); hostile

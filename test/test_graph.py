@@ -537,7 +537,7 @@ def test_install_layout() -> None:
     assert (share / "package.xml").is_file()
 
 
-# ------------------------------------------------------------------ fuzz (issue 15 item 1)
+# ------------------------------------------------------------------ fuzz
 
 _U64 = 2 ** 64 - 1
 
@@ -702,7 +702,7 @@ def _fuzz_graph(ros_env: dict[str, str], tmp_path: Path) -> dict[str, Any]:
     th.start()
     out = tmp_path / "fuzzed"
     out.mkdir()
-    # the scenario by a path YAML would misread (issue 15 item 5: passed to nodes safely)
+    # the scenario by a path YAML would misread (passed to nodes safely)
     scn_dir = tmp_path / "a: b #c"
     scn_dir.mkdir()
     scn_path = scn_dir / f"{SCENARIO}.yaml"

@@ -1,4 +1,4 @@
-"""AOC on a generated line end to end through ``run`` (issue 11 item 4 acceptance, small)."""
+"""AOC on a generated line end to end through ``run`` (small)."""
 
 from __future__ import annotations
 

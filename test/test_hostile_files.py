@@ -1,4 +1,4 @@
-"""Hostile scenario, parameter and weights files (issue 15 item 5).
+"""Hostile scenario, parameter and weights files.
 
 Every case must end in one short line (< 300 characters, no traceback) within a few seconds
 and a bounded amount of memory; most are unit tests of the loaders, two go through

@@ -1,4 +1,4 @@
-"""PlanStore: plans shared between ATO processes are the plans computed (issue 13 item 4)."""
+"""PlanStore: plans shared between ATO processes are the plans computed."""
 
 from __future__ import annotations
 

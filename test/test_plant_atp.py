@@ -1,4 +1,4 @@
-"""ATP: braking-curve mathematics (seed 001 Fig. 1) and the fuzzed safety property."""
+"""ATP: braking-curve mathematics (Ke 2010, Fig. 1) and the fuzzed safety property."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Berthing and ATP-envelope KPIs (issue 11 item 3): stop error per arrival, time above the
+"""Berthing and ATP-envelope KPIs: stop error per arrival, time above the
 civil limit, interventions per 100 stops."""
 
 from __future__ import annotations

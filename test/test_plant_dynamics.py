@@ -1,4 +1,4 @@
-"""Train dynamics of the line plant against closed forms (seed 002 eq. 7-8, kinematics)."""
+"""Train dynamics of the line plant against closed forms (ACTP n.d., eq. 7-8, kinematics)."""
 
 from __future__ import annotations
 
@@ -59,7 +59,7 @@ def released(sim: LineSim) -> bool:
 
 
 def test_coasting_matches_seed002_eq7() -> None:
-    """Coasting speed v(t) = beta + alpha tan(gamma (C_v - t)) (seed 002 eq. 7-8).
+    """Coasting speed v(t) = beta + alpha tan(gamma (C_v - t)) (ACTP n.d., eq. 7-8).
 
     dv/dt = -(c0 + c1 v + c2 v^2) with c = Davis terms / effective mass; eq. 7 as extracted
     reads ``alpha tan(beta + gamma (C_v - t))``, which does not solve that ODE -- the
@@ -84,7 +84,7 @@ def test_coasting_matches_seed002_eq7() -> None:
     v_cf = beta + alpha * np.tan(gamma * (cv - t))
     assert v[-1] < vc - 2.0  # it really decelerated
     assert np.max(np.abs(v - v_cf)) < 1e-7
-    # and the seed 002 eq. 2 coefficients are the ones used (per unit static mass)
+    # and the ACTP n.d., eq. 2 coefficients are the ones used (per unit static mass)
     assert p.davis_a_n / p.mass_kg == pytest.approx(0.020084)
     assert p.davis_c_n_per_mps2 / p.mass_kg == pytest.approx(4.774e-5)
 
@@ -102,7 +102,7 @@ def test_constant_acceleration_run() -> None:
     a_exp = sim.p.a1_mps2 * sim.fleet.mass[0] / (sim.fleet.mass[0] + sim.fleet.m_rot)
     arr = np.array(traj)
     acc = np.diff(np.concatenate([[0.0], arr[:, 2]])) / sim.control_period_s
-    # the jerk limit (seed 001: 1.0 m/s^3) ramps the effort from the holding brake
+    # the jerk limit (Ke 2010: 1.0 m/s^3) ramps the effort from the holding brake
     assert np.all(np.diff(acc) <= sim.p.max_jerk_mps3 * sim.control_period_s + 1e-9)
     first = int(np.flatnonzero(np.abs(acc - a_exp) < 1e-9)[0])
     assert first <= 10
@@ -147,7 +147,7 @@ def test_grade_force_and_no_rollback() -> None:
 
 
 def test_traction_curve_seed002() -> None:
-    """Constant torque, constant voltage, constant power regions (seed 002 eq. 3-5)."""
+    """Constant torque, constant voltage, constant power regions (ACTP n.d., eq. 3-5)."""
     p = TAIPEI_MRT_6CAR
     v = np.linspace(0.1, 25.0, 500)
     phi = max_traction_accel(p, v)

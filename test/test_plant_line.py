@@ -139,7 +139,7 @@ def test_nan_command_keeps_last() -> None:
 
 
 def test_initial_delay_incident() -> None:
-    """taipei_blue_delay: train_01 leaves BL01 180 s late (seed 000 Exp. 2) and the train
+    """taipei_blue_delay: train_01 leaves BL01 180 s late (Lin 2010a, Exp. 2) and the train
     behind is delayed by the knock-on effect."""
     sim = LineSim(load_scenario("taipei_blue_delay"), seed=0)
     _until(sim, lambda s: not math.isnan(s.stations.act_dep[1, 0]), limit=600.0)

@@ -34,7 +34,7 @@ def test_load_by_path_equals_by_name() -> None:
 
 
 def test_taipei_blue_facts() -> None:
-    """Issue 3 / seed 000: 23 real stations BL01..BL23, ~1.28 km spacing, 80 km/h, peak."""
+    """Lin 2010a: 23 real stations BL01..BL23, ~1.28 km spacing, 80 km/h, peak."""
     scn = load_scenario("taipei_blue")
     st = scn.line.stations
     assert len(st) == 23

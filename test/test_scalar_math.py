@@ -1,6 +1,6 @@
 """The plain-float fast paths of the per-train ATO give the numpy results bit for bit.
 
-Issue 13 (graph speed): the ATO's per-step tracking evaluates its tables at one point a few
+Graph speed: the ATO's per-step tracking evaluates its tables at one point a few
 dozen times per step; ``metro_atc.core.scalar_math`` and the ``*_at`` twins in
 ``vehicle``, ``track``, ``envelope``, ``reference_curve`` and ``fuzzy`` replace 0-d numpy
 calls by plain floats.  Each is compared with the numpy function it names on many random

@@ -47,7 +47,7 @@ def test_shipped_table_matches_the_atr_periods() -> None:
 
 
 def test_crisp_transition_is_the_tsk_dispatch() -> None:
-    """W = 0 gives exactly the instants of the TSK model (Lin 2010a eq. 8)."""
+    """W = 0 gives exactly the instants of the TSK model (Lin 2010a, eq. 8)."""
     plan = taipei_blue_day()
     z = departures(plan.periods, plan.periods[0].start_s, 0.0)
     ref = dispatch_instants([p.as_tsk("up") for p in plan.periods])

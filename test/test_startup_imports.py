@@ -1,4 +1,4 @@
-"""Node start-up imports only what it needs (issue 13: graph start-up time).
+"""Node start-up imports only what it needs (graph start-up time).
 
 Each check runs in a fresh interpreter (``sys.modules`` of this pytest process holds
 whatever earlier tests imported).  torch costs ~2 s of CPU to import and only the learned

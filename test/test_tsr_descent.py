@@ -1,4 +1,4 @@
-"""Issue 11 property: a TSR on a steep descent soon after a platform, followed smoothly.
+"""Property: a TSR on a steep descent soon after a platform, followed smoothly.
 
 ``gen_0014_inc``: a 30 km/h TSR 1.1 km after the first platform; the trains leave it down a
 -40 then -21 per mille descent and are at ~40 km/h, still accelerating, when the TSR's

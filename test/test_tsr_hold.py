@@ -1,4 +1,4 @@
-"""Issue 11 property: no hunting on a TSR approach, wherever the TSR lies and whatever its limit.
+"""Property: no hunting on a TSR approach, wherever the TSR lies and whatever its limit.
 
 ``gen_0039_inc``: a 25 km/h TSR 906-1265 m on the first run (0 -> 2291 m), known at 160 s,
 in force from 280 s.  The ECTP plan of that run, made without the TSR, coasts from 46 to

@@ -1,4 +1,4 @@
-"""TSR-approach minima metric (issue 11): hunting counted, explained minima kept apart.
+"""TSR-approach minima metric: hunting counted, explained minima kept apart.
 
 Synthetic speed traces along a 1 km approach: the permanent limit, the stations, the end of
 movement authority and the breakdown are given per sample, as ``closed_loop`` reads them
@@ -55,7 +55,7 @@ def test_one_smooth_approach_is_one_minimum() -> None:
 
 
 def test_stop_start_hunting_is_counted() -> None:
-    # the speed sawing between ~5 and 28 km/h in the zone (issue 11's observation)
+    # the speed sawing between ~5 and 28 km/h in the zone (as observed before the fix)
     pts = [(0, 60), (600, 60), (790, 28)]
     for k in range(5):
         pts += [(830 + 80 * k, 5), (870 + 80 * k, 28)]

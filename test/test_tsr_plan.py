@@ -1,4 +1,4 @@
-"""A TSR known when a run is planned is a speed limit of the plan (issue 11, ROS-free).
+"""A TSR known when a run is planned is a speed limit of the plan (ROS-free).
 
 :mod:`metro_atc.core.ato.tsr_plan`: the merged limits against a brute-force minimum, the
 choice of the TSRs a run respects, and the ECTP plan of ``gen_0039_inc``'s first run with

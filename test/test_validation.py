@@ -1,4 +1,4 @@
-"""Validation at the edge (issue 15 items 1, 2): the rules and the conversion layer.
+"""Validation at the edge: the rules and the conversion layer.
 
 Every case of the issue is here as a unit test of ``metro_atc.nodes.conversions`` (which
 calls ``metro_atc.core.validate``), plus a property test: thousands of random messages of

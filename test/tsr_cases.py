@@ -1,4 +1,4 @@
-"""Closed-loop runs of a generated incident line with its TSR moved (issue 11 tests)."""
+"""Closed-loop runs of a generated incident line with its TSR moved (tests)."""
 
 from __future__ import annotations
 

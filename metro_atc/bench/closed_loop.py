@@ -1,4 +1,4 @@
-"""Automatic train regulation in the closed loop of the ROS graph (seed 000 Exp. 2, live).
+"""Automatic train regulation in the closed loop of the ROS graph (Lin 2010a, Exp. 2, live).
 
 ``python -m metro_atc bench closed-loop [--json]`` runs ``python -m metro_atc run`` on
 ``taipei_blue_delay`` (the Blue line with a 180 s hold of the first train at the first
@@ -7,7 +7,7 @@ node its own OS process, lockstep on simulated time, and prints the recovery KPI
 side with the paper's statements.  Each graph runs on its own ``ROS_DOMAIN_ID`` (runs may go
 in parallel: ``--parallel``).  A run of the first simulated hour takes 3-6 min on 2 cores.
 
-The paper (seed 000 Fig. 8, Table I) compares LQR, DHP and AOC on its traffic model; it has
+The paper (Lin 2010a, Fig. 8, Table I) compares LQR, DHP and AOC on its traffic model; it has
 no timetable-only run and gives no per-KPI numbers besides AOC's 104 s worst terminal delay
 and the cost improvements.  Here the plant is the line simulator (dynamics, ATP, ATO,
 passengers), not the regulators' model, and the KPI is measured on the events.
@@ -174,7 +174,7 @@ def main(argv: Optional[List[str]] = None) -> int:
             v = summary[r].get(key)
             cells.append(f"{v:12.{nd}f}" if v is not None else f"{'-':>12s}")
         print(f"  {label:24s}" + "".join(cells))
-    print(f"  paper (seed 000, on its traffic model, no timetable-only run): AOC worst terminal "
+    print(f"  paper (Lin 2010a, on its traffic model, no timetable-only run): AOC worst terminal "
           f"delay {PAPER['aoc_worst_terminal_delay_s']:.0f} s; cost AOC vs LQR "
           f"+{PAPER['aoc_improvement_vs_lqr_pct']:.0f} %, vs DHP "
           f"+{PAPER['aoc_improvement_vs_dhp_pct']:.0f} %")

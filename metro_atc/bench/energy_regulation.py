@@ -1,6 +1,6 @@
-"""Bench: energy-aware automatic train regulation (seed 003 abstract) on the Taipei Blue line.
+"""Bench: energy-aware automatic train regulation (Sheu 2011 abstract) on the Taipei Blue line.
 
-Compares the plain LQR of seed 000 with the energy-aware LQR of
+Compares the plain LQR of Lin 2010a with the energy-aware LQR of
 :mod:`metro_atc.core.atr.energy` (u = -K x + u_ff from the second-order expansion of the
 energy-running-time curves E_j(R) of the ATO core's DP minimum-energy planner) for a few
 energy weights w_E, on the ATR truth traffic model (control saturation, crowding dwell,
@@ -10,14 +10,14 @@ times of the simulator's timetable, so that the ATR line and the energy curves d
 same runs).  Four cases, K = 40 services each:
 
 - ``incident``: 180 s departure delay at the first station plus exponential departure
-  delays (seed 000 Exp. 2; as ``bench regulation``), several seeds;
+  delays (Lin 2010a, Exp. 2; as ``bench regulation``), several seeds;
 - ``disturbed``: exponential departure delays only, same seeds;
 - ``undisturbed``: no delay, no disturbance (the energy-aware steady state alone);
 - ``incident_linear``: the 180 s delay on the linear model both LQRs are designed on
   (no saturation, crowding, knock-on or disturbance): the reference where the plain LQR
   must have the lower schedule cost.
 
-Per method: the schedule-deviation cost of seed 000 (:func:`~metro_atc.core.atr.evaluation.kpis`),
+Per method: the schedule-deviation cost of Lin 2010a (:func:`~metro_atc.core.atr.evaluation.kpis`),
 the traction energy per service [kWh] (E_j of the realised running times, see
 ``assumptions``), worst and mean terminal delay [s], recovery time [s].  Seed 003's energy
 savings are not in the extraction (only its abstract), so no paper figures are printed.
@@ -57,7 +57,7 @@ KPI_KEYS = ("cost", "energy_kwh_per_service", "worst_terminal_delay_s",
             "mean_terminal_delay_s", "recovery_time_s", "mean_run_extension_s",
             "knock_on_run_fraction", "energy_term_w1")
 ASSUMPTIONS = [
-    "seed 003: only the dissertation abstract is in the extraction (energy model folded into "
+    "Sheu 2011: only the dissertation abstract is in the extraction (energy model folded into "
     "the regulation cost, 'considerable energy savings'); the energy model, cost and weights "
     "here are our reconstruction, no paper figures to compare",
     "E_j(R): traction energy at the wheel [J] of the DP minimum-energy profile (ATO core, "
@@ -71,7 +71,7 @@ ASSUMPTIONS = [
     "energy weight: U_E = U + w_E sum_j (E_j(R_j + du_run_j) - E_j(R_j)) / E_s with E_s the "
     "scheduled traction energy of one service, so w_E = 1 prices a whole service's traction "
     "energy like a 60 s deviation at two stations (U = 1/2 q (x/60 s)^2 per station)",
-    "both LQRs use the linear seed 000 model without saturation; the energy-aware one expands "
+    "both LQRs use the linear Lin 2010a model without saturation; the energy-aware one expands "
     "E_j to second order at the scheduled running time (affine LQR: constant feed-forward "
     "offset); the steady-state offset asks for a shorter dwell at the first station, which "
     "the scenario's minimum dwell forbids (saturated to 0 in the truth model)",
@@ -208,7 +208,7 @@ def run(seeds: List[int], w_list: List[float], source: str = "dp",
             res["cost_increase_vs_lqr"] = res["cost"] - b["cost"]
             res["cost_increase_vs_lqr_pct"] = 100.0 * (res["cost"] - b["cost"]) / b["cost"] \
                 if b["cost"] > 1e-6 else float("nan")
-            # the performance index of seed 003 (U_E at this method's w_E) for both
+            # the performance index of Sheu 2011 (U_E at this method's w_E) for both
             w_e = float(row["w_energy"])
             res["energy_aware_cost"] = res["cost"] + w_e * res["energy_term_w1"]
             res["lqr_energy_aware_cost"] = b["cost"] + w_e * b["energy_term_w1"]
@@ -229,7 +229,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--scenario", default=SCENARIO,
                     help="embedded scenario name or YAML path (default taipei_blue)")
     ap.add_argument("--source", choices=ENERGY_SOURCES, default="dp",
-                    help="planner of the energy curves (dp reference or seed 002 ECTP family)")
+                    help="planner of the energy curves (dp reference or ACTP n.d. ECTP family)")
     a = ap.parse_args(argv)
     try:
         w_list = [float(v) for v in a.weights.split(",") if v.strip()]
@@ -264,7 +264,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         print(json.dumps(json_safe(result), allow_nan=False))
         return 0
     tb = res["table"]
-    print(f"Energy-aware ATR (seed 003 abstract) on {a.scenario}: LQR vs energy-aware LQR, "
+    print(f"Energy-aware ATR (Sheu 2011 abstract) on {a.scenario}: LQR vs energy-aware LQR, "
           f"K = {w.horizon} services, seeds {seeds}")
     print(f"  energy curves: {tb['source']} planner, {tb['n_runs']} runs x {tb['n_grid']} "
           f"running times, built in {res['table_seconds']:.1f} s ({tb['build_cpu_s']:.1f} s "

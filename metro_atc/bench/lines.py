@@ -1,4 +1,4 @@
-"""Benchmark: the ATO/ATS stack on a corpus of generated lines (issue 11 item 6).
+"""Benchmark: the ATO/ATS stack on a corpus of generated lines.
 
 ``python -m metro_atc bench lines --count N [--seed S] [--corpus C] [--incidents] [--regulator R]
 [--planner P] [--tracker T] [--scenario FILE ...] [--jobs J] [--json]``
@@ -18,8 +18,8 @@ not explained by a lower permanent limit, a station stop or a forced stop/hold,
 :mod:`metro_atc.core.tsr_hunting`; ``tsr_speed_minima_raw_max``: all), ATP interventions
 at a TSR's notice time (``atp_interventions_at_tsr_notice``, included in the
 interventions), energy per train-km [kWh] and the
-brake diagnosis of every train (issue 11 item 8,
-:class:`metro_atc.core.brake.line_monitor.LineBrakeMonitor`: false alarms = level rises of
+brake diagnosis of every train (:class:`metro_atc.core.brake.line_monitor.LineBrakeMonitor`:
+false alarms = level rises of
 trains without a brake fault; injected pad/wheel faults detected; trains whose brakes
 were never judged, ``brake_trains_not_assessed``; ``--no-brake`` skips it).  The generated
 lines are the extended corpus (:func:`metro_atc.core.linegen.generate_line` with

@@ -15,7 +15,7 @@ its spread (max - min) / min.
 
 Assumed data (the seed's Table 1 gradients, Table 3 restrictions and the train data are on
 pages missing from the extraction): see :data:`GRADIENTS`, :data:`RESTRICTIONS` and the
-train :data:`metro_atc.core.line.vehicle.TAIPEI_MRT_6CAR` (214 t, seed 002 eq. 2 resistance,
+train :data:`metro_atc.core.line.vehicle.TAIPEI_MRT_6CAR` (214 t, ACTP n.d., eq. 2 resistance,
 1.0 m/s^2 up to 36 km/h then constant voltage / power, 8 % rotating mass).  Energy is the
 mechanical traction energy at the wheel (no regeneration credit, no drive losses).
 """
@@ -43,24 +43,24 @@ from metro_atc.core.ato.tour_kernel import warm_up
 from metro_atc.core.line.vehicle import TAIPEI_MRT_6CAR, Track
 
 LENGTH_M = 2000.0
-"""Inter-station distance [m] (seed 001 case 1)."""
+"""Inter-station distance [m] (Ke 2010, case 1)."""
 LINE_SPEED_KMH = 80.0
-"""Line speed [km/h] (seed 001)."""
+"""Line speed [km/h] (Ke 2010)."""
 AV_SPEED_SPEC_KMH = 40.0
-"""Average-speed specification [km/h] (seed 001 eq. 7)."""
+"""Average-speed specification [km/h] (Ke 2010, eq. 7)."""
 DWELL_S = 0.0
 """Dwell time in eq. 7 [s] (assumed 0: the constraint bounds the running time to 180 s)."""
 GRADIENTS = ((0.0, 0.0), (150.0, -0.020), (550.0, -0.005), (900.0, 0.005), (1300.0, 0.015),
              (1800.0, 0.0))
-"""Assumed gradient table (start [m], grade [-], + uphill); seed 001 Table 1 is missing."""
+"""Assumed gradient table (start [m], grade [-], + uphill); Ke 2010, Table 1 is missing."""
 RESTRICTIONS = ((600.0, 900.0, 60.0), (1300.0, 1500.0, 50.0))
-"""Assumed case 2 speed restrictions (from [m], to [m], limit [km/h]); seed 001 Table 3."""
+"""Assumed case 2 speed restrictions (from [m], to [m], limit [km/h]); Ke 2010, Table 3."""
 PAPER: dict[str, Any] = {
     "case1": {"energy_kwh": 59.02, "avg_speed_kmh": 42.18, "compute_s": 42.0,
               "earlier_method_energy_kwh": 73.42, "earlier_method_avg_speed_kmh": 46.41,
               "earlier_method_compute_s": 45.0},
     "case2": {"energy_kwh": 77.88, "compute_s": 46.59},
-    "note": ("73.42 kWh is the method of seed 001 ref. [3] (MMAS block layout), not a "
+    "note": ("73.42 kWh is the method of Ke 2010 ref. [3] (MMAS block layout), not a "
              "flat-out run; paper train data and Tables 1/3 are not in the extraction"),
 }
 """Seed 001 Table 2 and Sec. 5.2 figures."""
@@ -166,7 +166,7 @@ def _plot(out_dir: str, name: str, fig_data: dict[str, Any]) -> str:
         ax.plot(x, np.asarray(v) * 3.6, style, label=key)
     ax.set_xlabel("position [m]")
     ax.set_ylabel("speed [km/h]")
-    ax.set_title(f"seed 001 {name}: speed profiles")
+    ax.set_title(f"Ke 2010 {name}: speed profiles")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     os.makedirs(out_dir, exist_ok=True)
@@ -203,7 +203,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     result = {"cases": cases, "paper": PAPER,
               "params": {k: getattr(params, k) for k in params.__dataclass_fields__},
               "assumptions": {
-                  "train": "TAIPEI_MRT_6CAR: 214 t, rotating mass 8 %, Davis from seed 002 "
+                  "train": "TAIPEI_MRT_6CAR: 214 t, rotating mass 8 %, Davis from ACTP n.d. "
                            "eq. 2, 1.0 m/s^2 to 36 km/h, constant voltage to 60 km/h, "
                            "constant power above; planning braking 0.8 m/s^2",
                   "gradients": GRADIENTS, "restrictions_case2": RESTRICTIONS,
@@ -213,7 +213,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     if args.json:
         print(json.dumps(_json_safe(result), allow_nan=False))
         return 0
-    print("seed 001 MMAS driving strategy (paper | ours)")
+    print("Ke 2010 MMAS driving strategy (paper | ours)")
     for name, r in cases.items():
         pp = PAPER.get(name, {})
         print(f"\n{name}: running-time bound {r['running_time_bound_s']:.1f} s")

@@ -1,4 +1,4 @@
-"""Benchmark: speed of the ROS-free line plant core (issue 3).
+"""Benchmark: speed of the ROS-free line plant core.
 
 ``python -m metro_atc.bench.perf [--json] [--out DIR] [--quick] [--seed N] [--scenario S]
 [--per-step]``
@@ -43,11 +43,11 @@ from metro_atc.core.line.scenario import load_scenario
 PROGRESS_CHUNK_S = 100.0
 """Simulated time between two progress rows of :func:`run_core` [s]."""
 TARGET_CORE_RTF = 5000.0
-"""Issue 3 target for the core-only real-time factor."""
+"""Target for the core-only real-time factor."""
 TARGET_GRAPH_RTF = 100.0
-"""Issue 13 target for the ROS graph real-time factor (whole Blue line peak, 2 cores)."""
+"""Target for the ROS graph real-time factor (whole Blue line peak, 2 cores)."""
 TARGET_CORE_RTF_SENSORS = 6000.0
-"""Issue 13 target: core real-time factor with the sensor samples consumed (quiet machine)."""
+"""Target: core real-time factor with the sensor samples consumed (quiet machine)."""
 
 
 def energy_balance_error(sim: LineSim) -> float:
@@ -216,7 +216,7 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(result))
         return 0
     print(f"line plant core benchmark -- scenario {a.scenario} (seed {a.seed})")
-    print(f"{'quantity':34s} {'target (issue 3)':>18s} {'ours':>14s}")
+    print(f"{'quantity':34s} {'target':>18s} {'ours':>14s}")
     rows = [
         ("core real-time factor (wall)", f">= {TARGET_CORE_RTF:.0f}", f"{result['core_rtf']:.0f}"),
         ("core real-time factor (CPU time)", "", f"{result['core_rtf_cpu']:.0f}"),
@@ -231,7 +231,7 @@ def main(argv: list[str] | None = None) -> int:
          else f"{100 * result['core_driver_share']:.0f} %"),
         ("steps in multi-step compiled calls", "",
          f"{100 * result['core_kernel_step_share']:.1f} %"),
-        ("graph real-time factor (issue 13)", f">= {TARGET_GRAPH_RTF:.0f}",
+        ("graph real-time factor", f">= {TARGET_GRAPH_RTF:.0f}",
          f"{result['graph_rtf']:.1f}" if result["graph_rtf"] is not None else "skipped"),
         ("  its stepping loop alone", "",
          f"{result['graph']['loop_real_time_factor']:.1f}"

@@ -2,17 +2,17 @@
 
 ``python -m metro_atc.bench.profiles [--json] [--quick] [--seed N] [--out DIR]``
 
-A Taipei MRT Blue line inter-station run with a scheduled running time of 90 s (seed 002
+A Taipei MRT Blue line inter-station run with a scheduled running time of 90 s (ACTP n.d.
 Exp. 1-2): energy [kWh] and running-time deviation [s] of each profile system, against the
-DP minimum-energy reference (and the MMAS planner of seed 001 for comparison).  Each
-profile is also *tracked* by the seed 004 fuzzy controller on RK4 dynamics (trip time,
+DP minimum-energy reference (and the MMAS planner of Ke 2010 for comparison).  Each
+profile is also *tracked* by the Li n.d. fuzzy controller on RK4 dynamics (trip time,
 stop error, tracked energy).
 
 Assumed run (the seed's Blue line data are not in the extraction): 1 300 m, level, line
 speed 80 km/h (Blue line mean spacing 1.28 km, :mod:`metro_atc.core.atr.blue_line`), train
 :data:`metro_atc.core.line.vehicle.TAIPEI_MRT_6CAR`.  FCTP coasts from mid-run (the paper's
 Blue line "coasting vector" is not given); FCTP / ECTP / ACTP-C use Level-II (90 %) traction
-as in seed 002 Exp. 2, ACTP-TC chooses the traction level in [0.6, 1].  Seed 002's result
+as in ACTP n.d., Exp. 2, ACTP-TC chooses the traction level in [0.6, 1].  Seed 002's result
 tables are not in the extraction, so no paper figures can be printed beside ours except the
 schedule.
 """
@@ -41,13 +41,13 @@ LENGTH_M = 1300.0
 LINE_SPEED_KMH = 80.0
 """Line speed [km/h]."""
 SCHEDULE_S = 90.0
-"""Scheduled running time [s] (seed 002 Exp. 1)."""
+"""Scheduled running time [s] (ACTP n.d., Exp. 1)."""
 SYSTEMS = ("fotp", "fctp", "ectp", "actp_tc", "actp_c", "mmas")
-"""Planners reported (MMAS: seed 001, for comparison)."""
+"""Planners reported (MMAS: Ke 2010, for comparison)."""
 PAPER: dict[str, Any] = {
     "scheduled_running_time_s": SCHEDULE_S,
     "level_ii_traction": 0.9,
-    "note": ("seed 002 Tables 2-4 (energy and running-time deviation per profile system) "
+    "note": ("ACTP n.d., Tables 2-4 (energy and running-time deviation per profile system) "
              "are not in the extraction; qualitatively ECTP meets the schedule exactly and "
              "ACTP-TC trades traction level and coasting point for energy"),
 }
@@ -95,7 +95,7 @@ def main(argv: Optional[list[str]] = None) -> int:
                                      tail_decel=run.limits.brake_decel_mps2, creep_speed=0.5,
                                      tail_brake=0.5 * run.limits.brake_decel_mps2))
         names.append(name.upper().replace("_", "-"))
-    # closed-loop check: every profile tracked by the seed 004 fuzzy controller on RK4
+    # closed-loop check: every profile tracked by the Li n.d. fuzzy controller on RK4
     tracked = simulate_tracking([run] * len(refs), refs, FuzzyController(), dt_s=0.1)
     for nm, tr in zip(names, tracked):
         rows[nm]["tracked"] = {"trip_time_s": tr.trip_time_s, "stop_error_m": tr.stop_error_m,
@@ -113,7 +113,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     if args.json:
         print(json.dumps(_json_safe(result), allow_nan=False))
         return 0
-    print(f"seed 002 coasting control, {LENGTH_M:.0f} m Blue line run, schedule "
+    print(f"ACTP n.d. coasting control, {LENGTH_M:.0f} m Blue line run, schedule "
           f"{SCHEDULE_S:.0f} s (paper tables not in the extraction; ours below)")
     print(f"{'system':9s} {'energy kWh':>10s} {'time s':>8s} {'dev s':>7s} {'vs DP %':>8s} "
           f"{'coast m':>8s} {'tracked s':>9s} {'stop m':>7s}")
@@ -142,7 +142,7 @@ def _plot(out_dir: str, run: RunModel, profiles: dict[str, Any]) -> str:
         ax.plot(x, np.asarray(v) * 3.6, lw=1.5 if name == "DP" else 1.0, label=name)
     ax.set_xlabel("position [m]")
     ax.set_ylabel("speed [km/h]")
-    ax.set_title(f"seed 002 profile systems, schedule {SCHEDULE_S:.0f} s")
+    ax.set_title(f"ACTP n.d. profile systems, schedule {SCHEDULE_S:.0f} s")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     os.makedirs(out_dir, exist_ok=True)

@@ -1,4 +1,4 @@
-"""Progress rows of the benches on stderr (issue 13 item 5).
+"""Progress rows of the benches on stderr.
 
 A bench reports how far it is (``done`` of ``total`` in its own unit: simulated seconds,
 runs, lines), the rate and the ETA, at most once per ``period_s`` of wall time and once at

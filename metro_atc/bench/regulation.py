@@ -1,9 +1,9 @@
-"""Bench: seed 000 Experiment 2 -- automatic train regulation on the Taipei Blue line.
+"""Bench: Lin 2010a, Experiment 2 -- automatic train regulation on the Taipei Blue line.
 
 Scenario: 180 s departure delay of one train at the first station (BL01 Dingpu), peak
 headway 105 s, truth traffic model with control saturation, crowding-dependent dwell,
 knock-on delays and exponential departure delays (:mod:`metro_atc.core.atr.traffic`); the
-approximate (linear, seed 000 eq. 5) model used by LQR and inside DHP/AOC lacks all of
+approximate (linear, Lin 2010a, eq. 5) model used by LQR and inside DHP/AOC lacks all of
 them.  K = 40 adjustable services.  For every seed the neural regulators are trained from
 scratch (same configuration for AOC and DHP) and all regulators are evaluated on the same
 seeded disturbance realisations; we report mean +- std over seeds.  The bench trains for
@@ -41,7 +41,7 @@ INITIAL_DELAY_S = 180.0
 KPI_KEYS = ("cost", "worst_terminal_delay_s", "running_time_dev_index", "headway_dev_index",
             "recovery_time_s", "max_abs_control_s")
 PAPER: Dict[str, Any] = {
-    "source": "seed 000 Exp. 2, Table I case 4 and Fig. 8 (Taipei Blue line, 180 s initial "
+    "source": "Lin 2010a, Exp. 2, Table I case 4 and Fig. 8 (Taipei Blue line, 180 s initial "
               "delay, peak headway 105 s, saturation nonlinearity)",
     "aoc_improvement_vs_lqr_pct": 40.0,
     "aoc_improvement_vs_dhp_pct": 30.0,
@@ -205,7 +205,7 @@ def plot(trajectories: Dict[str, Any], line: LineData, out_dir: Path) -> List[st
                                       f"{line.n_stations - 1})")
     fig.colorbar(im, ax=axes, shrink=0.8)
     fig.suptitle("Schedule deviation after a 180 s initial delay at the first station "
-                 "(cf. seed 000 Fig. 8)")
+                 "(cf. Lin 2010a, Fig. 8)")
     f = out_dir / "regulation_fig8.png"
     fig.savefig(f, dpi=110)
     plt.close(fig)

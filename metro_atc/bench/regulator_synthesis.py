@@ -1,6 +1,6 @@
-"""Bench: seed 000 Experiment 1 -- synthesis of a nonlinear regulator with AOC and DHP.
+"""Bench: Lin 2010a, Experiment 1 -- synthesis of a nonlinear regulator with AOC and DHP.
 
-Truth plant (seed 000 eq. 51, garbled in the extraction; checked against Narendra &
+Truth plant (Lin 2010a, eq. 51, garbled in the extraction; checked against Narendra &
 Parthasarathy 1990, Example 3): x(k+1) = x(k) / (1 + x(k)^2) + u(k)^3.  Approximate model
 (eq. 52): x(k+1) = x(k) + u(k).  Cost (eq. 50): squared tracking error, no control term.
 Training set: 200 samples of 100 desired states uniform in [-4, 4], each held 10 steps
@@ -28,7 +28,7 @@ from metro_atc.core.atr.training import TrainConfig, TrainResult, rollout, train
 
 TEST_STEPS = 100
 PAPER: Dict[str, Any] = {
-    "source": "seed 000 Exp. 1, Fig. 5(a)/(b); the extracted text gives no numbers",
+    "source": "Lin 2010a, Exp. 1, Fig. 5(a)/(b); the extracted text gives no numbers",
     "aoc": {"converged": True, "tracks_test_trajectory": True},
     "dhp": {"converged": False, "note": "fails to obtain a useful regulator"},
     "training": {"samples": 200, "targets_per_sample": 100, "hold_steps": 10, "epochs": 100,
@@ -42,7 +42,7 @@ EQ51_NOTE = ("eq. 51 extracted as a garbled 'x(k+1) = x(k)/(1+x(k)^2) + u(k)^3';
 
 
 def test_reference(steps: int = TEST_STEPS) -> np.ndarray:
-    """Desired test trajectory of seed 000 eq. 53 for k = 0..steps+2 (window padding)."""
+    """Desired test trajectory of Lin 2010a, eq. 53 for k = 0..steps+2 (window padding)."""
     k = np.arange(steps + 3)
     return np.sin(2 * np.pi * k / 10) + np.sin(2 * np.pi * k / 25)
 
@@ -118,7 +118,7 @@ def plot(plots: Dict[str, Any], out_dir: Path) -> List[str]:
         ax.semilogy(np.arange(len(d["history"]["cost"])), d["history"]["cost"], label=name)
     ax.set_xlabel("epoch")
     ax.set_ylabel("mean cost-to-go per sample (eq. 50)")
-    ax.set_title("Exp. 1 pre-training convergence (cf. seed 000 Fig. 5a)")
+    ax.set_title("Exp. 1 pre-training convergence (cf. Lin 2010a, Fig. 5a)")
     ax.legend()
     fig.tight_layout()
     f = out_dir / "regulator_synthesis_convergence.png"
@@ -132,7 +132,7 @@ def plot(plots: Dict[str, Any], out_dir: Path) -> List[str]:
         ax.plot(np.clip(d["test"]["x"], -10, 10), label=f"{name} x(k)")
     ax.set_xlabel("step k")
     ax.set_ylabel("state x")
-    ax.set_title("Exp. 1 tracking test (cf. seed 000 Fig. 5b)")
+    ax.set_title("Exp. 1 tracking test (cf. Lin 2010a, Fig. 5b)")
     ax.legend()
     fig.tight_layout()
     f = out_dir / "regulator_synthesis_tracking.png"

@@ -1,4 +1,4 @@
-"""SUMO side by side: the issue 13 yardstick, reproducible on any machine (ROS-free).
+"""SUMO side by side: the graph-speed yardstick, reproducible on any machine (ROS-free).
 
 ``python -m metro_atc.bench.sumo [--json] [--scenario S] [--pairs N] [--duration S]
 [--no-graph] [--out DIR]``

@@ -4,7 +4,7 @@
 
 South-bound runs from Taipei to each of the other seven stations (Table 3 distances,
 consecutive: 7.3 / 34.9 / 29.9 / 93.6 / 85.8 / 62.3 / 31.4 km), each a single non-stop run
-on the seed 004 5-region reference motion curve, tracked by the 15-rule fuzzy controller on
+on the Li n.d. 5-region reference motion curve, tracked by the 15-rule fuzzy controller on
 RK4 dynamics (all seven runs simulated together, vectorised).  Reported: trip time [s], stop
 accuracy |position - platform point| [m], speed RMSE against the reference [m/s], traction
 energy [10^8 J] (mechanical, at the wheel), paper values beside.
@@ -12,7 +12,7 @@ energy [10^8 J] (mechanical, at the wheel), paper values beside.
 Train: :data:`metro_atc.core.line.vehicle.THSR_700T` (576 t, 10 260 kW, 2 km/h/s, drag
 0.31 x 64 m^2 at 1.17 kg/m^3, 300 km/h; rolling resistance and rotating mass estimated).
 The paper's trip times imply a constant 2 km/h/s acceleration up to 300 km/h, which a
-10.26 MW, 576 t train cannot deliver above ~115 km/h (123 kN at 300 km/h, seed 004 Table 4,
+10.26 MW, 576 t train cannot deliver above ~115 km/h (123 kN at 300 km/h, Li n.d., Table 4,
 against 80.6 kN of drag); our reference follows the train's traction capability, so our
 long trips are longer.  The paper's energies equal ~1.256e5 N x distance for every run
 (a constant force times distance), ours integrate the actual tractive force.
@@ -39,9 +39,9 @@ from metro_atc.core.line.vehicle import THSR_700T, Track
 
 STATIONS = ("Taipei", "Banqiao", "Taoyuan", "Hsinchu", "Taichung", "Chiayi", "Tainan",
             "Zuoying")
-"""THSR stations south-bound (seed 004 Table 3)."""
+"""THSR stations south-bound (Li n.d., Table 3)."""
 SPACING_KM = (7.3, 34.9, 29.9, 93.6, 85.8, 62.3, 31.4)
-"""Consecutive station distances [km] (seed 004 Table 3)."""
+"""Consecutive station distances [km] (Li n.d., Table 3)."""
 PAPER_TABLE5 = (
     (249.8, 0.01420, 0.0474, 9.1664),
     (675.4, 0.08832, 0.0420, 52.9896),
@@ -128,7 +128,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     if args.json:
         print(json.dumps(_json_safe(result), allow_nan=False))
         return 0
-    print(f"seed 004 THSR fuzzy motion control (tracker {args.tracker}, dt {args.dt} s): "
+    print(f"Li n.d. THSR fuzzy motion control (tracker {args.tracker}, dt {args.dt} s): "
           "paper | ours")
     print(f"{'to':9s} {'km':>6s} {'trip s':>16s} {'stop m':>18s} {'RMSE m/s':>17s} "
           f"{'energy 1e8 J':>19s}")

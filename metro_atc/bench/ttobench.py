@@ -9,7 +9,7 @@ planning limits (:func:`metro_atc.core.bridge.ato_limits_for`: net acceleration 
 braking curves at 80 % of the service brake, limits for the whole train length, programmed
 station stopping).  For each interstation and trip time ``factor x`` the flat-out (FOTP)
 running time: the independent LP optimum (:mod:`metro_atc.core.ato.oracle`), the DP, MMAS
-(seed 001 parameters, seed 1; spread over seeds 1-5 on request), ECTP, FCTP and FOTP.
+(Ke 2010 parameters, seed 1; spread over seeds 1-5 on request), ECTP, FCTP and FOTP.
 Reported per planner: traction energy at the wheel [kWh], at the substation [kWh] (traction
 / eta_traction - eta_regen x electric braking work within the electric brake's force and
 power limits), gap to the optimum [%], running-time error [s], compute time [s] (CPU time,

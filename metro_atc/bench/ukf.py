@@ -1,4 +1,4 @@
-"""Benchmark: brake-by-wire active safety diagnosis with a UKF (seed 000, second paper).
+"""Benchmark: brake-by-wire active safety diagnosis with a UKF (Lin 2010b).
 
 ``python -m metro_atc.bench.ukf [--json] [--out DIR] [--quick] [--seed N]``
 
@@ -115,7 +115,7 @@ def _fmt(x: Optional[float], f: str = "{:.2f}") -> str:
 
 def print_table(res: dict[str, Any]) -> None:
     """Readable report: the paper's statements beside our numbers."""
-    print("Brake-by-wire active safety diagnosis with UKF (seed 000, second paper)")
+    print("Brake-by-wire active safety diagnosis with UKF (Lin 2010b)")
     print("UKF alpha=0.5 beta=2 kappa=3-L; paper observer L=26, metro observer L=19\n")
     c = res["checks"]
     print(f"UKF vs linear KF, max rel. diff: state {c['kf_equivalence_max_rel_state_diff']:.1e}"

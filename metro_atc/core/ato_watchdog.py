@@ -1,4 +1,4 @@
-"""A lost ATO is a CBTC fault (issue 15 item 3): the decision, ROS-free.
+"""A lost ATO is a CBTC fault: the decision, ROS-free.
 
 The line simulator asks this watchdog, at every step, which effort to apply to each train
 in service.  A train whose ATO missed ``max_missed`` consecutive lockstep steps (no valid

@@ -1,7 +1,7 @@
 """ROS-free glue between a loaded scenario and the node cores (timetable, track, train).
 
 The static line description (:mod:`metro_atc.core.line`) is the single source of truth for
-the line geometry and the timetable (seed 000 eq. 10); the ATS, the ATO and the line
+the line geometry and the timetable (Lin 2010a, eq. 10); the ATS, the ATO and the line
 simulator build the same deterministic objects from the same scenario file, without the
 plant.
 """
@@ -32,7 +32,7 @@ def ato_limits_for(train: TrainParams) -> "OperatingLimits":
 
     Braking curves at 80 % of the maximum service brake (0.8 m/s^2 for the metro, 0.44 m/s^2
     for the THSR 700T) [m/s^2], net acceleration min(1, a1) [m/s^2] and the train's jerk
-    limit [m/s^3] (seed 001).
+    limit [m/s^3] (Ke 2010).
     """
     from metro_atc.core.ato.envelope import OperatingLimits
     return OperatingLimits(accel_max_mps2=min(1.0, train.a1_mps2),

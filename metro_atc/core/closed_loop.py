@@ -14,7 +14,8 @@ with one :class:`metro_atc.core.ato.onboard.OnboardAto` per train (what every
 3. every event of the step goes to the ATS; its decision goes to the plant and the ATO before
    the next step (the lockstep barrier of the line simulator waits for it).
 
-Besides the plant's KPIs it measures, from the plant's public state, what issue 11 asks of an
+Besides the plant's KPIs it measures, from the plant's public state, what a berthing and
+TSR study asks of an
 ATO that drives inside the ATP envelope (all SI):
 
 - stop error of each arrival [m] (front position at the arrival minus the stop point) the
@@ -64,7 +65,7 @@ TSR_APPROACH_M = 800.0
 TSR_NOTICE_ONSET_S = 1.0
 """An intervention onset this soon after a TSR becomes known counts as one at its notice [s]."""
 STOP_WINDOW_M = 0.30
-"""Berthing tolerance of issue 11 (platform screen doors, +-0.30 m) [m]."""
+"""Berthing tolerance (platform screen doors, +-0.30 m) [m]."""
 
 
 @dataclass

@@ -23,16 +23,16 @@ numba's on-disk cache does not follow imports: a kernel that inlines a law keeps
 machine code when only this file changes.  After editing a law, delete the caches
 (``find metro_atc install -name '*.nb[ic]' -delete``) or rebuild (``make setup``).
 
-Sources (the equations are cited where used):
+Sources (the equations are cited where used; full citations in ``docs/references.md``):
 
-- Taipei MRT train-profile control with adaptive critics (ACTP) ("Taipei MRT ACTP paper";
-  its authors and year are not in the extracted text): running resistance eq. 1-2, the
-  piecewise traction characteristic eq. 3-5.
-- Lin and Tang 2010, "Active safety diagnosis of brake-by-wire systems with unscented
-  Kalman filter": axle dynamics and pad torque eq. 4.
-- The Taipei MRT driving-strategy (MAX-MIN ant system) report: ATP braking curve Fig. 1,
+- ACTP n.d. (Taipei MRT train-profile control with adaptive critics; its authors and year
+  are not in the source text): running resistance eq. 1-2, the piecewise traction
+  characteristic eq. 3-5.
+- Lin 2010b (Lin and Tang, "Active safety diagnosis of brake-by-wire systems with unscented
+  Kalman filter"): axle dynamics and pad torque eq. 4.
+- Ke 2010 (driving strategy by the MAX-MIN ant system): ATP braking curve Fig. 1,
   accel/decel and jerk limits.
-- The THSR fuzzy motion control paper: RK4 integration of Newton's law.
+- Li n.d. (fuzzy motion control of Taiwan High Speed Rail): RK4 integration of Newton's law.
 - Roeckl's curve-resistance formula (standard gauge), the Burckhardt slip-adhesion curve.
 """
 
@@ -92,7 +92,7 @@ def fmax(a: float, b: float) -> float:
 def traction_a2(a1: float, v1: float, b2: float) -> float:
     """Constant a_2 [m^2/s^3] of the constant-voltage region, continuity at v_1.
 
-    ``a_2 = a_1 (v_1 + b_2)`` (Taipei MRT ACTP paper, eq. 3-4); a1 [m/s^2], v1, b2 [m/s].
+    ``a_2 = a_1 (v_1 + b_2)`` (ACTP n.d., eq. 3-4); a1 [m/s^2], v1, b2 [m/s].
     """
     return a1 * (v1 + b2)
 
@@ -101,7 +101,7 @@ def traction_a2(a1: float, v1: float, b2: float) -> float:
 def traction_a3(a1: float, v1: float, v2: float, b2: float, b3: float) -> float:
     """Constant a_3 [m^3/s^4] of the constant-power region, continuity at v_2.
 
-    ``a_3 = a_2 / (v_2 + b_2) (v_2 + b_3)^2`` (Taipei MRT ACTP paper, eq. 4-5).
+    ``a_3 = a_2 / (v_2 + b_2) (v_2 + b_3)^2`` (ACTP n.d., eq. 4-5).
     """
     phi2_v2 = traction_a2(a1, v1, b2) / (v2 + b2)
     q = v2 + b3
@@ -113,7 +113,7 @@ def traction_accel(v: float, a1: float, v1: float, v2: float, a2: float, a3: flo
                    b2: float, b3: float) -> float:
     """Maximum tractive acceleration phi(v) [m/s^2] at speed v [m/s] (force / static mass).
 
-    Piecewise (Taipei MRT ACTP paper, eq. 3-5): constant torque ``a_1`` up to ``v_1``,
+    Piecewise (ACTP n.d., eq. 3-5): constant torque ``a_1`` up to ``v_1``,
     constant voltage ``a_2 / (|v| + b_2)`` up to ``v_2``, constant power
     ``a_3 / (|v| + b_3)^2`` above (each denominator plus :data:`TRACTION_EPS_MPS`).
     """
@@ -162,7 +162,7 @@ def command_effort(u: float, f_trac_max: float, mass: float, brake_decel: float)
 
 @njit(cache=True)
 def davis_resistance(v: float, a: float, b: float, c: float) -> float:
-    """Davis running resistance ``A + B |v| + C v^2`` [N] (Taipei MRT ACTP paper, eq. 1-2).
+    """Davis running resistance ``A + B |v| + C v^2`` [N] (ACTP n.d., eq. 1-2).
 
     a [N], b [N/(m/s)], c [N/(m/s)^2] (or the same per unit mass: a deceleration [m/s^2]);
     v [m/s].  Always >= 0 for A, B, C >= 0 (the sign of the motion is the caller's).
@@ -176,7 +176,7 @@ def davis_odd(v: float, a: float, b: float, c: float) -> float:
     """Davis resistance opposing the motion, ``(B + C |v|) v + A sign(v)`` [N or m/s^2].
 
     The same law as :func:`davis_resistance` extended oddly through v = 0 (the form of the
-    brake observer's transition, Lin and Tang 2010, eq. 4 with the running resistance).
+    brake observer's transition, Lin 2010b, eq. 4 with the running resistance).
     """
     if v > 0.0:
         sg = 1.0
@@ -231,7 +231,7 @@ def net_accel(v: float, effort_n: float, f_grade: float, a: float, b: float, c: 
 @njit(cache=True)
 def davis_rk4_step(v: float, q: float, cb: float, cc: float,
                    h: float) -> tuple[float, float, float, float]:
-    """One RK4 step (THSR fuzzy motion control paper) of ``dv/dt = q - v (cb + cc v)``.
+    """One RK4 step (Li n.d.) of ``dv/dt = q - v (cb + cc v)``.
 
     The longitudinal ODE at constant effort and grade: ``q = (F - A - F_g - F_c) / M_eff``
     [m/s^2], ``cb = B / M_eff`` [1/s], ``cc = C / M_eff`` [1/m] (Davis A, B, C), step h
@@ -298,7 +298,7 @@ def electric_brake_share(f_demand: float, f_e_max: float) -> float:
 @njit(cache=True)
 def pad_torque(clamp_force_n: float | FloatArray, mu_b: float | FloatArray,
                r_b: float) -> float | FloatArray:
-    """Friction brake torque [N m] of one axle ``2 mu_b R_b F_c`` (Lin and Tang 2010, eq. 4).
+    """Friction brake torque [N m] of one axle ``2 mu_b R_b F_c`` (Lin 2010b, eq. 4).
 
     Clamp force [N], pad friction coefficient [-], effective pad radius [m].  Plain
     arithmetic: numba also compiles it for arrays (elementwise, the same operation order).
@@ -346,7 +346,7 @@ def ebi_coef(b_g: float, t_r: float, a_w: float) -> tuple[float, float, float]:
     """Coefficients (c0 [m^2/s^2], c1 [m/s^2], c2 [m/s]) of the ATP braking curve.
 
     ``v_ebi(D) = sqrt(c0 + c1 D) - c2`` with ``c0 = (b_g t_r)^2 + b_g t_r^2 a_w``,
-    ``c1 = 2 b_g``, ``c2 = b_g t_r + t_r a_w`` (MAX-MIN ant system report, Fig. 1): a
+    ``c1 = 2 b_g``, ``c2 = b_g t_r + t_r a_w`` (Ke 2010, Fig. 1): a
     response time t_r [s] at the worst-case acceleration a_w [m/s^2], then the guaranteed
     deceleration b_g [m/s^2].
     """
@@ -371,7 +371,7 @@ def ebi_speed_from(c0: float, c1: float, c2: float, dist_m: float) -> float:
 def ebi_speed(dist_m: float, target_mps: float, a_w: float, t_r: float, b_g: float) -> float:
     """EBI speed [m/s] at ``dist_m`` [m] before a point of speed ``target_mps`` [m/s].
 
-    :func:`ebi_coef` with ``c0 + v_t^2`` (MAX-MIN ant system report, Fig. 1).
+    :func:`ebi_coef` with ``c0 + v_t^2`` (Ke 2010, Fig. 1).
     """
     c0, c1, c2 = ebi_coef(b_g, t_r, a_w)
     if target_mps != 0.0:

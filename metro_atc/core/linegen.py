@@ -1,4 +1,4 @@
-"""Generator of realistic random metro lines as scenario dicts (ROS-free, issue 11 item 6).
+"""Generator of realistic random metro lines as scenario dicts (ROS-free).
 
 :func:`generate_line` draws one line from a seed and returns a scenario mapping valid for
 :func:`metro_atc.core.line.scenario.parse_scenario` (:func:`scenario_yaml` gives the YAML,
@@ -83,7 +83,7 @@ def drawn_stock(name: str, rng: np.random.Generator) -> dict[str, Any]:
 
     Traction force F = a_start x empty mass, constant up to 35-40 km/h then constant power
     (the electric brake's power limit too);
-    Davis A and B of the Taipei 6-car (seed 002 eq. 2) per kilogram, C from the frontal
+    Davis A and B of the Taipei 6-car (ACTP n.d., eq. 2) per kilogram, C from the frontal
     area (estimates); brakes: 1.0-1.1 m/s^2 service, 1.2 guaranteed / 1.4 nominal emergency.
     """
     if name == "light_metro":

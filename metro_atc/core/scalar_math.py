@@ -3,7 +3,7 @@
 The ATO of one train evaluates its reference, envelope and grade tables at one position a
 few dozen times per control step; numpy spends more time wrapping a 0-d array than
 computing.  These functions give the *same IEEE double* as the numpy call they name for a
-single float (issue 13, graph speed; proven against numpy on many inputs in
+single float (graph speed; proven against numpy on many inputs in
 ``test/test_scalar_math.py``).
 """
 

@@ -1,6 +1,6 @@
 """Baseline ATO: flat-out profile with a braking-curve stop, tracked by a P controller.
 
-This is the smallest real ATO behaviour (issue 2): accelerate at full traction up to the
+This is the smallest real ATO behaviour: accelerate at full traction up to the
 supervised limit minus a margin, cruise, and brake along ``v = sqrt(2 b (x_stop - x))`` to the
 platform stop point. Units SI. The seed planners (MMAS, coasting control, fuzzy tracking)
 live in :mod:`metro_atc.core.ato`.

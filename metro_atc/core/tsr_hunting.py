@@ -1,8 +1,8 @@
-"""Speed minima of a train through a TSR approach, and which of them are hunting (issue 11).
+"""Speed minima of a train through a TSR approach, and which of them are hunting.
 
 A train approaching a temporary speed restriction (TSR) brakes once to the restricted speed,
 holds it through the zone and accelerates out of it: one speed minimum.  Hunting is the ATO
-braking and releasing again and again on the approach (stop-start, issue 11 "inside a
+braking and releasing again and again on the approach (stop-start, "inside a
 30 km/h TSR on a descent the speed hunts between 0 and 30 km/h about ten times").  Inside
 the watched window other things legitimately make a speed minimum, and they are not hunting:
 

@@ -1,4 +1,4 @@
-"""Plausibility rules for every message a node receives (ROS-free; issue 15 item 1).
+"""Plausibility rules for every message a node receives (ROS-free).
 
 The conversion layer (:mod:`metro_atc.nodes.conversions`) turns a message into plain
 values and calls these rules; a violation raises :class:`Rejected`, whose ``kind`` names

@@ -3,9 +3,9 @@
 Per train: its state every lockstep step (from the process's fleet state, below) and
 ``departure_command`` (transient-local); on each departure command it plans the
 inter-station speed profile (:class:`metro_atc.core.ato.controller.AtoCore`: MMAS, coasting
-control FOTP/FCTP/ECTP/ACTP or the DP reference; seed 001/002) for the ATS's target running
+control FOTP/FCTP/ECTP/ACTP or the DP reference; Ke 2010/002) for the ATS's target running
 time and publishes it on ``speed_profile`` (transient-local); on each state it answers the
-traction/brake effort of the tracker (fuzzy, seed 004, or PI) for that lockstep step.
+traction/brake effort of the tracker (fuzzy, Li n.d., or PI) for that lockstep step.
 
 The tracker follows the plan; two guards only ever *lower* its command: braking to the end
 of the ATP movement authority (train ahead) and staying below the ATP supervision speed
@@ -23,7 +23,7 @@ One process may host several trains (parameter ``train_ids``), each its own node
 SingleThreadedExecutor: rclpy shares one DDS participant per process, and the trains of a
 process share their planners' pre-work tables and finished plans (same line, same train).
 
-Fleet lockstep (issue 13): the simulator publishes the states of all active trains in one
+Fleet lockstep: the simulator publishes the states of all active trains in one
 ``/line/fleet_state`` message per step; a :class:`FleetLink` per process answers the trains
 it hosts with one ``/line/fleet_command`` message. Each entry is validated and answered
 exactly as a per-train state was (same rules, step window and tracker). The ATO takes its
@@ -76,7 +76,7 @@ class Cmd(NamedTuple):
 
     Plain fields: the fleet command carries them; a TractionCommand message is built only
     for the per-train echo (a rosidl message per train and step cost more than the
-    tracker, issue 13).
+    tracker).
     """
 
     step: int
@@ -105,11 +105,11 @@ class AtoController(Node):
                          choices=TRACKERS.names)
         mmas_default = MmasSettings()
         mmas_ants = static(self, "mmas_ants", mmas_default.n_ants,
-                           "MMAS: ants per iteration (seed 001)", 1, 1000)
+                           "MMAS: ants per iteration (Ke 2010)", 1, 1000)
         mmas_iter = static(self, "mmas_iterations", mmas_default.n_iterations,
-                           "MMAS: iterations (seed 001)", 1, 10000)
+                           "MMAS: iterations (Ke 2010)", 1, 10000)
         mmas_sections = static(self, "mmas_sections", mmas_default.n_sections,
-                               "MMAS: sections per run (seed 001)", 2, 500)
+                               "MMAS: sections per run (Ke 2010)", 2, 500)
         plan_dir = static(self, "plan_store_dir", "",
                           "directory shared by the ATO processes of a run: finished plans "
                           "are planned once per run and target ('': per process only)")
@@ -208,7 +208,7 @@ class AtoController(Node):
         tmp.write_text("".join(json.dumps(s) + "\n" for s in self.history))
         os.replace(tmp, self.journal_path)
         # unbuffered: each line is one write(2) to the OS as it is written (then it
-        # survives a SIGKILL; no text layer and no flush per line, issue 13)
+        # survives a SIGKILL; no text layer and no flush per line)
         self._journal = open(self.journal_path, "ab", buffering=0)
 
     def _replay(self, states: list[dict[str, Any]]) -> None:
@@ -435,7 +435,7 @@ def _jf(x: float) -> str:
 
 
 def state_json(s: dict[str, Any]) -> str:
-    """``json.dumps(s)`` of a validated state, written out (the same text; issue 13).
+    """``json.dumps(s)`` of a validated state, written out (the same text).
 
     The journal writes one line per train and step; ``json.dumps`` walked the dict in
     general.  Any other dict (keys, order or value types not a validated state's) goes to
@@ -493,7 +493,7 @@ class FleetLink:
         host = nodes[0]
         self.pub = bulk_publisher(host, FleetCommand, self.TOPIC_COMMAND, QOS_RELIABLE)
         # the CDR bytes, read by wire.fleet_state (rclpy's message objects cost more than the
-        # answers, issue 13); the commands go out as CDR bytes too
+        # answers); the commands go out as CDR bytes too
         self.sub = host.create_subscription(
             FleetState, self.TOPIC_STATE, self.on_fleet_state, QOS_RELIABLE, raw=True,
             event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
@@ -567,7 +567,7 @@ class FleetLink:
             self.pub.publish(out)
         # the per-train echoes after the fleet command: the simulator waits for the latter
         # only (an echo arriving after the step is a stale duplicate to it, late_echo), so
-        # building and sending them is off the lockstep's critical path (issue 13)
+        # building and sending them is off the lockstep's critical path
         for node, cmd in echoes:
             node.cmd_pub.publish(echo_bytes(node.train_id, cmd))
 
@@ -608,7 +608,7 @@ EXECUTOR_PERIOD_S = 0.25
 """Wall period of the executor spin (parameter and type-description services, the 1 Hz
 /diagnostics timers) [s]; the fleet states and departure commands are polled directly.
 Each spin rebuilds a wait set of ~200 entities (15 nodes): every 50 ms of wall time that
-was most of an ATO process's CPU on a loaded machine (issue 13; the simulator spins at
+was most of an ATO process's CPU on a loaded machine (the simulator spins at
 the same period)."""
 
 PLANNED_POINTS = 200

@@ -7,10 +7,10 @@ time to the next station and, when the regulator cuts the dwell, the dwell limit
 
 All decisions are made by the ROS-free :class:`metro_atc.core.atr.dispatch.AtsDispatcher`
 (its docstring gives the regulation law); regulators (parameter ``regulator``): ``none``
-keeps the timetable (seed 000 eq. 10); ``lqr``, ``dhp`` and ``aoc`` run
-:class:`metro_atc.core.atr.node_core.AtsRegulatorCore` (seed 000 eq. 17-48) on the
+keeps the timetable (Lin 2010a, eq. 10); ``lqr``, ``dhp`` and ``aoc`` run
+:class:`metro_atc.core.atr.node_core.AtsRegulatorCore` (Lin 2010a, eq. 17-48) on the
 scenario's traffic model (:func:`metro_atc.core.bridge.atr_line_for`); ``elqr`` is the
-energy-aware LQR of the seed 003 option (:mod:`metro_atc.core.atr.energy`).
+energy-aware LQR of the Sheu 2011 option (:mod:`metro_atc.core.atr.energy`).
 """
 
 from __future__ import annotations
@@ -52,13 +52,13 @@ class AtsRegulator(Node):
         weights_file = static(self, "weights_file", "",
                               "dhp/aoc weights ('' : the shipped or cached weights trained "
                               "on this line; weights of another line are refused)")
-        q = static(self, "cost_q", 1.0, "schedule-deviation weight q (seed 000 eq. 17)",
+        q = static(self, "cost_q", 1.0, "schedule-deviation weight q (Lin 2010a, eq. 17)",
                    1e-6, 1e6)
-        r = static(self, "cost_r", 0.1, "control-effort weight r (seed 000 eq. 17)", 1e-6, 1e6)
-        horizon = static(self, "horizon", 40, "adjustable services K (seed 000 eq. 17)",
+        r = static(self, "cost_r", 0.1, "control-effort weight r (Lin 2010a, eq. 17)", 1e-6, 1e6)
+        horizon = static(self, "horizon", 40, "adjustable services K (Lin 2010a, eq. 17)",
                          1, 1000)
         w_energy = static(self, "energy_weight", 1.0,
-                          "elqr: weight w_E of one service's traction energy (seed 003)",
+                          "elqr: weight w_E of one service's traction energy (Sheu 2011)",
                           0.0, 1000.0)
         hold_max = static(self, "hold_max_s", 60.0,
                           "longest hold a regulator may add at a platform [s]", 0.0, 600.0)
@@ -155,7 +155,7 @@ def main(args: Sequence[str] | None = None) -> int:
         subs = [n.event_sub for n in nodes if isinstance(n, AtsRegulator)]
         # events wake the poller at once; the executor (parameter services, the
         # diagnostics timer, /clock) is served 5 times a second: at 20 (the default) the
-        # idle ATS spent ~1 s of CPU per 1 800 s simulated rebuilding its wait set (issue 13)
+        # idle ATS spent ~1 s of CPU per 1 800 s simulated rebuilding its wait set
         spin_fast(executor, nodes, subs, slow_period_s=ATS_SLOW_PERIOD_S)
 
     return run_nodes(lambda: [AtsRegulator()], loop, args)

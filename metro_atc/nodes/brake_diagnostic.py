@@ -1,10 +1,10 @@
-"""brake_diagnostic node: brake-by-wire active safety diagnosis of every train (issue 6).
+"""brake_diagnostic node: brake-by-wire active safety diagnosis of every train.
 
 One node watches all trains of the scenario.  It subscribes to ``/line/brake_sensors``
 (``metro_atc_msgs/FleetBrakeSensorData``, reliable: the samples of every train produced in
 one lockstep step, in one message; the per-train ``/<train>/brake_sensors`` are for outside
 tools), runs one :class:`~metro_atc.core.brake.metro_car.MetroBrakeObserver` (the
-seed 000 second-paper UKF, metro variant) per train at the sensor rate, and publishes
+Lin 2010b UKF, metro variant) per train at the sensor rate, and publishes
 
 * ``/<train>/brake_diagnosis`` (``metro_atc_msgs/BrakeDiagnosis``, latched) every
   ``diagnostics_period_s`` of wall time if it changed, at once when the train's level
@@ -30,7 +30,7 @@ its samples as float lists that are their own journal entries, and their values 
 each sample one packed journal line (:func:`packed_entries`), a train's lines of a burst
 written at once, a standing or slow train's sample (most of them) counted by
 :meth:`TrainBrakeWatch.feed_paused`, the per-axle arithmetic of the watch and the observer
-done on plain floats (issue 13: ``test/brake_replay.py`` replays a run's batches bit for
+done on plain floats (``test/brake_replay.py`` replays a run's batches bit for
 bit against the code before).
 The Taipei Blue scenario at 20 Hz needs at most 30 x 20 = 600 updates per simulated
 second (every train braking at once), and the simulator sends the full rate only while a
@@ -123,8 +123,8 @@ of its last BrakeDiagnosis gets one within this time."""
 IDLE_ACK_S = 0.02
 """Wall time without a new sample after which the samples received are acknowledged at
 once (not at the next :data:`ACK_PERIOD_S` tick) [s]: the end of a run, where the simulator
-waits for the acknowledgement of its last samples before it writes its outputs (issue 13:
-up to ~0.6 s of every run's end).  A running lockstep sends a batch every simulated second
+waits for the acknowledgement of its last samples before it writes its outputs (up to
+~0.6 s of every run's end).  A running lockstep sends a batch every simulated second
 (~10 ms of wall time at 100x), so this adds no acknowledgement while samples flow; a
 slower stream is acknowledged at most every :data:`IDLE_ACK_GAP_S`."""
 IDLE_ACK_GAP_S = 0.1
@@ -554,7 +554,7 @@ class BrakeDiagnostic(Node):
         Each BrakeDiagnosis is stamped with its train's newest sample; one that would say
         what the train's last one said (same watch, samples received, stamp and level: the
         latched message is still there) is not published again, and a status is rebuilt
-        only when its train's diagnosis changed (issue 13: thirty trains' messages every
+        only when its train's diagnosis changed (thirty trains' messages every
         tick cost more than the samples between ticks).
         """
         self.flush()
@@ -621,7 +621,7 @@ def _sample_entry(s: dict[str, Any]) -> dict[str, Any]:
     Equal to its own JSON round trip (what :meth:`Journal.entries` holds after a restart):
     the channels are Python floats (NaN stays NaN), the arrays float lists.  The keys of
     :func:`metro_atc.nodes.conversions.sensor_from_msg` are built directly (a generic
-    comprehension over the items was a visible share of the per-sample time, issue 13).
+    comprehension over the items was a visible share of the per-sample time).
     """
     if s.keys() == _SAMPLE_KEYS:
         return {"t_s": float(s["t_s"]), "omega": _floats(s["omega"]),
@@ -641,7 +641,7 @@ PACKED_KEY = "f64x12"
 """Key of a journal line holding a sample packed: the base64 text of its 12 float64,
 little-endian (t_s, omega x4, clamp x4, accel, ref_speed, car_mass).  Exact (every bit of
 every float, NaN included) and several times cheaper to write than the sample's JSON (a
-float's ``repr`` is ~0.7 us; issue 13).  Still one line per sample: the journal's text does
+float's ``repr`` is ~0.7 us).  Still one line per sample: the journal's text does
 not depend on how samples were grouped into bursts (two runs leave the same journals).
 Lines of the sample's JSON (what main wrote) are read too, and lines of several packed
 samples."""

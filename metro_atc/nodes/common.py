@@ -123,7 +123,7 @@ def subscriber_gids(node: Node, publisher: Publisher) -> set[bytes]:
 
     What ``node.get_subscriptions_info_by_topic`` gives, without building a
     ``TopicEndpointInfo`` (and its QoS profile objects) per endpoint: the simulator asks
-    this for its 30 sensor topics every wall second (issue 13). ``publisher.topic_name``
+    this for its 30 sensor topics every wall second. ``publisher.topic_name``
     is already expanded and remapped.
     """
     with node.handle:
@@ -147,7 +147,7 @@ class SubscriptionPoller:
         self.ctx = context
         self.subs = list(subs)
         # per poll only C-level calls on these: no ExitStack, no property look-ups (with 61
-        # subscriptions in the simulator those were ~3 ms of Python per poll, issue 13)
+        # subscriptions in the simulator those were ~3 ms of Python per poll)
         self._handles = [s.handle for s in self.subs]
         self._pointers = [h.pointer for h in self._handles]
         self._ws: Any = None

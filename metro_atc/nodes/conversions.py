@@ -366,7 +366,7 @@ def sensor_from_msg(msg: BrakeSensorData, topic: str, train_id: str, n_axles: in
     for name, v in vals.items():
         lo, hi = SENSOR_RANGES[name]
         # plain floats (4 axles, 20 samples per simulated second per braking train: numpy's
-        # per-call overhead was most of the node's per-sample time, issue 13); NaN passes
+        # per-call overhead was most of the node's per-sample time); NaN passes
         for x in (v.tolist() if isinstance(v, np.ndarray) else (v,)):
             if x == x and not lo <= x <= hi:  # an infinity fails the range as well
                 raise Rejected("range", f"{topic}.{name} outside [{lo:g}, {hi:g}]")

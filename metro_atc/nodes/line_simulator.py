@@ -688,7 +688,7 @@ class LineSimulator(Node):
         At the end of a finished run, then wait (:func:`linger`, at most ``LINGER_S``) until
         the readers acknowledged the last samples (a reliable reader acknowledges on the
         writer's heartbeat: waited for before the outputs, that was most of ``LINGER_S`` at
-        the end of every run, issue 13).
+        the end of every run).
         """
         self.checkpoints.wait()
         try:

@@ -85,13 +85,13 @@ class FleetStatePublisher:
         if per_train.any():
             # a topic nobody reads is not published (outside tools that subscribe get it at
             # the declared rate; the fleet state carries every step): no writes, and no
-            # per-train command echoes from the ATOs for them (issue 13)
+            # per-train command echoes from the ATOs for them
             per_train = self._state_read(per_train)
         idx = np.flatnonzero(active)
         self._echo_mask = per_train
         self.active_idx, self.active_idx_k, self.active = idx, k, active
         # the fleet state's arrays of the active trains only (not every state array of
-        # every train: the lockstep's critical path, issue 13), the same values
+        # every train: the lockstep's critical path), the same values
         rows = fleet_state_rows(line, idx)
         self._step_rows = (k, idx, rows)
         self._fleet_msg = fleet_state.from_core_rows(self.state_builder(idx), idx.size, rows,

@@ -32,8 +32,8 @@ from metro_atc.nodes.sim_sensors import SensorOutbox
 RECORDER_SYNC_STEPS = 250
 """While a recorder is waited for (``wait_for_subscribers``), every this many steps the
 lockstep waits until every reliable reader acknowledged what was published: half the
-500-state writer history, so a recorder slower than the graph loses no state (issue 13:
-with the fast tracker the graph outruns a recording node)."""
+500-state writer history, so a recorder slower than the graph loses no state (with the fast
+tracker the graph outruns a recording node)."""
 ECHO_PERIOD_S = 0.25
 """Wall period of the poll of the per-train command echoes, speed profiles, brake diagnoses
 and the departure commands the lockstep does not wait for [s] (none is on the lockstep's
@@ -167,7 +167,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, node: LockstepNode,
         command carried already; those of trains not in service; the speed profiles; the
         other departure commands, sent before their train reached the station; the brake
         diagnoses) is drained every slow period: each waited-on subscription costs every
-        wait, and waking for every echo cost more than the step (issue 13).  Made again
+        wait, and waking for every echo cost more than the step.  Made again
         when those sets change (cached).
         """
         own = node.waited_trains()

@@ -172,7 +172,7 @@ class SensorOutbox:
         if block is None:
             return
         # plain Python floats here: numpy scalar indexing per sample was most of the node's
-        # time with ~10 samples per step at the peak (issue 13)
+        # time with ~10 samples per step at the peak
         t = np.asarray(block.t, dtype=float).tolist()
         clamp = np.asarray(block.clamp, dtype=np.float64)
         # braked: some axle clamp force well above the sensor noise (50 N scale)

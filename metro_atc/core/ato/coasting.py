@@ -1,6 +1,6 @@
-"""Coasting control profile systems FOTP / FCTP / ECTP / ACTP-TC / ACTP-C (seed 002).
+"""Coasting control profile systems FOTP / FCTP / ECTP / ACTP-TC / ACTP-C (ACTP n.d.).
 
-Profile (seed 002 Fig. 1): traction at level ``delta`` (seed 002 eq. 3-5; Level-II = 90 %)
+Profile (ACTP n.d., Fig. 1): traction at level ``delta`` (ACTP n.d., eq. 3-5; Level-II = 90 %)
 up to the cut-off speed (the envelope, i.e. the line speed), cruising at it (eq. 10), coasting
 from the coasting point ``y_c`` (closed form, eq. 7-8) until the braking curve of the stop
 (the regenerating point, eq. 12), braking to the stop.  The running time is the sum of the
@@ -8,7 +8,7 @@ mode durations (eq. 13): traction, cruise and braking by the trapezoid rule of t
 distance-step simulation, coasting by the closed-form time of eq. 8
 (:func:`metro_atc.core.ato.strategy.coast_step`).
 
-Profile systems (seed 002 Sec. 1):
+Profile systems (ACTP n.d., Sec. 1):
 
 - FOTP: flat-out, full traction, no coasting;
 - FCTP: coasting at a fixed location (a fixed fraction of the run; the Blue line "coasting
@@ -16,7 +16,7 @@ Profile systems (seed 002 Sec. 1):
 - ECTP: the unique coasting point at which the running time equals the schedule (found by
   bracketing + refinement over vectorised simulations);
 - ACTP-TC / ACTP-C: adaptive-critic (DHP) profile systems choosing traction level and coasting
-  point (TC) or the coasting point only (C).  Reconstruction of seed 002 Sec. 3 (eq. 23-33):
+  point (TC) or the coasting point only (C).  Reconstruction of ACTP n.d., Sec. 3 (eq. 23-33):
   state ``X(q) = [running-time deviation / T, energy / E_FOTP]`` of run q, controller network
   ``u(q) = A(X(q))`` (tanh hidden layer, sigmoid outputs scaled to the control ranges),
   critic network ``lambda(X) ~ dJ/dX``, utility ``U = w_E E/E_ref + w_T (dtau/T)^2``.  The
@@ -46,7 +46,7 @@ from metro_atc.core.line.vehicle import TrainParams
 FloatArray = NDArray[np.float64]
 
 LEVEL_II = 0.9
-"""Level-II traction (90 %) used with coasting control in seed 002 Exp. 2."""
+"""Level-II traction (90 %) used with coasting control in ACTP n.d., Exp. 2."""
 
 
 @dataclass
@@ -171,7 +171,7 @@ def _finish(run: RunModel, system: str, yc: float, delta: float, target: float,
 
 
 def fotp(run: RunModel, target_time_s: float, h_m: float = 2.0) -> CoastingResult:
-    """Flat-out train profile: full traction, no coasting (seed 002 FOTP)."""
+    """Flat-out train profile: full traction, no coasting (ACTP n.d. FOTP)."""
     sim = simulate_switching(run, np.array([run.length_m + 1.0]), np.array([1.0]), h_m)
     ok = bool(sim.time_s[0] <= target_time_s + 1e-6)
     msg = "" if ok else (f"target {target_time_s:.1f} s below the minimum running time "
@@ -181,7 +181,7 @@ def fotp(run: RunModel, target_time_s: float, h_m: float = 2.0) -> CoastingResul
 
 def fctp(run: RunModel, target_time_s: float, coast_fraction: float = 0.5,
          delta: float = LEVEL_II, h_m: float = 2.0) -> CoastingResult:
-    """Fixed-point coasting train profile: coast from ``coast_fraction * L`` (seed 002 FCTP)."""
+    """Fixed-point coasting train profile: coast from ``coast_fraction * L`` (ACTP n.d. FCTP)."""
     yc = coast_fraction * run.length_m
     sim = simulate_switching(run, np.array([yc]), np.array([delta]), h_m)
     ok = bool(np.isfinite(sim.time_s[0]) and sim.time_s[0] <= target_time_s + 1e-6)
@@ -232,7 +232,7 @@ def exact_coasting_point(run: RunModel, target_time_s: float, delta: float = LEV
 
 def ectp(run: RunModel, target_time_s: float, delta: float = LEVEL_II,
          h_m: float = 2.0) -> CoastingResult:
-    """Exact-time coasting train profile (seed 002 ECTP)."""
+    """Exact-time coasting train profile (ACTP n.d. ECTP)."""
     yc, ok, msg = exact_coasting_point(run, target_time_s, delta, h_m)
     res = _finish(run, "ECTP", yc, delta, target_time_s, ok, msg, h_m)
     if ok and abs(res.time_s - target_time_s) > 0.05:
@@ -306,7 +306,7 @@ class _Mlp:
 
 def actp(run: RunModel, target_time_s: float, tune_traction: bool = True,
          params: Optional[ActpParams] = None, h_m: float = 2.0) -> CoastingResult:
-    """Adaptive-critic train profile: ACTP-TC (``tune_traction``) or ACTP-C (seed 002)."""
+    """Adaptive-critic train profile: ACTP-TC (``tune_traction``) or ACTP-C (ACTP n.d.)."""
     p = params if params is not None else ActpParams()
     name = "ACTP-TC" if tune_traction else "ACTP-C"
     rng = np.random.default_rng(p.seed)
@@ -331,7 +331,7 @@ def actp(run: RunModel, target_time_s: float, tune_traction: bool = True,
     cn = coasts / run.length_m
     if tune_traction:
         # imported here: scipy.interpolate is ~1 CPU s of every ATO process's start-up
-        # (issue 13) and only ACTP-TC needs it
+        # and only ACTP-TC needs it
         from scipy.interpolate import RectBivariateSpline
         spl_t = RectBivariateSpline(deltas, cn, x_t, kx=3, ky=3)
         spl_e = RectBivariateSpline(deltas, cn, x_e, kx=3, ky=3)

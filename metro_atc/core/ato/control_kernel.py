@@ -5,7 +5,7 @@ planning part (the caps of ``_cap_at`` at the preview position, ``_speed_dip``,
 ``_authority_speed``, :meth:`AtoCore.command_ex` with the fuzzy tracker, its feedforward and
 bounds, and ``guard``) for the common case: a plan, the fuzzy tracker on a scalar state, no
 TSR known, the static SBI table, a fresh state with a later time stamp, the train not past
-its stopping point (issue 13, graph speed).  Every operation is written in the Python path's
+its stopping point (graph speed).  Every operation is written in the Python path's
 order with its builtins' semantics (``min``/``max`` as CPython picks, :func:`pmin` /
 :func:`pmax`; ``x ** 2`` and ``x ** 3`` as the C ``pow`` CPython calls, the exponent read from
 the constants so that LLVM cannot fold it into products; ``int()`` truncation of finite

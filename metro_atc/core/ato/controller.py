@@ -10,7 +10,7 @@ Safety behaviour of :meth:`AtoCore.command_ex`: non-finite input, a state older 
 ``stale_after_s`` (when the caller passes ``now_s``) or a time stamp going backwards give a
 full service brake (u = -1) with the reason; with no plan the train is held braked; past the
 stopping point or above the envelope it brakes.  At the platform a holding brake is applied.
-The command rate is limited by the jerk limit (seed 001: 1 m/s^3).
+The command rate is limited by the jerk limit (Ke 2010: 1 m/s^3).
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ JOIN_BAND_MPS = 0.3
 swing from full traction to the planned braking would end (no overshoot of a braking
 curve joined from below)."""
 BERTH_WINDOW_M = 0.3
-"""A standstill this close to the stopping point is the arrival (issue 11: +-0.30 m, the
+"""A standstill this close to the stopping point is the arrival (+-0.30 m, the
 platform-screen-door tolerance); stopped further short, the train creeps on [m]."""
 STOP_FF_MPS = 0.5
 """Below this desired speed [m/s] the feedforward never commands traction."""
@@ -205,7 +205,7 @@ class AtoCore:
         return self.command_ex(t_s, x_m, v_mps, now_s, r_cap_mps, cap_accel_mps2).u
 
     def _feedforward(self, s: float, v: float, r: float, a_cap: Optional[float]) -> float:
-        """Effort [-1, 1] that holds the reference on the grade (seed 004 Newton's law).
+        """Effort [-1, 1] that holds the reference on the grade (Li n.d. Newton's law).
 
         ``F = M_eff a_ref + F_r(v) + F_g`` with the grade force averaged over the train
         length behind the front at s and ``a_ref = d(r^2/2)/ds`` of the planned reference
@@ -235,7 +235,7 @@ class AtoCore:
         """Whether following the reference from r to r_a over ds [m] needs the brake.
 
         True when the deceleration of the reference ``(r^2 - r_a^2) / (2 ds)`` exceeds what
-        the train loses coasting (resistance and grade at s, seed 004 Newton's law): a
+        the train loses coasting (resistance and grade at s, Li n.d. Newton's law): a
         braking curve, not a coasting phase of the plan.
         """
         run = self.run
@@ -257,7 +257,7 @@ class AtoCore:
         reaches the curve's speed v tau / 2 ahead of the preview point ``s_p`` [m run
         coordinate], the ramp ends on the curve; started at the curve (a step demand),
         it ends behind it, and the tracker and the stopping guard catch up with a full
-        service brake (issue 11, ``gen_0009_inc``: a brake false alarm).  Once the onset
+        service brake (``gen_0009_inc``: a brake false alarm).  Once the onset
         is reached the bound keeps ramping, ``rho dt`` per step, down to u_c; 1 (no bound)
         before it, when the curve ahead is not a braking curve (no steeper than
         coasting) or when the effort is already at the curve's.
@@ -360,7 +360,7 @@ class AtoCore:
 
         ``run.mean_grade_force_at(s - length, s)``, kept for the last (run, s): the
         feedforward and the bounds of one control step ask for it at the same s several
-        times (issue 13; the same float, computed once).
+        times (the same float, computed once).
         """
         if s == self._fg_s and run is self._fg_run:
             return self._fg_v
@@ -372,7 +372,7 @@ class AtoCore:
         """The run's ceiling energy at run coordinate s [m^2/s^2], kept for the last (run, s).
 
         The on-board speed-dip check and :meth:`command_ex` ask for it at the same s in one
-        control step (issue 13; the same float, computed once).
+        control step (the same float, computed once).
         """
         if s == self._ce_s and run is self._ce_run:
             return self._ce_v
@@ -389,7 +389,7 @@ class AtoCore:
     def net_accel(self, x_m: float, v_mps: float) -> float:
         """Net acceleration [m/s^2] of full traction at chainage x [m] and speed v [m/s].
 
-        Traction less resistance and the grade over the train (seed 004 Newton's law),
+        Traction less resistance and the grade over the train (Li n.d. Newton's law),
         at most the planning limit ``accel_max_mps2``; 0 with no plan.
         """
         run = self.run
@@ -567,7 +567,7 @@ class AtoCore:
         ceiling = sqrt_or_nan(2.0 * self.ceiling_e_at(run, min(max(s, 0.0), run.length_m)))
         reason = "tracking"
         if s >= run.pss_start_s:
-            reason = "programmed station stopping"  # seed 001: PSS from 350 m
+            reason = "programmed station stopping"  # Ke 2010: PSS from 350 m
         if v > ceiling + 1.0 and s < run.length_m:
             u = SAFE_BRAKE
             reason = "above the speed envelope"

@@ -4,9 +4,9 @@ Grid: distance stages ``s_k = k ds`` x speed states ``e_j = j h_e`` (kinetic ene
 mass e = v^2/2).  Controls per stage (the switching structure of the minimum-energy train
 control problem: maximum traction, speed holding, coasting, braking):
 
-- ``accelerate`` at traction level 1.0 and 0.5 (seed 002 eq. 3-5, net accel <= a_max),
+- ``accelerate`` at traction level 1.0 and 0.5 (ACTP n.d., eq. 3-5, net accel <= a_max),
 - ``cruise`` (hold the stage entry speed),
-- ``coast`` (closed-form coasting, seed 002 eq. 7-8),
+- ``coast`` (closed-form coasting, ACTP n.d., eq. 7-8),
 
 each simulated exactly over the stage by :func:`metro_atc.core.ato.strategy.strategy_step`
 (the same physics and the same envelope -- limits incl. train length, braking curves,
@@ -35,7 +35,7 @@ error in the reported energy / time) and the cheapest meeting the time within 0.
 
 Rollout polish.  Switching only at stage boundaries (10 m) with a value function
 interpolated on a 1 m^2/s^2 grid leaves the end of an acceleration phase up to a few km/h off
-(seed 001 case 2: the train then reaches a 50 km/h restriction below the limit and holds a
+(Ke 2010, case 2: the train then reaches a 50 km/h restriction below the limit and holds a
 lower speed for longer, +0.95 % against the LP optimum; refining the grids alone does not
 converge: ds 5 m / de 0.25 gives +0.44 %, ds 2.5 m +0.69 %).  The winner is improved by
 rollout (:func:`_rollout`): near every change of control, the stage is re-simulated exactly at
@@ -44,7 +44,7 @@ of the run; the cheapest candidate meeting the time replaces the winner (``ROLLO
 rounds, each checked by exact simulation).
 
 Continuous polish.  The rollout still switches inside one stage at a time and re-plans on the
-tables, so switching points stay a few metres off (seed 001 case 2 +0.55 %, a generated line
+tables, so switching points stay a few metres off (Ke 2010, case 2 +0.55 %, a generated line
 +1.06 % against the LP optimum).  Finally the regime structure of the winner (runs of equal
 control and level) is kept and the positions of its boundaries are optimised continuously
 under the running-time bound by a projected-gradient search with exact simulation

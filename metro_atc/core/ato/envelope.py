@@ -1,11 +1,11 @@
-"""Run geometry and the operating speed envelope of one inter-station run (seed 001 Sec. 4-5).
+"""Run geometry and the operating speed envelope of one inter-station run (Ke 2010, Sec. 4-5).
 
 A *run* goes from a departure point ``x_start`` to a stopping point ``x_stop`` (chainage [m]
 on a :class:`~metro_atc.core.line.vehicle.Track`) in either direction.  Internally every ATO
 algorithm works in the run coordinate ``s = |x - x_start|`` in [0, L] with the grade signed
 in the direction of travel (positive = uphill for this train).
 
-The envelope (seed 001 Sec. 4.1: "the track speed limits are modified in order to match the
+The envelope (Ke 2010, Sec. 4.1: "the track speed limits are modified in order to match the
 requirement of different operation modes") is the highest speed a planner may command at
 ``s``:
 
@@ -13,10 +13,10 @@ requirement of different operation modes") is the highest speed a planner may co
   minimum over ``[s - train length, s]`` (a restriction ends only when the rear clears it);
 - constant-deceleration braking curves ``v^2 = v_t^2 + 2 b d`` to every lower limit ahead and
   to standstill at the stopping point (programmed station stopping, PSS: the speed command
-  is calculated backwards from the dwell position; seed 001 Sec. 5 starts PSS 350 m before
+  is calculated backwards from the dwell position; Ke 2010, Sec. 5 starts PSS 350 m before
   the stop, see :attr:`OperatingLimits.pss_distance_m`).
 
-The jerk limit (seed 001: +-1.0 m/s^3) is not part of the envelope: with a_max = 1 m/s^2 a
+The jerk limit (Ke 2010: +-1.0 m/s^3) is not part of the envelope: with a_max = 1 m/s^2 a
 full jerk-limited transition takes 1 s; it is enforced as a command-rate limit by the tracker
 (:mod:`metro_atc.core.ato.controller`).  All quantities SI.
 """
@@ -49,20 +49,20 @@ MODE_NAMES = ("accelerate", "cruise", "coast", "brake")
 
 @dataclass(frozen=True)
 class OperatingLimits:
-    """Operating limits used by the planners (seed 001 Sec. 5).
+    """Operating limits used by the planners (Ke 2010, Sec. 5).
 
-    accel_max_mps2: net acceleration limit [m/s^2] (seed 001: 1.0).
+    accel_max_mps2: net acceleration limit [m/s^2] (Ke 2010: 1.0).
     brake_decel_mps2: planning service deceleration of braking curves [m/s^2]; below the
-    seed 001 limit of 1.0 so that the tracker keeps a braking margin (the Taipei preset can
+    Ke 2010 limit of 1.0 so that the tracker keeps a braking margin (the Taipei preset can
     produce about 0.93 m/s^2 with its rotating-mass allowance).
-    jerk_max_mps3: jerk limit [m/s^3] (seed 001: 1.0; enforced by the tracker).
+    jerk_max_mps3: jerk limit [m/s^3] (Ke 2010: 1.0; enforced by the tracker).
     pss_distance_m: programmed station stopping starts this far before the stop [m]
-    (seed 001 Sec. 5: 350 m, Taipei MRT practice).
+    (Ke 2010, Sec. 5: 350 m, Taipei MRT practice).
     envelope_step_m: grid step of the tabulated envelope [m].
     grade_aware_braking: plan braking curves at the deceleration the service brake achieves
-    on the grade (issue 11): ``brake_decel_mps2`` less the downhill pull ``g |grade|`` of the
+    on the grade: ``brake_decel_mps2`` less the downhill pull ``g |grade|`` of the
     steepest grade under the train, so the reserve of the service brake over the plan is the
-    same on every grade (False: ``brake_decel_mps2`` everywhere, the seed 001 constant).
+    same on every grade (False: ``brake_decel_mps2`` everywhere, the Ke 2010 constant).
     speed_margin_mps: the profile stays this far below the civil limit (tracking margin,
     so the tracked speed never exceeds the limit) [m/s].
     restriction_lead_m: braking curves to a lower limit reach it this far before the
@@ -92,7 +92,7 @@ class RunModel:
     train: train parameters (mass [kg], Davis terms, traction curve).
     track: chainage-indexed grades and permanent speed limits.
     x_start_m, x_stop_m: departure and stopping chainage [m] (either direction, distinct).
-    limits: operating limits (defaults: seed 001).
+    limits: operating limits (defaults: Ke 2010).
     """
 
     def __init__(self, train: TrainParams, track: Track, x_start_m: float, x_stop_m: float,
@@ -157,7 +157,7 @@ class RunModel:
     # ----------------------------------------------------------------- one point
     # Plain-float twins of run_coordinate / grade / mean_grade_force / ceiling_e for the
     # per-step tracking of one train: the same IEEE results without numpy's 0-d overhead
-    # (issue 13, graph speed; test/test_scalar_math.py).
+    # (graph speed; test/test_scalar_math.py).
     def _tables(self) -> tuple[list[float], list[float], list[float], list[float], list[float]]:
         tab = self.__dict__.get("_scalar_tables")
         if tab is None:
@@ -278,7 +278,7 @@ class RunModel:
 
     @property
     def pss_start_s(self) -> float:
-        """Run coordinate [m] where programmed station stopping starts (seed 001: 350 m)."""
+        """Run coordinate [m] where programmed station stopping starts (Ke 2010: 350 m)."""
         return max(0.0, self.length_m - self.limits.pss_distance_m)
 
 
@@ -289,7 +289,7 @@ def profile_energy_time(run: RunModel, s: ArrayLike, v: ArrayLike,
 
     The profile is piecewise constant-acceleration between samples (s_k [m], v_k [m/s]): the
     effort on interval k is ``F = M_eff (v_{k+1}^2 - v_k^2) / (2 ds) + F_r(v_mean) + F_g``
-    (Newton's law, seed 004), the time ``2 ds / (v_k + v_{k+1})`` and the traction energy
+    (Newton's law, Li n.d.), the time ``2 ds / (v_k + v_{k+1})`` and the traction energy
     ``max(F, 0) ds`` (mechanical energy at the wheel; braking is not credited).  Intervals
     flagged in ``coast_mask`` count zero energy (no effort is applied there).
     """

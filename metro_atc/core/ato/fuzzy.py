@@ -1,11 +1,11 @@
-r"""Fuzzy logic speed controller (seed 004 Sec. 2.3, Table 1, eq. 1-3).
+r"""Fuzzy logic speed controller (Li n.d., Sec. 2.3, Table 1, eq. 1-3).
 
 Inputs: the speed error ``e_k = r_k - v_k`` [m/s] and its difference ``d_k = e_k - e_{k-1}``
-[m/s per control step] (seed 004 eq. 3, the derivative taken as a first difference).
+[m/s per control step] (Li n.d., eq. 3, the derivative taken as a first difference).
 Fuzzification: e_k with 5 sets {PB, P, Z, N, NB}, d_k with 3 sets {P, Z, N} on normalised
 universes; P, Z, N of e_k and Z of d_k are isosceles triangles (eq. 1), the outer sets
-trapezoids (eq. 2) -- as stated under seed 004 Fig. 2.  Rule base: the 3 x 5 = 15 rules of
-seed 004 Table 1::
+trapezoids (eq. 2) -- as stated under Li n.d., Fig. 2.  Rule base: the 3 x 5 = 15 rules of
+Li n.d., Table 1::
 
     d_k \ e_k   PB   P    Z    N    NB
     P           PB   PB   P    Z    N
@@ -18,7 +18,7 @@ drives the normalised effort u in [-1, 1] (traction for u > 0, service brake for
 :func:`metro_atc.core.line.vehicle.effort_force`).  With ``incremental=True`` (default) the
 output is an effort *increment* per step (a fuzzy PI controller: zero error needs no
 steady-state offset while cruising against resistance); with ``incremental=False`` it is the
-effort itself, as in the crane controller of seed 004 Sec. 2.3.  The seed gives no universe
+effort itself, as in the crane controller of Li n.d., Sec. 2.3.  The seed gives no universe
 scales; ours are documented defaults of :class:`FuzzyParams`.  Vectorised over trains.
 """
 
@@ -50,7 +50,7 @@ RULE_MATRIX = np.array([[OUT_VALUE[o] for o in row] for row in RULES])
 
 
 def triangle(h: ArrayLike, a: float, b: float, c: float) -> FloatArray:
-    """Triangular membership (seed 004 eq. 1)."""
+    """Triangular membership (Li n.d., eq. 1)."""
     x = np.asarray(h, dtype=float)
     up = (x - a) / (b - a)
     down = (c - x) / (c - b)
@@ -58,7 +58,7 @@ def triangle(h: ArrayLike, a: float, b: float, c: float) -> FloatArray:
 
 
 def trapezoid(h: ArrayLike, a: float, b: float, c: float, d: float) -> FloatArray:
-    """Trapezoidal membership (seed 004 eq. 2); infinite shoulders allowed."""
+    """Trapezoidal membership (Li n.d., eq. 2); infinite shoulders allowed."""
     x = np.asarray(h, dtype=float)
     up = np.ones_like(x) if not np.isfinite(a) else (x - a) / (b - a)
     down = np.ones_like(x) if not np.isfinite(d) else (d - x) / (d - c)
@@ -98,7 +98,7 @@ _RULES_FLAT = tuple(float(x) for x in RULE_MATRIX.ravel())
 def flc_output_at(e_n: float, d_n: float) -> float:
     """:func:`flc_output` for one finite (e, d) pair (plain floats, the same IEEE result).
 
-    The per-train tracker runs it once per control step (issue 13, graph speed): the
+    The per-train tracker runs it once per control step (graph speed): the
     memberships (:func:`triangle` / :func:`trapezoid` of the sets of :func:`e_memberships`
     and :func:`d_memberships`, clipped), the 15 products and the two sums (numpy's pairwise
     order for 15 contiguous doubles: 8 in pairs, then the rest one by one) are written
@@ -155,7 +155,7 @@ class FuzzyParams:
 
 
 class FuzzyController:
-    """Stateful seed 004 fuzzy speed controller (one or many trains)."""
+    """Stateful Li n.d. fuzzy speed controller (one or many trains)."""
 
     name = "fuzzy"
 
@@ -203,9 +203,9 @@ class FuzzyController:
              u_ff: ArrayLike = 0.0) -> FloatArray:
         """Return the normalised effort u in [-1, 1] for desired r and actual v [m/s].
 
-        ``dt_s`` is unused by the fuzzy law (d_k is a per-step difference, seed 004 eq. 3)
+        ``dt_s`` is unused by the fuzzy law (d_k is a per-step difference, Li n.d., eq. 3)
         and kept for the common tracker interface; ``u_ff`` is an optional feedforward
-        effort added to the absolute form / to the increments' base (0: pure seed 004).
+        effort added to the absolute form / to the increments' base (0: pure Li n.d.).
         """
         if type(r_mps) is float and type(v_mps) is float and type(u_ff) is float \
                 and self.p.incremental:

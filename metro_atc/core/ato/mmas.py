@@ -1,13 +1,13 @@
-"""MAX-MIN ant system for the energy-efficient driving strategy (seed 001 Sec. 2, 4).
+"""MAX-MIN ant system for the energy-efficient driving strategy (Ke 2010, Sec. 2, 4).
 
-Problem (seed 001 eq. 6-7): choose for each of the ``N_s`` sections an operation mode
+Problem (Ke 2010, eq. 6-7): choose for each of the ``N_s`` sections an operation mode
 M = {accelerate, cruise, coast} and a speed code v_i in V to minimise the energy
 ``E = sum_i E_i(v_i, g_i)`` subject to the average-speed constraint
 ``L / (sum_i t_i + t_dwell) >= V_av,spec``, i.e. a running-time bound
 ``sum_i t_i <= T = L / V_av,spec - t_dwell``.  Section energies and times come from the
 pre-work tables (:mod:`metro_atc.core.ato.sections`).
 
-Algorithm (seed 001 Sec. 2 and 4.2 items 3-8; Stuetzle & Hoos, refs [8, 9]):
+Algorithm (Ke 2010, Sec. 2 and 4.2 items 3-8; Stuetzle & Hoos, refs [8, 9]):
 
 - graph G = (M, V, H, T): pheromone on the mode transition of section m -> m+1
   ``tau[m, mode_m, mode_{m+1}]`` (the paper's ``tau_{mi,(m+1)j}``) and on the speed code of each
@@ -38,7 +38,7 @@ Algorithm (seed 001 Sec. 2 and 4.2 items 3-8; Stuetzle & Hoos, refs [8, 9]):
   a section boundary at the switch point; on the seed's lattice and partition MMAS stayed up
   to 6-15 % above the LP optimum on the TTOBench downhill run.
 
-Deviations from seed 001: the local searches above; the heuristic floor 0.1; the deposit
+Deviations from Ke 2010: the local searches above; the heuristic floor 0.1; the deposit
 formula (reconstruction); the reported energy and time are the exact simulation of the
 planned tour, not the table estimate.
 
@@ -72,7 +72,7 @@ _construct = construct_ants if numba_available() else construct_ants_numpy
 
 @dataclass(frozen=True)
 class MmasParams:
-    """MMAS parameters (seed 001 Sec. 5.1 defaults)."""
+    """MMAS parameters (Ke 2010, Sec. 5.1 defaults)."""
 
     n_ants: int = 50
     n_iterations: int = 100
@@ -125,7 +125,7 @@ class MmasResult:
 def heuristic(tables: SectionTables, grade_scale: float = 0.02) -> FloatArray:
     """Heuristic information eta[section, mode] in [0.1, 1] from the mean gradient.
 
-    Up-grades favour accelerate, down-grades favour coast, cruise is neutral (seed 001
+    Up-grades favour accelerate, down-grades favour coast, cruise is neutral (Ke 2010
     Sec. 4.2 item 3: "created by the average gradient of section m").
     """
     g = np.clip(tables.mean_grade / grade_scale, -1.0, 1.0)
@@ -355,9 +355,9 @@ def lagrangian_polish(tables: SectionTables, modes: IntArray, codes: IntArray, t
 
 def solve_mmas(tables: SectionTables, t_max_s: float,
                params: Optional[MmasParams] = None) -> MmasResult:
-    """Online optimisation stage (seed 001 Fig. 2): MMAS over the pre-work tables.
+    """Online optimisation stage (Ke 2010, Fig. 2): MMAS over the pre-work tables.
 
-    t_max_s: running-time bound [s] from the average-speed constraint (seed 001 eq. 7).
+    t_max_s: running-time bound [s] from the average-speed constraint (Ke 2010, eq. 7).
     Deterministic for a given ``params.seed``.
     """
     p = params if params is not None else MmasParams()

@@ -1,10 +1,10 @@
-"""Compiled inner loops of the MAX-MIN ant system on the pre-work tables (seed 001 Sec. 4.2).
+"""Compiled inner loops of the MAX-MIN ant system on the pre-work tables (Ke 2010, Sec. 4.2).
 
 :func:`construct_ants` is one iteration's tour construction of :func:`mmas.solve_mmas`
-(seed 001 Sec. 4.2 items 4-5: an ant picks section by section a mode by roulette wheel on
+(Ke 2010, Sec. 4.2 items 4-5: an ant picks section by section a mode by roulette wheel on
 ``tau[m, mode_{m-1}, mode] * eta[m, mode]^lambda`` and then a speed code on
 ``tau_v[m, mode, code]`` over the allowed codes) together with the table evaluation of the
-tour as it is built (seed 001 eq. 6-7, :meth:`sections.SectionTables.lookup` arithmetic);
+tour as it is built (Ke 2010, eq. 6-7, :meth:`sections.SectionTables.lookup` arithmetic);
 :func:`construct_ants_numpy` is the same vectorised over the ants, the path used without
 numba and the reference of the tests (identical tours and figures for the same uniforms).
 :func:`table_prefix` is the state of one tour at every section start (the common prefixes of

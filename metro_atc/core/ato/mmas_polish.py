@@ -1,13 +1,13 @@
-"""Continuous local search of a seed 001 tour on the exact simulator (MMAS + local search).
+"""Continuous local search of a Ke 2010 tour on the exact simulator (MMAS + local search).
 
-Not in seed 001.  The paper's speed codes are 5 km/h apart and its sections of equal length;
+Not in Ke 2010.  The paper's speed codes are 5 km/h apart and its sections of equal length;
 the best tour on that lattice can miss the optimum by several per cent.  TTOBench downhill
 3 906 -> 6 272 m at 1.10 x flat-out: the optimum is full traction to 47.4 km/h at 88 m, then
 coasting (the descent does the rest).  A section in accelerate mode brakes to hold its code
 once it is reached (the code is a ceiling), so cutting traction at 88 m needs a section
 boundary there; on 47 m sections the nearest tours hold the speed to the section end and
 reach 1.2 % to 9 % above the optimum.  Local search on the best tour is the standard
-companion of MMAS (Stuetzle & Hoos, "MAX-MIN ant system and local search", seed 001 ref.
+companion of MMAS (Stuetzle & Hoos, "MAX-MIN ant system and local search", Ke 2010 ref.
 [8]); this one works on the *continuous* speed commands and *section boundaries* and on the
 *exact* simulation (:class:`metro_atc.core.ato.tour_kernel.TourSimulator`, no table
 interpolation).  Neighbourhood of a tour:

@@ -174,7 +174,7 @@ class OnboardAto:
     def plan(self, st: int, target_s: float, stamp_s: float, late: bool = False) -> PlanEvent:
         """Plan the run from station ``st`` to ``st + 1``."""
         x0, x1 = float(self.stations[st]), float(self.stations[st + 1])
-        # the TSRs known now are limits of the run (issue 11: no motoring into their curve)
+        # the TSRs known now are limits of the run (no motoring into their curve)
         prof = self.core.plan(x0, x1, target_s, tsrs_for_run(self.tsrs, x0, x1,
                                                              self.train.length_m, stamp_s))
         self.planned_from = st
@@ -313,7 +313,7 @@ class OnboardAto:
         return u, mode
 
     def _speed_dip(self, s: dict[str, Any], v: float) -> bool:
-        """Whether the speed has fallen since its last peak off the run's envelope (issue 11).
+        """Whether the speed has fallen since its last peak off the run's envelope.
 
         The peak [m/s] restarts at 0 at a station and follows the speed up; a train riding
         the run's envelope (a civil limit or a braking curve to one, within
@@ -335,7 +335,7 @@ class OnboardAto:
         return v < self._peak_mps - JOIN_BAND_MPS
 
     def _tsr_dip_hold(self, ctx: tuple[Any, ...], xp: float, v: float) -> bool:
-        """No re-motoring out of a speed dip before a known TSR below the speed (issue 11).
+        """No re-motoring out of a speed dip before a known TSR below the speed.
 
         A TSR ahead of the preview position ``xp`` [m], before the next stopping point,
         whose target speed is below v [m/s]: whatever the distance, the gain of re-motoring
@@ -351,7 +351,7 @@ class OnboardAto:
 
     def _tsr_hold(self, ctx: tuple[Any, ...], xp: float, v: float, r: float,
                   dip: bool = False) -> bool:
-        """No traction toward r [m/s] when a known TSR's curve takes the gain back (issue 11).
+        """No traction toward r [m/s] when a known TSR's curve takes the gain back.
 
         Accelerating from v to r and braking back to v (the swing between them included)
         takes ``H = (r^2 - v^2) / (2 a) + v swing_s + (r^2 - v^2) / (2 b)`` metres at the net
@@ -409,7 +409,7 @@ class OnboardAto:
         i1 = min(max(bisect_right(starts, hi) - 1, 0), n - 1)
         if math.isfinite(lo) and math.isfinite(hi) and i1 - i0 <= 1:
             # the 64 samples run from lo to hi exactly: the grades of their first and last
-            # pieces are all they see (the same minimum, without the arrays; issue 13)
+            # pieces are all they see (the same minimum, without the arrays)
             g = min(grades[i0], grades[i1])
         else:
             xs = np.linspace(lo, hi, 64)
@@ -436,7 +436,7 @@ class OnboardAto:
         return self._cap_at(self._cap_context(s), x_at, authority)
 
     def _cap_context(self, s: dict[str, Any]) -> tuple[Any, ...]:
-        """What :meth:`speed_cap` takes from a state whatever the position (issue 13).
+        """What :meth:`speed_cap` takes from a state whatever the position.
 
         (x [m], v [m/s], supervision cap [m/s] (inf when unknown), end of authority [m],
         the TSRs known and not yet ended at the state's time with their target speeds,
@@ -456,7 +456,7 @@ class OnboardAto:
             self.atp.sbi_terms(a_w)
 
     def _cap_at(self, ctx: tuple[Any, ...], x_at: Optional[float], authority: bool) -> float:
-        """:meth:`speed_cap` from a :meth:`_cap_context`, its calls written out (issue 13).
+        """:meth:`speed_cap` from a :meth:`_cap_context`, its calls written out.
 
         The static SBI minimum (:meth:`AtpModel.static_sbi`), the planned deceleration
         (:meth:`_plan_decel`) and the authority's SBI speed (:meth:`AtpModel.sbi_speed`, its
@@ -564,7 +564,7 @@ class OnboardAto:
 
 @dataclass(frozen=True)
 class AtpModel:
-    """What the ATO knows of the ATP's supervision (seed 001 Fig. 1; SI units).
+    """What the ATO knows of the ATP's supervision (Ke 2010, Fig. 1; SI units).
 
     b_g: guaranteed deceleration on the steepest downhill [m/s^2]; t_r: response time [s];
     t_sbi: service-brake-intervention lead time [s]; g_down: g x the steepest downhill
@@ -625,7 +625,7 @@ class AtpModel:
         lst = self._sbi_list
         if lst is not None:
             # the same minimum over the same floats without a numpy call, the index clamps
-            # of the numpy path written out (integers; issue 13)
+            # of the numpy path written out (integers)
             n = len(lst)
             k0 = 0 if k0 < 0 else (k0 if k0 < n else n - 1)
             k1 = k0 + 1 if k1 < k0 + 1 else (k1 if k1 < n else n)

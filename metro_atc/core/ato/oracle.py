@@ -17,7 +17,7 @@ on every interval of length h_k:
   (C v^2 = 2 C E is linear; the concave B v term is replaced by its tangent at the
   current iterate, an over-estimate) and the exact mean grade force Fg_k of the interval;
 - traction limits at E_mid: ``F_k <= m a_1`` and the convex constant-voltage /
-  constant-power branches ``m a_2 / (v + b_2)``, ``m a_3 / (v + b_3)^2`` (seed 002 eq. 3-5)
+  constant-power branches ``m a_2 / (v + b_2)``, ``m a_3 / (v + b_3)^2`` (ACTP n.d., eq. 3-5)
   by their tangents at the current iterate (under-estimates, i.e. conservative);
 - net acceleration ``(E_{k+1} - E_k) / h_k <= a_max``; braking force ``B_k <= M_eff b``;
 - the envelope ``E_k <= e_ceiling(s_k)`` (limits for the whole train length, braking curves,
@@ -108,7 +108,7 @@ def traction_limit_tangents(run: RunModel, e_star: FloatArray
                             ) -> list[tuple[FloatArray, FloatArray]]:
     """Tangents (value0 [N], slope [N/(m^2/s^2)]) of the traction-force branches at E*.
 
-    The limit is ``m min(a_1, a_2/(v + b_2), a_3/(v + b_3)^2)`` (seed 002 eq. 3-5; the
+    The limit is ``m min(a_1, a_2/(v + b_2), a_3/(v + b_3)^2)`` (ACTP n.d., eq. 3-5; the
     branches meet at v_1 and v_2); each branch is convex in E, so its tangent at E* is a
     conservative linear bound ``F <= value0 + slope (E - E*)``.
     """

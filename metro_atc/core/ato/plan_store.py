@@ -1,4 +1,4 @@
-"""Finished plans shared by the ATO processes of one run, as files (issue 13 item 4).
+"""Finished plans shared by the ATO processes of one run, as files.
 
 A plan is a pure function of the line, the train, the run, the planner, its parameters and
 the target running time: the ATO processes of a run (each hosting a few trains) would

@@ -8,11 +8,11 @@ the curve to get the desired speed r_k).  The paper gives no numbers for the reg
 the legal maximum acceleration 2 km/h/s (Table 4), used here for acceleration and
 deceleration; the acceleration region additionally follows the train's traction capability
 with a margin (:attr:`ReferenceCurveParams.traction_margin`) so that the curve is trackable
-by the power-limited train (10 260 kW, seed 004 Table 4).  Creep speed / length and the final
+by the power-limited train (10 260 kW, Li n.d., Table 4).  Creep speed / length and the final
 braking rate are our choices (documented defaults).
 
 :class:`ProfileReference` turns a planned speed profile (MMAS, coasting control, DP) into a
-reference of the same interface, with the seed 004 creep/brake tail for platform stopping.
+reference of the same interface, with the Li n.d. creep/brake tail for platform stopping.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ class ReferenceCurveParams:
     """Parameters of the 5-region curve (SI).
 
     v_max_mps: maximum speed (None: the run's speed limit); accel_mps2 / decel_mps2:
-    acceleration and deceleration of regions 1 and 3 (seed 004: 2 km/h/s; deceleration with
+    acceleration and deceleration of regions 1 and 3 (Li n.d.: 2 km/h/s; deceleration with
     a 10 % braking margin); traction_margin: fraction of the net traction capability the
     acceleration region may use; creep_speed_mps, creep_length_m: region 4;
     brake_decel_mps2: region 5; step_m: tabulation step of region 1;
@@ -73,7 +73,7 @@ def stop_tail(s: ArrayLike, length_m: float, decel: float, creep_v: float, creep
               brake_decel: float) -> FloatArray:
     """Decelerate / creep / brake envelope [m/s] ending at standstill at s = length_m.
 
-    Regions 3-5 of seed 004 Fig. 6: ``sqrt(v_c^2 + 2 a_d (s_c - s))`` before the creep start
+    Regions 3-5 of Li n.d., Fig. 6: ``sqrt(v_c^2 + 2 a_d (s_c - s))`` before the creep start
     ``s_c``, ``v_c`` during creep, ``sqrt(2 a_b (L - s))`` in the final braking region.
     """
     sa = np.asarray(s, dtype=float)
@@ -134,7 +134,7 @@ class ReferenceCurve:
         return max(min(self.p.accel_mps2, self.p.traction_margin * net), 0.0)
 
     def speed(self, s: ArrayLike) -> FloatArray:
-        """Desired speed r(s) [m/s] (seed 004 Fig. 6); zero beyond the platform point."""
+        """Desired speed r(s) [m/s] (Li n.d., Fig. 6); zero beyond the platform point."""
         sa = np.asarray(s, dtype=float)
         p = self.p
         acc = np.interp(sa, self.s_tab, self.v_acc)
@@ -166,7 +166,7 @@ class ReferenceCurve:
 class ProfileReference:
     """Reference r(s) [m/s] from a planned profile (s_grid [m], v [m/s]) with a stop tail.
 
-    The tail (seed 004 regions 3-5, default without creep) caps the profile near the
+    The tail (Li n.d. regions 3-5, default without creep) caps the profile near the
     platform point so the tracker lands on it; ``tail_*`` are the tail's decelerations [m/s^2],
     creep speed [m/s] and length [m].
     """
@@ -201,7 +201,7 @@ class ProfileReference:
         """:meth:`speed` at one run coordinate s [m] (a float; the same IEEE result) [m/s].
 
         The tracker asks for a few points per control step: plain floats, no 0-d arrays
-        (issue 13, graph speed).
+        (graph speed).
         """
         if not s == s:
             return float(self.speed(np.asarray(s)))

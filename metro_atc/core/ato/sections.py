@@ -1,6 +1,6 @@
 """Seed 001 pre-work stage: energy / time tables per section x mode x speed code.
 
-The inter-station distance is divided into ``N_s`` equal sections (seed 001 Sec. 4.2 item 1).
+The inter-station distance is divided into ``N_s`` equal sections (Ke 2010, Sec. 4.2 item 1).
 For every section, operation mode (accelerate / cruise / coast, item 2-3) and speed code
 (40..80 km/h in 5 km/h steps by default) the section is simulated on the real track (grades,
 envelope = limits + braking curves + programmed station stopping) from a grid of entry speeds;
@@ -36,7 +36,7 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 DEFAULT_CODES_KMH = tuple(range(40, 85, 5))
-"""Default speed codes [km/h] (seed 001: 40..80 km/h in 5 km/h steps)."""
+"""Default speed codes [km/h] (Ke 2010: 40..80 km/h in 5 km/h steps)."""
 
 TIME_INFEASIBLE_S = 1e9
 """Stand-in running time [s] for a stalled section (kept finite for interpolation)."""
@@ -44,7 +44,7 @@ TIME_INFEASIBLE_S = 1e9
 
 @dataclass
 class SectionTables:
-    """Pre-work tables of one run (seed 001 Fig. 2, pre-work stage).
+    """Pre-work tables of one run (Ke 2010, Fig. 2, pre-work stage).
 
     Arrays ``e_out`` [m^2/s^2], ``time_s`` [s], ``energy_j`` [J] have shape
     ``(n_sections, 3 modes, n_codes, n_entry)``; ``packed`` stacks them on a last axis and
@@ -93,7 +93,7 @@ class SectionTables:
 def build_section_tables(run: RunModel, n_sections: int = 50,
                          codes_mps: Optional[ArrayLike] = None, n_entry: int = 64,
                          substep_m: float = 2.0, delta: float = 1.0) -> SectionTables:
-    """Pre-work stage: simulate every section x mode x code x entry speed (seed 001 Sec. 4.1).
+    """Pre-work stage: simulate every section x mode x code x entry speed (Ke 2010, Sec. 4.1).
 
     n_sections: N_s; codes_mps: speed codes [m/s] (default 40..80 km/h step 5);
     n_entry: entry-speed grid size (uniform in v^2/2 up to the run's highest envelope);

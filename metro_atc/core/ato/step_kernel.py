@@ -1,8 +1,8 @@
 """One trajectory's strategy step, compiled: the physics shared by the planners' numba kernels.
 
 :func:`strategy_step_one` is :func:`metro_atc.core.ato.strategy.strategy_step` for one
-trajectory with no speed code (traction: midpoint RK2 in distance, seed 002 eq. 3-5;
-coasting: RK4 guess and one Newton step on the closed-form distance potential, seed 002
+trajectory with no speed code (traction: midpoint RK2 in distance, ACTP n.d., eq. 3-5;
+coasting: RK4 guess and one Newton step on the closed-form distance potential, ACTP n.d.
 eq. 7-8; envelope cap; trapezoid time), written once for the compiled loops of ECTP/ACTP
 (:mod:`metro_atc.core.ato.switching_kernel`) and of the DP
 (:mod:`metro_atc.core.ato.dp_kernel`), in the numpy path's operation order: their tests

@@ -1,23 +1,23 @@
-"""Distance-step simulator of driving strategies with closed-form coasting (seed 001, 002).
+"""Distance-step simulator of driving strategies with closed-form coasting (Ke 2010, 002).
 
 State: kinetic energy per unit mass ``e = v^2 / 2`` [m^2/s^2] at run coordinate s [m].
 Steps of length h [m]; every function is vectorised (numpy broadcasting) over trajectories.
 
-Modes (seed 001 Sec. 4.2 item 2; seed 002 Sec. 2):
+Modes (Ke 2010, Sec. 4.2 item 2; ACTP n.d., Sec. 2):
 
-- accelerate: traction at level ``delta`` of the maximum tractive force (seed 002 eq. 3-5),
+- accelerate: traction at level ``delta`` of the maximum tractive force (ACTP n.d., eq. 3-5),
   net acceleration capped at ``a_max``; integrated with a midpoint (RK2) step in distance;
 - cruise: hold a speed; traction limited as above, braking if a down-grade pushes above it;
 - coast: no effort.  The coasting speed is the closed-form solution of
-  ``dv/dt = -(c0 + c1 v + c2 v^2)`` (seed 002 eq. 7-8), see :func:`coast_speed`;
+  ``dv/dt = -(c0 + c1 v + c2 v^2)`` (ACTP n.d., eq. 7-8), see :func:`coast_speed`;
   within a step the distance relation ``x(v)`` (integral of v dt) is inverted by Newton's
-  method and the step time is the closed-form time (seed 002 eq. 8, running-time integral
+  method and the step time is the closed-form time (ACTP n.d., eq. 8, running-time integral
   eq. 13 for the coasting mode).
 
 Every mode is finally capped by a speed code (ATO command; above it the train brakes at the
 planning deceleration) and by the envelope (limits and braking curves).
 
-Reconstruction note (seed 002 eq. 7-8).  The extraction prints eq. 7 as
+Reconstruction note (ACTP n.d., eq. 7-8).  The extraction prints eq. 7 as
 ``v = alpha tan(beta + gamma (C_v - t))``; with the printed constants
 ``alpha^2 = c0/c2 - c1^2/(4 c2^2)``, ``beta = -c1/(2 c2)``, ``gamma = c2 alpha`` and eq. 8
 ``C_v = t_c + atan((v_c - beta)/alpha)/gamma`` the consistent solution of the coasting ODE is
@@ -46,7 +46,7 @@ _TINY = 1e-12
 # ----------------------------------------------------------------------------- coasting
 def coast_coefficients(train: TrainParams, fg_n: ArrayLike
                        ) -> tuple[FloatArray, float, float]:
-    """Coasting deceleration coefficients c0 [m/s^2], c1 [1/s], c2 [1/m] (seed 002 eq. 2, 7).
+    """Coasting deceleration coefficients c0 [m/s^2], c1 [1/s], c2 [1/m] (ACTP n.d., eq. 2, 7).
 
     ``dv/dt = -(c0 + c1 v + c2 v^2)`` with the Davis terms and the grade force ``fg_n`` [N]
     divided by the effective (rotating-mass) mass.
@@ -57,23 +57,23 @@ def coast_coefficients(train: TrainParams, fg_n: ArrayLike
 
 
 def coast_constants(c0: float, c1: float, c2: float) -> tuple[float, float, float]:
-    """Constants (alpha [m/s], beta [m/s], gamma [1/s]) of seed 002 eq. 7 (alpha^2 > 0 case)."""
+    """Constants (alpha [m/s], beta [m/s], gamma [1/s]) of ACTP n.d., eq. 7 (alpha^2 > 0 case)."""
     a2 = c0 / c2 - c1 * c1 / (4.0 * c2 * c2)
     if a2 <= 0.0:
-        raise ValueError("tan form of seed 002 eq. 7 needs c0/c2 > c1^2/(4 c2^2)")
+        raise ValueError("tan form of ACTP n.d., eq. 7 needs c0/c2 > c1^2/(4 c2^2)")
     alpha = float(np.sqrt(a2))
     return alpha, -c1 / (2.0 * c2), c2 * alpha
 
 
 def coast_speed(t: ArrayLike, t_c: float, v_c: float, c0: float, c1: float,
                 c2: float) -> FloatArray:
-    """Coasting speed v(t) [m/s] starting at v_c [m/s] at time t_c [s] (seed 002 eq. 7-8).
+    """Coasting speed v(t) [m/s] starting at v_c [m/s] at time t_c [s] (ACTP n.d., eq. 7-8).
 
     ``v(t) = beta + alpha tan(gamma (C_v - t))`` with ``C_v`` from eq. 8; valid until the
     speed reaches zero.
     """
     alpha, beta, gamma = coast_constants(c0, c1, c2)
-    c_v = t_c + np.arctan((v_c - beta) / alpha) / gamma  # seed 002 eq. 8
+    c_v = t_c + np.arctan((v_c - beta) / alpha) / gamma  # ACTP n.d., eq. 8
     return beta + alpha * np.tan(gamma * (c_v - np.asarray(t, dtype=float)))
 
 
@@ -83,7 +83,7 @@ def _coast_x_t(w: FloatArray, d4: FloatArray, c2: float, bp: float
 
     w = v + c1/(2 c2) = v - beta; d4 = c0/c2 - c1^2/(4 c2^2) (= alpha^2 > 0 or -kappa^2 < 0);
     bp = c1/(2 c2).  With dw/dt = -c2 (w^2 + d4):
-    ``T(w) = -atan(w/alpha)/(c2 alpha)`` (seed 002 eq. 8 solved for t), or
+    ``T(w) = -atan(w/alpha)/(c2 alpha)`` (ACTP n.d., eq. 8 solved for t), or
     ``ln|(kappa+w)/(kappa-w)|/(2 c2 kappa)`` for d4 < 0, and
     ``X(w) = -ln|w^2 + d4|/(2 c2) - bp T(w)`` (integral of v dt).
     """
@@ -107,10 +107,10 @@ def coast_step(train: TrainParams, e: ArrayLike, h: ArrayOrFloat, fg_n: ArrayLik
                ) -> tuple[FloatArray, FloatArray, BoolArray]:
     """One coasting step of length h [m] from e = v^2/2; returns (e_next, dt [s], stalled).
 
-    Closed form (seed 002 eq. 7-8): the distance covered while the speed goes from v0 to v1 is
+    Closed form (ACTP n.d., eq. 7-8): the distance covered while the speed goes from v0 to v1 is
     ``X(w1) - X(w0)`` (see :func:`_coast_x_t`); v1 solves ``X(w1) - X(w0) = h`` by a Newton
     step started from an RK4-in-distance estimate, and the step time is ``T(w1) - T(w0)``
-    (the coasting term of the running-time integral, seed 002 eq. 13).  ``stalled`` marks
+    (the coasting term of the running-time integral, ACTP n.d., eq. 13).  ``stalled`` marks
     trajectories that stop within the step.
     """
     c0, c1, c2 = coast_coefficients(train, fg_n)
@@ -163,7 +163,7 @@ def _rk4_coast(e0: FloatArray, h: ArrayOrFloat, c0: ArrayLike, c1: float, c2: fl
 # ----------------------------------------------------------------------------- traction
 def traction_accel(train: TrainParams, limits: OperatingLimits, v: ArrayLike,
                    fg_n: ArrayLike, delta: ArrayLike) -> FloatArray:
-    """Net acceleration [m/s^2] under traction level delta (seed 002 eq. 3-5), capped at a_max.
+    """Net acceleration [m/s^2] under traction level delta (ACTP n.d., eq. 3-5), capped at a_max.
 
     v >= 0 [m/s]; the resistance is :func:`metro_atc.core.laws.davis_resistance`.
     """
@@ -196,7 +196,7 @@ def strategy_step(train: TrainParams, limits: OperatingLimits, e: ArrayLike, h: 
     the step; mode: MODE_* (scalar or array); e_code: speed code as v^2/2 (the train brakes
     at the planning deceleration when above it); e_hold: cruise speed as v^2/2; delta:
     traction level in (0, 1].  latch (optional, updated in place): accelerate-mode
-    trajectories that have reached their speed code coast from then on (seed 001
+    trajectories that have reached their speed code coast from then on (Ke 2010
     "acceleration mode": accelerate to the code; the section's remainder is coasted).
     """
     e0 = np.maximum(np.asarray(e, dtype=float), 0.0)

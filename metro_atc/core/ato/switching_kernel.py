@@ -2,7 +2,7 @@
 
 :func:`simulate_kernel` runs :func:`metro_atc.core.ato.coasting.simulate_switching`: per
 strategy and distance step, :func:`metro_atc.core.ato.step_kernel.strategy_step_one` in
-accelerate / coast mode with no speed code (closed-form coasting, Taipei MRT ACTP paper,
+accelerate / coast mode with no speed code (closed-form coasting, ACTP n.d.,
 eq. 7-8), a coasting point inside a step splitting it.  ``test/test_ato_switching_kernel.py``
 holds it to the numbers of the former numpy reference (frozen in ``test/data``) on generated
 lines.

@@ -1,4 +1,4 @@
-"""Compiled exact simulation of seed 001 tours (numba): :func:`sections.simulate_tours` per tour.
+"""Compiled exact simulation of Ke 2010 tours (numba): :func:`sections.simulate_tours` per tour.
 
 The MAX-MIN ant system (:mod:`metro_atc.core.ato.mmas`) evaluates tours -- a mode and a
 speed command per section -- on the interpolated pre-work tables; the reported energy and

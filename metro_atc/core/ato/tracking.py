@@ -1,10 +1,10 @@
-"""Closed-loop run simulation: a speed tracker on RK4 train dynamics (seed 004 Sec. 3, Fig. 5).
+"""Closed-loop run simulation: a speed tracker on RK4 train dynamics (Li n.d., Sec. 3, Fig. 5).
 
 Loop per control step: displacement s_k -> reference curve -> desired speed r_k; the tracker
 (fuzzy / PI) turns e_k = r_k - v_k (and d_k) into a normalised effort u_k; Newton's law is
 integrated by RK4 (:func:`metro_atc.core.line.vehicle.rk4_step`) over the step with the
 effort and the local grade held constant.  Vectorised over several runs at once (e.g. the
-seven THSR runs of seed 004 Table 5).
+seven THSR runs of Li n.d., Table 5).
 
 Reported per run: trip time [s] (until the final standstill), stop error [m] (position of
 the standstill minus the platform point), speed RMSE against the reference [m/s] over the

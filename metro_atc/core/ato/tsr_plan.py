@@ -1,4 +1,4 @@
-"""Temporary speed restrictions as speed limits of a planned run (issue 11, ROS-free).
+"""Temporary speed restrictions as speed limits of a planned run (ROS-free).
 
 A TSR known when a run is planned is a speed limit of that run like any civil limit: the
 energy-optimal profile then coasts (or brakes) into the TSR's braking curve instead of

@@ -1,9 +1,9 @@
-"""Automatic train regulation (ATR) core: traffic model, timetable, LQR / DHP / AOC (seed 000).
+"""Automatic train regulation (ATR) core: traffic model, timetable, LQR / DHP / AOC (Lin 2010a).
 
 ROS-free (numpy, scipy, torch).  Modules:
 
 - :mod:`.blue_line` -- Taipei Blue line data (estimates, documented) and toy lines;
-- :mod:`.traffic` -- seed 000 eq. 1-6 (staggered departure-instant model) and the truth
+- :mod:`.traffic` -- Lin 2010a, eq. 1-6 (staggered departure-instant model) and the truth
   variant (saturation, crowding dwell, knock-on delays, exponential departure delays);
 - :mod:`.tsk` -- multi-period TSK fuzzy model and timetable (eq. 7-10);
 - :mod:`.cost` -- finite-service schedule-deviation cost (eq. 17-22, reconstructed);

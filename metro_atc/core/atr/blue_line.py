@@ -1,10 +1,10 @@
 """Taipei Metro Blue (Bannan) line description for automatic train regulation (ROS-free).
 
-Self-contained line data for the ATR core (seed 000, Experiment 2: "Taipei metro Blue line,
+Self-contained line data for the ATR core (Lin 2010a, Experiment 2: "Taipei metro Blue line,
 initial delay 180 s at the first station, peak headway 105 s"). The seed's pages that describe
 the experiment data (page 8 of the report) are missing from the extraction, so every number
 below is an *engineering estimate* documented here; none is taken from the seed except the
-peak headway of 105 s (seed 000, Exp. 2 text) and the six-duration daily split (seed 000,
+peak headway of 105 s (Lin 2010a, Exp. 2 text) and the six-duration daily split (Lin 2010a,
 Fig. 2).
 
 Sources and estimates
@@ -20,7 +20,7 @@ Sources and estimates
   typical metro practice, UIC 451-1 order of magnitude).  Maximum running time: +15 %
   (coasting); longer runs are not used for regulation.
 - Dwell: a fixed part S_j = 20 s (door cycle + dispatch) that can be cut to 15 s, plus the
-  passenger boarding part t_b * p_j * h (seed 000 eq. 4-5 via c_j = t_b p_j, see
+  passenger boarding part t_b * p_j * h (Lin 2010a, eq. 4-5 via c_j = t_b p_j, see
   :mod:`metro_atc.core.atr.traffic`); holding at a platform is limited to +60 s per stop.
 - Passenger boarding rates p_j (pax/h, peak direction, AM peak): estimates from station
   rank (Taipei Main Station and Banqiao busiest); t_b = 0.06 s per boarding passenger for a
@@ -30,7 +30,7 @@ Sources and estimates
   six-car train (~1900 places) arriving well loaded).
 - Minimum platform re-occupation separation: 60 s from a departure until the follower may
   arrive (90 s technical headway with about 30 s dwell), which produces knock-on delays.
-- Disturbances: departure delays are exponential (seed 000 sec. 2, refs [3, 8]); mean 1 s
+- Disturbances: departure delays are exponential (Lin 2010a, sec. 2, refs [3, 8]); mean 1 s
   per stop (estimate).
 """
 
@@ -76,7 +76,7 @@ def min_running_time(distance_m: np.ndarray, v_max: float = 80.0 / 3.6,
 
 @dataclass(frozen=True)
 class Period:
-    """One duration of the daily operation (seed 000 eq. 7-8, Fig. 2).
+    """One duration of the daily operation (Lin 2010a, eq. 7-8, Fig. 2).
 
     start_s/end_s: boundaries z_{n-1}, z_n [s after midnight]; headway_s: H_n [s];
     flow_factor: passenger flow of the duration relative to the AM peak [-].
@@ -89,7 +89,7 @@ class Period:
 
 
 def default_periods() -> List[Period]:
-    """Six daily durations like Lin 2010a Fig. 2, from the shipped day table.
+    """Six daily durations like Lin 2010a, Fig. 2, from the shipped day table.
 
     The periods (start, end [s], headway [s], up-direction flow factor [-]) are read from
     ``metro_atc/data/taipei_blue_day_periods.yaml`` (the service day's table; its entries say
@@ -137,7 +137,7 @@ class LineData:
         return len(self.station_codes)
 
     def c(self, flow_factor: float = 1.0) -> np.ndarray:
-        """Dimensionless boarding coefficients c_j = t_b * p_j (seed 000 eq. 9), shape (N,)."""
+        """Dimensionless boarding coefficients c_j = t_b * p_j (Lin 2010a, eq. 9), shape (N,)."""
         return self.t_board_s * self.boarding_pax_h * flow_factor / 3600.0
 
 

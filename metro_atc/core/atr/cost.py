@@ -1,4 +1,4 @@
-"""Finite-service schedule-deviation cost for ATR (seed 000 eq. 17-22, 45, 32; reconstructed).
+"""Finite-service schedule-deviation cost for ATR (Lin 2010a, eq. 17-22, 45, 32; reconstructed).
 
 Seed 000 eq. 17-22 are on a missing page.  From the surviving text ("finite-degree-of-freedom
 infinite-horizon cost function ... measure traffic regularity in terms of schedule
@@ -19,7 +19,7 @@ penalty on running/dwell adjustments (passenger comfort, energy) so that regulat
 bang-bang, while schedule deviation still dominates; x_s = 60 s makes the cost read in
 minutes^2.  The seed gives no numeric weights in the extracted pages.
 
-Energy-aware option (seed 003): our extraction of seed 003 holds only the dissertation
+Energy-aware option (Sheu 2011): our extraction of Sheu 2011 holds only the dissertation
 abstract (no energy model), and the energy-running-time curve belongs to the ATO core, so the
 energy term is not implemented here.
 """
@@ -59,7 +59,7 @@ def terminal_matrix(a: np.ndarray, q: float) -> np.ndarray:
 
 
 def stage_cost(x_s: np.ndarray, u_s: np.ndarray, w: CostWeights) -> np.ndarray:
-    """U(x, u) (seed 000 eq. 17, reconstructed) for deviations x, u [s]; shape (...,)."""
+    """U(x, u) (Lin 2010a, eq. 17, reconstructed) for deviations x, u [s]; shape (...,)."""
     xt = np.asarray(x_s) / w.x_scale_s
     ut = np.asarray(u_s) / w.x_scale_s
     return 0.5 * w.q * np.sum(xt * xt, axis=-1) + 0.5 * w.r * np.sum(ut * ut, axis=-1)

@@ -14,10 +14,10 @@ What a command means for the line (the plant, :meth:`LineSim.set_departure`):
 - ``dwell_limit_s``: NaN, or a dwell cut: the doors close that long after the arrival
   (never before the minimum dwell) even if passengers are still boarding.
 
-Regulation (seed 000 eq. 5: u_j(k) is the adjustment of the run into station j plus the
+Regulation (Lin 2010a, eq. 5: u_j(k) is the adjustment of the run into station j plus the
 dwell at j, decided on the staggered departure-deviation state x(k) = t(k) - T(k)):
 
-- ``none`` (timetable, seed 000 eq. 10): departure at the timetable, scheduled running
+- ``none`` (timetable, Lin 2010a, eq. 10): departure at the timetable, scheduled running
   time, passenger-driven dwell -- trains never leave early and a late train's ATO catches
   up by running faster (it aims at the scheduled arrival).
 - ``lqr`` / ``dhp`` / ``aoc``: on the arrival of train m at station j the regulator's u_j
@@ -28,7 +28,7 @@ dwell at j, decided on the staggered departure-deviation state x(k) = t(k) - T(k
   ``arrival + S_mj + du_dwell`` (never before the timetable); ``du_dwell < 0`` cuts the
   dwell to ``S_mj + du_dwell`` (not below the minimum dwell, and the doors never close
   before ``timetable + cut_tolerance_s``): the control that keeps a late train from
-  collecting ever more passengers (the t_b p(k) term of seed 000 eq. 4-5 that makes delays
+  collecting ever more passengers (the t_b p(k) term of Lin 2010a, eq. 4-5 that makes delays
   grow), used for trains beyond the punctuality tolerance only.  The
   running-time target to j+1 is the running part of the regulator's u_{j+1}
   (:func:`metro_atc.core.atr.traffic.split_adjustment`, between the flat-out and the
@@ -184,7 +184,7 @@ def make_dispatcher(scn: Scenario, regulator: str = "none", weights_file: str = 
     ``dhp``/``aoc`` load ``weights_file`` ('' : the shipped or cached weights trained on
     this line, :func:`metro_atc.core.atr.weights_store.find_weights`; none: ValueError);
     weights trained on another line are refused (traffic-model hash);
-    ``elqr`` is the energy-aware LQR (:mod:`metro_atc.core.atr.energy`, seed 003) with
+    ``elqr`` is the energy-aware LQR (:mod:`metro_atc.core.atr.energy`, Sheu 2011) with
     weight ``energy_weight``; its energy table is built from the scenario (a few seconds).
     Raises ValueError / FileNotFoundError with a clear message for a bad choice or file.
     """

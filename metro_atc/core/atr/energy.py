@@ -1,19 +1,19 @@
-"""Energy-aware automatic train regulation (seed 003 abstract; seed 002; seed 000), ROS-free.
+"""Energy-aware automatic train regulation (Sheu 2011 abstract; ACTP n.d.; Lin 2010a), ROS-free.
 
 What the seed says
 ------------------
-Our extraction of seed 003 holds only the dissertation abstract: "the models for describing
+Our extraction of Sheu 2011 holds only the dissertation abstract: "the models for describing
 the traffic environment and energy consumption resulting from traffic regulation are
 developed ... With the model, the optimal traffic regulation with higher energy efficiency
 is attainable with adequate tailoring of a performance index for the optimization", and the
 optimised regulator "shows considerable energy savings".  The energy model, the performance
 index and the figures are not in the extraction; everything below is our reconstruction
-in that spirit, built on the ATR core of seed 000 and the ATO core of seed 002.
+in that spirit, built on the ATR core of Lin 2010a and the ATO core of ACTP n.d..
 
 Energy-running-time curves E_j(R) [J]
 -------------------------------------
 Regulation acts on the running time R_j [s] of run j (station j -> j+1); the ATO then
-plans that run for R_j with an energy-efficient profile (seed 002: coasting control; our DP
+plans that run for R_j with an energy-efficient profile (ACTP n.d.: coasting control; our DP
 reference is the minimum-energy profile).  So the energy consumption resulting from
 regulation is the traction energy of the planned run as a function of its running time.
 :func:`build_energy_table` tabulates it per run for a scenario's train and track
@@ -29,7 +29,7 @@ ATR maximum running time ``LineData.run_max_s``:
   linearly.  The forward pass on the tables agrees with the exact re-simulation to within
   3e-4 relative, and the table with ``solve_dp`` at the scheduled running time to within
   0.2 % (measured on Blue line runs; the bench prints this check).
-- ``source="ectp"``: the seed 002 coasting-control family used by the ATO node's default
+- ``source="ectp"``: the ACTP n.d. coasting-control family used by the ATO node's default
   planner ECTP: Level-II (90 %) traction, cruise at the envelope, coast from y_c, brake;
   one vectorised simulation over a grid of coasting points gives (T(y_c), E(y_c)).
 
@@ -51,7 +51,7 @@ whole table, for information) is reported per run.  Running times are clipped to
 [R_lo, R_max] before evaluation (a running time above R_max, e.g. a knock-on wait, is
 charged the R_max profile's energy: no credit for waiting).
 
-Energy-aware cost (seed 003: "adequate tailoring of a performance index")
+Energy-aware cost (Sheu 2011: "adequate tailoring of a performance index")
 ------------------------------------------------------------------------
 The stage cost of :mod:`metro_atc.core.atr.cost` plus an energy term on the running-time
 part du_run of the adjustment u (:func:`metro_atc.core.atr.traffic.split_adjustment`):
@@ -72,7 +72,7 @@ seconds a timetable tolerates as punctual; the bench compares several weights.
 
 Energy-aware LQR (affine-quadratic, average-cost optimal)
 --------------------------------------------------------
-Scaled variables x~ = x / x_s, u~ = u / x_s; linear model x~(k+1) = A x~ + B u~ (seed 000
+Scaled variables x~ = x / x_s, u~ = u / x_s; linear model x~(k+1) = A x~ + B u~ (Lin 2010a
 eq. 5, unconstrained, so du_run_i = u_i for i >= 1 and station 0 has no run).  Second-order
 expansion of E_j around the scheduled running time, g_i = E'_{i-1}(R_{i-1}) [J/s] < 0,
 h_i = E''_{i-1}(R_{i-1}) [J/s^2] > 0 (i >= 1; g_0 = h_0 = 0):
@@ -308,7 +308,7 @@ def _dp_points(run: RunModel, r_hi_s: float, ds_m: float, de_m2s2: float, n_mu: 
 
 
 def _ectp_points(run: RunModel, h_m: float, n_coast: int) -> tuple[FloatArray, FloatArray]:
-    """(T, E) points of the seed 002 coasting family (Level-II traction) for one run."""
+    """(T, E) points of the ACTP n.d. coasting family (Level-II traction) for one run."""
     yc = np.linspace(0.0, run.length_m + 1.0, n_coast)
     sim = simulate_switching(run, yc, np.full(n_coast, LEVEL_II), h_m)
     return sim.time_s, sim.energy_j
@@ -317,7 +317,7 @@ def _ectp_points(run: RunModel, h_m: float, n_coast: int) -> tuple[FloatArray, F
 # ----------------------------------------------------------------------------- tables
 @dataclass(frozen=True)
 class EnergyTable:
-    """Energy-running-time curves E_j(R) of every run of a line (seed 003 / seed 002).
+    """Energy-running-time curves E_j(R) of every run of a line (Sheu 2011 / ACTP n.d.).
 
     r_grid_s, e_grid_j: (n_runs, n_grid) tabulated running times [s] and traction energies
     [J] (lower convex hull of the planner's energy-time points); r_fast_s / r_max_s:
@@ -415,12 +415,12 @@ def build_energy_table(scn: Scenario, line: Optional[LineData] = None, source: s
                        de_m2s2: float = 1.0, n_mu: int = 40, h_m: float = 4.0,
                        n_coast: int = 96, runs: Optional[Sequence[int]] = None
                        ) -> EnergyTable:
-    """Tabulate and fit E_j(R) [J] for the runs of a scenario (seed 003 / seed 002).
+    """Tabulate and fit E_j(R) [J] for the runs of a scenario (Sheu 2011 / ACTP n.d.).
 
     line: the ATR line of the scenario (default :func:`metro_atc.core.bridge.atr_line_for`);
     it gives the scheduled and maximum running times.  source: ``dp`` (minimum-energy
     reference; grid ``ds_m`` [m] x ``de_m2s2`` [m^2/s^2], ``n_mu`` multipliers) or ``ectp``
-    (seed 002 coasting family at Level II; step ``h_m`` [m], ``n_coast`` coasting points).
+    (ACTP n.d. coasting family at Level II; step ``h_m`` [m], ``n_coast`` coasting points).
     n_grid: running times per run from the planner's flat-out time to ``run_max_s``; the
     model is fitted from the last grid point at or below ``run_min_s`` on.
     runs: subset of run indices (default all; a subset gives a table of that subset).
@@ -555,7 +555,7 @@ def affine_lqr(a: FloatArray, b: FloatArray, q_mat: FloatArray, r_mat: FloatArra
 
 
 class EnergyLqrRegulator(Regulator):
-    """Energy-aware LQR (seed 003 idea on the seed 000 linear model): u = -K x + u_ff.
+    """Energy-aware LQR (Sheu 2011 idea on the Lin 2010a linear model): u = -K x + u_ff.
 
     line: the ATR line; table: its energy-running-time curves (same runs); weights: the
     schedule-deviation cost (q, r, x_s); w_energy: w_E [-]; e_scale_j: E_s [J] (default:

@@ -1,6 +1,6 @@
-"""Closed-loop evaluation of ATR regulators on the truth traffic model, with KPIs (seed 000).
+"""Closed-loop evaluation of ATR regulators on the truth traffic model, with KPIs (Lin 2010a).
 
-Scenario of seed 000 Exp. 2: an initial departure delay at the first station (180 s), peak
+Scenario of Lin 2010a, Exp. 2: an initial departure delay at the first station (180 s), peak
 headway, truth dynamics with saturation, crowding, knock-on and exponential departure
 delays.  A regulator acts for the K adjustable services (stages 0..K-1), K = 40 by
 default: the delayed train reaches the terminal after 22 stages and its knock-on followers

@@ -1,6 +1,6 @@
 """Content hash of an ATR line: what the traffic model and the regulators depend on (ROS-free).
 
-AOC/DHP weights belong to a line (issue 11 item 4).  Two lines with the same station count
+AOC/DHP weights belong to a line.  Two lines with the same station count
 can have different running times, dwell models or passenger rates, so weights are tied to
 the sha256 of the canonical JSON of exactly the inputs that the traffic model
 (:mod:`metro_atc.core.atr.traffic`), the training problem

@@ -1,4 +1,4 @@
-"""ATR line models of scenarios: the traffic-model line (seed 000 eq. 1-10) of a scenario.
+"""ATR line models of scenarios: the traffic-model line (Lin 2010a, eq. 1-10) of a scenario.
 
 The geometry and the timetable come from the static line description
 (:mod:`metro_atc.core.line.service`), never from the plant; the traffic-model constants the
@@ -26,7 +26,7 @@ have delayed."""
 
 DWELL_FIT_RANGE_S = 180.0
 """Arrival delays over which the dwell-effective boarding coefficient is fitted [s]: the
-delays the regulators are built for (seed 000 Exp. 2's 180 s initial delay, the validation
+delays the regulators are built for (Lin 2010a, Exp. 2's 180 s initial delay, the validation
 delay of :mod:`metro_atc.core.atr.weights_store`)."""
 DWELL_FIT_POINTS = 61
 """Arrival delays 0, 3, ..., 180 s of the fit."""
@@ -54,13 +54,13 @@ class DwellModel:
 
 
 def plant_dwell_model(scn: Scenario) -> DwellModel:
-    """The plant's peak dwell law of a scenario and its linear fit (issue 11 item 7).
+    """The plant's peak dwell law of a scenario and its linear fit.
 
     A train arriving ``d`` late at station j (its leader left on time) departs
     ``x_j(d) = max(d + dwell(d) - S_j, 0)`` late in the plant, with ``dwell(d)`` the
     passenger exchange of the plant (door overhead, alighting, boarding of the passengers
     who came during the longer gap and during the dwell, at least the minimum dwell, at most
-    a full train) and ``S_j`` the timetable's dwell.  The traffic model (seed 000 eq. 5)
+    a full train) and ``S_j`` the timetable's dwell.  The traffic model (Lin 2010a, eq. 5)
     predicts ``d / (1 - c_j)``.  ``c_eff_j`` is the least-squares fit of that line to
     ``x_j`` over ``d`` in [0, ``DWELL_FIT_RANGE_S``], within [0, c_j]: 0 where the dwell
     sits at the minimum dwell (or the train is full) for every delay of the range, close to
@@ -101,11 +101,11 @@ def plant_dwell_model(scn: Scenario) -> DwellModel:
 
 
 def atr_line_for(scn: Scenario, tt: Timetable | None = None) -> "LineData":
-    """The ATR traffic-model line (seed 000 eq. 1-10) of a scenario.
+    """The ATR traffic-model line (Lin 2010a, eq. 1-10) of a scenario.
 
     Geometry, scheduled and minimum running times come from the scenario timetable (the
     simulator's); headway from its peak period; the dwell from the plant's dwell law at the
-    peak (:func:`plant_dwell_model`, issue 11 item 7):
+    peak (:func:`plant_dwell_model`):
 
     - the model's steady dwell ``S_j + c_j H`` is the timetable's dwell (door overhead,
       alighting and boarding time, at least the minimum dwell): ``S_j`` = scheduled dwell
@@ -165,7 +165,7 @@ def atr_line_for(scn: Scenario, tt: Timetable | None = None) -> "LineData":
 def get_line(name: str) -> LineData:
     """Return an ATR line by name.
 
-    ``blue_line_estimates``: :func:`taipei_blue` (this module's estimates; the seed 000
+    ``blue_line_estimates``: :func:`taipei_blue` (this module's estimates; the Lin 2010a
     Exp. 2 bench); ``smallN``: :func:`small_line`; any other name: the embedded scenario or
     scenario file of that name as the ATS node sees it
     (:func:`atr_line_for`), e.g. ``taipei_blue``.

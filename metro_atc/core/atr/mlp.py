@@ -1,12 +1,12 @@
-"""Small multilayer perceptron in torch with hand-written backpropagation (seed 000 sec. 3).
+"""Small multilayer perceptron in torch with hand-written backpropagation (Lin 2010a, sec. 3).
 
-The critic and actor of AOC/DHP are MLPs (seed 000: "learning structures constructed by
+The critic and actor of AOC/DHP are MLPs (Lin 2010a: "learning structures constructed by
 multilayer perceptrons").  Training updates them once per simulation step, so we avoid the
 autograd tape and write the three products we need by hand:
 
     y = W2 tanh(W1 z + b1) + b2 + L z,
 
-``vjp_input`` gives (dy/dz)^T g (used for dû/dx in the costate equation, seed 000 eq. 30/34)
+``vjp_input`` gives (dy/dz)^T g (used for dû/dx in the costate equation, Lin 2010a, eq. 30/34)
 and ``grad_params`` gives (dy/dtheta)^T g summed over the batch (eq. 44/48).  Both are
 checked against autograd and finite differences in ``test/test_atr_gradients.py``.
 All parameters live in one flat float64 tensor so that momentum updates are two ops.

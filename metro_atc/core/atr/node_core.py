@@ -6,8 +6,8 @@ log, so a restarted node rebuilds its full state by replaying the events it rece
 (:meth:`AtsRegulatorCore.from_history`).
 
 Timetable: train ``train_ids[m]`` is service m, dispatched at z0 + m H (steady peak
-timetable of seed 000 eq. 10 with one duration) unless an explicit departure table is
-given.  A command for (train m, station j) is the seed 000 eq. 5 decision u_j(k) with
+timetable of Lin 2010a, eq. 10 with one duration) unless an explicit departure table is
+given.  A command for (train m, station j) is the Lin 2010a, eq. 5 decision u_j(k) with
 k = m + j: the adjustment of the run j-1 -> j plus the dwell at j, computed from the
 staggered state t(k) whose entry i is train m + j - 1 - i at station i.  Entries without a
 recorded departure use the train's latest known delay (0 if it has no event yet): the
@@ -206,7 +206,7 @@ class AtsRegulatorCore:
     def adjustment(self, train_id: str, station_idx: int) -> float:
         """The regulator's u_j [s] for (train, station j) on the current state estimate.
 
-        u_j is the adjustment of the run into j plus the dwell at j (seed 000 eq. 5),
+        u_j is the adjustment of the run into j plus the dwell at j (Lin 2010a, eq. 5),
         unsaturated: the caller applies what is left of it.
         """
         _, j, u = self._decide(train_id, station_idx)

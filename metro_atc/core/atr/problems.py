@@ -1,6 +1,6 @@
-"""Optimal-control problems for the AOC/DHP trainers (seed 000 Exp. 1 and Exp. 2).
+"""Optimal-control problems for the AOC/DHP trainers (Lin 2010a, Exp. 1 and Exp. 2).
 
-Each problem exposes, batched in torch (float64), what seed 000 sec. 3 needs: the *truth*
+Each problem exposes, batched in torch (float64), what Lin 2010a, sec. 3 needs: the *truth*
 system the agent acts on, the *approximate model* f^ and its Jacobians (used by DHP for the
 critic's next state and by both methods in eq. 33-34), the stage cost U and its gradients,
 and the terminal (end-point) gradient of eq. 32.  The regulator works on a scaled state.
@@ -32,7 +32,7 @@ class Episodes:
 
 
 class AdpProblem:
-    """Interface of a discrete-time optimal control problem for AOC/DHP (seed 000 eq. 17-34).
+    """Interface of a discrete-time optimal control problem for AOC/DHP (Lin 2010a, eq. 17-34).
 
     Attributes: nx, nu (dimensions), horizon K (steps per episode), n_extra (extra
     non-state network inputs), x_feat (state -> feature gain), lam_scale, u_scale
@@ -101,7 +101,7 @@ class AdpProblem:
         raise NotImplementedError
 
     def terminal_grad(self, ep: Episodes, x: Tensor) -> Tensor:
-        """dPhi/dx(K): the end-point costate lambda(K) of seed 000 eq. 32."""
+        """dPhi/dx(K): the end-point costate lambda(K) of Lin 2010a, eq. 32."""
         raise NotImplementedError
 
 
@@ -122,7 +122,7 @@ class NarendraProblem(AdpProblem):
 
     def __init__(self, n_targets: int = 100, hold: int = 10, x_range: float = 4.0,
                  u_bound: float = 2.0) -> None:
-        """Set up the sample layout (seed 000 Exp. 1: 100 targets x 10 steps = 1000 steps)."""
+        """Set up the sample layout (Lin 2010a, Exp. 1: 100 targets x 10 steps = 1000 steps)."""
         self.nx = self.nu = 1
         self.n_targets, self.hold, self.x_range = n_targets, hold, x_range
         self.horizon = n_targets * hold
@@ -191,7 +191,7 @@ class NarendraProblem(AdpProblem):
 
 
 class LinearModelMixin:
-    """Approximate model x^(k+1) = A x + B u (seed 000 eq. 5) and its costate products.
+    """Approximate model x^(k+1) = A x + B u (Lin 2010a, eq. 5) and its costate products.
 
     For problems that keep ``a`` (nx, nx) and ``b`` (nx, nu) as float64 tensors.
     """
@@ -217,7 +217,7 @@ class AtrProblem(LinearModelMixin, AdpProblem):
 
     State x~ = (t - T) / x_s (staggered departure deviations), control u~ = u / x_s.
     Truth: :func:`metro_atc.core.atr.traffic.truth_step` (saturation, crowding, knock-on,
-    exponential departure delays).  Approximate model: x~(k+1) = A x~ + B u~ (seed 000
+    exponential departure delays).  Approximate model: x~(k+1) = A x~ + B u~ (Lin 2010a
     eq. 5 without any of these).  Cost: :mod:`metro_atc.core.atr.cost`.  Network extra
     input: time-to-go (K - k) / K (finite number of adjustable services).
     Episodes: an initial delay uniform in [delay_lo, delay_hi] s at ``delay_station``

@@ -1,6 +1,6 @@
-"""ATR regulators behind one interface: none (timetable), LQR, DHP, AOC (seed 000 sec. 3-4).
+"""ATR regulators behind one interface: none (timetable), LQR, DHP, AOC (Lin 2010a, sec. 3-4).
 
-All regulators map the staggered departure deviation x [s] (seed 000 eq. 5 state minus the
+All regulators map the staggered departure deviation x [s] (Lin 2010a, eq. 5 state minus the
 timetable) to running/dwell-time adjustments u [s]: ``Regulator.decide(x, step)``.
 ``step`` is the stage index k within the finite number of adjustable services (the neural
 regulators take the time-to-go (K - k)/K as input; the node uses step = 0, i.e. a receding
@@ -9,7 +9,7 @@ horizon).  Saturation is *not* applied here: the plant (or the node) limits the 
 - ``none``: u = 0 (run to the timetable).
 - ``lqr``: u = -K x with K from the discrete algebraic Riccati equation of the linear model
   (A, B) with Q = q I, R = r I (``scipy.linalg.solve_discrete_are``); it assumes a linear,
-  unconstrained plant (seed 000 sec. 5: "The LQR method assumes linear model ...").
+  unconstrained plant (Lin 2010a, sec. 5: "The LQR method assumes linear model ...").
 - ``dhp`` / ``aoc``: trained critic-actor MLPs (:mod:`metro_atc.core.atr.training`), loaded
   from a weights file written by ``python -m metro_atc train``.
 """
@@ -35,8 +35,8 @@ if TYPE_CHECKING:
     from metro_atc.core.line.scenario import Scenario
 
 # torch (~2 s of CPU to import) and scipy.linalg are imported by the regulators that use
-# them, not here: the ATS node with the default regulator 'none' loads neither (issue 13;
-# test/test_startup_imports.py)
+# them, not here: the ATS node with the default regulator 'none' loads neither
+# (test/test_startup_imports.py)
 
 WEIGHTS_FORMAT = "metro_atc.atr.weights/1"
 MAX_WEIGHTS_BYTES = 50_000_000
@@ -100,7 +100,7 @@ class LqrRegulator(Regulator):
 
 
 class NeuralRegulator(Regulator):
-    """DHP or AOC policy (AOC: u = actor(x, critic(x)), seed 000 eq. 49; DHP: u = actor(x))."""
+    """DHP or AOC policy (AOC: u = actor(x, critic(x)), Lin 2010a, eq. 49; DHP: u = actor(x))."""
 
     def __init__(self, agent: Agent, problem: AtrProblem,
                  meta: Optional[Dict[str, Any]] = None) -> None:

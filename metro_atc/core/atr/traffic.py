@@ -1,13 +1,13 @@
-"""Metro traffic dynamics for automatic train regulation (seed 000 eq. 1-6), ROS-free.
+"""Metro traffic dynamics for automatic train regulation (Lin 2010a, eq. 1-6), ROS-free.
 
 Indexing (0-based, stations i = 0..N-1).  Seed 000 defines the state as the *staggered*
 vector of departure instants t(k) = [t_1^{k-1}, t_2^{k-2}, ..., t_N^{k-N}]^T, so entry i
 here is the departure instant [s] of train (k-1-i) at station i.  One step k -> k+1 moves
 every train one station down the line and dispatches train k at the first station.
 
-Reconstruction (seed 000 eq. 1-5 are partly on a missing page; eq. 9 is garbled)
+Reconstruction (Lin 2010a, eq. 1-5 are partly on a missing page; eq. 9 is garbled)
 ------------------------------------------------------------------------------
-The departure of train m at station i is (seed 000 Fig. 1)
+The departure of train m at station i is (Lin 2010a, Fig. 1)
 
     t_i^m = t_{i-1}^m + R_{i-1} + S_i + t_b p_i^m + u_i^m + w_i^m,
 
@@ -24,7 +24,7 @@ which matches the structure of A_n, B_n in eq. 9 (diagonal -c/(1-c), sub-diagona
 In steady state every dwell is S_i + c_i H.  The deviation x = t - T from the timetable T
 obeys the linear (approximate) model x(k+1) = A x(k) + B (u(k) + w(k)).
 
-Truth variant (what the approximate model lacks; issue 4)
+Truth variant (what the approximate model lacks)
 ---------------------------------------------------------
 - control saturation: u_i is split into a running-time part (bounded by the minimum and
   maximum running times) and a dwell part (fixed dwell >= its minimum, holding <= hold_max);
@@ -35,7 +35,7 @@ Truth variant (what the approximate model lacks; issue 4)
   over to the next train);
 - knock-on (secondary) delays: a train may not arrive at a platform earlier than
   ``separation_min_s`` after the previous train left it;
-- disturbances: exponentially distributed departure delays (seed 000 sec. 2, refs [3, 8]).
+- disturbances: exponentially distributed departure delays (Lin 2010a, sec. 2, refs [3, 8]).
 With all of these inactive the truth step equals the linear model exactly.
 """
 
@@ -49,7 +49,7 @@ from metro_atc.core.atr.blue_line import LineData
 
 
 def linear_model(c: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-    """Return (A, B) of the linear traffic model for boarding coefficients c (seed 000 eq. 5/9).
+    """Return (A, B) of the linear traffic model for boarding coefficients c (Lin 2010a, eq. 5/9).
 
     c: (N,) dimensionless c_i = t_b q_i, each in [0, 0.5).  A, B: (N, N).
     """
@@ -67,7 +67,7 @@ def schedule_offsets(line: LineData, headway_s: Optional[float] = None,
                      flow_factor: float = 1.0) -> np.ndarray:
     """Steady-state scheduled departure offsets O_i [s] of a train dispatched at 0.
 
-    O_0 = S_0 + c_0 H, O_i = O_{i-1} + R_{i-1} + S_i + c_i H (dwell S_i + c_i H, seed 000 eq. 5).
+    O_0 = S_0 + c_0 H, O_i = O_{i-1} + R_{i-1} + S_i + c_i H (dwell S_i + c_i H, Lin 2010a, eq. 5).
     """
     h = line.headway_s if headway_s is None else headway_s
     dwell = line.dwell_fixed_s + line.c(flow_factor) * h
@@ -85,7 +85,7 @@ def timetable_state(line: LineData, k: int, headway_s: Optional[float] = None,
 
 
 def scheduled_d(line: LineData, z_k: float) -> np.ndarray:
-    """Aggregated scheduled values D(k) [s] (seed 000 eq. 6) for dispatch instant z_k."""
+    """Aggregated scheduled values D(k) [s] (Lin 2010a, eq. 6) for dispatch instant z_k."""
     d = line.dwell_fixed_s.astype(float).copy()
     d[0] += z_k
     d[1:] += line.run_s
@@ -155,7 +155,7 @@ def truth_step(line: LineData, t_k: np.ndarray, u: np.ndarray, z_k: float | np.n
 
     t_k: staggered departures t(k) [s]; u: adjustments [s]; z_k: dispatch (arrival at
     station 0) instant of train k [s]; w_dep / w_run: departure / running disturbances [s].
-    Flags switch off the nonlinearities (then the step equals seed 000 eq. 5).
+    Flags switch off the nonlinearities (then the step equals Lin 2010a, eq. 5).
     """
     t_k = np.asarray(t_k, dtype=float)
     u = np.broadcast_to(np.asarray(u, dtype=float), t_k.shape)
@@ -203,7 +203,7 @@ def truth_step_dev(line: LineData, x_k: np.ndarray, u: np.ndarray,
 
 def exponential_disturbance(rng: np.random.Generator, mean_s: float, shape: Tuple[int, ...]
                             ) -> np.ndarray:
-    """Exponentially distributed departure delays w >= 0 [s] (seed 000 sec. 2)."""
+    """Exponentially distributed departure delays w >= 0 [s] (Lin 2010a, sec. 2)."""
     if mean_s <= 0.0:
         return np.zeros(shape)
     return rng.exponential(mean_s, size=shape)

@@ -1,12 +1,12 @@
-"""AOC and DHP critic-actor training (seed 000 sec. 3, eq. 25-49; partly reconstructed).
+"""AOC and DHP critic-actor training (Lin 2010a, sec. 3, eq. 25-49; partly reconstructed).
 
 Notation: critic lambda^(.|alpha), actor u^(.|beta), approximate model f^, stage cost U.
 
-AOC (adaptive optimal control, seed 000 sec. 3.C)
+AOC (adaptive optimal control, Lin 2010a, sec. 3.C)
     * critic: lambda^(k+1) = C(x(k)) -- predicts the *step-ahead* costate from the current
-      state, so no model is needed to produce it (seed 000: "the critic predicts the
+      state, so no model is needed to produce it (Lin 2010a: "the critic predicts the
       step-ahead derivative values of the cost function without consulting the traffic
-      model"; seed 003 abstract: "the model for predicting the state for critic prediction is
+      model"; Sheu 2011 abstract: "the model for predicting the state for critic prediction is
       no longer necessary");
     * actor (eq. 49): u(k) = A(x(k), lambda^(k+1));
     * control deficiency (eq. 33): delta(k) = dU/du + (df^/du)^T lambda^(k+1);
@@ -23,7 +23,7 @@ AOC (adaptive optimal control, seed 000 sec. 3.C)
       output for stage 0 to train), and the last prediction lambda^(K) is trained towards
       the end-point costate dPhi/dx(K) (eq. 32, free final state).
 
-DHP (dual heuristic programming baseline, seed 000 sec. 3/5 and seed 003)
+DHP (dual heuristic programming baseline, Lin 2010a, sec. 3/5 and Sheu 2011)
     * critic lambda^(k) = C(x(k)); its step-ahead value is obtained by *consulting the
       model*: lambda^(k+1) = C(f^(x(k), u(k))) (lambda(K) = dPhi/dx at the last stage);
     * delta(k) as above; critic target dU/dx + (df^/dx)^T lambda^(k+1) + (du/dx)^T delta(k)
@@ -192,7 +192,7 @@ class Agent:
 
 
 class _Momentum:
-    """Momentum update Delta theta_l = rho Delta theta_{l-1} - mu g (seed 000 eq. 44/48)."""
+    """Momentum update Delta theta_l = rho Delta theta_{l-1} - mu g (Lin 2010a, eq. 44/48)."""
 
     def __init__(self, net: MLP, lr: float, rho: float, clip: float) -> None:
         self.net, self.lr, self.rho, self.clip = net, lr, rho, clip
@@ -235,7 +235,7 @@ def aoc_stage(agent: Agent, ep: Episodes, k: int, x: Tensor, critic_jacobian: st
       dU/dx + (df^/dx)^T lambda^(k+1) + (du^/dx)^T delta(k);
     * critic_jacobian="plant" (ablation): dU/dx + (du^/dx)^T dU/du + M^T lambda^(k+1) with
       M the plant's closed-loop sensitivity (:func:`plant_closed_loop_vjp`), so that the
-      critic does not see the approximate model at all (one reading of the seed 000
+      critic does not see the approximate model at all (one reading of the Lin 2010a
       conclusion "its outcomes were not biased by modeling error").
     """
     p = agent.p
@@ -372,7 +372,7 @@ def rollout(agent: Agent, ep: Episodes, steps: Optional[int] = None
 
 
 def atr_train_config(seed: int = 0, epochs: int = 1500) -> TrainConfig:
-    """Standard AOC/DHP configuration for the line regulation task (seed 000 Exp. 2).
+    """Standard AOC/DHP configuration for the line regulation task (Lin 2010a, Exp. 2).
 
     Both methods use the same settings: 32 parallel episodes x 40 stages per epoch, 64
     hidden tanh units, learning rate 1e-3 decaying geometrically to 1e-4, momentum 0.9

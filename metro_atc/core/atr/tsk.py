@@ -1,7 +1,7 @@
-"""Multi-period TSK fuzzy traffic model and timetable generation (seed 000 eq. 7-10).
+"""Multi-period TSK fuzzy traffic model and timetable generation (Lin 2010a, eq. 7-10).
 
 The daily operating hours are split into L durations [z_{n-1}, z_n) with headway H_n and
-passenger flow p_{j,n} (seed 000 Fig. 2).  Rule n (eq. 7): IF z is F_n THEN
+passenger flow p_{j,n} (Lin 2010a, Fig. 2).  Rule n (eq. 7): IF z is F_n THEN
 t(k+1) = A_n t(k) + B_n (u(k) + w(k) + D_n(k)).  The memberships (eq. 8) are crisp
 (1 inside the duration, 0 outside; the last duration is closed), so the normalised
 membership equals the membership and the blended model (eq. 9) selects one rule.
@@ -11,7 +11,7 @@ c_{j,n} = t_b p_{j,n} (boarding time per unit time since the previous train).  T
 extraction of eq. 9 reads "c_j = t_b p_{j,n} H_n" with the fraction lost; with p_{j,n}
 the hourly flow this is only dimensionless as t_b p_{j,n} / 3600 s, which is what we use
 (see the derivation in :mod:`metro_atc.core.atr.traffic`).  The premise variable z is the
-dispatch instant of the newest train of the step (seed 000 uses one z for the whole step).
+dispatch instant of the newest train of the step (Lin 2010a uses one z for the whole step).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from metro_atc.core.atr.traffic import linear_model, scheduled_d, schedule_offse
 
 
 def membership(z_s: float, periods: Sequence[Period]) -> np.ndarray:
-    """Crisp memberships mu_n(z) of seed 000 eq. 8 for instant z [s]; shape (L,).
+    """Crisp memberships mu_n(z) of Lin 2010a, eq. 8 for instant z [s]; shape (L,).
 
     mu_n = 1 on [z_{n-1}, z_n) for n < L and on [z_{L-1}, z_L] for n = L, else 0.
     """
@@ -38,7 +38,7 @@ def membership(z_s: float, periods: Sequence[Period]) -> np.ndarray:
 
 
 def normalised_membership(z_s: float, periods: Sequence[Period]) -> np.ndarray:
-    """Normalised memberships mu_n / sum(mu) (seed 000 eq. 9); raises outside [z_0, z_L]."""
+    """Normalised memberships mu_n / sum(mu) (Lin 2010a, eq. 9); raises outside [z_0, z_L]."""
     mu = membership(z_s, periods)
     s = mu.sum()
     if s <= 0.0:
@@ -48,13 +48,13 @@ def normalised_membership(z_s: float, periods: Sequence[Period]) -> np.ndarray:
 
 def rule_matrices(line: LineData, periods: Sequence[Period]
                   ) -> List[Tuple[np.ndarray, np.ndarray]]:
-    """(A_n, B_n) for every duration n (seed 000 eq. 9) with c_{j,n} = t_b p_j * flow_n."""
+    """(A_n, B_n) for every duration n (Lin 2010a, eq. 9) with c_{j,n} = t_b p_j * flow_n."""
     return [linear_model(line.c(p.flow_factor)) for p in periods]
 
 
 def tsk_step(line: LineData, periods: Sequence[Period], t_k: np.ndarray, u: np.ndarray,
              w: np.ndarray, z_k: float) -> np.ndarray:
-    """Blended TSK model step (seed 000 eq. 9): sum_n mu_n(z) (A_n t + B_n (u + w + D(k)))."""
+    """Blended TSK model step (Lin 2010a, eq. 9): sum_n mu_n(z) (A_n t + B_n (u + w + D(k)))."""
     mu = normalised_membership(z_k, periods)
     d = scheduled_d(line, z_k)
     out = np.zeros_like(np.asarray(t_k, dtype=float))
@@ -78,7 +78,7 @@ def dispatch_instants(periods: Sequence[Period], z0_s: float | None = None) -> n
 
 def timetable(line: LineData, periods: Sequence[Period] | None = None,
               n_trains: int | None = None, z0_s: float | None = None) -> np.ndarray:
-    """Scheduled departure instants T [s], shape (n_trains, N), from seed 000 eq. 10.
+    """Scheduled departure instants T [s], shape (n_trains, N), from Lin 2010a, eq. 10.
 
     T(k+1) = sum_n mu_n(z_k) {A_n T(k) + B_n D_n(k)} on the staggered state; the line is
     assumed to be in the steady state of the first duration before the first dispatch

@@ -1,6 +1,6 @@
 """Where AOC/DHP weights of a line come from: shipped, cached, or trained now (ROS-free).
 
-Weights belong to a line (issue 11 item 4): a weights file records the traffic-model hash
+Weights belong to a line: a weights file records the traffic-model hash
 of the line it was trained on (:func:`metro_atc.core.atr.fingerprint.line_hash`) and
 :func:`metro_atc.core.atr.regulators.load_weights` refuses it on any other line.
 :func:`find_weights` looks for weights of a line among the shipped files
@@ -103,7 +103,7 @@ def validate(line: LineData, regulator: Regulator, weights: CostWeights,
 
     Episodes: ``VALIDATION_DELAY_S`` at the first station, exponential departure delays
     (seeds 0 .. episodes-1, the same for both), K + N stages.  Returns the mean costs
-    (seed 000 eq. 17 realised, :func:`metro_atc.core.atr.evaluation.kpis`) and their ratio.
+    (Lin 2010a, eq. 17 realised, :func:`metro_atc.core.atr.evaluation.kpis`) and their ratio.
     """
     problem = AtrProblem(line, weights)
     steps = weights.horizon + line.n_stations

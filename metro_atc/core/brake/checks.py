@@ -1,6 +1,6 @@
 """Verification problems for the UKF with known answers.
 
-* :func:`linear_equivalence` runs the UKF (seed 000 eq. 7-8, alpha 0.5, beta 2,
+* :func:`linear_equivalence` runs the UKF (Lin 2010b, eq. 7-8, alpha 0.5, beta 2,
   kappa 3 - L) and a textbook Kalman filter on a random stable linear system; for
   affine models the unscented transform is exact, so both must agree to round-off.
 * :func:`polar_moments` is the classic polar-to-Cartesian conversion (Julier &

@@ -284,7 +284,7 @@ class OnlineDecision:
         self.t_prev = t
         gated = (t - self.t0) >= cfg.gate_s - 1e-9
         # per channel as plain floats (a handful of channels: numpy's per-call cost was
-        # most of this method's time, issue 13); the same arithmetic element by element
+        # most of this method's time); the same arithmetic element by element
         raw = [x if math.isfinite(x) else 0.0 for x in np.asarray(res, dtype=float).tolist()]
         if cfg.filter_tau_s <= 0.0:
             rf = raw

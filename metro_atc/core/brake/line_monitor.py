@@ -1,4 +1,4 @@
-"""Brake diagnosis of every instrumented train of a ROS-free line run (issue 11 item 8).
+"""Brake diagnosis of every instrumented train of a ROS-free line run.
 
 :class:`LineBrakeMonitor` does, without ROS, what the graph does between the line simulator
 and the ``brake_diagnostic`` node: each step's brake sensor samples

@@ -1,12 +1,12 @@
 """Metro variant of the brake-by-wire diagnosis: one 4-axle car, wheel-rail adhesion.
 
-The seed 000 (second paper) observer transferred to a metro car whose friction brake is
+The Lin 2010b observer transferred to a metro car whose friction brake is
 brake-by-wire per axle (one axle-mounted disc, two pads, clamp force F_cj measured):
 
 * car:    ``M dv/dt = sum_j F_j - M phi_r(v) - M g sin(theta)``
-  (phi_r: Davis deceleration of seed 002 eq. 2, theta: gradient);
+  (phi_r: Davis deceleration of ACTP n.d., eq. 2, theta: gradient);
 * axle j: ``J dw_j/dt = T_dj - 2 mu_b R_b F_cj tanh(w_j / w_eps) - r_w F_j``
-  (seed 000 eq. 4; ``T_dj`` = motor torque, >0 traction, <0 electric brake, known
+  (Lin 2010b, eq. 4; ``T_dj`` = motor torque, >0 traction, <0 electric brake, known
   to the brake control unit; ``F_j`` = longitudinal wheel-rail force on the car,
   negative while braking);
 * wheel-rail adhesion instead of tyre forces:
@@ -67,9 +67,9 @@ class MetroCarParams:
     mu_b: float = 0.35
     """Nominal disc-pad friction coefficient [-]."""
     mu_b_min: float = 0.2
-    """Safety requirement on mu_b [-] (seed 000 second paper)."""
+    """Safety requirement on mu_b [-] (Lin 2010b)."""
     davis: tuple[float, float, float] = (0.020084, 5.04e-4, 4.774e-5)
-    """Davis deceleration phi_r(v) = a + b v + c v^2 [m/s^2] (seed 002 eq. 2)."""
+    """Davis deceleration phi_r(v) = a + b v + c v^2 [m/s^2] (ACTP n.d., eq. 2)."""
     adh_k: float = 300.0
     """Initial slope factor k_s of the creep curve [-]."""
     adh_a: float = 0.4
@@ -90,7 +90,7 @@ class MetroCarParams:
     """Speed floor of the creep definition [m/s]."""
 
     def davis_decel(self, v: FloatArray) -> FloatArray:
-        """Running-resistance deceleration phi_r(v) [m/s^2] (seed 002 eq. 2), v [m/s]."""
+        """Running-resistance deceleration phi_r(v) [m/s^2] (ACTP n.d., eq. 2), v [m/s]."""
         a, b, c = self.davis
         return np.asarray(laws.on_array(laws.davis_resistance_array, v, a, b, c)
                           * np.sign(v))
@@ -98,7 +98,7 @@ class MetroCarParams:
     def clamp_for_decel(self, a_req: FloatArray) -> FloatArray:
         """Per-axle clamp force [N] giving deceleration ``a_req`` with nominal mu_b.
 
-        Brake torque per axle ``2 mu_b R_b F_c`` (seed 000 eq. 4), equal shares.
+        Brake torque per axle ``2 mu_b R_b F_c`` (Lin 2010b, eq. 4), equal shares.
         """
         return np.asarray(a_req) * self.mass * self.r_w / (
             N_AX * laws.pad_torque(1.0, self.mu_b, self.r_b))
@@ -338,7 +338,7 @@ class MetroObserverTuning:
     q_grade: float = 2e-4
     """Random-walk std of sin(theta) per step [-]."""
     q_f: tuple[float, float, float] = (100.0, 2000.0, 2.0e4)
-    """Std per step of (F, dF/dt, d2F/dt2) [N, N/s, N/s^2] (seed 000 eq. 10)."""
+    """Std per step of (F, dF/dt, d2F/dt2) [N, N/s, N/s^2] (Lin 2010b, eq. 10)."""
     p0_mub: float = 0.1
     """Initial std of mu_b [-]."""
     p0_f: float = 3000.0
@@ -371,7 +371,7 @@ def metro_linear_part(p: MetroCarParams, dt: float) -> FloatArray:
 
 
 def make_metro_fx(p: MetroCarParams, dt_nominal: float):  # type: ignore[no-untyped-def]
-    """Vectorised observer transition f(X, u, dt) (seed 000 eq. 4, 9, 10; Euler step).
+    """Vectorised observer transition f(X, u, dt) (Lin 2010b, eq. 4, 9, 10; Euler step).
 
     ``u`` = (F_c1..4 [N], T_d1..4 [N m], M [kg]); X (..., N, 19).  Written as a linear
     map plus the nonlinear terms (pad torque ``mu_b F_c tanh(w)``, resistance, 1/M) to
@@ -408,7 +408,7 @@ def make_metro_fx(p: MetroCarParams, dt_nominal: float):  # type: ignore[no-unty
 
 
 def make_metro_hx(p: MetroCarParams):  # type: ignore[no-untyped-def]
-    """Vectorised observer output h(X, u) = (w_1..w_4, a_x, v) (seed 000 eq. 8).
+    """Vectorised observer output h(X, u) = (w_1..w_4, a_x, v) (Lin 2010b, eq. 8).
 
     ``a_x`` is the accelerometer's specific force ``sum F / M - phi_r(v)``.
     """
@@ -800,7 +800,7 @@ class MetroBrakeObserver:
             self._skip("non-finite time")
             return self._result_or_default(self.t_last or 0.0, "non-finite time")
         # the input vector (clamp forces held when invalid, np.maximum(fc, 0) as plain
-        # floats: a few numpy calls on 9 numbers cost more than the loop, issue 13)
+        # floats: a few numpy calls on 9 numbers cost more than the loop)
         ul = self._u_last.tolist()
         fcl = fc.tolist()
         fc_all = True

@@ -1,11 +1,11 @@
-"""Compiled (numba) twin of the metro observer's UKF step (seed 000 eq. 7-8, eq. 4, 9, 10).
+"""Compiled (numba) twin of the metro observer's UKF step (Lin 2010b, eq. 7-8, eq. 4, 9, 10).
 
 :class:`MetroUKF` is the :class:`~metro_atc.core.brake.ukf.UKF` that
 :func:`metro_atc.core.brake.metro_car.make_metro_ukf` builds, with :meth:`UKF.predict` and
 :meth:`UKF.update` done by the loops below instead of ~25 numpy calls each (19 states,
 39 sigma points: numpy's per-call overhead is most of the numpy path's time).  The
 arithmetic is the numpy path's, element by element: the same sigma points
-``x +- gamma S_i`` from the lower Cholesky factor ``S`` of ``P`` (seed 000 eq. 7), the same
+``x +- gamma S_i`` from the lower Cholesky factor ``S`` of ``P`` (Lin 2010b, eq. 7), the same
 Euler transition of :func:`~metro_atc.core.brake.metro_car.make_metro_fx` (a linear map plus
 the pad torque ``2 mu_b R_b F_c tanh(w / w_eps)`` of eq. 4 and the running resistance), the
 same measurement :func:`~metro_atc.core.brake.metro_car.make_metro_hx` (eq. 8), weighted
@@ -79,7 +79,7 @@ def _sigma(x: FloatArray, c: FloatArray, gamma: float, xs: FloatArray) -> None:
 def predict_kernel(x: FloatArray, p: FloatArray, u: FloatArray, dt: float, a: FloatArray,
                    q: FloatArray, cap: FloatArray, wm: FloatArray, wc: FloatArray,
                    gamma: float, k: FloatArray) -> tuple[FloatArray, FloatArray, int]:
-    """One prediction (seed 000 eq. 7) of the metro observer.
+    """One prediction (Lin 2010b, eq. 7) of the metro observer.
 
     ``a``: the linear part's transpose (:func:`metro_linear_part` at ``dt``, transposed);
     ``k`` = (k_w = 2 R_b / J, 1 / w_eps, J, Davis a, b, c).  Returns (x^-, P^-, code):
@@ -156,7 +156,7 @@ def predict_kernel(x: FloatArray, p: FloatArray, u: FloatArray, dt: float, a: Fl
 def update_kernel(x: FloatArray, p: FloatArray, z: FloatArray, rows: NDArray[np.int64],
                   u: FloatArray, r: FloatArray, wm: FloatArray, wc: FloatArray, gamma: float,
                   k: FloatArray) -> tuple[FloatArray, FloatArray, int]:
-    """One measurement update (seed 000 eq. 8) with the measured rows ``rows`` of ``z``.
+    """One measurement update (Lin 2010b, eq. 8) with the measured rows ``rows`` of ``z``.
 
     ``k`` as in :func:`predict_kernel`.  Returns (x, P, code): code 0 applied, 1 P or S not
     positive definite, 2 non-finite result (caller: numpy path).
@@ -282,7 +282,7 @@ class MetroUKF(UKF):
         return a
 
     def predict(self, u: FloatArray, dt: float) -> None:
-        """Prediction (seed 000 eq. 7) by :func:`predict_kernel` (numpy path if it declines)."""
+        """Prediction (Lin 2010b, eq. 7) by :func:`predict_kernel` (numpy path if it declines)."""
         q = self._q(dt)
         x, p, code = predict_kernel(self.x, self.p, np.asarray(u, dtype=float), float(dt),
                                     self._a(dt), q, self._cap, self._wm, self.weights.wc,

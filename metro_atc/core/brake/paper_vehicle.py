@@ -10,13 +10,13 @@ heading (negative while braking) and ``F_yi`` the lateral one (tyre frame).
 
 Model pieces
 ------------
-* Vehicle (seed 000 eq. 1-3, reconstructed as the standard 7-DOF two-track model the
+* Vehicle (Lin 2010b, eq. 1-3, reconstructed as the standard 7-DOF two-track model the
   nomenclature of the paper describes; lateral forces enter as axle means, eq. 5):
   ``m (dVx/dt - Vy r) = (Fx1 + Fx2) cos d - 2 Fyf sin d + Fx3 + Fx4``,
   ``m (dVy/dt + Vx r) = (Fx1 + Fx2) sin d + 2 Fyf cos d + 2 Fyr``,
   ``Iz dr/dt = lf ((Fx1 + Fx2) sin d + 2 Fyf cos d) - 2 lr Fyr + tf (Fx2 - Fx1) cos d
   + tr (Fx4 - Fx3)``.
-* Wheel (seed 000 eq. 4): ``Jw dw_i/dt = -2 mu_b R_b F_ci - r_w F_xi``.  The paper writes
+* Wheel (Lin 2010b, eq. 4): ``Jw dw_i/dt = -2 mu_b R_b F_ci - r_w F_xi``.  The paper writes
   ``+ r_w F_xi``, i.e. its F_x is the force of the tyre on the road; with our sign
   (force on the vehicle) the term is negative.  Table I swaps the labels of the wheel
   radius and of the disk-pad effective radius; we use r_w = 0.39445 m (a 255/55 R18
@@ -61,7 +61,7 @@ FAULTS = ("none", "pad", "tyre")
 
 @dataclass(frozen=True)
 class PaperVehicleParams:
-    """Vehicle data of seed 000 (second paper) Table I plus documented estimates."""
+    """Vehicle data of Lin 2010b, Table I plus documented estimates."""
 
     mass: float = 1862.0
     """Vehicle mass M [kg] (Table I)."""
@@ -202,7 +202,7 @@ class TyreTable:
     """2-D tyre tables F_x(F_z, kappa) and F_y(F_z, alpha) with bilinear interpolation.
 
     The tables are "measured" (sampled from the nominal pure-slip Magic Formula) on
-    the test surface ``mu_bar`` and scaled to the road by eq. 6 (seed 000 second paper).
+    the test surface ``mu_bar`` and scaled to the road by eq. 6 (Lin 2010b).
     """
 
     def __init__(self, p: PaperVehicleParams, n_fz: int = 13, n_slip: int = 81) -> None:
@@ -235,7 +235,7 @@ class TyreTable:
 
     def forces(self, kappa: FloatArray, alpha: FloatArray, fz: FloatArray,
                mu: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Pure-slip table forces on a road with friction ``mu`` (seed 000 eq. 6) [N]."""
+        """Pure-slip table forces on a road with friction ``mu`` (Lin 2010b, eq. 6) [N]."""
         sc = self.p.mu_bar / np.maximum(mu, 1e-3)
         fx = self._interp2(self.fz, self.kappa, self.tab_x, fz, kappa * sc) / sc
         fy = self._interp2(self.fz, self.alpha, self.tab_y, fz, alpha * sc) / sc
@@ -278,7 +278,7 @@ def driver_signals(maneuver: FloatArray, t: float) -> tuple[FloatArray, FloatArr
 def clamp_command(p: PaperVehicleParams, a_req: FloatArray) -> FloatArray:
     """Clamp-force command per wheel [N] for a requested deceleration (nominal mu_b).
 
-    Brake torque per wheel = 2 mu_b R_b F_c (seed 000 eq. 4), allocated front/rear
+    Brake torque per wheel = 2 mu_b R_b F_c (Lin 2010b, eq. 4), allocated front/rear
     with ``brake_share_front``.
 
     Args:
@@ -517,7 +517,7 @@ class PaperSensorNoise:
 
 def measure(log: PlantLog, noise: PaperSensorNoise, rng: np.random.Generator
             ) -> dict[str, FloatArray]:
-    """Noisy sensor samples of a plant log (seed 000 eq. 8 outputs plus inputs).
+    """Noisy sensor samples of a plant log (Lin 2010b, eq. 8 outputs plus inputs).
 
     Returns:
         dict with ``y`` (B, n_t, 7) = a_x, a_y, r, w1..w4, ``fc`` (B, n_t, 4) and
@@ -534,11 +534,11 @@ def measure(log: PlantLog, noise: PaperSensorNoise, rng: np.random.Generator
 
 
 # ----------------------------------------------------------------------------------------
-# Observer (seed 000 eq. 7-10)
+# Observer (Lin 2010b, eq. 7-10)
 # ----------------------------------------------------------------------------------------
 
 N_X = 26
-"""Observer state dimension L (seed 000: 7 + 1 + 12 + 6 = 26)."""
+"""Observer state dimension L (Lin 2010b: 7 + 1 + 12 + 6 = 26)."""
 N_Y = 7
 """Measured outputs: a_x, a_y, r, w1..w4."""
 I_VX, I_VY, I_R = 0, 1, 2
@@ -586,7 +586,7 @@ def observer_transition(p: PaperVehicleParams, dt: float) -> FloatArray:
 
 
 def make_fx(p: PaperVehicleParams, dt_nominal: float):  # type: ignore[no-untyped-def]
-    """Vectorised observer transition f(X, u, dt) (seed 000 eq. 1-4, 9, 10; Euler step).
+    """Vectorised observer transition f(X, u, dt) (Lin 2010b, eq. 1-4, 9, 10; Euler step).
 
     ``X``: (..., N, 26) sigma points, ``u``: (..., 5) = steering [rad], F_c1..F_c4 [N].
     """
@@ -621,7 +621,7 @@ def make_fx(p: PaperVehicleParams, dt_nominal: float):  # type: ignore[no-untype
 
 
 def make_hx(p: PaperVehicleParams):  # type: ignore[no-untyped-def]
-    """Vectorised observer output h(X, u) = (a_x, a_y, r, w1..w4) (seed 000 eq. 8).
+    """Vectorised observer output h(X, u) = (a_x, a_y, r, w1..w4) (Lin 2010b, eq. 8).
 
     The accelerometer measures the specific force, including the aerodynamic drag
     ``0.5 rho C_d A V_x^2`` (an addition to the paper's model; rho = 1.2 kg/m^3).

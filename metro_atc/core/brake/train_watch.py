@@ -1,4 +1,4 @@
-"""ROS-free brake watch of one train: the seed 000 (2nd paper) observer inside a consist.
+"""ROS-free brake watch of one train: the Lin 2010b observer inside a consist.
 
 :class:`TrainBrakeWatch` is what the ``brake_diagnostic`` node runs per train (and what the
 ROS-free closed loop runs, :mod:`metro_atc.core.brake.line_monitor`): it takes one validated
@@ -7,7 +7,7 @@ it to the single-car observer :class:`~metro_atc.core.brake.metro_car.MetroBrake
 and keeps the counters the node reports.
 
 **Consist adaptation (the instrumented car is a trailer inside a 6-car train).**  The
-observer's car-body equation ``M dv/dt = sum_j F_j - ...`` (seed 000 eq. 1) holds for a
+observer's car-body equation ``M dv/dt = sum_j F_j - ...`` (Lin 2010b, eq. 1) holds for a
 single vehicle; for a car in a consist the coupler forces are missing from it, and the
 accelerometer measures the *train's* acceleration (most of the braking is electric, on
 the motor cars).  Fed directly, the observer attributes the train's deceleration to the
@@ -33,7 +33,7 @@ therefore feeds the observer:
 * force-state process noise ``Q_FORCE`` large enough for the axle forces to follow the
   step-wise clamp-force changes of brake applications.
 
-Decision (issue 11 item 8): the core's logic with a pad flaw announced when
+Decision: the core's logic with a pad flaw announced when
 ``mu_b_hat + MU_B_SIGMAS std < 0.2`` (WARN: ``< 0.25``) for ``PERSISTENCE_S`` (1 s), judged
 only while the std is below ``MU_B_STD_JUDGE``, where the std is the filter's bounded below
 by :meth:`TrainBrakeWatch.mu_b_std_bound` (the information the creep data carry about mu_b).
@@ -252,7 +252,7 @@ class TrainBrakeWatch:
         ``sigma_s = sqrt((sigma_w r_w)^2 + P_vv) / v`` (wheel-speed noise of the observer's
         model and the posterior speed variance), the axle force ``F_j = N_j mu_a(s_j)``
         with ``N_j mu_a'(s_j) sigma_s``, and ``F_j`` responds to mu_b with
-        ``2 R_b F_cj / r_w`` (seed 000 eq. 4), so the Fisher information of the sample is
+        ``2 R_b F_cj / r_w`` (Lin 2010b, eq. 4), so the Fisher information of the sample is
         ``sum_j (2 R_b F_cj / (r_w N_j mu_a'(s_j) sigma_s))^2``.  It is accumulated like the
         filter's mu_b (random walk ``q_mub`` per sample, restarted with the filter from the
         prior ``p0_mub``).
@@ -350,7 +350,7 @@ class TrainBrakeWatch:
         most ``V_PAUSE_MPS`` (most samples: trains standing with the holding brake on),
         does what :meth:`feed` does with it (counted, stamp, gap and mass kept) without
         building its channels and returns True; otherwise changes nothing and returns
-        False (the caller then uses :meth:`feed`).  Issue 13: the per-sample cost of the
+        False (the caller then uses :meth:`feed`).  the per-sample cost of the
         ~84 % paused samples of a line.
         """
         if not (t > self.t_last and vref <= V_PAUSE_MPS and vref > -math.inf):

@@ -1,9 +1,9 @@
-"""Generic scaled unscented Kalman filter (seed 000, second paper, eq. 7-8).
+"""Generic scaled unscented Kalman filter (Lin 2010b, eq. 7-8).
 
 The diagnostic observer of the brake-by-wire paper is "essentially a UKF" with a
 prediction procedure for the nonlinear stochastic state equation
-``x_k = f(x_{k-1}, u_{k-1}) + eta_k`` (seed 000 eq. 7) and a measurement procedure
-for ``y_k = h(x_k) + n_k`` (seed 000 eq. 8); both noises are additive.  The scaled
+``x_k = f(x_{k-1}, u_{k-1}) + eta_k`` (Lin 2010b, eq. 7) and a measurement procedure
+for ``y_k = h(x_k) + n_k`` (Lin 2010b, eq. 8); both noises are additive.  The scaled
 unscented transform uses the paper's parameters ``alpha = 0.5``, ``beta = 2``,
 ``kappa = 3 - L`` (L = state dimension).
 
@@ -58,7 +58,7 @@ class UTWeights:
 
 def ut_weights(n: int, alpha: float = 0.5, beta: float = 2.0,
                kappa: Optional[float] = None) -> UTWeights:
-    """Return the scaled-UT weights (seed 000 second paper: alpha 0.5, beta 2, kappa 3-L).
+    """Return the scaled-UT weights (Lin 2010b: alpha 0.5, beta 2, kappa 3-L).
 
     Args:
         n: state dimension L.
@@ -147,7 +147,7 @@ def unscented_transform(x: FloatArray, p: FloatArray, fn: Callable[[FloatArray],
 
 
 class UKF:
-    """Scaled unscented Kalman filter with additive noises (seed 000 eq. 7-8).
+    """Scaled unscented Kalman filter with additive noises (Lin 2010b, eq. 7-8).
 
     Args:
         fx: transition ``f(X, u, dt) -> X'`` vectorised over sigma-point rows.
@@ -188,7 +188,7 @@ class UKF:
         Equal to constructing a :class:`UKF` with the same arguments (the weights and the
         sigma-point selector depend on L and the UT parameters only), without recomputing
         them; this filter is not changed.  ``symmetric``: ``p0`` is already its own
-        :func:`symmetrize` (copied as it is; issue 13: a restart per 1 Hz heartbeat sample).
+        :func:`symmetrize` (copied as it is; a restart per 1 Hz heartbeat sample).
         """
         new = object.__new__(type(self))  # copy.copy's shallow copy, without its protocol
         new.__dict__.update(self.__dict__)
@@ -219,7 +219,7 @@ class UKF:
         return p * (sc[:, None] * sc[None, :])
 
     def predict(self, u: FloatArray, dt: float) -> None:
-        """Prediction procedure (seed 000 eq. 7): x^- = E[f(x, u)], P^- = Cov + Q."""
+        """Prediction procedure (Lin 2010b, eq. 7): x^- = E[f(x, u)], P^- = Cov + Q."""
         ys = self.fx(self._deviations() + self.x, u, dt)
         x = self._wm @ ys
         dev = ys - x
@@ -260,7 +260,7 @@ class UKF:
         return y, s, pxy
 
     def update(self, z: FloatArray, u: FloatArray, rows: Optional[FloatArray] = None) -> bool:
-        """Measurement procedure (seed 000 eq. 8) with measurement ``z``.
+        """Measurement procedure (Lin 2010b, eq. 8) with measurement ``z``.
 
         Args:
             z: measurement vector (all m rows, or only ``rows`` if given).
@@ -329,7 +329,7 @@ def batch_cholesky(p: FloatArray) -> FloatArray:
 class BatchUKF:
     """``B`` independent scaled UKFs stepped in lockstep (same f, h, Q, R).
 
-    Numerically the same filter as :class:`UKF` (seed 000 eq. 7-8) applied to each
+    Numerically the same filter as :class:`UKF` (Lin 2010b, eq. 7-8) applied to each
     batch member; used by the Monte-Carlo benchmark.  ``f(X, U, dt)`` receives sigma
     points (B, 2L+1, L) and inputs (B, n_u); ``h(X, U)`` likewise.
 
@@ -360,7 +360,7 @@ class BatchUKF:
         return np.concatenate((xb, xb + d, xb - d), axis=1)
 
     def predict(self, u: FloatArray, dt: float) -> None:
-        """Prediction procedure (seed 000 eq. 7) for every member."""
+        """Prediction procedure (Lin 2010b, eq. 7) for every member."""
         ys = self.fx(self._sigma(), u, dt)
         x = np.einsum("n,bnl->bl", self.weights.wm, ys)
         dev = ys - x[:, None, :]
@@ -369,7 +369,7 @@ class BatchUKF:
         self.p = 0.5 * (p + np.swapaxes(p, 1, 2))
 
     def update(self, z: FloatArray, u: FloatArray) -> None:
-        """Measurement procedure (seed 000 eq. 8) with measurements ``z`` (B, m)."""
+        """Measurement procedure (Lin 2010b, eq. 8) with measurements ``z`` (B, m)."""
         xs = self._sigma()
         ys = self.hx(xs, u)
         y = np.einsum("n,bnm->bm", self.weights.wm, ys)

@@ -5,7 +5,7 @@ ratio ``s = (v - omega r_w) / v`` (braking, s in [0, 1]).  The coefficients are 
 chosen for steel wheel on steel rail: dry peak ~0.31 at ~4 % slip falling to 0.24 at lock;
 wet peak ~0.12 at ~6 % slip falling to 0.085 at lock, so heavy braking on wet rail slides.
 
-Per-axle wheel dynamics (seed 000 second paper eq. 4, the axle as the lumped "wheel")::
+Per-axle wheel dynamics (Lin 2010b, eq. 4, the axle as the lumped "wheel")::
 
     J_w d(omega)/dt = -2 mu_b R_b F_c + r_w F_x
 

@@ -1,4 +1,4 @@
-"""ATP constants of a scenario (seed 001 Fig. 1): a pure function of the scenario and train.
+"""ATP constants of a scenario (Ke 2010, Fig. 1): a pure function of the scenario and train.
 
 The plant's :class:`metro_atc.core.plant.atp.AtpSupervisor` supervises with them and the ATO
 (:func:`metro_atc.core.ato.onboard.atp_model_for`) plans inside the same envelope; neither

@@ -195,7 +195,7 @@ class LineSpec:
 
 @dataclass(frozen=True, kw_only=True)
 class SignallingSpec:
-    """ATP / signalling parameters (seed 001 Fig. 1 braking-curve construction)."""
+    """ATP / signalling parameters (Ke 2010, Fig. 1 braking-curve construction)."""
 
     mode: Literal["moving_block", "fixed_block"] = _f("moving_block", doc="separation mode")
     safety_margin_m: float = _f(50.0, 0.0, 5000.0, "margin behind the rear of the train ahead")
@@ -210,7 +210,7 @@ class SignallingSpec:
 
 @dataclass(frozen=True, kw_only=True)
 class PeriodSpec:
-    """One timetable period (seed 000 eq. 7-9 TSK duration): headway + passenger flow."""
+    """One timetable period (Lin 2010a, eq. 7-9 TSK duration): headway + passenger flow."""
 
     start_s: float = _f(dataclasses.MISSING, 0.0, 200_000.0, "period start (sim time)")
     headway_s: float = _f(dataclasses.MISSING, 30.0, 7200.0, "scheduled headway H_n")
@@ -220,7 +220,7 @@ class PeriodSpec:
 
 @dataclass(frozen=True, kw_only=True)
 class TimetableSpec:
-    """Dispatching from the first station (timetable per seed 000 eq. 10)."""
+    """Dispatching from the first station (timetable per Lin 2010a, eq. 10)."""
 
     first_departure_s: float = _f(60.0, 0.0, 200_000.0, "first departure at station 0")
     periods: list[PeriodSpec] = _f(dataclasses.MISSING, doc="periods, increasing start_s")
@@ -240,7 +240,7 @@ class PassengersSpec:
 
 @dataclass(frozen=True, kw_only=True)
 class DisturbanceSpec:
-    """Stochastic disturbances (seed 000: departure delays are exponential)."""
+    """Stochastic disturbances (Lin 2010a: departure delays are exponential)."""
 
     departure_delay_prob: float = _f(0.3, 0.0, 1.0, "probability of a departure delay")
     departure_delay_mean_s: float = _f(5.0, 0.0, 600.0, "mean of the exponential delay")

@@ -1,4 +1,4 @@
-"""The scheduled service of a scenario: dispatch, dwell and running times (seed 000 eq. 10).
+"""The scheduled service of a scenario: dispatch, dwell and running times (Lin 2010a, eq. 10).
 
 A pure function of the scenario (no plant): the ATS, the ATO and the line simulator build
 the same deterministic timetable from the same scenario file.  Minimum running times are the
@@ -97,7 +97,7 @@ class ServicePlan:
 
 
 def build_service(scn: Scenario, p: TrainParams, geom: LineGeometry) -> ServicePlan:
-    """Dispatch times, minimum and scheduled running times, dwells (seed 000 eq. 10)."""
+    """Dispatch times, minimum and scheduled running times, dwells (Lin 2010a, eq. 10)."""
     per = scn.timetable.periods
     flow = PassengerFlow([q.start_s for q in per],
                          np.array([q.boarding_pph for q in per], dtype=float))
@@ -159,7 +159,7 @@ class Timetable:
 
 
 def timetable_for(scn: Scenario) -> Timetable:
-    """Scheduled departures, running and dwell times of a scenario (seed 000 eq. 10)."""
+    """Scheduled departures, running and dwell times of a scenario (Lin 2010a, eq. 10)."""
     d = describe(scn)
     sv = d.service
     dep = np.asarray(sv.sched_dep, dtype=float)

@@ -9,7 +9,7 @@ departure = arrival + S_{j,n}, arrival at j+1 = departure at j + R_j.
 Here passengers keep arriving while the doors are open, so with boarding time t_b [s/pax]
 and flow p [pax/s] the boarding dwell solves ``d = d0 + t_a A + t_b (W + p d)``, i.e.
 ``d = (d0 + t_a A + t_b W) / (1 - t_b p)`` unless the train capacity saturates (then
-``d = d0 + t_a A + t_b room``) -- the saturation nonlinearity of seed 000 Exp. 2.
+``d = d0 + t_a A + t_b room``) -- the saturation nonlinearity of Lin 2010a, Exp. 2.
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ class PassengerFlow:
 
 def required_dwell(waiting: float, rate: float, alight: float, room: float, t_b: float,
                    t_a: float, overhead: float, min_dwell: float) -> tuple[float, float]:
-    """Dwell [s] and boardings [pax] (seed 000 c_j = t_b p H with in-dwell arrivals + capacity).
+    """Dwell [s] and boardings [pax] (Lin 2010a c_j = t_b p H with in-dwell arrivals + capacity).
 
     ``waiting`` persons on the platform at arrival, demand ``rate`` [pax/s], ``alight``
     persons leaving, ``room`` free places after alighting.
@@ -76,7 +76,7 @@ def required_dwell(waiting: float, rate: float, alight: float, room: float, t_b:
 
 def dispatch_times(first_s: float, count: int, flow: PassengerFlow,
                    headways_s: list[float]) -> FloatArray:
-    """Departure instants at the first station: T(k+1) = T(k) + H_n(T(k)) (seed 000 eq. 6)."""
+    """Departure instants at the first station: T(k+1) = T(k) + H_n(T(k)) (Lin 2010a, eq. 6)."""
     t = np.empty(count)
     t[0] = first_s
     for k in range(1, count):
@@ -89,7 +89,7 @@ def nominal_dwells(flow: PassengerFlow, headways_s: list[float], alight_frac: Fl
                    overhead: float, min_dwell: float) -> tuple[FloatArray, FloatArray]:
     """Scheduled dwell S[n, j] [s] and nominal departing load [n, j] per period and station.
 
-    Undisturbed operation: waiting = p_{j,n} H_n at arrival (seed 000 eq. 7-9), the load
+    Undisturbed operation: waiting = p_{j,n} H_n at arrival (Lin 2010a, eq. 7-9), the load
     propagates along the line; the terminus alights everyone.
     """
     n_per, n_st = flow.rates.shape
@@ -112,7 +112,7 @@ def nominal_dwells(flow: PassengerFlow, headways_s: list[float], alight_frac: Fl
 
 def schedule(dispatch_s: FloatArray, dwell: FloatArray, running_s: FloatArray,
              flow: PassengerFlow) -> tuple[FloatArray, FloatArray]:
-    """Timetable (seed 000 eq. 10, crisp period memberships): arrival and departure [k, j].
+    """Timetable (Lin 2010a, eq. 10, crisp period memberships): arrival and departure [k, j].
 
     Station 0 "arrival" is the platform entry ``dispatch - S_0``; the terminal departure is
     the end of alighting (then the train turns back).

@@ -4,7 +4,7 @@ The line chainage x [m] is sampled on a uniform grid ``x_k = x0 + k dx``; grid c
 ``[x_k, x_k + dx)`` and every *ceiling* stored for a cell is the minimum over the cell, so a
 lookup ``k = floor((x - x0) / dx)`` is conservative.
 
-ATP supervision (seed 001 Fig. 1: response distance + guaranteed emergency-braking distance
+ATP supervision (Ke 2010, Fig. 1: response distance + guaranteed emergency-braking distance
 + safety margin).  Worst case assumed by ATP: during the response time ``t_r`` the train may
 still accelerate at ``a_w`` (full traction plus the steepest downhill grade); afterwards it
 decelerates at least at ``b_g`` (guaranteed emergency decel minus the steepest downhill).
@@ -35,7 +35,7 @@ G = laws.G_MPS2
 
 
 class BrakingCurve:
-    """The ATP braking curve of seed 001 Fig. 1 in closed form (the one implementation).
+    """The ATP braking curve of Ke 2010, Fig. 1 in closed form (the one implementation).
 
     ``v_ebi(D) = sqrt(c0 + c1 D + v_t^2) - c2`` with ``c0 = (b_g t_r)^2 + b_g t_r^2 a_w``,
     ``c1 = 2 b_g`` and ``c2 = b_g t_r + a_w t_r`` (module docstring; ``a_w`` may be an
@@ -74,7 +74,7 @@ def ebi_speed(dist_m: ArrayLike, target_mps: ArrayLike, a_w: float, t_r: float,
               b_g: float) -> FloatArray:
     """EBI speed [m/s] for distance [m] to a point where speed must be <= target [m/s].
 
-    Closed form of the seed 001 Fig. 1 construction (:class:`BrakingCurve`); negative
+    Closed form of the Ke 2010, Fig. 1 construction (:class:`BrakingCurve`); negative
     results mean the train must already be stopped.
     """
     return BrakingCurve(b_g, t_r).speed(dist_m, a_w, target_mps)

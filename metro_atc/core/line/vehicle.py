@@ -5,16 +5,16 @@ Functions are vectorised over trains (numpy arrays broadcast).
 
 References
 ----------
-- Running resistance: Davis form ``F_r(v) = A + B v + C v^2`` (seed 002 eq. 1); the
-  Taipei MRT deceleration ``phi_r(v) = 0.020084 + 5.04e-4 v + 4.774e-5 v^2`` (seed 002
+- Running resistance: Davis form ``F_r(v) = A + B v + C v^2`` (ACTP n.d., eq. 1); the
+  Taipei MRT deceleration ``phi_r(v) = 0.020084 + 5.04e-4 v + 4.774e-5 v^2`` (ACTP n.d.
   eq. 2, SI, v in m/s).  Eq. 1 is garbled in the extraction; it equals eq. 2 times the train
   mass (the extracted digits are consistent with M ~ 214 t), so we build F_r from eq. 2.
-- Traction characteristic (seed 002 eq. 3-5): constant-torque ``phi_1 = a_1``,
+- Traction characteristic (ACTP n.d., eq. 3-5): constant-torque ``phi_1 = a_1``,
   constant-voltage ``phi_2 = a_2 / (v + b_2)``, constant-power ``phi_3 = a_3 / (v + b_3)^2``
   (reconstructed from the garbled extraction; a_2, a_3 follow from continuity at the
   region boundaries v_1, v_2).
-- RK4 integration of Newton's law (seed 004).
-- Accel/decel +-1.0 m/s^2, jerk +-1.0 m/s^3 (seed 001).
+- RK4 integration of Newton's law (Li n.d.).
+- Accel/decel +-1.0 m/s^2, jerk +-1.0 m/s^3 (Ke 2010).
 """
 
 from __future__ import annotations
@@ -37,41 +37,41 @@ FloatArray = NDArray[np.float64]
 class TrainParams:
     """Parameters of one train (consist).
 
-    Defaults: a Taipei MRT 6-car train (seed 002 eq. 2 resistance; traction figures are
-    estimates giving ~1.0 m/s^2 starting acceleration, seed 001).
+    Defaults: a Taipei MRT 6-car train (ACTP n.d., eq. 2 resistance; traction figures are
+    estimates giving ~1.0 m/s^2 starting acceleration, Ke 2010).
     """
 
     mass_kg: float = 214_000.0
-    """Total mass incl. nominal load [kg] (seed 002 eq. 1/2 consistency, estimate)."""
+    """Total mass incl. nominal load [kg] (ACTP n.d., eq. 1/2 consistency, estimate)."""
     rotary_allowance: float = 0.08
     """Rotating-mass allowance lambda: effective mass = m (1 + lambda) [-] (estimate)."""
     davis_a_n: float = 0.020084 * 214_000.0
-    """Davis constant term A [N] (seed 002 eq. 2 times mass)."""
+    """Davis constant term A [N] (ACTP n.d., eq. 2 times mass)."""
     davis_b_n_per_mps: float = 5.04e-4 * 214_000.0
-    """Davis linear term B [N/(m/s)] (seed 002 eq. 2 times mass)."""
+    """Davis linear term B [N/(m/s)] (ACTP n.d., eq. 2 times mass)."""
     davis_c_n_per_mps2: float = 4.774e-5 * 214_000.0
-    """Davis quadratic term C [N/(m/s)^2] (seed 002 eq. 2 times mass)."""
+    """Davis quadratic term C [N/(m/s)^2] (ACTP n.d., eq. 2 times mass)."""
     a1_mps2: float = 1.0
-    """Constant-torque acceleration a_1 [m/s^2] (seed 002 eq. 3; seed 001 limit 1.0)."""
+    """Constant-torque acceleration a_1 [m/s^2] (ACTP n.d., eq. 3; Ke 2010 limit 1.0)."""
     v1_mps: float = 36.0 / 3.6
     """End of the constant-torque region [m/s] (estimate)."""
     v2_mps: float = 60.0 / 3.6
     """End of the constant-voltage region [m/s] (estimate)."""
     b2_mps: float = 0.0
-    """Constant b_2 of seed 002 eq. 4 [m/s]."""
+    """Constant b_2 of ACTP n.d., eq. 4 [m/s]."""
     b3_mps: float = 0.0
-    """Constant b_3 of seed 002 eq. 5 [m/s]."""
+    """Constant b_3 of ACTP n.d., eq. 5 [m/s]."""
     max_service_brake_mps2: float = 1.0
-    """Maximum service braking deceleration [m/s^2] (seed 001)."""
+    """Maximum service braking deceleration [m/s^2] (Ke 2010)."""
     emergency_brake_mps2: float = 1.2
     """Guaranteed emergency braking deceleration [m/s^2] (estimate, used by ATP)."""
     max_jerk_mps3: float = 1.0
-    """Jerk limit [m/s^3] (seed 001)."""
+    """Jerk limit [m/s^3] (Ke 2010)."""
     max_speed_mps: float = 80.0 / 3.6
     """Design maximum speed [m/s]."""
     length_m: float = 141.0
     """Train length [m] (6 cars x ~23.5 m, estimate)."""
-    # ---- extensions for the line plant (issue 3); all have defaults ----
+    # ---- extensions for the line plant; all have defaults ----
     cars: int = 6
     """Number of cars in the consist [-]."""
     axles_per_car: int = 4
@@ -94,7 +94,7 @@ class TrainParams:
     brake_radius_m: float = 0.25
     """Effective disc-pad friction radius R_b [m] (estimate)."""
     pad_mu_nominal: float = 0.35
-    """Nominal disk-pad friction coefficient mu_b [-] (estimate; seed 000 2nd paper uses 0.38)."""
+    """Nominal disk-pad friction coefficient mu_b [-] (estimate; Lin 2010b uses 0.38)."""
     nominal_load_pax: float = 1000.0
     """Passenger load already included in ``mass_kg`` [persons] (estimate)."""
     capacity_pax: float = 1900.0
@@ -128,12 +128,12 @@ class TrainParams:
 
     @property
     def a2(self) -> float:
-        """Constant a_2 of seed 002 eq. 4 [m^2/s^3], from continuity at v_1."""
+        """Constant a_2 of ACTP n.d., eq. 4 [m^2/s^3], from continuity at v_1."""
         return float(laws.plain.traction_a2(self.a1_mps2, self.v1_mps, self.b2_mps))
 
     @property
     def a3(self) -> float:
-        """Constant a_3 of seed 002 eq. 5 [m^3/s^4], from continuity at v_2."""
+        """Constant a_3 of ACTP n.d., eq. 5 [m^3/s^4], from continuity at v_2."""
         return float(laws.plain.traction_a3(self.a1_mps2, self.v1_mps, self.v2_mps,
                                             self.b2_mps, self.b3_mps))
 
@@ -145,7 +145,7 @@ class TrainParams:
 
 
 def resistance_force(p: TrainParams, v: ArrayLike) -> FloatArray:
-    """Davis running resistance F_r(v) [N] for speed v [m/s] >= 0 (seed 002 eq. 1-2).
+    """Davis running resistance F_r(v) [N] for speed v [m/s] >= 0 (ACTP n.d., eq. 1-2).
 
     :func:`metro_atc.core.laws.davis_resistance` of each speed.
     """
@@ -154,9 +154,9 @@ def resistance_force(p: TrainParams, v: ArrayLike) -> FloatArray:
 
 
 def max_traction_accel(p: TrainParams, v: ArrayLike) -> FloatArray:
-    """Maximum tractive acceleration phi_psi(v) [m/s^2] (seed 002 eq. 3-5).
+    """Maximum tractive acceleration phi_psi(v) [m/s^2] (ACTP n.d., eq. 3-5).
 
-    Acceleration here is tractive force divided by the *static* mass, as in seed 002:
+    Acceleration here is tractive force divided by the *static* mass, as in ACTP n.d.:
     :func:`metro_atc.core.laws.traction_accel` of each speed.
     """
     return laws.on_array(laws.traction_accel_array, v, *p.traction_law)
@@ -182,7 +182,7 @@ def max_traction_force_at(p: TrainParams, v: float) -> float:
 
 
 def max_traction_force(p: TrainParams, v: ArrayLike) -> FloatArray:
-    """Maximum tractive force [N] at speed v [m/s] (seed 002 eq. 3-5 times mass)."""
+    """Maximum tractive force [N] at speed v [m/s] (ACTP n.d., eq. 3-5 times mass)."""
     return p.mass_kg * max_traction_accel(p, v)
 
 
@@ -224,7 +224,7 @@ def net_accel(p: TrainParams, v: ArrayLike, effort_n: ArrayLike,
 
 def rk4_step(p: TrainParams, x: ArrayLike, v: ArrayLike, effort_n: ArrayLike,
              grade: ArrayLike, dt: float) -> tuple[FloatArray, FloatArray]:
-    """Advance (x [m], v [m/s]) by dt [s] with RK4 at constant effort and grade (seed 004).
+    """Advance (x [m], v [m/s]) by dt [s] with RK4 at constant effort and grade (Li n.d.).
 
     Speed is clamped at zero (a braked/coasting train does not roll backwards here).
     """
@@ -281,7 +281,7 @@ class Track:
 
 
 TAIPEI_MRT_6CAR = TrainParams()
-"""Taipei MRT 6-car train (seed 002 eq. 2 resistance; traction/brake per seed 001; estimates
+"""Taipei MRT 6-car train (ACTP n.d., eq. 2 resistance; traction/brake per Ke 2010; estimates
 as documented on :class:`TrainParams`)."""
 
 _THSR_MASS_KG = 576_000.0
@@ -289,32 +289,32 @@ _THSR_POWER_W = 10_260_000.0
 _THSR_ACCEL_MPS2 = 2.0 / 3.6
 
 THSR_700T = TrainParams(
-    mass_kg=_THSR_MASS_KG,  # seed 004 Table 4: 576 t loaded
-    rotary_allowance=0.04,  # estimate (not in seed 004)
+    mass_kg=_THSR_MASS_KG,  # Li n.d., Table 4: 576 t loaded
+    rotary_allowance=0.04,  # estimate (not in Li n.d.)
     davis_a_n=0.0012 * _THSR_MASS_KG * G_MPS2,  # estimate: 1.2 N/kN rolling resistance
-    davis_b_n_per_mps=0.0,  # not given in seed 004
-    davis_c_n_per_mps2=0.5 * 1.17 * 0.31 * 64.0,  # seed 004: F_D 0.31, 64 m^2, 1.17 kg/m^3
-    a1_mps2=_THSR_ACCEL_MPS2,  # seed 004 Table 4: max accel 2 km/h/s
+    davis_b_n_per_mps=0.0,  # not given in Li n.d.
+    davis_c_n_per_mps2=0.5 * 1.17 * 0.31 * 64.0,  # Li n.d.: F_D 0.31, 64 m^2, 1.17 kg/m^3
+    a1_mps2=_THSR_ACCEL_MPS2,  # Li n.d., Table 4: max accel 2 km/h/s
     v1_mps=_THSR_POWER_W / (_THSR_MASS_KG * _THSR_ACCEL_MPS2),  # constant power beyond
-    v2_mps=1e9,  # seed 004 gives one constant-power region (10 260 kW) up to 300 km/h
-    max_service_brake_mps2=_THSR_ACCEL_MPS2,  # seed 004: same limit for deceleration
+    v2_mps=1e9,  # Li n.d. gives one constant-power region (10 260 kW) up to 300 km/h
+    max_service_brake_mps2=_THSR_ACCEL_MPS2,  # Li n.d.: same limit for deceleration
     emergency_brake_mps2=0.9,  # estimate
     max_jerk_mps3=1.0,
-    max_speed_mps=300.0 / 3.6,  # seed 004 Table 4
+    max_speed_mps=300.0 / 3.6,  # Li n.d., Table 4
     length_m=304.0,  # 12 cars (estimate from car length ~25 m)
-    cars=12,  # seed 004 text: 12-car trainset
+    cars=12,  # Li n.d. text: 12-car trainset
     motored_axle_fraction=0.75,  # 700T: 9 motor cars of 12 (estimate from public data)
     emergency_brake_actual_mps2=1.1,  # estimate
     max_regen_power_w=10_260_000.0,  # assume regen up to the rated traction power
     wheel_radius_m=0.43,  # estimate
     wheel_inertia_kgm2=150.0,  # estimate
     brake_radius_m=0.24,  # estimate
-    nominal_load_pax=989.0,  # seed 004 text: 989 seats; 576 t is the loaded mass
+    nominal_load_pax=989.0,  # Li n.d. text: 989 seats; 576 t is the loaded mass
     capacity_pax=1200.0,  # estimate (seats + standees)
-    pax_mass_kg=73.812,  # seed 004 Table 4
+    pax_mass_kg=73.812,  # Li n.d., Table 4
     aux_power_w=400e3,  # estimate
 )
-"""THSR 700T 12-car trainset (seed 004 Table 4; estimates marked)."""
+"""THSR 700T 12-car trainset (Li n.d., Table 4; estimates marked)."""
 
 PRESETS: dict[str, TrainParams] = {"taipei_mrt_6car": TAIPEI_MRT_6CAR, "thsr_700t": THSR_700T}
 """Rolling-stock presets by scenario name (``trains.preset``)."""
@@ -351,7 +351,7 @@ def train_params_from_data(base: TrainParams, data: dict[str, float | int | None
       ``max_speed_kmh``, ``capacity_pax``;
     - ``davis_a_n`` [N], ``davis_b_n_per_mps`` [N/(m/s)], ``davis_c_n_per_mps2`` [N/(m/s)^2];
     - ``traction_force_kn`` and ``traction_power_kw``: constant force up to
-      v_1 = P / F, constant power above (seed 002 eq. 3 and 5 with a_2 region collapsed:
+      v_1 = P / F, constant power above (ACTP n.d., eq. 3 and 5 with a_2 region collapsed:
       v_2 -> infinity); ``accel_max_mps2`` caps the starting acceleration F / m (the force
       below v_1 = P / (m a_max) is then m a_max);
     - ``service_brake_mps2``, or brake forces ``regen_force_kn`` + ``friction_brake_force_kn``

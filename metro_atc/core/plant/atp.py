@@ -1,4 +1,4 @@
-"""ATP supervisor (seed 001 Fig. 1) and the independent safety monitors.
+"""ATP supervisor (Ke 2010, Fig. 1) and the independent safety monitors.
 
 The per-step supervision runs in the compiled step (:func:`.kernel.front`, braking curves
 of :mod:`metro_atc.core.laws`); this module holds its constants, grids and state.

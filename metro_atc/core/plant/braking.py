@@ -5,7 +5,7 @@ limits, the friction brake supplies the rest spread over all axles, the emergenc
 friction only.  Each axle's rail force is limited by the slip-adhesion curve (dry/wet);
 wheel-slide protection (WSP) keeps a sliding axle at least at the locked-wheel adhesion.
 The *instrumented car* (a 4-axle trailer car, so no traction/electric-brake torque on its
-axles) is modelled axle by axle with seed 000 (2nd paper) eq. 4
+axles) is modelled axle by axle with Lin 2010b, eq. 4
 ``J_w dw/dt = -2 mu_b R_b F_c + r_w F_x`` where **F_x > 0 retards the train**; pad-friction
 and wheel faults act there (:meth:`Brakes.set_fault`).
 """

@@ -1,4 +1,4 @@
-"""Reference drivers for headless runs, tests and benchmarks (not the ATO of seed 001/002/004).
+"""Reference drivers for headless runs, tests and benchmarks (not the ATO of Ke 2010/002/004).
 
 * :func:`simple_driver` -- flat-out (FOTP-like) with a service braking curve to the next
   stop point, the limit envelope and the movement authority; vectorised over trains.

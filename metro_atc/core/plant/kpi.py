@@ -2,11 +2,11 @@
 
 Punctuality: share of departures no more than ``PUNCTUAL_S`` late against the timetable.
 Recovery: ``recovery_time_s`` runs from the first departure more than ``RECOVERY_TOL_S``
-late to the last one (the seed 000 Exp. 2 "the delay subsides"), ``late_departures`` counts
+late to the last one (the Lin 2010a, Exp. 2 "the delay subsides"), ``late_departures`` counts
 them.  The tolerance is the punctuality threshold: with the routine exponential departure
 delays of the scenarios a few departures end 30-50 s late anywhere in a run, which would
 make a tighter tolerance measure noise instead of the recovery from an incident.
-Schedule deviation: departure minus timetable (seed 000 cost). Headway deviation: actual
+Schedule deviation: departure minus timetable (Lin 2010a cost). Headway deviation: actual
 minus scheduled headway between consecutive trains at each station.  Running-time
 deviation: actual minus target (ATS command if any, else timetable) running time.
 """
@@ -160,7 +160,7 @@ BERTH_TOL_M = 0.30
 
 
 def berthing_kpis(log: RunLog) -> dict[str, Any]:
-    """Stopping accuracy and ATP-envelope figures of a run (issue 11 item 3).
+    """Stopping accuracy and ATP-envelope figures of a run.
 
     ``stop_error_m`` p50/p95/max of |front - stop point| over the arrivals [m];
     ``stops_outside_0p30_m``; ``missed_stops`` (ran past the platform);

@@ -8,7 +8,7 @@ safety monitors (:mod:`.atp`) -> jerk-limited demand -> traction / blended brake
 snapshot (:mod:`.sensors`) -> arrivals and overruns (:mod:`.stations`).  The static line
 (geometry, rolling stock, timetable) is :mod:`metro_atc.core.line`; the KPIs are computed
 from :meth:`LineSim.run_log` (:mod:`.kpi`).  The effort is held constant over a control
-period and its rate is jerk limited (seed 001, 1.0 m/s^3; the emergency brake builds up at
+period and its rate is jerk limited (Ke 2010, 1.0 m/s^3; the emergency brake builds up at
 ``emergency_jerk_mps3``).  The continuous part of a step (ATP to energy) is one compiled
 call (:mod:`.fast`, :mod:`.kernel`, :mod:`.kernel_step`) whose physics is
 :mod:`metro_atc.core.laws`; ``NUMBA_DISABLE_JIT=1`` runs the same source uncompiled.

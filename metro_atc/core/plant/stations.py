@@ -1,6 +1,6 @@
 """Stations and passengers: entries, arrivals, dwell, departures, overruns, turnback.
 
-Dwell (seed 000 eq. 10 with boarding during the dwell, :mod:`metro_atc.core.line.timetable`):
+Dwell (Lin 2010a, eq. 10 with boarding during the dwell, :mod:`metro_atc.core.line.timetable`):
 the doors close at max(ATS / timetable departure, passenger exchange done) plus the holds and
 the departure disturbance drawn at the arrival; an ATS dwell cut closes them earlier (never
 before the minimum dwell) and those left behind wait for the next train.

@@ -13,7 +13,7 @@ FloatArray = NDArray[np.float64]
 
 
 class VehicleTables:
-    """Traction phi(v) [m/s^2] (seed 002 eq. 3-5), max electric brake [N], mu -> slip.
+    """Traction phi(v) [m/s^2] (ACTP n.d., eq. 3-5), max electric brake [N], mu -> slip.
 
     Each table is its law of :mod:`metro_atc.core.laws` at the table's points.
 

@@ -10,10 +10,10 @@ direction.  From a period table (:func:`load_day`, YAML) and the line's traffic 
   boundary z_n, interpolates linearly from H_n to H_{n+1} across [z_n - W/2, z_n + W/2];
   departures follow z_{k+1} = z_k + H(z_k).  Consecutive headways therefore never jump by
   more than |H_{n+1} - H_n| * max(H) / W.  With W = 0 the rule is the crisp membership of
-  Lin 2010a eq. 8 and the instants are those of
+  Lin 2010a, eq. 8 and the instants are those of
   :func:`metro_atc.core.atr.tsk.dispatch_instants` (called, not re-implemented);
 - trip times per period from the scheduled offsets of the traffic model
-  (:func:`metro_atc.core.atr.traffic.schedule_offsets`, Lin 2010a eq. 5/10);
+  (:func:`metro_atc.core.atr.traffic.schedule_offsets`, Lin 2010a, eq. 5/10);
 - the fleet needed per period, closed form ceil(cycle / H_n)
   (:func:`metro_atc.core.service.circulation.closed_form_fleet`) and the actual
   circulation with depot pull-outs / pull-ins
@@ -54,7 +54,7 @@ class DayError(ValueError):
 
 @dataclass(frozen=True)
 class DayPeriod:
-    """One period of the day (Lin 2010a eq. 7-8).
+    """One period of the day (Lin 2010a, eq. 7-8).
 
     ``start_s``/``end_s`` [s after midnight], headway ``headway_s`` [s], flow factors per
     direction relative to the AM peak [-], whether the numbers are estimates and their basis.
@@ -70,7 +70,7 @@ class DayPeriod:
     basis: str
 
     def as_tsk(self, direction: str) -> Period:
-        """Return the period as a TSK duration (Lin 2010a eq. 7-8) for ``direction`` up/down."""
+        """Return the period as a TSK duration (Lin 2010a, eq. 7-8) for ``direction`` up/down."""
         return Period(self.start_s, self.end_s, self.headway_s,
                       self.flow_up if direction == "up" else self.flow_down)
 
@@ -145,7 +145,7 @@ def trip_time_s(line: LineData, headway_s: float, flow_factor: float) -> float:
     """Terminus departure to terminus arrival [s] on the scheduled timetable of the line.
 
     From the steady-state offsets O_j of :func:`metro_atc.core.atr.traffic.schedule_offsets`
-    (Lin 2010a eq. 5/10): arrival at the last station O_{N-2} + R_{N-2}, minus the
+    (Lin 2010a, eq. 5/10): arrival at the last station O_{N-2} + R_{N-2}, minus the
     departure O_0 from the first.
     """
     o = schedule_offsets(line, headway_s, flow_factor)
