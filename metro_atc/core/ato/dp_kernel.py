@@ -7,8 +7,9 @@ overhead dominates (about 1 ms per sub-step, 85 % of the DP's time before this m
 These loops advance one trajectory at a time with
 :func:`metro_atc.core.ato.step_kernel.strategy_step_one` (the compiled twin of
 :func:`metro_atc.core.ato.strategy.strategy_step`, speed code at infinity, shared with the
-ECTP/ACTP kernel); the numpy path stays the reference and is tested equal to this one
-(``test/test_ato_dp.py``).
+ECTP/ACTP kernel).  These loops are the DP's only path (``NUMBA_DISABLE_JIT=1`` runs them as
+Python); ``test/test_ato_dp.py`` checks them against the recorded output of the former numpy
+path (``test/data/dp_numpy_ref.npz``).
 
 Train constants are packed in a record (:func:`pack_train`).
 """
