@@ -99,6 +99,8 @@ ROLLOUT_SPAN = 3
 """Stages either side of a control change of the base tried by the rollout."""
 POLISH_ITERATIONS = 8
 """Gradient iterations of the continuous switch-position polish (0: off)."""
+
+
 @dataclass
 class DPTables:
     """Stage transitions for every grid state and control.

@@ -1,15 +1,17 @@
-"""Compiled exact simulation of seed 001 tours (numba): :func:`sections.simulate_tours` per tour.
+"""Compiled exact simulation of seed 001 tours (numba): every sub-step of every tour.
 
 The MAX-MIN ant system (:mod:`metro_atc.core.ato.mmas`) evaluates tours -- a mode and a
 speed command per section -- on the interpolated pre-work tables; the reported energy and
-time of a tour are its *exact* simulation (:func:`metro_atc.core.ato.sections.simulate_tours`,
+time of a tour are its *exact* simulation here (the arithmetic of
 :func:`metro_atc.core.ato.strategy.strategy_step` sub-step by sub-step, no interpolation).
-That numpy path costs about 0.5 ms per sub-step whatever the number of tours (numpy call
+A numpy simulation cost about 0.5 ms per sub-step whatever the number of tours (numpy call
 overhead on small arrays), i.e. 0.6 s for one tour of a 2.4 km run at 2 m sub-steps; this
 kernel runs the same arithmetic element by element (same operation order, no fast-math),
 about 0.1 us per sub-step and tour, so that the local search of MMAS can use the exact
-simulation instead of the tables.  ``test_ato_mmas.py`` checks both paths agree to round-off
-on random tours (every mode, speed command, grade sign, braking).
+simulation instead of the tables.  It is the only exact tour simulation
+(``NUMBA_DISABLE_JIT=1`` runs it as Python); ``test_ato_mmas.py`` checks it against the
+recorded output of the former numpy simulation (``test/data/tours_numpy_ref.npz``: random
+tours, every mode, speed command, grade sign, braking) to round-off.
 
 Constants of a run are packed in one record (:data:`TOUR`, :func:`pack_params`).
 Cheaper, same numbers: a coasting step re-uses the closed-form position / time of the
@@ -271,7 +273,7 @@ def simulate_kernel(params: NDArray[np.void], fg: FloatArray, cap: FloatArray, m
 
     fg, cap: grade force [N] over and envelope e at the end of each sub-step (n,); modes,
     e_codes, bounds: (K, N_s) (a section's hold speed and latch are set at its first
-    sub-step, as :func:`sections.simulate_tours` does).  first (K,): section the simulation
+    sub-step).  first (K,): section the simulation
     starts at; e_out, t_out, en_out, st_out hold the state at its start on entry and the
     final state on exit.  hist (K, n + 1) gets the e history when it has n + 1 columns.
 
@@ -408,12 +410,12 @@ def table_kernel(packed: FloatArray, h_e: float, n_e: int, n_c: int, modes: IntA
 
 
 class TourSimulator:
-    """Exact tour simulation of one run (the physics of ``sections.simulate_tours``).
+    """Exact tour simulation of one run (the physics of the pre-work tables, uninterpolated).
 
     Sections may have any length in whole sub-steps (``bounds``: first sub-step of each
     section, (N_s,), starting with 0); with the pre-work tables' equal sections it reproduces
-    :func:`metro_atc.core.ato.sections.simulate_tours` (tested to round-off).  Built from
-    the run, sub-step, traction level and codes of the pre-work tables.
+    the recorded former numpy simulation (``test/data/tours_numpy_ref.npz``, to round-off).
+    Built from the run, sub-step, traction level and codes of the pre-work tables.
     """
 
     def __init__(self, tables: SectionTables) -> None:
