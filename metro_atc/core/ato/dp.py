@@ -262,6 +262,14 @@ def _forward(tab: DPTables, mus: FloatArray, j_all: FloatArray, policy: IntArray
                                      np.full(n_c, k0, dtype=np.int64)))
 
 
+def _packed_train(run: RunModel) -> NDArray[np.void]:
+    """Train and limit constants of the kernels (:func:`.dp_kernel.pack_train`), as a record
+    array view: numba types it as the plain structured array, and its element keeps the
+    attribute access the kernels use when they run as Python (``NUMBA_DISABLE_JIT=1``).
+    """
+    return dp_kernel.pack_train(run.train, run.limits).view(np.recarray)
+
+
 def _forward_kernel(tab: DPTables, mus: FloatArray, j_all: FloatArray, policy: IntArray,
                     e0: FloatArray, k0: IntArray
                     ) -> tuple[IntArray, FloatArray, FloatArray, FloatArray]:
@@ -293,7 +301,7 @@ def simulate_path(run: RunModel, tab: DPTables, controls: IntArray,
            else np.atleast_2d(np.asarray(levels, dtype=float)))
     h = run.length_m / c2.shape[1] / tab.substeps
     return dp_kernel.simulate_batch(  # type: ignore[no-any-return]
-        dp_kernel.pack_train(run.train, run.limits), np.ascontiguousarray(modes),
+        _packed_train(run), np.ascontiguousarray(modes),
         np.ascontiguousarray(np.broadcast_to(lev, c2.shape), dtype=float),
         tab.fg_sub, tab.cap_sub, h)
 
@@ -334,7 +342,7 @@ def _simulate_stages(run: RunModel, tab: DPTables, k: "int | IntArray", e0: Floa
     e = np.array(e0, dtype=float)
     n = e.size
     return dp_kernel.simulate_stages(  # type: ignore[no-any-return]
-        dp_kernel.pack_train(run.train, run.limits),
+        _packed_train(run),
         np.broadcast_to(np.asarray(k, dtype=np.int64), (n,)).copy(), e,
         np.broadcast_to(np.asarray(mode, dtype=np.int64), (n,)).copy(),
         np.broadcast_to(np.asarray(levels, dtype=float), (n,)).copy(),

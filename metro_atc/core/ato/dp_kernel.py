@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from metro_atc.core.ato.step_kernel import jit as _njit
-from metro_atc.core.ato.step_kernel import numba_available, pack_train, strategy_step_one
+from metro_atc.core.ato.step_kernel import pack_train, strategy_step_one
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -174,5 +174,5 @@ def forward(de, energy, time_s, e_next, mus, j_all, policy, e0, k0
     return ctrl, en_out, tm_out, path
 
 
-__all__ = ["backward", "forward", "numba_available", "pack_train",
+__all__ = ["backward", "forward", "pack_train",
            "simulate_batch", "simulate_stages"]

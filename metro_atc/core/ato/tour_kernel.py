@@ -55,7 +55,9 @@ def pack_params(train: TrainParams, limits: OperatingLimits, delta: float, h: fl
     """Constants of the kernel (a one-element :data:`TOUR` array).
 
     The train and limits (:func:`metro_atc.core.ato.step_kernel.pack_train`), the planning
-    deceleration [m/s^2], the traction level delta [-] and the sub-step h [m].
+    deceleration [m/s^2], the traction level delta [-] and the sub-step h [m].  A record
+    array view: numba types it as the plain structured array, and its element keeps the
+    attribute access the kernels use when they run as Python (``NUMBA_DISABLE_JIT=1``).
     """
     p = np.zeros(1, dtype=TOUR)
     tr = pack_train(train, limits)
@@ -64,7 +66,7 @@ def pack_params(train: TrainParams, limits: OperatingLimits, delta: float, h: fl
     p["brake_decel"] = limits.brake_decel_mps2
     p["delta"] = delta
     p["h"] = h
-    return p
+    return p.view(np.recarray)
 
 
 @njit(cache=True, error_model="numpy")
@@ -105,10 +107,11 @@ def _coast_x(w: float, d4: float, c2: float, bp: float, a: float
     return _coast_xt(w, d4, c2, bp, a)[0]
 
 
-MEMO = np.dtype([(f, np.float64)
-                 for f in ("fg", "w", "x", "t", "fg_c", "c0", "c1", "c2", "bp", "d4", "a")])
+MEMO = np.dtype((np.record, [(f, np.float64) for f in ("fg", "w", "x", "t", "fg_c", "c0", "c1",
+                                                       "c2", "bp", "d4", "a")]))
 """The coasting memo (:func:`_coast`): the last end-of-step evaluation (fg, w, X, T), the
-coefficients of the last grade force fg_c (c0, c1, c2, bp, d4, a)."""
+coefficients of the last grade force fg_c (c0, c1, c2, bp, d4, a).  A record dtype: its
+element keeps attribute access when the kernels run as Python (``NUMBA_DISABLE_JIT=1``)."""
 
 
 @njit(cache=True, error_model="numpy")
