@@ -263,9 +263,11 @@ def _forward(tab: DPTables, mus: FloatArray, j_all: FloatArray, policy: IntArray
 
 
 def _packed_train(run: RunModel) -> NDArray[np.void]:
-    """Train and limit constants of the kernels (:func:`.dp_kernel.pack_train`), as a record
-    array view: numba types it as the plain structured array, and its element keeps the
-    attribute access the kernels use when they run as Python (``NUMBA_DISABLE_JIT=1``).
+    """Train and limit constants of the kernels (:func:`.dp_kernel.pack_train`).
+
+    A record array view: numba types it as the plain structured array, and its element
+    keeps the attribute access the kernels use when they run as Python
+    (``NUMBA_DISABLE_JIT=1``).
     """
     return dp_kernel.pack_train(run.train, run.limits).view(np.recarray)
 
