@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -143,9 +144,10 @@ def test_dp_within_half_percent_of_optimum_seed001_case2() -> None:
     assert dp.energy_j <= 1.005 * opt.energy_j
 
 
-# ------------------------------------------------------------ compiled twin of the numpy path
-_needs_numba = pytest.mark.skipif(not __import__("metro_atc.core.ato.dp_kernel", fromlist=["x"])
-                                  .numba_available(), reason="numba not installed")
+# ------------------------------------- compiled path against the former numpy path's frozen output
+REF_NPZ = Path(__file__).parent / "data" / "dp_numpy_ref.npz"
+"""Inputs and outputs of the numpy exact simulation / passes / solve, recorded before that
+path was dropped (test/record_planner_refs.py in the history of this file)."""
 
 
 def _hilly() -> RunModel:
@@ -156,67 +158,62 @@ def _hilly() -> RunModel:
     return RunModel(TAIPEI_MRT_6CAR, track, 0.0, 1600.0)
 
 
-@_needs_numba
-def test_compiled_simulation_equals_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The compiled exact simulation (dp_kernel) gives the numpy path's numbers: whole
+def _close(a: np.ndarray, b: np.ndarray, rtol: float = 1e-12, atol: float = 1e-9) -> None:
+    """Same finite / infinite pattern, finite entries equal to round-off."""
+    a, b = np.asarray(a), np.asarray(b)
+    assert a.shape == b.shape
+    assert np.array_equal(np.isfinite(a), np.isfinite(b))
+    f = np.isfinite(a)
+    np.testing.assert_allclose(a[f], b[f], rtol=rtol, atol=atol)
+
+
+def test_compiled_simulation_equals_recorded_numpy() -> None:
+    """The exact simulation (dp_kernel) gives the former numpy path's numbers: whole
     sequences (all controls, partial levels, runs that stall or hit the envelope) and single
     stages from arbitrary states.
     """
     import metro_atc.core.ato.dp as dp
+    ref = np.load(REF_NPZ)
     run = _hilly()
     tab = build_dp_tables(run)
-    n = tab.n_stages
-    rng = np.random.default_rng(7)
-    ctrl = np.repeat(rng.integers(0, 4, (40, 10)), n // 10 + 1, axis=1)[:, :n]
-    lev = np.asarray(dp.CONTROL_LEVELS)[ctrl] * rng.uniform(0.1, 1.0, ctrl.shape)
-    ks = rng.integers(0, n, 300)
-    e0 = rng.uniform(0.0, 1.1 * float(np.max(tab.cap_sub)), 300)
-    modes = rng.choice(np.array([dp.MODE_ACCEL, dp.MODE_CRUISE, dp.MODE_COAST]), 300)
-    lv = rng.uniform(0.05, 1.0, 300)
-    out = {}
-    for kern in ("numpy", "numba"):
-        monkeypatch.setattr(dp, "kernel", kern)
-        out[kern] = (dp.simulate_path(run, tab, ctrl, lev),
-                     dp._simulate_stages(run, tab, ks, e0, modes, lv))
-    for a, b in zip(out["numpy"][0] + out["numpy"][1], out["numba"][0] + out["numba"][1]):
-        assert np.array_equal(np.isfinite(a), np.isfinite(b))
-        f = np.isfinite(a)
-        assert np.allclose(a[f], b[f], rtol=1e-12, atol=1e-9)
-    assert np.any(~np.isfinite(out["numpy"][0][2][:, -1]))      # some sequences stall
-    assert np.any(np.isfinite(out["numpy"][0][2][:, -1]))
+    got = (dp.simulate_path(run, tab, ref["sim_controls"].astype(np.int64),
+                            ref["sim_levels"]),
+           dp._simulate_stages(run, tab, ref["stage_k"].astype(np.int64), ref["stage_e0"],
+                               ref["stage_mode"].astype(np.int64), ref["stage_level"]))
+    names = (("sim_e", "sim_j", "sim_t"), ("stage_e", "stage_j", "stage_t"))
+    for out, keys in zip(got, names):
+        for a, key in zip(out, keys):
+            _close(a, ref[key])
+    assert np.any(~np.isfinite(ref["sim_t"][:, -1]))      # some sequences stall
+    assert np.any(np.isfinite(ref["sim_t"][:, -1]))
 
 
-@_needs_numba
-def test_compiled_passes_equal_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Compiled backward / forward passes (batched multipliers, per-candidate policies and
-    start stages) and the whole solve equal the numpy reference path.
+def test_compiled_passes_equal_recorded_numpy() -> None:
+    """Backward / forward passes (batched multipliers, per-candidate policies and start
+    stages) and the whole solve equal the former numpy path's recorded output.
     """
     import metro_atc.core.ato.dp as dp
+    ref = np.load(REF_NPZ)
     run = _hilly()
     tab = build_dp_tables(run)
-    n = tab.n_stages
-    mus = np.array([3e3, 2e4, 1e5, 4e5, 2e6])
-    rng = np.random.default_rng(2)
-    pol = rng.integers(0, mus.size, (6, n))
-    k0 = rng.integers(0, n, 50)
-    pm = rng.integers(0, mus.size, 50)
-    e0 = rng.uniform(0.0, 150.0, 50)
+    mus = ref["mus"]
+    j_all = dp._backward(tab, mus)
+    step = int(ref["j_stage_step"])
+    np.testing.assert_allclose(j_all[:, ::step], ref["j_sub"], rtol=1e-12, atol=0.0)
+    fw = dp._forward(tab, mus, j_all, ref["fw_policy"].astype(np.int64))
+    fm = dp._forward_multi(tab, mus, j_all, ref["fm_pol"].astype(np.int64), ref["fm_e0"],
+                           ref["fm_k0"].astype(np.int64))
+    for f, key in ((fw, "fw"), (fm, "fm")):
+        assert np.array_equal(f.controls, ref[key + "_controls"])
+        _close(f.energy_j, ref[key + "_e"], atol=0.0)
+        _close(f.time_s, ref[key + "_t"], atol=0.0)
+    np.testing.assert_allclose(fw.e_path, ref["fw_path"], rtol=1e-12)
     short = RunModel(run.train, run.track, 0.0, 900.0)      # climb and descent
-    tab_s = build_dp_tables(short)
-    res = {}
-    for kern in ("numpy", "numba"):
-        monkeypatch.setattr(dp, "kernel", kern)
-        j_all = dp._backward(tab, mus)
-        res[kern] = (j_all, dp._forward(tab, mus, j_all, pol),
-                     dp._forward_multi(tab, mus, j_all, pm, e0, k0),
-                     solve_dp(short, 80.0, tables=tab_s))
-    a, b = res["numpy"], res["numba"]
-    assert np.allclose(a[0], b[0], rtol=1e-12, atol=0.0, equal_nan=True)
-    for fa, fb in ((a[1], b[1]), (a[2], b[2])):
-        assert np.array_equal(fa.controls, fb.controls)
-        assert np.allclose(fa.energy_j, fb.energy_j, rtol=1e-12)
-        assert np.allclose(fa.time_s, fb.time_s, rtol=1e-12)
-    assert np.allclose(a[1].e_path, b[1].e_path, rtol=1e-12)
-    assert a[3].feasible and np.array_equal(a[3].controls, b[3].controls)
-    assert a[3].energy_j == pytest.approx(b[3].energy_j, rel=1e-12)
-    assert a[3].time_s == pytest.approx(b[3].time_s, rel=1e-12)
+    res = solve_dp(short, 80.0)
+    assert res.feasible and bool(ref["solve_feasible"])
+    assert np.array_equal(res.controls, ref["solve_controls"])
+    assert res.levels is not None
+    np.testing.assert_allclose(res.levels, ref["solve_levels"], rtol=1e-12)
+    assert res.energy_j == pytest.approx(float(ref["solve_e"]), rel=1e-12)
+    assert res.time_s == pytest.approx(float(ref["solve_t"]), rel=1e-12)
+    np.testing.assert_allclose(res.v_profile, ref["solve_v"], rtol=1e-12)

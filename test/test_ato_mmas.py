@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,9 +12,15 @@ import pytest
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, RunModel
 from metro_atc.core.ato.mmas import MmasParams, MmasResult, evaluate_tours, solve_mmas
 from metro_atc.core.ato.mmas_polish import polish_tour
-from metro_atc.core.ato.sections import SectionTables, build_section_tables, simulate_tours
+from metro_atc.core.ato.sections import SectionTables, build_section_tables
 from metro_atc.core.ato.tour_kernel import TourSimulator
 from metro_atc.core.line.vehicle import TAIPEI_MRT_6CAR, Track
+
+MMAS_REF_NPZ = Path(__file__).parent / "data" / "mmas_numpy_ref.npz"
+"""Inputs and outputs of the former numpy ant construction and a colony run on it (recorded
+before that path was dropped; test/record_planner_refs.py in the history of this file)."""
+TOURS_REF_NPZ = Path(__file__).parent / "data" / "tours_numpy_ref.npz"
+"""Inputs and outputs of the former numpy exact tour simulation (recorded likewise)."""
 
 
 def _small_tables() -> tuple[RunModel, SectionTables]:
@@ -55,7 +62,7 @@ def test_mmas_respects_running_time_and_beats_flat_out() -> None:
     tab = build_section_tables(run, n_sections=12)
     flat_m = np.zeros((1, 12), dtype=np.int64)
     flat_c = np.full((1, 12), tab.n_codes - 1, dtype=np.int64)
-    t_fo, e_fo, _, _, _, _ = simulate_tours(tab, flat_m, flat_c)
+    t_fo, e_fo, _, _, _ = TourSimulator(tab).run(flat_m, tab.codes_mps[flat_c])
     t_max = float(t_fo[0]) * 1.1
     res = solve_mmas(tab, t_max, MmasParams(n_iterations=30, seed=1))
     assert res.feasible
@@ -73,7 +80,7 @@ def test_tables_match_exact_simulation() -> None:
     modes[:, 0] = MODE_ACCEL
     codes = rng.integers(0, tab.n_codes, (8, 20))
     t_tab, e_tab, _ = evaluate_tours(tab, modes, codes)
-    t_ex, e_ex, _, st, _, _ = simulate_tours(tab, modes, codes)
+    t_ex, e_ex, _, st, _ = TourSimulator(tab).run(modes, tab.codes_mps[codes])
     ok = ~st
     np.testing.assert_allclose(e_tab[ok], e_ex[ok], rtol=0.02)
     np.testing.assert_allclose(t_tab[ok], t_ex[ok], rtol=0.01)
@@ -86,7 +93,7 @@ def test_paper_defaults() -> None:
             p.delta_ib, p.delta_bsf) == (50, 100, 0.2, 2.0, 0.1, 0.5, 19, 0.28, 0.5)
 
 
-# ----------------------------------------------------------------- exact kernel
+# ----------------------------------------------------------------- exact kernel, issue 12
 def _graded_run(davis_b_zero: bool = False) -> RunModel:
     """600 m with a steep descent, a climb and a 45 km/h restriction (every branch).
 
@@ -101,8 +108,9 @@ def _graded_run(davis_b_zero: bool = False) -> RunModel:
 
 
 @pytest.mark.parametrize("davis_b_zero", [False, True])
-def test_tour_kernel_equals_simulate_tours(davis_b_zero: bool) -> None:
-    """The compiled kernel reproduces the numpy exact simulation to round-off.
+def test_tour_kernel_equals_recorded_numpy_tours(davis_b_zero: bool) -> None:
+    """The compiled kernel reproduces the former numpy exact simulation (its recorded
+    output) to round-off.
 
     Random modes and continuous commands (including commands below the speeds reached, so
     accelerate sections latch and coast sections brake at their code) on grades of both
@@ -116,9 +124,13 @@ def test_tour_kernel_equals_simulate_tours(davis_b_zero: bool) -> None:
     modes[:, 0] = MODE_ACCEL
     speeds = rng.uniform(15.0, 75.0, (30, 12)) / 3.6
     t_k, e_k, end_k, st_k, hist_k = sim.run(modes, speeds, record=True)
-    t_n, e_n, end_n, st_n, _, hist_n = simulate_tours(tab, modes, np.zeros_like(modes),
-                                                      record=True, code_speeds_mps=speeds)
-    assert hist_n is not None
+    ref = np.load(TOURS_REF_NPZ)
+    key = "b0_" if davis_b_zero else "b_"
+    assert np.array_equal(ref[key + "modes"], modes)
+    assert np.array_equal(ref[key + "speeds"], speeds)
+    t_n, e_n, end_n, st_n, hist_n = (ref[key + q]
+                                     for q in ("t", "e", "end", "stalled", "hist"))
+    np.testing.assert_allclose(end_k, end_n, rtol=1e-12, atol=1e-9)
     assert np.array_equal(st_k, st_n)
     ok = ~st_n
     assert ok.sum() >= 10
@@ -292,29 +304,24 @@ def test_table_evaluation_equals_section_lookups() -> None:
 
 
 # ------------------------------------------------- compiled colony, pruning (CPU)
-def test_colony_kernel_equals_numpy_construction() -> None:
-    """Compiled ant construction = the numpy one (same uniforms: same tours, same figures)."""
-    from metro_atc.core.ato.mmas_kernel import construct_ants, construct_ants_numpy
+def test_colony_kernel_equals_recorded_numpy_construction() -> None:
+    """Compiled ant construction = the former numpy one's recorded output (same uniforms:
+    same tours, same figures).
+    """
+    from metro_atc.core.ato.mmas_kernel import construct_ants
+    ref = np.load(MMAS_REF_NPZ)
     run = _graded_run()
     tab = build_section_tables(run, n_sections=12)
-    rng = np.random.default_rng(11)
-    n_s, n_c, n_k = tab.n_sections, tab.n_codes, 64
-    tau_m = rng.uniform(0.2, 2.0, (n_s, 3, 3))
-    tau_c = rng.uniform(0.2, 2.0, (n_s, 3, n_c))
-    cum_m = np.cumsum(tau_m * rng.uniform(0.1, 1.0, (n_s, 1, 3)), axis=2)
-    cum_c = np.cumsum(tau_c * tab.code_allowed.astype(float)[:, None, :], axis=2)
-    u = rng.random((n_s, 2, n_k))
-    out = []
-    for fn in (construct_ants, construct_ants_numpy):
-        m = np.empty((n_k, n_s), dtype=np.int64)
-        c = np.empty((n_k, n_s), dtype=np.int64)
-        t, en = np.empty(n_k), np.empty(n_k)
-        fn(cum_m, cum_c, u, tab.packed, 1.0 / tab.h_e, int(tab.e_grid.size), m, c, t, en)
-        out.append((m, c, t, en))
-    for a, b in zip(*out):
-        assert np.array_equal(a, b)
+    n_s, n_k = tab.n_sections, ref["u"].shape[2]
+    m = np.empty((n_k, n_s), dtype=np.int64)
+    c = np.empty((n_k, n_s), dtype=np.int64)
+    t, en = np.empty(n_k), np.empty(n_k)
+    construct_ants(ref["cum_m"], ref["cum_c"], ref["u"], tab.packed, 1.0 / tab.h_e,
+                   int(tab.e_grid.size), m, c, t, en)
+    assert np.array_equal(m, ref["ants_modes"]) and np.array_equal(c, ref["ants_codes"])
+    np.testing.assert_allclose(t, ref["ants_t"], rtol=1e-12)
+    np.testing.assert_allclose(en, ref["ants_e"], rtol=1e-12)
     # every mode and several codes drawn; codes only where allowed; figures = table lookups
-    m, c, t, en = out[0]
     assert set(np.unique(m)) == {0, 1, 2} and np.unique(c).size >= 3
     assert np.all(tab.code_allowed[np.arange(n_s)[None, :], c])
     t_ref, en_ref, _ = evaluate_tours(tab, m, c)
@@ -370,20 +377,20 @@ def test_tour_kernel_pruning_is_exact() -> None:
         assert lb[0] > 0.5 * h[1, -1]
 
 
-def test_colony_without_numba_gives_the_same_colony(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The numpy construction path (no numba) runs the same colony as the compiled one."""
-    import metro_atc.core.ato.mmas as mmas_mod
-    from metro_atc.core.ato.mmas_kernel import construct_ants_numpy
+def test_colony_equals_the_recorded_numpy_colony() -> None:
+    """The colony (compiled construction) runs the same as the former numpy construction
+    did: recorded best-so-far history, modes and codes.
+    """
+    ref = np.load(MMAS_REF_NPZ)
     run = _graded_run()
     tab = build_section_tables(run, n_sections=12)
     t_fast = float(evaluate_tours(tab, np.zeros((1, 12), dtype=np.int64),
                                   np.full((1, 12), tab.n_codes - 1, dtype=np.int64))[0][0])
     par = MmasParams(seed=2, n_iterations=15, local_search=False)
     a = solve_mmas(tab, t_fast * 1.15, par)
-    monkeypatch.setattr(mmas_mod, "_construct", construct_ants_numpy)
-    b = solve_mmas(tab, t_fast * 1.15, par)
-    assert np.array_equal(a.history, b.history)
-    assert np.array_equal(a.modes, b.modes) and np.array_equal(a.codes, b.codes)
+    assert np.array_equal(np.asarray(a.history), ref["colony_history"])
+    assert np.array_equal(a.modes, ref["colony_modes"])
+    assert np.array_equal(a.codes, ref["colony_codes"])
 
 
 def test_shares_section_equals_the_float_product() -> None:

@@ -18,7 +18,7 @@ Programming and Optimal Control*, Vol. 1, Ch. 6).
 Running-time constraint by Lagrangian relaxation: for a multiplier mu [J/s] the backward
 recursion minimises ``E + mu T``; ``T(mu)`` is non-increasing.  The multiplier is searched
 in rounds of ``MU_BATCH`` values on a log grid, each round one backward and one forward pass
-vectorised over the multipliers (numpy over multipliers x states x controls), until the
+batched over the multipliers (compiled loops over multipliers x states x controls), until the
 bracket [slowest feasible, fastest infeasible] is narrower than ``MU_LOG_TOL`` in log(mu).
 
 Closing the duality gap.  ``T(mu)`` jumps (a stage more or less of traction changes the
@@ -52,11 +52,12 @@ under the running-time bound by a projected-gradient search with exact simulatio
 winner and from the candidate before the rollout (their structures can differ).
 
 Speed.  The exact simulations (whole sequences and single stages) and the table backward /
-forward passes run on compiled loops (:mod:`metro_atc.core.ato.dp_kernel`, numba) when numba
-is installed (module setting ``kernel``: ``auto`` / ``numba`` / ``numpy``); the numpy
-functions here stay the reference and are tested equal to them.  In numpy each sub-step of a
-simulation is one interpreted call over a few dozen candidates, which made the polish 85 %
-of a 3-10 s solve; compiled, a solve takes about 0.1 s of CPU.
+forward passes run on compiled loops (:mod:`metro_atc.core.ato.dp_kernel`, numba; one path,
+``NUMBA_DISABLE_JIT=1`` runs the same source as Python for debugging).  The former numpy
+twins of these loops are gone; their recorded output (``test/data/dp_numpy_ref.npz``) is the
+reference the compiled path is tested against.  In numpy each sub-step of a simulation was
+one interpreted call over a few dozen candidates, which made the polish 85 % of a 3-10 s
+solve; compiled, a solve takes about 0.1 s of CPU.
 """
 
 from __future__ import annotations
@@ -98,24 +99,6 @@ ROLLOUT_SPAN = 3
 """Stages either side of a control change of the base tried by the rollout."""
 POLISH_ITERATIONS = 8
 """Gradient iterations of the continuous switch-position polish (0: off)."""
-KERNELS = ("auto", "numba", "numpy")
-"""Exact-simulation paths: compiled (:mod:`.dp_kernel`), numpy reference, auto (numba if
-installed)."""
-kernel = "auto"
-"""Exact-simulation path used by the DP (module setting; tests compare both)."""
-
-
-def _use_numba() -> bool:
-    """True when the exact simulations run on the compiled kernel."""
-    if kernel not in KERNELS:
-        raise ValueError(f"dp kernel must be one of {KERNELS}, got {kernel!r}")
-    if kernel == "numpy":
-        return False
-    if not dp_kernel.numba_available():
-        if kernel == "numba":
-            raise RuntimeError("dp kernel 'numba' requested but numba is not installed")
-        return False
-    return True
 
 
 @dataclass
@@ -245,23 +228,8 @@ def _backward(tab: DPTables, mus: ArrayLike) -> FloatArray:
     stage's value is interpolated linearly in e at the landing speed of each control.
     """
     m = np.atleast_1d(np.asarray(mus, dtype=float))
-    if _use_numba():
-        return dp_kernel.backward(tab.energy_j, tab.time_s,  # type: ignore[no-any-return]
-                                  tab.idx0, tab.w, tab.top, m)
-    n_st, n_states = tab.n_stages, tab.e_grid.size
-    j_all = np.zeros((m.size, n_st + 1, n_states))
-    mu3 = m[:, None, None]
-    for k in range(n_st - 1, -1, -1):
-        jn = j_all[:, k + 1]
-        i0 = tab.idx0[k]
-        q = tab.energy_j[k][None] + mu3 * tab.time_s[k][None] \
-            + lerp(jn[:, i0], jn[:, i0 + 1], tab.w[k])
-        jk = np.min(q, axis=2)
-        # states above the envelope are unreachable: flat extrapolation from the top state
-        top = int(tab.top[k])
-        jk[:, top + 1:] = jk[:, top:top + 1]
-        j_all[:, k] = jk
-    return j_all
+    return dp_kernel.backward(tab.energy_j, tab.time_s,  # type: ignore[no-any-return]
+                              tab.idx0, tab.w, tab.top, m)
 
 
 @dataclass
@@ -289,36 +257,19 @@ def _forward(tab: DPTables, mus: FloatArray, j_all: FloatArray, policy: IntArray
     earlier stages keep control 0 and count nothing.
     """
     n_c = policy.shape[0]
-    n_st = tab.n_stages
-    rows = np.arange(n_c)
     e = np.zeros(n_c) if e0 is None else np.asarray(e0, dtype=float).copy()
-    if _use_numba():
-        return _Forward(*_forward_kernel(tab, mus, j_all, policy, e,
-                                         np.full(n_c, k0, dtype=np.int64)))
-    ctrl = np.zeros((n_c, n_st), dtype=np.int64)
-    path = np.zeros((n_c, n_st + 1))
-    path[:, k0] = e
-    energy = np.zeros(n_c)
-    tm = np.zeros(n_c)
-    alive = np.ones(n_c, dtype=bool)
-    for k in range(k0, n_st):
-        i, a1 = state_weights(tab, k, e)
-        a = a1[:, None]
-        en = lerp(tab.energy_j[k, i], tab.energy_j[k, i + 1], a)
-        dt = lerp(tab.time_s[k, i], tab.time_s[k, i + 1], a)
-        nx = tab.e_next[k, i] + a * (tab.e_next[k, i + 1] - tab.e_next[k, i])
-        i1, w1 = state_weights(tab, k + 1, nx)
-        p = policy[:, k][:, None]
-        q = en + mus[p] * dt + lerp(j_all[p, k + 1, i1], j_all[p, k + 1, i1 + 1], w1)
-        q = np.where(np.isfinite(dt), q, np.inf)
-        u = np.argmin(q, axis=1)
-        alive &= np.isfinite(q[rows, u])
-        ctrl[:, k] = u
-        e = nx[rows, u]
-        energy += en[rows, u]
-        tm += dt[rows, u]
-        path[:, k + 1] = e
-    return _Forward(ctrl, np.where(alive, energy, np.inf), np.where(alive, tm, np.inf), path)
+    return _Forward(*_forward_kernel(tab, mus, j_all, policy, e,
+                                     np.full(n_c, k0, dtype=np.int64)))
+
+
+def _packed_train(run: RunModel) -> NDArray[np.void]:
+    """Train and limit constants of the kernels (:func:`.dp_kernel.pack_train`).
+
+    A record array view: numba types it as the plain structured array, and its element
+    keeps the attribute access the kernels use when they run as Python
+    (``NUMBA_DISABLE_JIT=1``).
+    """
+    return dp_kernel.pack_train(run.train, run.limits).view(np.recarray)
 
 
 def _forward_kernel(tab: DPTables, mus: FloatArray, j_all: FloatArray, policy: IntArray,
@@ -350,31 +301,11 @@ def simulate_path(run: RunModel, tab: DPTables, controls: IntArray,
     modes = np.asarray(CONTROL_MODES, dtype=np.int64)[c2]
     lev = (np.asarray(CONTROL_LEVELS, dtype=float)[c2] if levels is None
            else np.atleast_2d(np.asarray(levels, dtype=float)))
-    n_c, n_st = c2.shape
-    h = run.length_m / n_st / tab.substeps
-    if _use_numba():
-        return dp_kernel.simulate_batch(  # type: ignore[no-any-return]
-            dp_kernel.pack_train(run.train, run.limits), np.ascontiguousarray(modes),
-            np.ascontiguousarray(np.broadcast_to(lev, c2.shape), dtype=float),
-            tab.fg_sub, tab.cap_sub, h)
-    e = np.zeros(n_c)
-    e_path = np.zeros((n_c, n_st + 1))
-    cum_j = np.zeros((n_c, n_st + 1))
-    cum_t = np.zeros((n_c, n_st + 1))
-    energy = np.zeros(n_c)
-    tm = np.zeros(n_c)
-    for k in range(n_st):
-        hold = e
-        for q in range(tab.substeps):
-            e, dt, de, _ = strategy_step(run.train, run.limits, e, h, tab.fg_sub[k, q],
-                                         tab.cap_sub[k, q], modes[:, k], np.inf, hold,
-                                         lev[:, k])
-            energy = energy + de
-            tm = tm + dt
-        e_path[:, k + 1] = e
-        cum_j[:, k + 1] = energy
-        cum_t[:, k + 1] = tm
-    return e_path, cum_j, cum_t
+    h = run.length_m / c2.shape[1] / tab.substeps
+    return dp_kernel.simulate_batch(  # type: ignore[no-any-return]
+        _packed_train(run), np.ascontiguousarray(modes),
+        np.ascontiguousarray(np.broadcast_to(lev, c2.shape), dtype=float),
+        tab.fg_sub, tab.cap_sub, h)
 
 
 def simulate_controls(run: RunModel, tab: DPTables, controls: IntArray,
@@ -411,22 +342,13 @@ def _simulate_stages(run: RunModel, tab: DPTables, k: "int | IntArray", e0: Floa
     """
     h = run.length_m / tab.n_stages / tab.substeps
     e = np.array(e0, dtype=float)
-    if _use_numba():
-        n = e.size
-        return dp_kernel.simulate_stages(  # type: ignore[no-any-return]
-            dp_kernel.pack_train(run.train, run.limits),
-            np.broadcast_to(np.asarray(k, dtype=np.int64), (n,)).copy(), e,
-            np.broadcast_to(np.asarray(mode, dtype=np.int64), (n,)).copy(),
-            np.broadcast_to(np.asarray(levels, dtype=float), (n,)).copy(),
-            tab.fg_sub, tab.cap_sub, h)
-    energy = np.zeros(e.size)
-    tm = np.zeros(e.size)
-    for q in range(tab.substeps):
-        e, dt, dj, _ = strategy_step(run.train, run.limits, e, h, tab.fg_sub[k, q],
-                                     tab.cap_sub[k, q], mode, np.inf, e0, levels)
-        energy += dj
-        tm += dt
-    return e, energy, tm
+    n = e.size
+    return dp_kernel.simulate_stages(  # type: ignore[no-any-return]
+        _packed_train(run),
+        np.broadcast_to(np.asarray(k, dtype=np.int64), (n,)).copy(), e,
+        np.broadcast_to(np.asarray(mode, dtype=np.int64), (n,)).copy(),
+        np.broadcast_to(np.asarray(levels, dtype=float), (n,)).copy(),
+        tab.fg_sub, tab.cap_sub, h)
 
 
 def _blend(run: RunModel, tab: DPTables, target_time_s: float, mu_fast: float,
@@ -540,42 +462,11 @@ def _forward_multi(tab: DPTables, mus: FloatArray, j_all: FloatArray, pol: IntAr
     time count from k0 on (vectorised: a candidate joins the pass at its start stage).
     """
     n_c = pol.size
-    n_st = tab.n_stages
-    rows = np.arange(n_c)
     e = np.asarray(e0, dtype=float).copy()
-    if _use_numba():
-        c_k, e_k, t_k, _ = _forward_kernel(
-            tab, mus, j_all, np.broadcast_to(np.asarray(pol, dtype=np.int64)[:, None],
-                                             (n_c, n_st)), e, np.asarray(k0, dtype=np.int64))
-        return _Forward(c_k, e_k, t_k, np.zeros((0, 0)))
-    ctrl = np.zeros((n_c, n_st), dtype=np.int64)
-    energy = np.zeros(n_c)
-    tm = np.zeros(n_c)
-    alive = np.ones(n_c, dtype=bool)
-    order = np.argsort(k0, kind="stable")
-    starts = np.searchsorted(k0[order], np.arange(n_st + 1), side="right")
-    for k in range(int(np.min(k0)), n_st):
-        act = order[:starts[k]]
-        if act.size == 0:
-            continue
-        i, a1 = state_weights(tab, k, e[act])
-        a = a1[:, None]
-        en = lerp(tab.energy_j[k, i], tab.energy_j[k, i + 1], a)
-        dt = lerp(tab.time_s[k, i], tab.time_s[k, i + 1], a)
-        nx = tab.e_next[k, i] + a * (tab.e_next[k, i + 1] - tab.e_next[k, i])
-        i1, w1 = state_weights(tab, k + 1, nx)
-        p = pol[act][:, None]
-        q = en + mus[p] * dt + lerp(j_all[p, k + 1, i1], j_all[p, k + 1, i1 + 1], w1)
-        q = np.where(np.isfinite(dt), q, np.inf)
-        u = np.argmin(q, axis=1)
-        r = rows[:act.size]
-        alive[act] &= np.isfinite(q[r, u])
-        ctrl[act, k] = u
-        e[act] = nx[r, u]
-        energy[act] += en[r, u]
-        tm[act] += dt[r, u]
-    return _Forward(ctrl, np.where(alive, energy, np.inf), np.where(alive, tm, np.inf),
-                    np.zeros((0, 0)))
+    pol_k = np.broadcast_to(np.asarray(pol, dtype=np.int64)[:, None], (n_c, tab.n_stages))
+    c_k, e_k, t_k, _ = _forward_kernel(tab, mus, j_all, pol_k, e,
+                                       np.asarray(k0, dtype=np.int64))
+    return _Forward(c_k, e_k, t_k, np.zeros((0, 0)))
 
 
 def _search_multiplier(tab: DPTables, target_time_s: float

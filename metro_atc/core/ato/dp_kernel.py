@@ -7,8 +7,9 @@ overhead dominates (about 1 ms per sub-step, 85 % of the DP's time before this m
 These loops advance one trajectory at a time with
 :func:`metro_atc.core.ato.step_kernel.strategy_step_one` (the compiled twin of
 :func:`metro_atc.core.ato.strategy.strategy_step`, speed code at infinity, shared with the
-ECTP/ACTP kernel); the numpy path stays the reference and is tested equal to this one
-(``test/test_ato_dp.py``).
+ECTP/ACTP kernel).  These loops are the DP's only path (``NUMBA_DISABLE_JIT=1`` runs them as
+Python); ``test/test_ato_dp.py`` checks them against the recorded output of the former numpy
+path (``test/data/dp_numpy_ref.npz``).
 
 Train constants are packed in a record (:func:`pack_train`).
 """
@@ -21,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from metro_atc.core.ato.step_kernel import jit as _njit
-from metro_atc.core.ato.step_kernel import numba_available, pack_train, strategy_step_one
+from metro_atc.core.ato.step_kernel import pack_train, strategy_step_one
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -173,5 +174,5 @@ def forward(de, energy, time_s, e_next, mus, j_all, policy, e0, k0
     return ctrl, en_out, tm_out, path
 
 
-__all__ = ["backward", "forward", "numba_available", "pack_train",
+__all__ = ["backward", "forward", "pack_train",
            "simulate_batch", "simulate_stages"]

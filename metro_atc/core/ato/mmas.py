@@ -43,8 +43,8 @@ formula (reconstruction); the reported energy and time are the exact simulation 
 planned tour, not the table estimate.
 
 One iteration's ants are built and evaluated on the tables in one compiled call
-(:func:`metro_atc.core.ato.mmas_kernel.construct_ants`; without numba the numpy
-construction, vectorised over the ants, same tours for the same uniforms).
+(:func:`metro_atc.core.ato.mmas_kernel.construct_ants`, the only path;
+``NUMBA_DISABLE_JIT=1`` runs it as Python).
 """
 
 from __future__ import annotations
@@ -57,17 +57,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, MODE_CRUISE
-from metro_atc.core.ato.mmas_kernel import construct_ants, construct_ants_numpy, table_prefix
+from metro_atc.core.ato.mmas_kernel import construct_ants, table_prefix
 from metro_atc.core.ato.mmas_polish import polish_tour
 from metro_atc.core.ato.sections import SectionTables
-from metro_atc.core.ato.step_kernel import numba_available
 from metro_atc.core.ato.tour_kernel import TourSimulator, table_kernel
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 _PENALTY_J = 1e15
-_construct = construct_ants if numba_available() else construct_ants_numpy
 
 
 @dataclass(frozen=True)
@@ -387,7 +385,7 @@ def solve_mmas(tables: SectionTables, t_max_s: float,
         codes = np.empty((n_k, n_s), dtype=np.int64)
         t = np.empty(n_k)
         en = np.empty(n_k)
-        _construct(cum_m, cum_c, u, packed, inv_he, n_e, modes, codes, t, en)
+        construct_ants(cum_m, cum_c, u, packed, inv_he, n_e, modes, codes, t, en)
         evals += n_k
         sc = _score(t, en, t_max_s)
         k_ib = int(np.argmin(sc))

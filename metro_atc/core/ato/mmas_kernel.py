@@ -5,8 +5,9 @@
 ``tau[m, mode_{m-1}, mode] * eta[m, mode]^lambda`` and then a speed code on
 ``tau_v[m, mode, code]`` over the allowed codes) together with the table evaluation of the
 tour as it is built (Ke 2010, eq. 6-7, :meth:`sections.SectionTables.lookup` arithmetic);
-:func:`construct_ants_numpy` is the same vectorised over the ants, the path used without
-numba and the reference of the tests (identical tours and figures for the same uniforms).
+It is the colony's only construction path (``NUMBA_DISABLE_JIT=1`` runs it as Python); its
+tests compare it with the recorded output of the former numpy construction
+(``test/data/mmas_numpy_ref.npz``: identical tours and figures for the same uniforms).
 :func:`table_prefix` is the state of one tour at every section start (the common prefixes of
 the local search's single-section moves).
 
@@ -76,36 +77,6 @@ def construct_ants(cum_m: FloatArray, cum_c: FloatArray, u: FloatArray, packed: 
             prev = m
         t[k] = tk
         en[k] = ek
-
-
-def construct_ants_numpy(cum_m: FloatArray, cum_c: FloatArray, u: FloatArray,
-                         packed: FloatArray, inv_he: float, n_e: int, modes: IntArray,
-                         codes: IntArray, t: FloatArray, en: FloatArray) -> None:
-    """:func:`construct_ants` vectorised over the ants with numpy (same arguments, results)."""
-    n_s = cum_m.shape[0]
-    n_c = cum_c.shape[2]
-    n_k = u.shape[2]
-    flat = packed.reshape(-1, 3)
-    prev = np.zeros(n_k, dtype=np.int64)
-    e = np.zeros(n_k)
-    t[:] = 0.0
-    en[:] = 0.0
-    for i in range(n_s):
-        cm = cum_m[i, prev]
-        m = np.minimum((cm < (u[i, 0] * cm[:, 2])[:, None]).sum(axis=1), 2)
-        cc = cum_c[i, m]
-        c = np.minimum((cc < (u[i, 1] * cc[:, -1])[:, None]).sum(axis=1), n_c - 1)
-        modes[:, i] = m
-        codes[:, i] = c
-        f = np.minimum(e * inv_he, n_e - 1.000001)
-        j0 = f.astype(np.int64)
-        w = (f - j0)[:, None]
-        b = ((i * 3 + m) * n_c + c) * n_e + j0
-        val = flat[b] * (1.0 - w) + flat[b + 1] * w
-        e = val[:, 0]
-        t += val[:, 1]
-        en += val[:, 2]
-        prev = m
 
 
 @jit

@@ -1,15 +1,17 @@
-"""Compiled exact simulation of Ke 2010 tours (numba): :func:`sections.simulate_tours` per tour.
+"""Compiled exact simulation of Ke 2010 tours (numba): every sub-step of every tour.
 
 The MAX-MIN ant system (:mod:`metro_atc.core.ato.mmas`) evaluates tours -- a mode and a
 speed command per section -- on the interpolated pre-work tables; the reported energy and
-time of a tour are its *exact* simulation (:func:`metro_atc.core.ato.sections.simulate_tours`,
+time of a tour are its *exact* simulation here (the arithmetic of
 :func:`metro_atc.core.ato.strategy.strategy_step` sub-step by sub-step, no interpolation).
-That numpy path costs about 0.5 ms per sub-step whatever the number of tours (numpy call
+A numpy simulation cost about 0.5 ms per sub-step whatever the number of tours (numpy call
 overhead on small arrays), i.e. 0.6 s for one tour of a 2.4 km run at 2 m sub-steps; this
 kernel runs the same arithmetic element by element (same operation order, no fast-math),
 about 0.1 us per sub-step and tour, so that the local search of MMAS can use the exact
-simulation instead of the tables.  ``test_ato_mmas.py`` checks both paths agree to round-off
-on random tours (every mode, speed command, grade sign, braking).
+simulation instead of the tables.  It is the only exact tour simulation
+(``NUMBA_DISABLE_JIT=1`` runs it as Python); ``test_ato_mmas.py`` checks it against the
+recorded output of the former numpy simulation (``test/data/tours_numpy_ref.npz``: random
+tours, every mode, speed command, grade sign, braking) to round-off.
 
 Constants of a run are packed in one record (:data:`TOUR`, :func:`pack_params`).
 Cheaper, same numbers: a coasting step re-uses the closed-form position / time of the
@@ -53,7 +55,9 @@ def pack_params(train: TrainParams, limits: OperatingLimits, delta: float, h: fl
     """Constants of the kernel (a one-element :data:`TOUR` array).
 
     The train and limits (:func:`metro_atc.core.ato.step_kernel.pack_train`), the planning
-    deceleration [m/s^2], the traction level delta [-] and the sub-step h [m].
+    deceleration [m/s^2], the traction level delta [-] and the sub-step h [m].  A record
+    array view: numba types it as the plain structured array, and its element keeps the
+    attribute access the kernels use when they run as Python (``NUMBA_DISABLE_JIT=1``).
     """
     p = np.zeros(1, dtype=TOUR)
     tr = pack_train(train, limits)
@@ -62,7 +66,7 @@ def pack_params(train: TrainParams, limits: OperatingLimits, delta: float, h: fl
     p["brake_decel"] = limits.brake_decel_mps2
     p["delta"] = delta
     p["h"] = h
-    return p
+    return p.view(np.recarray)
 
 
 @njit(cache=True, error_model="numpy")
@@ -103,10 +107,11 @@ def _coast_x(w: float, d4: float, c2: float, bp: float, a: float
     return _coast_xt(w, d4, c2, bp, a)[0]
 
 
-MEMO = np.dtype([(f, np.float64)
-                 for f in ("fg", "w", "x", "t", "fg_c", "c0", "c1", "c2", "bp", "d4", "a")])
+MEMO = np.dtype((np.record, [(f, np.float64) for f in ("fg", "w", "x", "t", "fg_c", "c0", "c1",
+                                                       "c2", "bp", "d4", "a")]))
 """The coasting memo (:func:`_coast`): the last end-of-step evaluation (fg, w, X, T), the
-coefficients of the last grade force fg_c (c0, c1, c2, bp, d4, a)."""
+coefficients of the last grade force fg_c (c0, c1, c2, bp, d4, a).  A record dtype: its
+element keeps attribute access when the kernels run as Python (``NUMBA_DISABLE_JIT=1``)."""
 
 
 @njit(cache=True, error_model="numpy")
@@ -271,7 +276,7 @@ def simulate_kernel(params: NDArray[np.void], fg: FloatArray, cap: FloatArray, m
 
     fg, cap: grade force [N] over and envelope e at the end of each sub-step (n,); modes,
     e_codes, bounds: (K, N_s) (a section's hold speed and latch are set at its first
-    sub-step, as :func:`sections.simulate_tours` does).  first (K,): section the simulation
+    sub-step).  first (K,): section the simulation
     starts at; e_out, t_out, en_out, st_out hold the state at its start on entry and the
     final state on exit.  hist (K, n + 1) gets the e history when it has n + 1 columns.
 
@@ -408,12 +413,12 @@ def table_kernel(packed: FloatArray, h_e: float, n_e: int, n_c: int, modes: IntA
 
 
 class TourSimulator:
-    """Exact tour simulation of one run (the physics of ``sections.simulate_tours``).
+    """Exact tour simulation of one run (the physics of the pre-work tables, uninterpolated).
 
     Sections may have any length in whole sub-steps (``bounds``: first sub-step of each
     section, (N_s,), starting with 0); with the pre-work tables' equal sections it reproduces
-    :func:`metro_atc.core.ato.sections.simulate_tours` (tested to round-off).  Built from
-    the run, sub-step, traction level and codes of the pre-work tables.
+    the recorded former numpy simulation (``test/data/tours_numpy_ref.npz``, to round-off).
+    Built from the run, sub-step, traction level and codes of the pre-work tables.
     """
 
     def __init__(self, tables: SectionTables) -> None:
