@@ -93,7 +93,7 @@ def test_paper_defaults() -> None:
             p.delta_ib, p.delta_bsf) == (50, 100, 0.2, 2.0, 0.1, 0.5, 19, 0.28, 0.5)
 
 
-# ----------------------------------------------------------------- exact kernel, issue 12
+# ----------------------------------------------------------------- exact kernel
 def _graded_run(davis_b_zero: bool = False) -> RunModel:
     """600 m with a steep descent, a climb and a 45 km/h restriction (every branch).
 
