@@ -12,18 +12,20 @@ from numba import njit
 
 from metro_atc.core import laws
 
-from .kernel import (C_DAVIS_A, C_DAVIS_B, C_DAVIS_C, C_DT, C_FIXED, C_INV_DX, C_SUBSTEPS,
-                     C_TOL, C_X0, G_ENV, G_SBI, M_CAND, M_RUN, N_CONST, O_ACC, O_AD, O_D,
-                     O_DRV, O_EOA, O_FBDEM, O_FBRK, O_FE, O_FFA, O_FTRAC, O_U, O_V1, O_WAX,
-                     O_X1, P_CB, P_CC, P_INV_M, P_MASS, P_MEFF, _cell, _mn, _mx, axle_fill,
-                     front)
+from .kernel import (CONSTANTS, G_ENV, G_SBI, M_CAND, M_RUN, O_ACC, O_AD, O_D, O_DRV, O_EOA,
+                     O_FBDEM, O_FBRK, O_FE, O_FFA, O_FTRAC, O_U, O_V1, O_WAX, O_X1, P_CB, P_CC,
+                     P_INV_M, P_MASS, P_MEFF, _cell, _mn, _mx, axle_fill, front)
 from .kernel_aux import sensor_block
 
-# packed driver constants
-(D_X0, D_INV_DX, D_B_DRIVE, D_T_SBI, D_C0, D_C2, D_C1, D_BS, D_TOL, D_GAIN, D_LA,
- N_DCONST) = range(12)
-C_NOISE = N_CONST
-"""Sensor noise standard deviations (4) follow the run constants in ``c`` (:func:`step_rows`)."""
+DRIVER_FIELDS = ("x0", "inv_dx", "b_drive", "t_sbi", "c0", "c2", "c1", "bs", "tol", "gain",
+                 "lookahead")
+"""Fields of :data:`DRIVER` (float64, in the vector's order): grid x0 [m], 1/dx [1/m],
+driving deceleration [m/s^2], t_sbi [s], the EBI curve's coefficients c0, c2, c1 at the
+ATP's worst-case acceleration, service brake [m/s^2], stopping tolerance [m], gain [s/m],
+look-ahead [s] (:func:`.driver.driver_command`)."""
+DRIVER = np.dtype([(f, np.float64) for f in DRIVER_FIELDS])
+"""The reference driver's constants by name: a float vector viewed as this record in
+:func:`driver` (one row of ``dcs``: the reference driver's, the plant driver's)."""
 # rows of the persistent blocks of :func:`step_rows` (:mod:`.fast_state`): float state
 # (owned), then mass constants (``P_*`` order) and brake ratios (copied), then the
 # plant driver's command (scratch); integer state; boolean state then masks (``M_*``)
@@ -45,10 +47,11 @@ def motion(c, x, v, f_trac, f_brake, f_e, f_bdem, mp, geo, masks, stop_x, e_trac
     n = x.shape[0]
     n_cells = geo.shape[1]
     mass, meff, inv_m, cb, cc = mp[P_MASS], mp[P_MEFF], mp[P_INV_M], mp[P_CB], mp[P_CC]
-    x0, inv_dx = c[C_X0], c[C_INV_DX]
-    da, db, dc = c[C_DAVIS_A], c[C_DAVIS_B], c[C_DAVIS_C]
-    dt = c[C_DT]
-    substeps = int(c[C_SUBSTEPS])
+    cn = c.view(CONSTANTS)[0]
+    x0, inv_dx = cn["x0"], cn["inv_dx"]
+    da, db, dc = cn["davis_a"], cn["davis_b"], cn["davis_c"]
+    dt = cn["dt"]
+    substeps = int(cn["substeps"])
     h = dt / substeps
     h6 = h / 6.0
     xs = x.copy()
@@ -101,7 +104,7 @@ def motion(c, x, v, f_trac, f_brake, f_e, f_bdem, mp, geo, masks, stop_x, e_trac
             vs[i] = vn[i]
     inv_dt = 1.0 / dt
     n_hit = 0
-    tol = c[C_TOL]
+    tol = cn["tol"]
     run, cand = masks[M_RUN], masks[M_CAND]
     for i in range(n):
         x1, v1, v0 = xs[i], vs[i], v[i]
@@ -139,26 +142,27 @@ def driver(dc, x, v, stop_x, eoa, speed_code, drive_env, sbi_static, status,
     """Reference driver command per train into ``out`` (0 for trains not RUN if asked)."""
     n = x.shape[0]
     n_cells = drive_env.shape[0]
-    b_drive = dc[D_B_DRIVE]
-    c0, c1, c2 = dc[D_C0], dc[D_C1], dc[D_C2] + 1.0
-    tol = 0.5 * dc[D_TOL]
+    d = dc.view(DRIVER)[0]
+    b_drive = d["b_drive"]
+    c0, c1, c2 = d["c0"], d["c1"], d["c2"] + 1.0
+    tol = 0.5 * d["tol"]
     for i in range(n):
         xi, vi = x[i], v[i]
-        la = vi * dc[D_LA]
-        kl = _cell(xi + la, dc[D_X0], dc[D_INV_DX], n_cells)
+        la = vi * d["lookahead"]
+        kl = _cell(xi + la, d["x0"], d["inv_dx"], n_cells)
         d_stop = stop_x[i] - xi
         d_ma = eoa[i] - xi - 3.0
         d_eff = _mn(d_stop, d_ma)
         v_curve = laws.braking_speed(d_eff - la, b_drive)
-        lead = vi * (dc[D_T_SBI] + 2.0)
+        lead = vi * (d["t_sbi"] + 2.0)
         v_atp = laws.ebi_speed_from(c0, c1, c2, d_ma - lead)
         v_ref = _mn(_mn(drive_env[kl], v_curve), _mn(v_atp, sbi_static[kl] - 1.0))
         if fixed:
             v_ref = _mn(v_ref, speed_code[i] - 0.5)
-        err = dc[D_GAIN] * (v_ref - vi)
+        err = d["gain"] * (v_ref - vi)
         u = err
         if d_eff < (0.65 / b_drive) * vi * vi + 1.0:
-            ff = (vi * vi) / (-2.0 * dc[D_BS] * _mx(d_eff, 0.05))
+            ff = (vi * vi) / (-2.0 * d["bs"] * _mx(d_eff, 0.05))
             u = _mn(err, ff + err)
         if vi < 0.3 and d_stop > tol and v_ref > 1.0:
             u = _mx(u, 0.3)
@@ -188,9 +192,10 @@ def step_all(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, 
     trains are first computed into ``auto_u`` (:func:`driver`, constants ``dc_auto``,
     movement authority ``eoa0`` of the previous step).
     """
+    fixed = c.view(CONSTANTS)[0]["fixed"] != 0.0
     if auto:
         driver(dc_auto, x, v, stop_x, eoa0, speed_code, grids[G_ENV], grids[G_SBI], status,
-               c[C_FIXED] != 0.0, False, auto_u)
+               fixed, False, auto_u)
     r = front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb, sb,
               interventions, violations, in_violation, grids, tabs, speed_code, bk,
               any_slide, any_wsp, blk)
@@ -206,7 +211,7 @@ def step_all(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, 
                          ts, t0, t1, zbuf[zpos:], noise, o4, o2)
     if want_drv and n_hit == 0:
         driver(dc, blk[O_X1], blk[O_V1], stop_x, blk[O_EOA], speed_code, grids[G_ENV],
-               grids[G_SBI], status, c[C_FIXED] != 0.0, True, blk[O_DRV])
+               grids[G_SBI], status, fixed, True, blk[O_DRV])
     return r[0], r[1], r[2], r[3], r[4], n_hit
 
 
@@ -232,4 +237,4 @@ def step_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blk, u
         fs[F_BK:F_BK + 2], any_slide, any_wsp, blk, geo, fs[F_STOP_X], fs[F_ETRAC],
         fs[F_EELEC], fs[F_EFRIC], fs[F_ERES], fs[F_ECURVE], fs[F_EGRADE], fs[F_ESTOP],
         ints[I_NSERV], axc, stab, ax_out, dcs[0], want_drv, sidx, r_w, slip0, ts, t0, t1,
-        zbuf, zpos, c[C_NOISE:C_NOISE + 4], o4, o2, auto, blk0[O_EOA], dcs[1])
+        zbuf, zpos, c.view(CONSTANTS)[0]["noise"], o4, o2, auto, blk0[O_EOA], dcs[1])
