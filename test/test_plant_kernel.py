@@ -246,3 +246,31 @@ def test_record_vector_needs_every_field_once() -> None:
         _record_vector(DRIVER, vals[1:])
     with pytest.raises(ValueError):
         _record_vector(DRIVER, vals[1:] + (("speed", 1.0),))
+
+
+def test_plant_kernels_read_constants_by_name() -> None:
+    """No numbered constant slots left: only the per-train / per-cell row indices remain.
+
+    The rows kept (``O_*`` output rows, ``F_*`` / ``I_*`` / ``B_*`` state rows, ``M_*`` /
+    ``P_*`` / ``G_*`` copied rows) are arrays of n trains or cells whose rows the components'
+    attributes are; ``STOP_*`` are reason codes.
+    """
+    import re
+
+    from metro_atc.core.plant import fast, fast_run, kernel, kernel_run, kernel_step
+    kept = re.compile(r"(?:O|F|I|B|M|P|G|N|STOP)_[A-Z0-9_]+$")
+    plant = Path(kernel.__file__).parent
+    for mod in (kernel, kernel_step, kernel_run, fast, fast_run):
+        slots = [n for n in vars(mod) if re.match(r"[A-Z]_[A-Z0-9_]+$", n)
+                 and isinstance(vars(mod)[n], int) and not isinstance(vars(mod)[n], bool)]
+        assert [n for n in slots if not kept.match(n)] == [], mod.__name__
+    for path in sorted(plant.glob("kernel*.py")) + sorted(plant.glob("fast*.py")):
+        src = path.read_text()
+        assert not re.search(r"\b(?:c|dc|rf|ri)\s*\[\s*[A-Z]+_", src), path.name
+        for m in re.finditer(r"\(?([A-Z_, \n]+)\)?\s*=\s*range\(\d+\)", src):
+            names = [n.strip() for n in m.group(1).replace("\n", " ").split(",")]
+            assert all(kept.match(n) for n in names if n), (path.name, names)
+    assert kernel.CONSTANTS.names == kernel.CONSTANT_FIELDS + ("noise",)
+    assert kernel_step.DRIVER.names == kernel_step.DRIVER_FIELDS
+    assert kernel_run.RESULT_I.names == kernel_run.RESULT_INTS
+    assert kernel_run.RESULT_F.names == kernel_run.RESULT_FLOATS

@@ -46,7 +46,9 @@ CONSTANTS = np.dtype([(f, np.float64) for f in CONSTANT_FIELDS]
                      + [("noise", np.float64, (4,))])
 """The run constants by name, then the sensor noise standard deviations (omega [rad/s],
 clamp [N], accel [m/s^2], reference speed [m/s]; :func:`.kernel_aux.sensor_block`).  A
-float vector of ``CONSTANTS.itemsize / 8`` values, viewed as this record in the kernels."""
+float vector of ``CONSTANTS.itemsize / 8`` values, viewed as this record once per compiled
+call from Python (:func:`.kernel_step.step_rows`, :func:`.kernel_run.run_rows`, the
+wrappers :func:`.kernel_step.motion` / :func:`.kernel_step.driver`) and handed down."""
 
 
 # rows of the per-step output block
@@ -131,10 +133,9 @@ def _cell(x: float, x0: float, inv_dx: float, n_cells: int) -> int:
 
 
 @njit(cache=True)
-def obstacles(c, x, status, run, n_sid: int, blocks: bool, out) -> None:  # type: ignore
-    """:meth:`.atp.AtpSupervisor.obstacle_rear` into ``out`` [m]."""
+def obstacles(cn, x, status, run, n_sid: int, blocks: bool, out) -> None:  # type: ignore
+    """:meth:`.atp.AtpSupervisor.obstacle_rear` into ``out`` [m] (``cn``: run constants)."""
     n = x.shape[0]
-    cn = c.view(CONSTANTS)[0]
     x0, blen, ln, xsw = cn["x0"], cn["block"], cn["train_length"], cn["x_switch"]
     out[0] = math.inf
     for i in range(1, n):
@@ -154,20 +155,20 @@ def obstacles(c, x, status, run, n_sid: int, blocks: bool, out) -> None:  # type
 
 
 @njit(cache=True)
-def front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb, sb,
+def front(cn, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb, sb,
           interventions, violations, in_violation, grids, tabs, speed_code, bk,
           any_slide: bool, any_wsp: bool, blk):  # type: ignore[no-untyped-def]
     """ATP supervision + monitors, jerk-limited demand, blend (fast path) of one step.
 
-    ``masks`` = fleet (run, hold, broken, auto, cand); ``mp`` = (mass, meff, 1/meff,
-    Davis B/meff, C/meff); ``grids`` = (ebi_static, sbi_static, ceiling_phys, limit_eff,
-    drive_env); ``tabs`` = (v, phi, ebrake); ``bk`` = brakes (slide_ratio, fric_mult).
+    ``cn``: the run constants (a :data:`CONSTANTS` record); ``masks`` = fleet (run, hold,
+    broken, auto, cand); ``mp`` = (mass, meff, 1/meff, Davis B/meff, C/meff); ``grids`` =
+    (ebi_static, sbi_static, ceiling_phys, limit_eff, drive_env); ``tabs`` = (v, phi,
+    ebrake); ``bk`` = brakes (slide_ratio, fric_mult).
     Returns (new interventions, any_atp, any_violation, smallest gap [m], train-steps above
     the civil limit, rail force done) -- the rail force is left to the numpy slide model
     when an axle may reach the peak adhesion.
     """
     n = x.shape[0]
-    cn = c.view(CONSTANTS)[0]
     fixed = cn["fixed"] != 0.0
     n_cells = grids.shape[1]
     run, hold, broken, auto = masks[M_RUN], masks[M_HOLD], masks[M_BROKEN], masks[M_AUTO]
@@ -189,10 +190,10 @@ def front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb,
         any_broken = any_broken or broken[i]
     n_sid = int(cn["n_sid"])
     if fixed:
-        obstacles(c, x, status, run, n_sid, True, obst)
+        obstacles(cn, x, status, run, n_sid, True, obst)
         for i in range(n):
             eoa[i] = _mn(obst[i] - cn["margin"], cn["eoa_end"])
-    obstacles(c, x, status, run, n_sid, False, obst)
+    obstacles(cn, x, status, run, n_sid, False, obst)
     if not fixed:
         for i in range(n):
             eoa[i] = _mn(obst[i] - cn["margin"], cn["eoa_end"])
@@ -299,14 +300,14 @@ def front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb,
 
 
 @njit(cache=True)
-def axle_fill(c, f_fa, a_d, w_axle, axc, stab, out):  # type: ignore[no-untyped-def]
+def axle_fill(cn, f_fa, a_d, w_axle, axc, stab, out):  # type: ignore[no-untyped-def]
     """(F_x, clamp force, slip) of the instrumented axles into ``out`` [3, n, 4].
 
     :meth:`.braking.AxleState.get` (quasi-static rolling); ``axc`` = (F_x per clamp N,
-    1 / r_w^2, adhesion factor) [3, n, 4]; ``stab`` = adhesion table (mu, slip).
+    1 / r_w^2, adhesion factor) [3, n, 4]; ``stab`` = adhesion table (mu, slip); ``cn``: a
+    :data:`CONSTANTS` record.
     """
     n, m = axc.shape[1], axc.shape[2]
-    cn = c.view(CONSTANTS)[0]
     fc_per_n, jw = cn["fc_per_n"], cn["jw"]
     tab_mu, tab_slip = stab[0], stab[1]
     for i in range(n):

@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit
 
 from .kernel import CONSTANTS, O_AD, O_DRV, O_EOA, O_U, O_V1, O_X1, _mn
-from .kernel_step import (B_EB, B_INVIOL, B_MASKS, B_SB, F_AUTO, F_BK, F_CODE,
+from .kernel_step import (B_EB, B_INVIOL, B_MASKS, B_SB, DRIVER, F_AUTO, F_BK, F_CODE,
                           F_EELEC, F_EFRIC, F_ECURVE, F_EGRADE, F_ERES, F_ESTOP, F_ETRAC,
                           F_MP, F_STOP_X, F_TRAC, I_INTERV, I_NSERV, I_STATUS, I_VIOL,
                           step_all)
@@ -67,6 +67,7 @@ def run_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blks, u
     last = clock.shape[0] - 1
     cap = o4.shape[1]
     noise = cn["noise"]
+    dr, dr_auto = dcs[0].view(DRIVER)[0], dcs[1].view(DRIVER)[0]
     eb, sb, inv = bools[B_EB], bools[B_SB], bools[B_INVIOL]
     interv, viol, code = ints[I_INTERV], ints[I_VIOL], fs[F_CODE]
     save_b = eb.copy()
@@ -110,13 +111,13 @@ def run_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blks, u
         blk = blks[k]
         ax_out = axs[k % 2]
         r = step_all(
-            c, prev[O_X1], prev[O_V1], ints[I_STATUS], bools[B_MASKS:], u, prev[O_U],
+            cn, prev[O_X1], prev[O_V1], ints[I_STATUS], bools[B_MASKS:], u, prev[O_U],
             fs[F_AUTO], prev[O_AD], fs[F_MP:F_MP + 5], fs[F_TRAC], eb, sb, interv, viol, inv,
             grids, tabs, code, fs[F_BK:F_BK + 2], any_slide, any_wsp, blk, geo,
             fs[F_STOP_X], fs[F_ETRAC], fs[F_EELEC], fs[F_EFRIC], fs[F_ERES], fs[F_ECURVE],
-            fs[F_EGRADE], fs[F_ESTOP], ints[I_NSERV], axc, stab, ax_out, dcs[0], True, sidx,
+            fs[F_EGRADE], fs[F_ESTOP], ints[I_NSERV], axc, stab, ax_out, dr, True, sidx,
             r_w, sl, clock[cpos:end], t, t1, zbuf, zpos, noise,
-            o4[:, s_off:s_off + n_s], o2[:, s_off:s_off + n_s], auto, prev[O_EOA], dcs[1])
+            o4[:, s_off:s_off + n_s], o2[:, s_off:s_off + n_s], auto, prev[O_EOA], dr_auto)
         if r[5] < 0:  # the numpy slide model: undo the step's ATP updates, Python steps
             eb[:] = save_b
             sb[:] = save_s
