@@ -1,11 +1,12 @@
 """Micro-bench: a kernel's run constants as numbered slots or as named state.
 
-The plant kernels read their run constants from a float vector by index (``C_* =
+The plant kernels used to read their run constants from a float vector by index (``C_* =
 range(N)``).  This compares, for the same per-train loop (12 constants, n trains), the CPU
-time per call from Python of: the float vector with index constants (today), a
-``namedtuple`` of floats, a one-record numpy structured array (``c[0].name``) and a numba
-``jitclass`` instance; the compiled loop is the same for all four, the difference is the
-argument's unboxing at each call (the plant calls its step kernel once per step)::
+time per call from Python of: the float vector with index constants, a ``namedtuple`` of
+floats, a one-record numpy structured array (``c[0].name``), a numba ``jitclass`` instance
+and the float vector viewed as the record inside the kernel (``c.view(REC)[0]``: what the
+plant and ATO kernels do now); the compiled loop is the same for all five, the difference is
+the argument's unboxing at each call (the plant calls its step kernel once per step)::
 
     python test/named_state_bench.py
 """
@@ -63,6 +64,12 @@ Consts = namedtuple("Consts", NAMES)  # type: ignore[misc]
 REC = np.dtype([(n, np.float64) for n in NAMES], align=True)
 
 
+@njit
+def k_view(c, x, v, out):  # type: ignore[no-untyped-def]
+    """The loop on a float vector viewed as the record inside the kernel."""
+    return k_named(c.view(REC)[0], x, v, out)
+
+
 @jitclass([(n, float64) for n in NAMES])
 class JitConsts:
     """The constants as a jitclass."""
@@ -75,7 +82,7 @@ class JitConsts:
 
 
 def main() -> None:
-    """Alternate the four forms 5 times; print min and median CPU time per call."""
+    """Alternate the five forms 5 times; print min and median CPU time per call."""
     rng = np.random.default_rng(0)
     for n in (30, 3000):
         x, v, out = rng.uniform(0.0, 2e4, n), rng.uniform(0.0, 22.0, n), np.empty(n)
@@ -84,6 +91,7 @@ def main() -> None:
             "namedtuple": (k_named, Consts(*VALS.tolist())),
             "record": (k_record, np.array([tuple(VALS)], dtype=REC)),
             "jitclass": (k_named, JitConsts(VALS)),
+            "vector view": (k_view, VALS.copy()),
         }
         res = {name: k(c, x, v, out) for name, (k, c) in forms.items()}
         assert len(set(res.values())) == 1, res  # the same floats

@@ -205,7 +205,7 @@ def test_comparison_detects_a_change() -> None:
 
     def tamper(sim: LineSim) -> None:
         assert sim.stepper is not None
-        sim.stepper.c[kn.C_DAVIS_A] *= 1.0001
+        sim.stepper.c.view(kn.CONSTANTS)[0]["davis_a"] *= 1.0001
 
     with pytest.raises(AssertionError):
         _check(load_scenario("mini_pad_fault"), 1, 400.0, tamper=tamper)

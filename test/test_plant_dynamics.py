@@ -192,7 +192,8 @@ def test_rk4_resting_branch_equals_standstill_branch() -> None:
                           "grade_permille: 35}, {start_m: 3000, grade_permille: -35}]")
     p, st = sim.p, sim.stepper
     c = st.c.copy()
-    c[kn.C_DT], c[kn.C_SUBSTEPS] = 0.25, 1.0
+    cr = c.view(kn.CONSTANTS)[0]
+    cr["dt"], cr["substeps"] = 0.25, 1.0
     rng = np.random.default_rng(7)
     n = 40
     x = rng.uniform(0.0, 5000.0, n)

@@ -143,7 +143,7 @@ def test_comparison_detects_a_kernel_change() -> None:
     from metro_atc.core.plant import kernel as kn
 
     def tamper(sim: LineSim) -> None:
-        sim.stepper.c[kn.C_DAVIS_A] *= 1.0001
+        sim.stepper.c.view(kn.CONSTANTS)[0]["davis_a"] *= 1.0001
 
     exp = dict(np.load(DATA / f"{_name(CASES[0])}.npz"))
     with pytest.raises(AssertionError):
@@ -214,3 +214,63 @@ def main(names: list[str]) -> None:
 
 if __name__ == "__main__":
     main(sys.argv[1:])
+
+
+def test_constants_are_named_records_of_plain_vectors() -> None:
+    """The run / driver constants: float vectors whose record fields hold the parts' values."""
+    from metro_atc.core.line.scenario import load_scenario
+    from metro_atc.core.plant import kernel as kn
+    from metro_atc.core.plant import kernel_step as ks
+    sim = LineSim(load_scenario("mini_pad_fault"), seed=1)
+    st = sim.stepper
+    assert st is not None
+    assert st.c.dtype == np.float64 and st.c.size * 8 == kn.CONSTANTS.itemsize
+    cr = st.c.view(kn.CONSTANTS)[0]
+    assert cr["dt"] == sim.control_period_s and cr["substeps"] == sim.substeps
+    assert cr["davis_a"] == sim.p.davis_a_n and cr["tol"] == sim.tol_stop
+    assert cr["train_length"] == sim.geometry.length_m and cr["n_sid"] == sim.geometry.n_sid
+    np.testing.assert_array_equal(cr["noise"], st.noise)
+    st.driver(sim, 1.25, 0.5, False)
+    dr = st.dcs[0].view(ks.DRIVER)[0]
+    assert (dr["gain"], dr["lookahead"], dr["x0"]) == (1.25, 0.5, sim.geometry.x0)
+    assert st.dcs.shape[1] * 8 == ks.DRIVER.itemsize
+
+
+def test_record_vector_needs_every_field_once() -> None:
+    """A constants vector with a field missing or unknown is refused (no silent zero)."""
+    from metro_atc.core.plant.fast import _record_vector
+    from metro_atc.core.plant.kernel_step import DRIVER, DRIVER_FIELDS
+    vals = tuple((f, float(i)) for i, f in enumerate(DRIVER_FIELDS))
+    np.testing.assert_array_equal(_record_vector(DRIVER, vals), np.arange(len(vals)))
+    with pytest.raises(ValueError):
+        _record_vector(DRIVER, vals[1:])
+    with pytest.raises(ValueError):
+        _record_vector(DRIVER, vals[1:] + (("speed", 1.0),))
+
+
+def test_plant_kernels_read_constants_by_name() -> None:
+    """No numbered constant slots left: only the per-train / per-cell row indices remain.
+
+    The rows kept (``O_*`` output rows, ``F_*`` / ``I_*`` / ``B_*`` state rows, ``M_*`` /
+    ``P_*`` / ``G_*`` copied rows) are arrays of n trains or cells whose rows the components'
+    attributes are; ``STOP_*`` are reason codes.
+    """
+    import re
+
+    from metro_atc.core.plant import fast, fast_run, kernel, kernel_run, kernel_step
+    kept = re.compile(r"(?:O|F|I|B|M|P|G|N|STOP)_[A-Z0-9_]+$")
+    plant = Path(kernel.__file__).parent
+    for mod in (kernel, kernel_step, kernel_run, fast, fast_run):
+        slots = [n for n in vars(mod) if re.match(r"[A-Z]_[A-Z0-9_]+$", n)
+                 and isinstance(vars(mod)[n], int) and not isinstance(vars(mod)[n], bool)]
+        assert [n for n in slots if not kept.match(n)] == [], mod.__name__
+    for path in sorted(plant.glob("kernel*.py")) + sorted(plant.glob("fast*.py")):
+        src = path.read_text()
+        assert not re.search(r"\b(?:c|dc|rf|ri)\s*\[\s*[A-Z]+_", src), path.name
+        for m in re.finditer(r"\(?([A-Z_, \n]+)\)?\s*=\s*range\(\d+\)", src):
+            names = [n.strip() for n in m.group(1).replace("\n", " ").split(",")]
+            assert all(kept.match(n) for n in names if n), (path.name, names)
+    assert kernel.CONSTANTS.names == kernel.CONSTANT_FIELDS + ("noise",)
+    assert kernel_step.DRIVER.names == kernel_step.DRIVER_FIELDS
+    assert kernel_run.RESULT_I.names == kernel_run.RESULT_INTS
+    assert kernel_run.RESULT_F.names == kernel_run.RESULT_FLOATS

@@ -129,25 +129,23 @@ class NumbaStepper:
         atp, g, p, br, fl = sim.atp, sim.geometry, sim.p, sim.brakes, sim.fleet
         dt = sim.control_period_s
         cu = atp.curve
-        c = np.zeros(kn.N_CONST)
-        vals = {
-            kn.C_X0: g.x0, kn.C_INV_DX: g.inv_dx, kn.C_LEN: g.length_m,
-            kn.C_X_SWITCH: g.x_switch, kn.C_BLOCK: atp.block_len, kn.C_MARGIN: atp.margin,
-            kn.C_EOA_END: g.eoa_end, kn.C_G_DOWN: atp.g_down, kn.C_B_G: cu.b_g,
-            kn.C_TR: cu.t_r,
-            kn.C_TSBI: atp.t_sbi, kn.C_SBI_OFF: _sbi_offset(), kn.C_CEIL_TOL: g.ceiling_tol,
-            kn.C_BS: p.max_service_brake_mps2, kn.C_EB_DECEL: p.emergency_brake_actual_mps2,
-            kn.C_JERK: p.max_jerk_mps3 * dt, kn.C_JERK_EB: p.emergency_jerk_mps3 * dt,
-            kn.C_CIVIL_TOL: CIVIL_TOL_MPS, kn.C_N_AX: br.n_ax,
-            kn.C_TRAC_ADH: br.trac_adh, kn.C_MU_PK: br.mu_pk, kn.C_INV_NAX: 1.0 / br.n_ax,
-            kn.C_INV_NMOT: 1.0 / max(br.n_mot, 1), kn.C_DAVIS_A: p.davis_a_n,
-            kn.C_DAVIS_B: p.davis_b_n_per_mps, kn.C_DAVIS_C: p.davis_c_n_per_mps2,
-            kn.C_DT: dt, kn.C_TOL: sim.tol_stop, kn.C_CODE_STEP: 5.0 * KMH,
-            kn.C_FIXED: float(bool(atp.fixed_block)), kn.C_N_SID: g.n_sid,
-            kn.C_SUBSTEPS: sim.substeps, kn.C_FC_PER_N: br.fc_per_n, kn.C_JW: br.jw}
-        for key, val in vals.items():
-            c[key] = float(val)
-        self.c = c
+        vals = (("x0", g.x0), ("inv_dx", g.inv_dx), ("train_length", g.length_m),
+                ("x_switch", g.x_switch), ("block", atp.block_len), ("margin", atp.margin),
+                ("eoa_end", g.eoa_end), ("g_down", atp.g_down), ("b_g", cu.b_g),
+                ("t_r", cu.t_r), ("t_sbi", atp.t_sbi), ("sbi_offset", _sbi_offset()),
+                ("ceiling_tol", g.ceiling_tol), ("bs", p.max_service_brake_mps2),
+                ("eb_decel", p.emergency_brake_actual_mps2),
+                ("jerk", p.max_jerk_mps3 * dt), ("jerk_eb", p.emergency_jerk_mps3 * dt),
+                ("civil_tol", CIVIL_TOL_MPS), ("n_ax", br.n_ax), ("trac_adh", br.trac_adh),
+                ("mu_pk", br.mu_pk), ("inv_nax", 1.0 / br.n_ax),
+                ("inv_nmot", 1.0 / max(br.n_mot, 1)), ("davis_a", p.davis_a_n),
+                ("davis_b", p.davis_b_n_per_mps), ("davis_c", p.davis_c_n_per_mps2),
+                ("dt", dt), ("tol", sim.tol_stop), ("code_step", 5.0 * KMH),
+                ("fixed", bool(atp.fixed_block)), ("n_sid", g.n_sid),
+                ("substeps", sim.substeps), ("fc_per_n", br.fc_per_n), ("jw", br.jw))
+        self.noise = getattr(sim.sensors, "noise", np.zeros(4))
+        self.c = _record_vector(kn.CONSTANTS, vals + (("noise", self.noise),))
+        """The run constants: a float vector the kernels read as ``kernel.CONSTANTS``."""
         tb = atp.tables
         self.tabs = np.ascontiguousarray(np.stack([tb.v, tb.phi, tb.ebrake]))
         self.stab = np.ascontiguousarray(np.stack([tb.mu, tb.slip]))
@@ -156,17 +154,15 @@ class NumbaStepper:
         self.no_ts = np.zeros(0)
         self.no_sens = (np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros((fl.n, 4)),
                         np.zeros(0), 0)
-        self.noise = getattr(sim.sensors, "noise", np.zeros(4))
-        self.c = np.concatenate((c, self.noise))  # ks.C_NOISE
         self.dc_auto = _driver_consts(sim, AUTO_GAIN, AUTO_LOOKAHEAD_S)
-        self.dcs = np.stack((np.zeros(ks.N_DCONST), self.dc_auto))
+        self.dcs = np.stack((np.zeros(ks.DRIVER.itemsize // 8), self.dc_auto))
         self.state = _blocks(fl.n, g.n_cells)
         self.blk0 = np.zeros((kn.N_OUT, fl.n))
         self.blk0_rows: tuple[Any, ...] = ()
         self.ax_key: Any = None
         self.axc = np.zeros((3, fl.n, 0))
         self.dc_key: tuple[float, float] | None = None
-        self.dc = np.zeros(ks.N_DCONST)
+        self.dc = np.zeros(ks.DRIVER.itemsize // 8)
         self.want_drv = False
         self.drv_state: tuple[Any, ...] = ()
         self.drv_blk = np.zeros((kn.N_OUT, fl.n))
@@ -356,17 +352,25 @@ def _blocks(n: int, n_cells: int) -> Blocks:
 
 
 def _driver_consts(sim: PlantParts, gain: float, lookahead_s: float) -> FloatArray:
-    """Packed constants of the compiled reference driver (``kernel_step.D_*``)."""
+    """Constants of the compiled reference driver: a float vector of ``kernel_step.DRIVER``."""
     from . import kernel_step as ks
     atp, g = sim.atp, sim.geometry
     c0, c2 = atp.curve.coef(atp.a_w)
-    dc = np.zeros(ks.N_DCONST)
-    for key, val in ((ks.D_X0, g.x0), (ks.D_INV_DX, g.inv_dx), (ks.D_B_DRIVE, atp.b_drive),
-                     (ks.D_T_SBI, atp.t_sbi), (ks.D_C0, c0), (ks.D_C2, c2),
-                     (ks.D_C1, atp.curve.c1), (ks.D_BS, sim.p.max_service_brake_mps2),
-                     (ks.D_TOL, g.tol_stop), (ks.D_GAIN, gain), (ks.D_LA, lookahead_s)):
-        dc[key] = float(val)
-    return dc
+    return _record_vector(ks.DRIVER, (
+        ("x0", g.x0), ("inv_dx", g.inv_dx), ("b_drive", atp.b_drive), ("t_sbi", atp.t_sbi),
+        ("c0", c0), ("c2", c2), ("c1", atp.curve.c1), ("bs", sim.p.max_service_brake_mps2),
+        ("tol", g.tol_stop), ("gain", gain), ("lookahead", lookahead_s)))
+
+
+def _record_vector(dtype: np.dtype[Any], vals: tuple[tuple[str, Any], ...]) -> FloatArray:
+    """The float vector a kernel views as the record ``dtype``, every field given once."""
+    names = [name for name, _ in vals]
+    if sorted(names) != sorted(dtype.names or ()):
+        raise ValueError(f"record fields {sorted(names)} != {sorted(dtype.names or ())}")
+    rec = np.zeros(1, dtype=dtype)
+    for name, val in vals:
+        rec[name] = val
+    return rec.view(np.float64).copy()
 
 
 def _sbi_offset() -> float:

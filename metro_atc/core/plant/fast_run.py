@@ -104,13 +104,16 @@ def run_compiled(sim: Any, u0: FloatArray, t_next: float, until_s: float, sample
     o4, o2 = np.empty((2, cap, m, na)), np.empty((2, cap, m))
     blks = np.empty((kmax, kn.N_OUT, n))
     tk = np.empty(kmax)
-    rf, ri = np.empty(kr.N_RF), np.zeros(kr.N_RI, dtype=np.int64)
+    rf = np.empty(kr.RESULT_F.itemsize // 8)
+    ri = np.zeros(kr.RESULT_I.itemsize // 8, dtype=np.int64)
     kr.run_rows(stp.c, stp.tabs, stp.geo, stp.stab, stp.dcs, fs, ints, bools, grids, axc,
                 blk0, blks, u0, axs, br.r_w, idx, slip0, sen.clock, sen.zbuf, o4, o2, False,
                 False, fl.any_auto, sensed, samples, t0, t_next, sim.duration_s, until_s,
                 cpos0, sen.zpos, tk, rf, ri)
-    k = int(ri[kr.R_STEPS])
-    out.stops[int(ri[kr.R_WHY])] += 1
+    res = dict(zip(kr.RESULT_INTS, ri.tolist()))  # by name: plain ints, not record fields
+    t_last, gmin = (dict(zip(kr.RESULT_FLOATS, rf.tolist()))[f] for f in ("t", "gmin"))
+    k = res["steps"]
+    out.stops[res["why"]] += 1
     if k == 0:
         return 0, None, None
     # the plant state of the last step (what NumbaStepper.advance binds)
@@ -118,10 +121,10 @@ def run_compiled(sim: Any, u0: FloatArray, t_next: float, until_s: float, sample
     x1, v1, acc, lim, eoa, a_d, _, _, u_clean = blk[:kn.O_DRV]
     atp.atp_limit, atp.eoa = lim, eoa
     fl.u_last, fl.a_dem = u_clean, a_d
-    atp.any_atp, atp.any_violation = bool(ri[kr.R_ANY_ATP]), bool(ri[kr.R_ANY_VIOL])
-    if rf[kr.R_GMIN] < atp.min_sep:
-        atp.min_sep = float(rf[kr.R_GMIN])
-    atp.steps_above_civil += int(ri[kr.R_NCIVIL])
+    atp.any_atp, atp.any_violation = bool(res["any_atp"]), bool(res["any_viol"])
+    if gmin < atp.min_sep:
+        atp.min_sep = gmin
+    atp.steps_above_civil += res["n_civil"]
     coef = br.ax_coef
 
     def axle(j: int) -> AxleState:
@@ -133,16 +136,16 @@ def run_compiled(sim: Any, u0: FloatArray, t_next: float, until_s: float, sample
     fl.acc, fl.x, fl.v = acc, x1, v1
     stp.blk0, stp.blk0_rows = blk, (x1, v1, u_clean, a_d, eoa)
     stp.drv_blk = blk
-    hit_step = ri[kr.R_WHY] == kr.STOP_HIT
+    hit_step = res["why"] == kr.STOP_HIT
     stp.drv_state = () if hit_step else (x1, v1, eoa, fl.stop_x)
     # sensors: clock and normals advanced as the per-step path does
-    cpos = int(ri[kr.R_CPOS])
+    cpos = res["cpos"]
     sen.pre = None
     if sensed:
         sen.cpos, sen.next_sample_t = cpos, sen.clock_l[cpos]
-    n_s = int(ri[kr.R_SAMPLES])
+    n_s = res["samples"]
     if samples:
-        sen.zpos, sen.want = int(ri[kr.R_ZPOS]), True
+        sen.zpos, sen.want = res["zpos"], True
         if n_s:
             ts = sen.clock[cpos0:cpos]
             omega, clamp, accel, vref = o4[0, :n_s], o4[1, :n_s], o2[0, :n_s], o2[1, :n_s]
@@ -160,11 +163,11 @@ def run_compiled(sim: Any, u0: FloatArray, t_next: float, until_s: float, sample
             tr["v"].append(bj[kn.O_V1].copy())
             tr["run"].append(fl.run)
             tr["atp"].append(bj[kn.O_LIM].copy())
-    sim.t, sim.step_count = float(rf[kr.R_T]), sc + k
+    sim.t, sim.step_count = t_last, sc + k
     out.steps += k
     out.kernel_steps += k
     out.calls += 1
-    out.atp_interventions += int(ri[kr.R_NINT])
+    out.atp_interventions += res["n_int"]
     if not hit_step:
         return k, None, None
     d = blk[kn.O_D]

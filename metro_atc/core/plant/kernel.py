@@ -7,8 +7,11 @@ kernels read and write the components' own arrays (:mod:`.atp`, :mod:`.braking`,
 (``test_plant_golden.py``) and the recorded generated-line traces
 (``test_plant_kernel.py``), both recorded when a numpy twin of this step still existed.
 
-Constants of a run are packed in one float array (indices ``C_*``, built by
-:mod:`.fast`); per-step outputs are the rows of one fresh ``[N_OUT, n]`` block (``O_*``).
+Constants of a run travel as one float vector (built by :mod:`.fast`) that each kernel reads
+through the record :data:`CONSTANTS` (``c.view(CONSTANTS)[0]``: free in compiled code; numpy
+record fields cost ~1 us each from Python, so the Python side keeps the plain vector);
+per-step outputs are the rows of one fresh ``[N_OUT, n]`` block (``O_*``: the fleet's and
+the ATP's arrays are views of those rows).
 Compiled on first use and cached on disk (``cache=True``; numba falls back to the user
 cache directory when the package directory is read-only).
 """
@@ -17,15 +20,37 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 from metro_atc.core import laws
 
-# packed constants (float64 vector)
-(C_X0, C_INV_DX, C_LEN, C_X_SWITCH, C_BLOCK, C_MARGIN, C_EOA_END, C_G_DOWN, C_B_G, C_TR,
- C_TSBI, C_SBI_OFF, C_CEIL_TOL, C_BS, C_EB_DECEL, C_JERK, C_JERK_EB, C_CIVIL_TOL, C_N_AX,
- C_TRAC_ADH, C_MU_PK, C_INV_NAX, C_INV_NMOT, C_DAVIS_A, C_DAVIS_B, C_DAVIS_C, C_DT, C_TOL,
- C_CODE_STEP, C_FIXED, C_N_SID, C_SUBSTEPS, C_FC_PER_N, C_JW, N_CONST) = range(35)
+CONSTANT_FIELDS = (
+    "x0", "inv_dx", "train_length", "x_switch", "block", "margin", "eoa_end", "g_down", "b_g",
+    "t_r", "t_sbi", "sbi_offset", "ceiling_tol", "bs", "eb_decel", "jerk", "jerk_eb",
+    "civil_tol", "n_ax", "trac_adh", "mu_pk", "inv_nax", "inv_nmot", "davis_a", "davis_b",
+    "davis_c", "dt", "tol", "code_step", "fixed", "n_sid", "substeps", "fc_per_n", "jw")
+"""Scalar fields of :data:`CONSTANTS` (float64, in the vector's order).
+
+Grid x0 [m] and 1/dx [1/m]; train length [m]; turn-back switch position [m]; block length
+[m]; ATP safety margin [m]; movement authority's end at the line's end [m]; ATP: downhill
+acceleration g_down [m/s^2], guaranteed brake b_g [m/s^2], reaction time t_r [s], t_sbi
+[s], SBI offset [m/s], ceiling tolerance [m/s]; service brake [m/s^2], emergency brake
+[m/s^2]; jerk limits x dt (service, emergency) [m/s^2]; civil-limit tolerance [m/s];
+brakes: axles per train, peak adhesion x motored axles [-], peak adhesion [-], 1/axles,
+1/motored axles; Davis a [N], b [N s/m], c [N s^2/m^2]; control period dt [s]; stopping
+tolerance [m]; speed-code step [m/s]; fixed block 0/1; turn-back sidings; RK4 substeps;
+clamp force per brake force [-]; wheel inertia [kg m^2].
+"""
+CONSTANTS = np.dtype([(f, np.float64) for f in CONSTANT_FIELDS]
+                     + [("noise", np.float64, (4,))])
+"""The run constants by name, then the sensor noise standard deviations (omega [rad/s],
+clamp [N], accel [m/s^2], reference speed [m/s]; :func:`.kernel_aux.sensor_block`).  A
+float vector of ``CONSTANTS.itemsize / 8`` values, viewed as this record once per compiled
+call from Python (:func:`.kernel_step.step_rows`, :func:`.kernel_run.run_rows`, the
+wrappers :func:`.kernel_step.motion` / :func:`.kernel_step.driver`) and handed down."""
+
+
 # rows of the per-step output block
 (O_X1, O_V1, O_ACC, O_LIM, O_EOA, O_AD, O_FFA, O_WAX, O_U, O_DRV, O_PHI, O_FTRAC, O_FBDEM,
  O_FE, O_FF, O_FBRK, O_D, O_VSBI, O_OBST, O_EBR, N_OUT) = range(21)
@@ -108,10 +133,10 @@ def _cell(x: float, x0: float, inv_dx: float, n_cells: int) -> int:
 
 
 @njit(cache=True)
-def obstacles(c, x, status, run, n_sid: int, blocks: bool, out) -> None:  # type: ignore
-    """:meth:`.atp.AtpSupervisor.obstacle_rear` into ``out`` [m]."""
+def obstacles(cn, x, status, run, n_sid: int, blocks: bool, out) -> None:  # type: ignore
+    """:meth:`.atp.AtpSupervisor.obstacle_rear` into ``out`` [m] (``cn``: run constants)."""
     n = x.shape[0]
-    x0, blen, ln, xsw = c[C_X0], c[C_BLOCK], c[C_LEN], c[C_X_SWITCH]
+    x0, blen, ln, xsw = cn["x0"], cn["block"], cn["train_length"], cn["x_switch"]
     out[0] = math.inf
     for i in range(1, n):
         j = i - 1
@@ -130,26 +155,27 @@ def obstacles(c, x, status, run, n_sid: int, blocks: bool, out) -> None:  # type
 
 
 @njit(cache=True)
-def front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb, sb,
+def front(cn, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb, sb,
           interventions, violations, in_violation, grids, tabs, speed_code, bk,
           any_slide: bool, any_wsp: bool, blk):  # type: ignore[no-untyped-def]
     """ATP supervision + monitors, jerk-limited demand, blend (fast path) of one step.
 
-    ``masks`` = fleet (run, hold, broken, auto, cand); ``mp`` = (mass, meff, 1/meff,
-    Davis B/meff, C/meff); ``grids`` = (ebi_static, sbi_static, ceiling_phys, limit_eff,
-    drive_env); ``tabs`` = (v, phi, ebrake); ``bk`` = brakes (slide_ratio, fric_mult).
+    ``cn``: the run constants (a :data:`CONSTANTS` record); ``masks`` = fleet (run, hold,
+    broken, auto, cand); ``mp`` = (mass, meff, 1/meff, Davis B/meff, C/meff); ``grids`` =
+    (ebi_static, sbi_static, ceiling_phys, limit_eff, drive_env); ``tabs`` = (v, phi,
+    ebrake); ``bk`` = brakes (slide_ratio, fric_mult).
     Returns (new interventions, any_atp, any_violation, smallest gap [m], train-steps above
     the civil limit, rail force done) -- the rail force is left to the numpy slide model
     when an axle may reach the peak adhesion.
     """
     n = x.shape[0]
-    fixed = c[C_FIXED] != 0.0
+    fixed = cn["fixed"] != 0.0
     n_cells = grids.shape[1]
     run, hold, broken, auto = masks[M_RUN], masks[M_HOLD], masks[M_BROKEN], masks[M_AUTO]
     mass, meff = mp[P_MASS], mp[P_MEFF]
     ebi_s, sbi_s, ceil_p, lim_eff = grids[G_EBI], grids[G_SBI], grids[G_CEIL], grids[G_LIM]
     tv, tphi, tebr = tabs[0], tabs[1], tabs[2]
-    x0, inv_dx = c[C_X0], c[C_INV_DX]
+    x0, inv_dx = cn["x0"], cn["inv_dx"]
     obst, eoa, lim, vsbi, phi = blk[O_OBST], blk[O_EOA], blk[O_LIM], blk[O_VSBI], blk[O_PHI]
     any_atp = False
     any_viol = False
@@ -162,15 +188,15 @@ def front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb,
         any_atp = any_atp or eb[i] or sb[i]
         any_viol = any_viol or in_violation[i]
         any_broken = any_broken or broken[i]
-    n_sid = int(c[C_N_SID])
+    n_sid = int(cn["n_sid"])
     if fixed:
-        obstacles(c, x, status, run, n_sid, True, obst)
+        obstacles(cn, x, status, run, n_sid, True, obst)
         for i in range(n):
-            eoa[i] = _mn(obst[i] - c[C_MARGIN], c[C_EOA_END])
-    obstacles(c, x, status, run, n_sid, False, obst)
+            eoa[i] = _mn(obst[i] - cn["margin"], cn["eoa_end"])
+    obstacles(cn, x, status, run, n_sid, False, obst)
     if not fixed:
         for i in range(n):
-            eoa[i] = _mn(obst[i] - c[C_MARGIN], c[C_EOA_END])
+            eoa[i] = _mn(obst[i] - cn["margin"], cn["eoa_end"])
     n_over = 0
     for i in range(n):
         k = _cell(x[i], x0, inv_dx, n_cells)
@@ -179,18 +205,18 @@ def front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb,
         ph = interp_at(v[i], tv, tphi, jv)
         phi[i] = ph
         blk[O_EBR, i] = interp_at(v[i], tv, tebr, jv)
-        a_w = ph + c[C_G_DOWN]
-        c0, c1, c2 = laws.ebi_coef(c[C_B_G], c[C_TR], a_w)
+        a_w = ph + cn["g_down"]
+        c0, c1, c2 = laws.ebi_coef(cn["b_g"], cn["t_r"], a_w)
         v_ma = laws.ebi_speed_from(c0, c1, c2, dist)
         lim[i] = _mn(ebi_s[k], v_ma)
-        v_sb_ma = laws.ebi_speed_from(c0, c1, c2, dist - c[C_TSBI] * v[i])
-        vs = _mn(sbi_s[k], v_sb_ma) - c[C_SBI_OFF]
+        v_sb_ma = laws.ebi_speed_from(c0, c1, c2, dist - cn["t_sbi"] * v[i])
+        vs = _mn(sbi_s[k], v_sb_ma) - cn["sbi_offset"]
         if fixed:
-            start = x0 + math.floor((x[i] - x0) / c[C_BLOCK]) * c[C_BLOCK]
-            code = laws.braking_speed(eoa[i] - start, c[C_BS])
-            code = math.floor(code / c[C_CODE_STEP]) * c[C_CODE_STEP]
+            start = x0 + math.floor((x[i] - x0) / cn["block"]) * cn["block"]
+            code = laws.braking_speed(eoa[i] - start, cn["bs"])
+            code = math.floor(code / cn["code_step"]) * cn["code_step"]
             speed_code[i] = _mn(code, lim_eff[k])
-            vs = _mn(vs, speed_code[i] + 0.5 * c[C_CEIL_TOL])
+            vs = _mn(vs, speed_code[i] + 0.5 * cn["ceiling_tol"])
         vsbi[i] = vs
         if run[i] and v[i] > vs:
             n_over += 1
@@ -215,16 +241,16 @@ def front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb,
     for i in range(n):
         k = _cell(x[i], x0, inv_dx, n_cells)
         if run[i]:
-            if v[i] > (ceil_p[k] - c[C_CEIL_TOL]) + c[C_CIVIL_TOL]:
+            if v[i] > (ceil_p[k] - cn["ceiling_tol"]) + cn["civil_tol"]:
                 n_civil += 1
             gap = obst[i] - x[i]
             gmin = _mn(gmin, gap)
-            if gap < c[C_MARGIN] - 1e-6 or v[i] > ceil_p[k] + 1e-6:
+            if gap < cn["margin"] - 1e-6 or v[i] > ceil_p[k] + 1e-6:
                 n_bad += 1
     if any_viol or n_bad:
         for i in range(n):
             k = _cell(x[i], x0, inv_dx, n_cells)
-            bad = run[i] and (obst[i] - x[i] < c[C_MARGIN] - 1e-6
+            bad = run[i] and (obst[i] - x[i] < cn["margin"] - 1e-6
                               or v[i] > ceil_p[k] + 1e-6)
             if bad and not in_violation[i]:
                 violations[i] += 1
@@ -232,7 +258,7 @@ def front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb,
         any_viol = n_bad > 0
     # demand, jerk limit, blend
     override = any_atp or any_broken
-    bs = c[C_BS]
+    bs = cn["bs"]
     fast = not (any_slide or any_wsp)
     slide_ratio, fric_mult = bk[0], bk[1]
     for i in range(n):
@@ -241,21 +267,21 @@ def front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb,
         a_t = ui * f_max / meff[i] if ui >= 0.0 else ui * bs
         if hold[i]:
             a_t = -bs
-        jmax = c[C_JERK]
+        jmax = cn["jerk"]
         ebm = False
         if override:
             ebm = eb[i] or broken[i]
             if sb[i]:
                 a_t = _mn(a_t, -bs)
             if ebm:
-                a_t = -c[C_EB_DECEL]
-                jmax = c[C_JERK_EB]
+                a_t = -cn["eb_decel"]
+                jmax = cn["jerk_eb"]
         a_d = _mn(_mx(a_t, a_prev[i] - jmax), a_prev[i] + jmax)
         blk[O_AD, i] = a_d
-        w_ax = laws.axle_load(mass[i], c[C_N_AX])
+        w_ax = laws.axle_load(mass[i], cn["n_ax"])
         blk[O_WAX, i] = w_ax
         blk[O_FTRAC, i] = laws.traction_demand_force(a_d, meff[i], f_max,
-                                                     w_ax * c[C_TRAC_ADH])
+                                                     w_ax * cn["trac_adh"])
         f_bdem = laws.brake_demand_force(a_d, meff[i])
         blk[O_FBDEM, i] = f_bdem
         f_e = laws.electric_brake_share(f_bdem, blk[O_EBR, i])
@@ -264,9 +290,9 @@ def front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb,
         blk[O_FE, i] = f_e
         f_f = f_bdem - f_e
         blk[O_FF, i] = f_f
-        f_fa = f_f * c[C_INV_NAX]
+        f_fa = f_f * cn["inv_nax"]
         blk[O_FFA, i] = f_fa
-        if (f_e * c[C_INV_NMOT] + f_fa > laws.adhesion_limit(c[C_MU_PK], w_ax)
+        if (f_e * cn["inv_nmot"] + f_fa > laws.adhesion_limit(cn["mu_pk"], w_ax)
                 or f_fa * slide_ratio[i] > w_ax):
             fast = False
         blk[O_FBRK, i] = f_e + f_fa * fric_mult[i]
@@ -274,14 +300,15 @@ def front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb,
 
 
 @njit(cache=True)
-def axle_fill(c, f_fa, a_d, w_axle, axc, stab, out):  # type: ignore[no-untyped-def]
+def axle_fill(cn, f_fa, a_d, w_axle, axc, stab, out):  # type: ignore[no-untyped-def]
     """(F_x, clamp force, slip) of the instrumented axles into ``out`` [3, n, 4].
 
     :meth:`.braking.AxleState.get` (quasi-static rolling); ``axc`` = (F_x per clamp N,
-    1 / r_w^2, adhesion factor) [3, n, 4]; ``stab`` = adhesion table (mu, slip).
+    1 / r_w^2, adhesion factor) [3, n, 4]; ``stab`` = adhesion table (mu, slip); ``cn``: a
+    :data:`CONSTANTS` record.
     """
     n, m = axc.shape[1], axc.shape[2]
-    fc_per_n, jw = c[C_FC_PER_N], c[C_JW]
+    fc_per_n, jw = cn["fc_per_n"], cn["jw"]
     tab_mu, tab_slip = stab[0], stab[1]
     for i in range(n):
         fci = f_fa[i] * fc_per_n

@@ -17,21 +17,30 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
-from .kernel import C_DT, O_AD, O_DRV, O_EOA, O_U, O_V1, O_X1, _mn
-from .kernel_step import (B_EB, B_INVIOL, B_MASKS, B_SB, C_NOISE, F_AUTO, F_BK, F_CODE,
+from .kernel import CONSTANTS, O_AD, O_DRV, O_EOA, O_U, O_V1, O_X1, _mn
+from .kernel_step import (B_EB, B_INVIOL, B_MASKS, B_SB, DRIVER, F_AUTO, F_BK, F_CODE,
                           F_EELEC, F_EFRIC, F_ECURVE, F_EGRADE, F_ERES, F_ESTOP, F_ETRAC,
                           F_MP, F_STOP_X, F_TRAC, I_INTERV, I_NSERV, I_STATUS, I_VIOL,
                           step_all)
 
 # why run_rows stopped
 (STOP_TIME, STOP_SLOW, STOP_HIT, STOP_CLOCK, STOP_NORMALS, STOP_BUFFER) = range(6)
-# float results of run_rows
-R_T, R_GMIN, N_RF = range(3)
-# integer results of run_rows
-(R_STEPS, R_WHY, R_CPOS, R_ZPOS, R_NINT, R_NCIVIL, R_ANY_ATP, R_ANY_VIOL, R_SAMPLES,
- N_RI) = range(10)
+RESULT_FLOATS = ("t", "gmin")
+"""Float results of :func:`run_rows` (:data:`RESULT_F`): the time after the last step [s],
+the smallest gap to the obstacle ahead over the steps [m]."""
+RESULT_F = np.dtype([(f, np.float64) for f in RESULT_FLOATS])
+"""The float results by name (``rf``: a float vector viewed as this record in the kernel)."""
+RESULT_INTS = ("steps", "why", "cpos", "zpos", "n_int", "n_civil", "any_atp", "any_viol",
+               "samples")
+"""Integer results of :func:`run_rows` (:data:`RESULT_I`): steps done, why it stopped
+(``STOP_*``), the sensors' next clock position and normals position, new ATP
+interventions, train-steps above the civil limit, the last step's ATP and violation flags
+(0/1), sample instants computed."""
+RESULT_I = np.dtype([(f, np.int64) for f in RESULT_INTS])
+"""The integer results by name (``ri``: an int64 vector viewed as this record)."""
 
 
 @njit(cache=True)
@@ -49,13 +58,16 @@ def run_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blks, u
     train runs); ``zbuf[zpos:]``: the normals drawn ahead; ``o4`` / ``o2``: the samples of
     all steps one after the other along their sample axis (``samples``: compute them).
     ``t_next`` / ``t_dur`` / ``t_limit``: next discrete time (the first step's discrete
-    events are done), duration, caller's limit [s]; ``tk[k]``: the time at the end of step k.
+    events are done), duration, caller's limit [s]; ``tk[k]``: the time at the end of step k;
+    ``rf`` / ``ri``: a float / an int64 vector of :data:`RESULT_F` / :data:`RESULT_I`'s size.
     """
-    dt = c[C_DT]
+    cn = c.view(CONSTANTS)[0]
+    dt = cn["dt"]
     m, na = sidx.shape[0], axc.shape[2]
     last = clock.shape[0] - 1
     cap = o4.shape[1]
-    noise = c[C_NOISE:C_NOISE + 4]
+    noise = cn["noise"]
+    dr, dr_auto = dcs[0].view(DRIVER)[0], dcs[1].view(DRIVER)[0]
     eb, sb, inv = bools[B_EB], bools[B_SB], bools[B_INVIOL]
     interv, viol, code = ints[I_INTERV], ints[I_VIOL], fs[F_CODE]
     save_b = eb.copy()
@@ -99,13 +111,13 @@ def run_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blks, u
         blk = blks[k]
         ax_out = axs[k % 2]
         r = step_all(
-            c, prev[O_X1], prev[O_V1], ints[I_STATUS], bools[B_MASKS:], u, prev[O_U],
+            cn, prev[O_X1], prev[O_V1], ints[I_STATUS], bools[B_MASKS:], u, prev[O_U],
             fs[F_AUTO], prev[O_AD], fs[F_MP:F_MP + 5], fs[F_TRAC], eb, sb, interv, viol, inv,
             grids, tabs, code, fs[F_BK:F_BK + 2], any_slide, any_wsp, blk, geo,
             fs[F_STOP_X], fs[F_ETRAC], fs[F_EELEC], fs[F_EFRIC], fs[F_ERES], fs[F_ECURVE],
-            fs[F_EGRADE], fs[F_ESTOP], ints[I_NSERV], axc, stab, ax_out, dcs[0], True, sidx,
+            fs[F_EGRADE], fs[F_ESTOP], ints[I_NSERV], axc, stab, ax_out, dr, True, sidx,
             r_w, sl, clock[cpos:end], t, t1, zbuf, zpos, noise,
-            o4[:, s_off:s_off + n_s], o2[:, s_off:s_off + n_s], auto, prev[O_EOA], dcs[1])
+            o4[:, s_off:s_off + n_s], o2[:, s_off:s_off + n_s], auto, prev[O_EOA], dr_auto)
         if r[5] < 0:  # the numpy slide model: undo the step's ATP updates, Python steps
             eb[:] = save_b
             sb[:] = save_s
@@ -132,7 +144,9 @@ def run_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blks, u
         if r[5] > 0:
             why = STOP_HIT
             break
-    rf[R_T], rf[R_GMIN] = t, gmin
-    ri[R_STEPS], ri[R_WHY], ri[R_CPOS], ri[R_ZPOS] = k, why, cpos, zpos
-    ri[R_NINT], ri[R_NCIVIL], ri[R_ANY_ATP], ri[R_ANY_VIOL] = n_int, n_civil, any_atp, any_viol
-    ri[R_SAMPLES] = s_off
+    res_f, res_i = rf.view(RESULT_F)[0], ri.view(RESULT_I)[0]
+    res_f["t"], res_f["gmin"] = t, gmin
+    res_i["steps"], res_i["why"], res_i["cpos"], res_i["zpos"] = k, why, cpos, zpos
+    res_i["n_int"], res_i["n_civil"] = n_int, n_civil
+    res_i["any_atp"], res_i["any_viol"] = any_atp, any_viol
+    res_i["samples"] = s_off

@@ -12,18 +12,20 @@ from numba import njit
 
 from metro_atc.core import laws
 
-from .kernel import (C_DAVIS_A, C_DAVIS_B, C_DAVIS_C, C_DT, C_FIXED, C_INV_DX, C_SUBSTEPS,
-                     C_TOL, C_X0, G_ENV, G_SBI, M_CAND, M_RUN, N_CONST, O_ACC, O_AD, O_D,
-                     O_DRV, O_EOA, O_FBDEM, O_FBRK, O_FE, O_FFA, O_FTRAC, O_U, O_V1, O_WAX,
-                     O_X1, P_CB, P_CC, P_INV_M, P_MASS, P_MEFF, _cell, _mn, _mx, axle_fill,
-                     front)
+from .kernel import (CONSTANTS, G_ENV, G_SBI, M_CAND, M_RUN, O_ACC, O_AD, O_D, O_DRV, O_EOA,
+                     O_FBDEM, O_FBRK, O_FE, O_FFA, O_FTRAC, O_U, O_V1, O_WAX, O_X1, P_CB, P_CC,
+                     P_INV_M, P_MASS, P_MEFF, _cell, _mn, _mx, axle_fill, front)
 from .kernel_aux import sensor_block
 
-# packed driver constants
-(D_X0, D_INV_DX, D_B_DRIVE, D_T_SBI, D_C0, D_C2, D_C1, D_BS, D_TOL, D_GAIN, D_LA,
- N_DCONST) = range(12)
-C_NOISE = N_CONST
-"""Sensor noise standard deviations (4) follow the run constants in ``c`` (:func:`step_rows`)."""
+DRIVER_FIELDS = ("x0", "inv_dx", "b_drive", "t_sbi", "c0", "c2", "c1", "bs", "tol", "gain",
+                 "lookahead")
+"""Fields of :data:`DRIVER` (float64, in the vector's order): grid x0 [m], 1/dx [1/m],
+driving deceleration [m/s^2], t_sbi [s], the EBI curve's coefficients c0, c2, c1 at the
+ATP's worst-case acceleration, service brake [m/s^2], stopping tolerance [m], gain [s/m],
+look-ahead [s] (:func:`.driver.driver_command`)."""
+DRIVER = np.dtype([(f, np.float64) for f in DRIVER_FIELDS])
+"""The reference driver's constants by name: a float vector viewed as this record in
+:func:`driver` (one row of ``dcs``: the reference driver's, the plant driver's)."""
 # rows of the persistent blocks of :func:`step_rows` (:mod:`.fast_state`): float state
 # (owned), then mass constants (``P_*`` order) and brake ratios (copied), then the
 # plant driver's command (scratch); integer state; boolean state then masks (``M_*``)
@@ -37,18 +39,29 @@ B_EB, B_SB, B_INVIOL, B_MASKS = range(4)
 def motion(c, x, v, f_trac, f_brake, f_e, f_bdem, mp, geo, masks, stop_x, e_trac, e_elec,
            e_fric, e_res, e_curve, e_grade, e_stop_corr, n_in_service,
            blk):  # type: ignore[no-untyped-def]
+    """:func:`motion_rec` with the run constants as their float vector ``c`` (from Python)."""
+    return motion_rec(c.view(CONSTANTS)[0], x, v, f_trac, f_brake, f_e, f_bdem, mp, geo,
+                      masks, stop_x, e_trac, e_elec, e_fric, e_res, e_curve, e_grade,
+                      e_stop_corr, n_in_service, blk)
+
+
+@njit(cache=True)
+def motion_rec(cn, x, v, f_trac, f_brake, f_e, f_bdem, mp, geo, masks, stop_x, e_trac,
+               e_elec, e_fric, e_res, e_curve, e_grade, e_stop_corr, n_in_service,
+               blk):  # type: ignore[no-untyped-def]
     """RK4 with energy quadrature, energy meter, arrival candidates of one step.
 
-    Writes x1, v1, acc and the distance to the stop point into ``blk``; returns the number
-    of trains at or past their stop point (arrival / overrun candidates).
+    ``cn``: the run constants (a ``kernel.CONSTANTS`` record).  Writes x1, v1, acc and the
+    distance to the stop point into ``blk``; returns the number of trains at or past their
+    stop point (arrival / overrun candidates).
     """
     n = x.shape[0]
     n_cells = geo.shape[1]
     mass, meff, inv_m, cb, cc = mp[P_MASS], mp[P_MEFF], mp[P_INV_M], mp[P_CB], mp[P_CC]
-    x0, inv_dx = c[C_X0], c[C_INV_DX]
-    da, db, dc = c[C_DAVIS_A], c[C_DAVIS_B], c[C_DAVIS_C]
-    dt = c[C_DT]
-    substeps = int(c[C_SUBSTEPS])
+    x0, inv_dx = cn["x0"], cn["inv_dx"]
+    da, db, dc = cn["davis_a"], cn["davis_b"], cn["davis_c"]
+    dt = cn["dt"]
+    substeps = int(cn["substeps"])
     h = dt / substeps
     h6 = h / 6.0
     xs = x.copy()
@@ -101,7 +114,7 @@ def motion(c, x, v, f_trac, f_brake, f_e, f_bdem, mp, geo, masks, stop_x, e_trac
             vs[i] = vn[i]
     inv_dt = 1.0 / dt
     n_hit = 0
-    tol = c[C_TOL]
+    tol = cn["tol"]
     run, cand = masks[M_RUN], masks[M_CAND]
     for i in range(n):
         x1, v1, v0 = xs[i], vs[i], v[i]
@@ -136,29 +149,40 @@ def motion(c, x, v, f_trac, f_brake, f_e, f_bdem, mp, geo, masks, stop_x, e_trac
 @njit(cache=True)
 def driver(dc, x, v, stop_x, eoa, speed_code, drive_env, sbi_static, status,
            fixed: bool, active_only: bool, out):  # type: ignore[no-untyped-def]
-    """Reference driver command per train into ``out`` (0 for trains not RUN if asked)."""
+    """:func:`driver_rec` with the constants as their float vector ``dc`` (from Python)."""
+    driver_rec(dc.view(DRIVER)[0], x, v, stop_x, eoa, speed_code, drive_env, sbi_static,
+               status, fixed, active_only, out)
+
+
+@njit(cache=True)
+def driver_rec(d, x, v, stop_x, eoa, speed_code, drive_env, sbi_static, status,
+               fixed: bool, active_only: bool, out):  # type: ignore[no-untyped-def]
+    """Reference driver command per train into ``out`` (0 for trains not RUN if asked).
+
+    ``d``: the driver's constants (a :data:`DRIVER` record).
+    """
     n = x.shape[0]
     n_cells = drive_env.shape[0]
-    b_drive = dc[D_B_DRIVE]
-    c0, c1, c2 = dc[D_C0], dc[D_C1], dc[D_C2] + 1.0
-    tol = 0.5 * dc[D_TOL]
+    b_drive = d["b_drive"]
+    c0, c1, c2 = d["c0"], d["c1"], d["c2"] + 1.0
+    tol = 0.5 * d["tol"]
     for i in range(n):
         xi, vi = x[i], v[i]
-        la = vi * dc[D_LA]
-        kl = _cell(xi + la, dc[D_X0], dc[D_INV_DX], n_cells)
+        la = vi * d["lookahead"]
+        kl = _cell(xi + la, d["x0"], d["inv_dx"], n_cells)
         d_stop = stop_x[i] - xi
         d_ma = eoa[i] - xi - 3.0
         d_eff = _mn(d_stop, d_ma)
         v_curve = laws.braking_speed(d_eff - la, b_drive)
-        lead = vi * (dc[D_T_SBI] + 2.0)
+        lead = vi * (d["t_sbi"] + 2.0)
         v_atp = laws.ebi_speed_from(c0, c1, c2, d_ma - lead)
         v_ref = _mn(_mn(drive_env[kl], v_curve), _mn(v_atp, sbi_static[kl] - 1.0))
         if fixed:
             v_ref = _mn(v_ref, speed_code[i] - 0.5)
-        err = dc[D_GAIN] * (v_ref - vi)
+        err = d["gain"] * (v_ref - vi)
         u = err
         if d_eff < (0.65 / b_drive) * vi * vi + 1.0:
-            ff = (vi * vi) / (-2.0 * dc[D_BS] * _mx(d_eff, 0.05))
+            ff = (vi * vi) / (-2.0 * d["bs"] * _mx(d_eff, 0.05))
             u = _mn(err, ff + err)
         if vi < 0.3 and d_stop > tol and v_ref > 1.0:
             u = _mx(u, 0.3)
@@ -171,12 +195,12 @@ def driver(dc, x, v, stop_x, eoa, speed_code, drive_env, sbi_static, status,
 
 
 @njit(cache=True)
-def step_all(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb, sb,
+def step_all(cn, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb, sb,
              interventions, violations, in_violation, grids, tabs, speed_code, bk,
              any_slide: bool, any_wsp: bool, blk, geo, stop_x, e_trac, e_elec, e_fric, e_res,
-             e_curve, e_grade, e_stop_corr, n_in_service, axc, stab, ax_out, dc,
+             e_curve, e_grade, e_stop_corr, n_in_service, axc, stab, ax_out, dr,
              want_drv: bool, sidx, r_w, slip0, ts, t0: float, t1: float, zbuf, zpos: int,
-             noise, o4, o2, auto: bool, eoa0, dc_auto):  # type: ignore[no-untyped-def]
+             noise, o4, o2, auto: bool, eoa0, dr_auto):  # type: ignore[no-untyped-def]
     """One step: :func:`.kernel.front`, then (rail force done) :func:`motion`.
 
     Also fills ``ax_out`` (instrumented axles, when it has rows), the sensor samples of the
@@ -185,28 +209,30 @@ def step_all(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, 
     ``slip0``) and, with ``want_drv`` and no arrival candidate, the reference driver's next
     command (row ``O_DRV``).  Returns front's figures and the number of arrival candidates
     (-1: rail force left to numpy).  With ``auto`` the commands of the plant-driven
-    trains are first computed into ``auto_u`` (:func:`driver`, constants ``dc_auto``,
-    movement authority ``eoa0`` of the previous step).
+    trains are first computed into ``auto_u`` (:func:`driver_rec`, constants ``dr_auto``,
+    movement authority ``eoa0`` of the previous step).  ``cn``: the run constants (a
+    ``kernel.CONSTANTS`` record); ``dr`` / ``dr_auto``: :data:`DRIVER` records.
     """
+    fixed = cn["fixed"] != 0.0
     if auto:
-        driver(dc_auto, x, v, stop_x, eoa0, speed_code, grids[G_ENV], grids[G_SBI], status,
-               c[C_FIXED] != 0.0, False, auto_u)
-    r = front(c, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb, sb,
+        driver_rec(dr_auto, x, v, stop_x, eoa0, speed_code, grids[G_ENV], grids[G_SBI],
+                   status, fixed, False, auto_u)
+    r = front(cn, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb, sb,
               interventions, violations, in_violation, grids, tabs, speed_code, bk,
               any_slide, any_wsp, blk)
     if not r[5]:
         return r[0], r[1], r[2], r[3], r[4], -1
-    n_hit = motion(c, x, v, blk[O_FTRAC], blk[O_FBRK], blk[O_FE], blk[O_FBDEM], mp, geo,
-                   masks, stop_x, e_trac, e_elec, e_fric, e_res, e_curve, e_grade,
-                   e_stop_corr, n_in_service, blk)
+    n_hit = motion_rec(cn, x, v, blk[O_FTRAC], blk[O_FBRK], blk[O_FE], blk[O_FBDEM], mp,
+                       geo, masks, stop_x, e_trac, e_elec, e_fric, e_res, e_curve, e_grade,
+                       e_stop_corr, n_in_service, blk)
     if ax_out.shape[1]:
-        axle_fill(c, blk[O_FFA], blk[O_ACC], blk[O_WAX], axc, stab, ax_out)
+        axle_fill(cn, blk[O_FFA], blk[O_ACC], blk[O_WAX], axc, stab, ax_out)
         if o4.shape[1]:
             sensor_block(sidx, r_w, slip0, ax_out[2], ax_out[1], v, blk[O_V1], blk[O_ACC],
                          ts, t0, t1, zbuf[zpos:], noise, o4, o2)
     if want_drv and n_hit == 0:
-        driver(dc, blk[O_X1], blk[O_V1], stop_x, blk[O_EOA], speed_code, grids[G_ENV],
-               grids[G_SBI], status, c[C_FIXED] != 0.0, True, blk[O_DRV])
+        driver_rec(dr, blk[O_X1], blk[O_V1], stop_x, blk[O_EOA], speed_code, grids[G_ENV],
+                   grids[G_SBI], status, fixed, True, blk[O_DRV])
     return r[0], r[1], r[2], r[3], r[4], n_hit
 
 
@@ -225,11 +251,13 @@ def step_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blk, u
     k4 = 2 * ns * m * na
     o4 = so[:k4].reshape((2, ns, m, na))
     o2 = so[k4:k4 + 2 * ns * m].reshape((2, ns, m))
+    cn = c.view(CONSTANTS)[0]
     return step_all(
-        c, blk0[O_X1], blk0[O_V1], ints[I_STATUS], bools[B_MASKS:], u, blk0[O_U],
+        cn, blk0[O_X1], blk0[O_V1], ints[I_STATUS], bools[B_MASKS:], u, blk0[O_U],
         fs[F_AUTO], blk0[O_AD], fs[F_MP:F_MP + 5], fs[F_TRAC], bools[B_EB], bools[B_SB],
         ints[I_INTERV], ints[I_VIOL], bools[B_INVIOL], grids, tabs, fs[F_CODE],
         fs[F_BK:F_BK + 2], any_slide, any_wsp, blk, geo, fs[F_STOP_X], fs[F_ETRAC],
         fs[F_EELEC], fs[F_EFRIC], fs[F_ERES], fs[F_ECURVE], fs[F_EGRADE], fs[F_ESTOP],
-        ints[I_NSERV], axc, stab, ax_out, dcs[0], want_drv, sidx, r_w, slip0, ts, t0, t1,
-        zbuf, zpos, c[C_NOISE:C_NOISE + 4], o4, o2, auto, blk0[O_EOA], dcs[1])
+        ints[I_NSERV], axc, stab, ax_out, dcs[0].view(DRIVER)[0], want_drv, sidx, r_w, slip0,
+        ts, t0, t1, zbuf, zpos, cn["noise"], o4, o2, auto, blk0[O_EOA],
+        dcs[1].view(DRIVER)[0])
