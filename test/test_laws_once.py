@@ -39,8 +39,10 @@ PATTERNS: dict[str, list[str]] = {
     "grade": [r"sin\(\s*(?:np|math)\.(?:arctan|atan)\("],
     "roeckl": [r"650\.0\s*/", r"500\.0\s*/"],
     "atp_curve": [r"\(\s*b\s*\*\s*tr\s*\)\s*\*\*\s*2", r"sqrt\(\s*_mx\(\s*c0\s*\+",
-                  r"C_C0A\]\s*\+", r"0\.5\s*\*\s*a_w\s*\*\s*t_r", r"0\.9\s*\*\s*[\w.]*mu_slide",
-                  r"sqrt\(\s*2\.0\s*\*\s*[\w.\[\]]*(?:C_BS|max_service_brake_mps2)"],
+                  r"(?:C_C0A|[\"']c0a[\"'])\]\s*\+", r"0\.5\s*\*\s*a_w\s*\*\s*t_r",
+                  r"0\.9\s*\*\s*[\w.]*mu_slide",
+                  r"sqrt\(\s*2\.0\s*\*\s*[\w.\[\]\"']*"
+                  r"(?:C_BS|[\"']bs[\"']|max_service_brake_mps2)"],
     "pad_torque": [r"2\.0\s*\*\s*[\w.\[\]:, ]*(?:pad_mu|mub|mu_b)\b[\w.\[\]:, ]*\*\s*[\w.]*"
                    r"(?:r_b|brake_radius_m)\b"],
     "rk4_davis": [r"k2\s*=\s*q\s*-\s*v2\s*\*"],
@@ -113,14 +115,14 @@ PENDING: dict[str, set[str]] = {
 
 
 def _code(path: Path) -> str:
-    """The module's source with comments and string literals blanked."""
+    """The module's source with comments and string literals blanked (but record keys)."""
     out = []
     toks = tokenize.generate_tokens(io.StringIO(path.read_text()).readline)
     for tok in toks:
         if tok.type == tokenize.COMMENT:
             continue
-        if tok.type == tokenize.STRING:
-            tok = tok._replace(string='""')
+        if tok.type == tokenize.STRING and not re.fullmatch(r"[\"'][a-z_0-9]+[\"']", tok.string):
+            tok = tok._replace(string='""')  # record keys (``cn["bs"]``) stay: code, not text
         out.append(tok)
     return tokenize.untokenize(out)
 
@@ -209,9 +211,11 @@ def test_patterns_find_the_old_copies() -> None:
         "atp_curve": ["c0 = (b * tr) ** 2 + b * tr * tr * a_w",
                       "v_ma = math.sqrt(_mx(c0 + c[C_C1] * dist, 0.0)) - c2",
                       "c0 = c[C_C0A] + c[C_C0B] * a_w",
+                      "c0 = cn[\"c0a\"] + cn[\"c0b\"] * a_w",
                       "d_r = p.max_speed_mps * t_r + 0.5 * a_w * t_r ** 2",
                       "0.9 * curve.mu_slide * G * tare / (tare + m_rot)",
                       "code = math.sqrt(2.0 * c[C_BS] * _mx(eoa[i] - start, 0.0))",
+                      "code = math.sqrt(2.0 * cn[\"bs\"] * _mx(eoa[i] - start, 0.0))",
                       "np.sqrt(2.0 * self.p.max_service_brake_mps2 * np.maximum(d, 0.0))"],
         "pad_torque": ["self.tb_coef = 2.0 * self.pad_mu * p.brake_radius_m / self.r_w",
                        "tb = 2.0 * mub[:, None] * p.r_b * fc * np.tanh(om / p.w_eps)",
