@@ -67,20 +67,10 @@ def pack_train(train: TrainParams, limits: OperatingLimits) -> NDArray[np.void]:
     return c
 
 
-@jit
-def mx(a: float, b: float) -> float:
-    """``np.maximum`` of two floats (NaN propagates, ties keep ``a``)."""
-    if a >= b or a != a:
-        return a
-    return b
-
-
-@jit
-def mn(a: float, b: float) -> float:
-    """``np.minimum`` of two floats (NaN propagates, ties keep ``a``)."""
-    if a <= b or a != a:
-        return a
-    return b
+mx = laws.fmax
+"""``np.maximum`` of two floats (:func:`metro_atc.core.laws.fmax`)."""
+mn = laws.fmin
+"""``np.minimum`` of two floats (:func:`metro_atc.core.laws.fmin`)."""
 
 
 @jit

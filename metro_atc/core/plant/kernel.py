@@ -62,20 +62,10 @@ G_EBI, G_SBI, G_CEIL, G_LIM, G_ENV = range(5)
 _TURNBACK = 2
 
 
-@njit(cache=True, inline="always")
-def _mx(a: float, b: float) -> float:
-    """``np.maximum`` of two floats (NaN propagates, ties keep ``a``)."""
-    if a >= b or a != a:
-        return a
-    return b
-
-
-@njit(cache=True, inline="always")
-def _mn(a: float, b: float) -> float:
-    """``np.minimum`` of two floats (NaN propagates, ties keep ``a``)."""
-    if a <= b or a != a:
-        return a
-    return b
+_mx = laws.fmax
+"""``np.maximum`` of two floats (:func:`metro_atc.core.laws.fmax`)."""
+_mn = laws.fmin
+"""``np.minimum`` of two floats (:func:`metro_atc.core.laws.fmin`)."""
 
 
 @njit(cache=True, inline="always")
