@@ -48,6 +48,18 @@ def _refused(edit: Callable[[dict[str, Any]], None], key: str) -> str:
 # ----------------------------------------------------------------------------- masses
 
 
+def test_preset_figures_a_short_train_cannot_hold_are_refused() -> None:
+    """A 30 m train left with the 6-car preset's cars and 1 900 persons: refused, named."""
+    msg = _refused(lambda d: d["trains"].update(tare_mass_kg=45_000.0, mass_load_pax=0.0,
+                                                length_m=30.0), "trains.stock.cars")
+    assert "5 m per car" in msg
+    msg = _refused(lambda d: d["trains"].update(tare_mass_kg=45_000.0, mass_load_pax=0.0,
+                                                length_m=30.0, stock={"cars": 3}),
+                   "trains.capacity_pax")
+    assert "63.3 per metre" in msg
+    _parse(_mini(lambda d: d["trains"].update(LIGHT)))  # the same train, its own figures
+
+
 def test_light_train_mass_without_its_load_is_refused() -> None:
     """45 t with the preset's 1 000 persons was an empty train of -20 t: now refused."""
     _refused(lambda d: d["trains"].update(mass_kg=45_000.0, length_m=30.0,

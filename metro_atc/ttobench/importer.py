@@ -29,6 +29,7 @@ from typing import Any, Optional, Sequence
 import yaml
 
 from metro_atc.core.line.scenario import LineSpec, Scenario, ScenarioError, parse_scenario
+from metro_atc.core.line.vehicle import PRESETS
 
 KMH_PER_MPS = 3.6
 
@@ -59,6 +60,9 @@ _UNITS: dict[str, dict[str, float]] = {
     "efficiency reg brake": {"%": 0.01, "-": 1.0},
 }
 """Accepted units of the train's scalar fields and their factor to the scenario unit."""
+
+PRESET = "taipei_mrt_6car"
+"""The preset an imported train takes what TTOBench does not give from (stated per value)."""
 
 _TRAIN_KEYS: dict[str, tuple[str, str]] = {
     "mass": ("trains", "mass_kg"),
@@ -298,6 +302,7 @@ def map_train(src: str, d: dict[str, Any], drop: set[str], notes: list[str],
         trains["length_m"] = float(length_m)
         notes.append(f"{src}: no length in TTOBench: train length {length_m:g} m given with "
                      "the import (--length-m)")
+    _fit_preset_to_length(src, trains, stock, notes)
     if "max pn braking force" not in d:
         stock["friction_brake_force_kn"] = 0.0
     notes.append(f"{src}: guaranteed / nominal emergency deceleration not in TTOBench: "
@@ -341,6 +346,29 @@ def map_journey(src: str, d: dict[str, Any], stops: list[float], notes: list[str
     notes.append(f"{src}: stations = the journey's {len(served)} stopping points; its time "
                  "windows are replaced by the scenario timetable (headway + margin)")
     return served, (max(dwells) if dwells else None)
+
+
+def _fit_preset_to_length(src: str, trains: dict[str, Any], stock: dict[str, Any],
+                          notes: list[str]) -> None:
+    """Cars and crush capacity (not in TTOBench) of the preset, scaled to the train's length.
+
+    The preset's car length and persons per metre times the train's length [m] (at least 2
+    cars); kept as they are, and not written, where they equal the preset's.
+    """
+    pre = PRESETS[PRESET]
+    length = float(trains["length_m"])
+    if "cars" not in stock:
+        cars = max(2, int(round(length / (pre.length_m / pre.cars))))
+        if cars != pre.cars:
+            stock["cars"] = cars
+            notes.append(f"{src}: no number of coaches: {cars} cars of the {PRESET} preset's "
+                         f"{pre.length_m / pre.cars:.3g} m in {length:g} m")
+    if "capacity_pax" not in trains:
+        cap = float(round(pre.capacity_pax / pre.length_m * length))
+        if cap != pre.capacity_pax:
+            trains["capacity_pax"] = cap
+            notes.append(f"{src}: no crush capacity: {cap:g} persons, the {PRESET} preset's "
+                         f"{pre.capacity_pax / pre.length_m:.3g} per metre x {length:g} m")
 
 
 def _trim_to_line(line: dict[str, Any], length_m: float, notes: list[str]) -> None:
@@ -415,7 +443,7 @@ def import_ttobench(track: str, train: str, journey: Optional[str] = None, *,
         "sources": [f"TTOBench v1.5, {t_src} and {r_src} (Kouzoupis, Pendharkar, Corman, "
                     "OR Forum 4:67, 2023; BSD 2-Clause)"] + notes,
         "sim": {"control_period_s": 0.25, "duration_s": float(min(duration, 200_000.0))},
-        "trains": {"count": int(n_trains), "preset": "taipei_mrt_6car", **trains},
+        "trains": {"count": int(n_trains), "preset": PRESET, **trains},
         "line": line,
         "signalling": {"mode": "moving_block", "safety_margin_m": 50.0},
         "timetable": {"first_departure_s": 60.0, "running_time_margin": float(margin),

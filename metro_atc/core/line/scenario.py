@@ -607,10 +607,19 @@ def stock_key_path(key: str) -> str:
     return f"trains.stock.{key}"
 
 
+CAR_LENGTH_MIN_M = 8.0
+"""Shortest car of a train with two bogies [m] (estimate: bogie centres plus overhangs)."""
+CRUSH_PAX_PER_M = 25.0
+"""Largest crush load per metre of train [persons/m] (estimate: 8 standing persons per m^2
+on a 3 m wide floor with no seats; the shipped stock has 3.3-15.6)."""
+
+
 def _check_stock(b: _Builder, s: Scenario) -> None:
     """The resolved rolling stock is physical at every load from empty to crush.
 
-    Refused: an empty mass <= 0; an initial load above the capacity; a train that cannot
+    Refused: an empty mass <= 0; an initial load above the capacity; cars shorter than
+    :data:`CAR_LENGTH_MIN_M` or a capacity above :data:`CRUSH_PAX_PER_M` per metre of train
+    (a preset's figures the file's length cannot hold); a train that cannot
     start on the line's steepest up grade at crush load (tractive force at standstill,
     limited by the motored axles' peak adhesion, not above the Davis A term plus the grade
     force of the crush-loaded train); a nominal emergency brake below the ATP's guaranteed
@@ -634,6 +643,15 @@ def _check_stock(b: _Builder, s: Scenario) -> None:
     if s.trains.initial_load_pax > p.capacity_pax:
         raise b.err("trains.initial_load_pax", f"expected <= capacity_pax "
                     f"({p.capacity_pax:g}), got {s.trains.initial_load_pax:g}")
+    # a preset's cars or capacity that the train's length cannot hold: refused, not kept
+    if p.length_m / p.cars < CAR_LENGTH_MIN_M:
+        raise b.err("trains.stock.cars", f"{p.cars} cars on a {p.length_m:g} m train is "
+                    f"{p.length_m / p.cars:.3g} m per car, expected >= {CAR_LENGTH_MIN_M:g} m "
+                    "(give the train's cars)")
+    if p.capacity_pax / p.length_m > CRUSH_PAX_PER_M:
+        raise b.err("trains.capacity_pax", f"{p.capacity_pax:g} persons on a {p.length_m:g} "
+                    f"m train is {p.capacity_pax / p.length_m:.3g} per metre, expected <= "
+                    f"{CRUSH_PAX_PER_M:g} (give the train's capacity)")
     curve = CURVES[s.line.adhesion]
     m_crush = p.mass_at_load(p.capacity_pax)
     n_ax = p.cars * p.axles_per_car
