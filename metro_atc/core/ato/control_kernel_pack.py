@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from metro_atc.core.ato import control_kernel as ck
+from metro_atc.core.ato.step_kernel import TRACTION_FIELDS, train_fields
 from metro_atc.core.kernel_choice import resolve_kernel
 from metro_atc.core.line.vehicle import TrainParams
 
@@ -24,8 +25,6 @@ KERNEL_ENV = "METRO_ATC_ATO_KERNEL"
 """Environment variable selecting the ATO control step when the caller does not."""
 KERNELS = ("auto", "numba", "python")
 """Accepted names."""
-TRACTION_FIELDS = ("a1", "v1", "v2", "a2", "a3", "b2", "b3")
-"""The traction curve's fields of :data:`.control_kernel.CONSTANTS` (``w_``: the ATP's)."""
 ATP_FIELDS = ("g_down", "sbi_offset", "c0a", "bt", "btt", "t_r", "two_b", "t_sbi", "grid_x0",
               "grid_dx")
 """The ATP's fields of :data:`.control_kernel.CONSTANTS`, in :func:`pack_constants`' order."""
@@ -52,17 +51,12 @@ def pack_constants(train: TrainParams, atp_train: TrainParams, core: Sequence[fl
         raise ValueError("inconsistent ATO kernel constants")
     c = np.zeros(1, dtype=ck.CONSTANTS)
     r = c[0]
-    r["mass"] = train.mass_kg
-    r["meff"] = train.effective_mass_kg
-    r["davis_a"] = train.davis_a_n
-    r["davis_b"] = train.davis_b_n_per_mps
-    r["davis_c"] = train.davis_c_n_per_mps2
+    for name, val in train_fields(train):
+        r[name] = val
     r["brake_service"] = train.max_service_brake_mps2
     r["length"] = train.length_m
-    for pre, tr in (("", train), ("w_", atp_train)):
-        for name, val in zip(TRACTION_FIELDS, (tr.a1_mps2, tr.v1_mps, tr.v2_mps, tr.a2, tr.a3,
-                                               tr.b2_mps, tr.b3_mps)):
-            r[pre + name] = val
+    for name, val in zip(TRACTION_FIELDS, atp_train.traction_law):
+        r["w_" + name] = val
     for name, val in zip(ATP_FIELDS + CORE_FIELDS, list(atp) + list(core)):
         r[name] = float(val)
     return c.view(np.float64)

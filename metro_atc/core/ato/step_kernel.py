@@ -47,22 +47,27 @@ def jit(fn: Callable[..., Any]) -> Callable[..., Any]:
     return njit(cache=True, error_model="numpy")(fn)  # type: ignore[no-any-return]
 
 
+TRACTION_FIELDS = ("a1", "v1", "v2", "a2", "a3", "b2", "b3")
+"""Record fields of the traction curve, in the order of ``TrainParams.traction_law``."""
+
+
+def train_fields(train: TrainParams) -> tuple[tuple[str, float], ...]:
+    """(field, value) of the train constants every ATO kernel record carries.
+
+    Mass [kg], effective mass [kg], Davis A, B, C [N, N/(m/s), N/(m/s)^2] and the traction
+    curve (:data:`TRAIN` and the control step's ``CONSTANTS``).
+    """
+    return (("mass", train.mass_kg), ("meff", train.effective_mass_kg),
+            ("davis_a", train.davis_a_n), ("davis_b", train.davis_b_n_per_mps),
+            ("davis_c", train.davis_c_n_per_mps2), *zip(TRACTION_FIELDS, train.traction_law))
+
+
 def pack_train(train: TrainParams, limits: OperatingLimits) -> NDArray[np.void]:
     """The train and limit constants the kernels read (a one-element :data:`TRAIN` array)."""
     c = np.zeros(1, dtype=TRAIN)
     r = c[0]
-    r["mass"] = train.mass_kg
-    r["meff"] = train.effective_mass_kg
-    r["davis_a"] = train.davis_a_n
-    r["davis_b"] = train.davis_b_n_per_mps
-    r["davis_c"] = train.davis_c_n_per_mps2
-    r["a1"] = train.a1_mps2
-    r["v1"] = train.v1_mps
-    r["v2"] = train.v2_mps
-    r["a2"] = train.a2
-    r["a3"] = train.a3
-    r["b2"] = train.b2_mps
-    r["b3"] = train.b3_mps
+    for name, val in train_fields(train):
+        r[name] = val
     r["accel_max"] = limits.accel_max_mps2
     return c
 
