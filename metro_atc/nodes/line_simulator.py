@@ -82,13 +82,14 @@ _REGULATOR_NAMES = {code: name for name, code in conv.REGULATOR_CODES.items()}
 NODE_STATE = ("k", "cmd_step", "cmd_effort", "lockstep_misses", "rejected", "rejections",
               "event_seq", "sensor_last_t", "dep_received", "dep_given_up", "ats_misses",
               "_next_status_t", "_next_progress_t", "regulators", "planners", "planned",
-              "watchdog")
+              "watchdog", "brake_assessed")
 """Node attributes saved with the plant in a checkpoint."""
 _STATE_ELSEWHERE = {"sensor_last_t": ("sensors", "last_t"),
                     "dep_received": ("departures", "received"),
                     "dep_given_up": ("departures", "given_up"),
                     "ats_misses": ("departures", "ats_misses"),
-                    "regulators": ("departures", "regulators")}
+                    "regulators": ("departures", "regulators"),
+                    "brake_assessed": ("sensors", "assessed")}
 """The :data:`NODE_STATE` values a collaborator holds: name -> (node attribute, its
 attribute)."""
 

@@ -149,9 +149,10 @@ class SensorOutbox:
         """Train ``i``'s brake diagnosis acknowledged the sample of stamp ``t_s`` [s].
 
         ``assessed``: the diagnosis says the train's brake was assessed (kept per train in
-        :attr:`assessed` for the KPIs).
+        :attr:`assessed` for the KPIs; once assessed a brake stays assessed, so a resumed
+        simulator keeps what its checkpoint holds whichever diagnosis reaches it next).
         """
-        self.assessed[i] = bool(assessed)
+        self.assessed[i] = self.assessed[i] or bool(assessed)
         now = time.monotonic()
         self._ack_seen_wall[i] = now
         if t_s != self.ack_t[i]:
