@@ -10,7 +10,7 @@ import pytest
 
 from metro_atc.core.atr.blue_line import small_line, taipei_blue
 from metro_atc.core.atr.dispatch import make_dispatcher
-from metro_atc.core.atr.evaluation import incident_scenario, simulate
+from metro_atc.core.atr.evaluation import incident_scenario, simulate, simulate_linked
 from metro_atc.core.atr.regulators import Regulator, make_regulator
 from metro_atc.core.atr.traffic import (control_bounds, timetable_state,
                                         truth_arrivals_departures, truth_step)
@@ -107,14 +107,14 @@ def test_no_regulator_dispatches_before_the_turnback() -> None:
     steps = 6
     ready = np.array([120.0, 0.0, 35.0, 0.0, 0.0, 0.0])
     for reg in (_Early(lo), make_regulator("none", line), make_regulator("lqr", line)):
-        tr = simulate(line, reg, np.zeros(4), np.zeros((steps, 4)), steps, ready_dev_s=ready)
+        tr = simulate_linked(line, reg, np.zeros(4), np.zeros((steps, 4)), steps, ready)
         assert np.all(tr["x"][1:, 0] >= ready - 1e-9)
         assert tr["arr"][1, 0] == pytest.approx(120.0)
     free = simulate(line, _Early(lo), np.zeros(4), np.zeros((steps, 4)), steps)
     assert free["x"][1, 0] < 0.0   # the early regulator leaves before the timetable
     with pytest.raises(ValueError):
-        simulate(line, _Early(lo), np.zeros(4), np.zeros((steps, 4)), steps,
-                 ready_dev_s=np.zeros(3))
+        simulate_linked(line, _Early(lo), np.zeros(4), np.zeros((steps, 4)), steps,
+                        np.zeros(3))
 
 
 def test_experiment_inherits_delay_minus_buffer() -> None:

@@ -34,19 +34,30 @@ RECOVERY_TOL_S = 30.0
 
 def simulate(line: LineData, regulator: Regulator, x0_s: np.ndarray, w_dep: np.ndarray,
              horizon: int, saturation: bool = True, knock_on: bool = True,
-             crowding: bool = True, ready_dev_s: Optional[np.ndarray] = None
-             ) -> Dict[str, np.ndarray]:
+             crowding: bool = True) -> Dict[str, np.ndarray]:
     """Run the closed loop on the truth model; w_dep: (steps, N) departure delays [s].
 
     Returns x (steps+1, N), u_cmd and u_applied (steps, N) [s], and ``arr`` (steps+1, N):
     arrival deviations [s] of the trains of x (row 0 nan).  Stages >= horizon use u = 0.
+    Every train is ready at its timetable (the simulation of Lin 2010a, Exp. 2);
+    :func:`simulate_linked` adds the turnback link.
+    """
+    return simulate_linked(line, regulator, x0_s, w_dep, horizon, None, saturation,
+                           knock_on, crowding)
 
-    ``ready_dev_s`` (steps,) [s]: the turnback link of the train dispatched at stage k
+
+def simulate_linked(line: LineData, regulator: Regulator, x0_s: np.ndarray,
+                    w_dep: np.ndarray, horizon: int, ready_dev_s: Optional[np.ndarray],
+                    saturation: bool = True, knock_on: bool = True, crowding: bool = True
+                    ) -> Dict[str, np.ndarray]:
+    """:func:`simulate` with the turnback link of every dispatched train.
+
+    ``ready_dev_s`` (steps,) [s]: the train dispatched at stage k comes out of a turnback
     (:func:`metro_atc.core.service.turnback.turnback_link`, the delay it inherits from its
     previous trip): it reaches the first platform no earlier than its timetable plus
     ready_dev_s[k], and whatever the regulator commands it does not depart before that
-    (a regulator may not dispatch a train before it can have turned back).  None: every
-    train is ready at its timetable (the simulation of Lin 2010a, Exp. 2 as before).
+    (a regulator may not dispatch a train before it can have turned back).  None: no link,
+    exactly :func:`simulate`.
     """
     steps = w_dep.shape[0]
     n = line.n_stations

@@ -6,7 +6,7 @@ Experiment 2: 210 s at the 105 s headway), and what does the train's next trip, 
 other direction, inherit?
 
 Leg 1: the closed loop of a regulator on the truth traffic model
-(:func:`metro_atc.core.atr.evaluation.simulate`, the same incident and seeded exponential
+(:func:`metro_atc.core.atr.evaluation.simulate_linked`, the same incident and seeded exponential
 departure delays as the regulation bench, :func:`metro_atc.core.atr.evaluation.
 incident_scenario`); the delayed train is the one at the first station in the initial state
 (train -1 of the staggered state); its arrival deviation at the terminus is read from the
@@ -29,7 +29,7 @@ import numpy as np
 
 from metro_atc.core.atr.blue_line import LineData
 from metro_atc.core.atr.cost import CostWeights
-from metro_atc.core.atr.evaluation import incident_scenario, simulate
+from metro_atc.core.atr.evaluation import incident_scenario, simulate_linked
 from metro_atc.core.atr.regulators import Regulator
 from metro_atc.core.service.day import LIN2010A_TURNBACK_BUFFER_S
 from metro_atc.core.service.turnback import link
@@ -46,7 +46,7 @@ def leg(line: LineData, reg: Regulator, x0_s: np.ndarray, w_dep: np.ndarray, hor
     train of the incident: stage k holds it at station k), train 0 otherwise (dispatched at
     stage 0 with its turnback link: stage k+1 holds it at station k).
     """
-    tr = simulate(line, reg, x0_s, w_dep, horizon, ready_dev_s=ready_dev_s)
+    tr = simulate_linked(line, reg, x0_s, w_dep, horizon, ready_dev_s)
     n = line.n_stations
     off = 0 if ready_dev_s is None else 1
     k = np.arange(n) + off

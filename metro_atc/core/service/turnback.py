@@ -11,7 +11,7 @@ called, not re-implemented).
 :func:`turnback_link` is the one place that turns a terminal arrival delay into the
 earliest departure of the next trip; the planned-day records
 (:mod:`metro_atc.core.service.planned`) and the regulators' traffic-model hook
-(:func:`metro_atc.core.atr.evaluation.simulate`, ``ready_dev_s``) both use it.
+(:func:`metro_atc.core.atr.evaluation.simulate_linked`) both use it.
 """
 
 from __future__ import annotations
