@@ -28,6 +28,8 @@ BENCHES = {
     "profiles": "metro_atc.bench.profiles",
     "thsr": "metro_atc.bench.thsr",
     "ukf": "metro_atc.bench.ukf",
+    "service-day": "metro_atc.bench.service_day",
+    "turnback": "metro_atc.bench.turnback",
 }
 
 

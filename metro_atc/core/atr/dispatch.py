@@ -38,7 +38,7 @@ dwell at j, decided on the staggered departure-deviation state x(k) = t(k) - T(k
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import List, Optional
 
 import numpy as np
@@ -107,6 +107,22 @@ class AtsDispatcher:
     def initial(self) -> List[Dispatch]:
         """First departures of every train from station 0 (published at start-up)."""
         return [self._timetable(i, 0) for i in range(len(self.ids))]
+
+    def first_departure(self, train_id: str, earliest_s: float) -> Dispatch:
+        """Station-0 command of a train coming out of a turnback: never before ``earliest_s``.
+
+        ``earliest_s`` [s]: the turnback link's earliest departure (arrival of the train's
+        previous trip plus the minimum turnback,
+        :func:`metro_atc.core.service.turnback.turnback_link`); whatever the timetable or
+        the regulator would command, the departure is max(timetable, earliest_s).
+        ValueError for an unknown train or a non-finite instant.
+        """
+        i = self.train_index(train_id)
+        e = float(earliest_s)
+        if not math.isfinite(e):
+            raise ValueError(f"earliest departure {earliest_s!r} of {train_id} is not finite")
+        d = self._timetable(i, 0)
+        return replace(d, departure_s=max(d.departure_s, e))
 
     def on_event(self, train_id: str, station: int, kind: str, t_s: float
                  ) -> Optional[Dispatch]:

@@ -26,7 +26,8 @@ import numpy as np
 from metro_atc.core.atr.blue_line import LineData
 from metro_atc.core.atr.cost import CostWeights, stage_cost, terminal_cost
 from metro_atc.core.atr.regulators import Regulator
-from metro_atc.core.atr.traffic import split_adjustment, timetable_state, truth_step
+from metro_atc.core.atr.traffic import (split_adjustment, timetable_state,
+                                        truth_arrivals_departures)
 
 RECOVERY_TOL_S = 30.0
 
@@ -36,13 +37,40 @@ def simulate(line: LineData, regulator: Regulator, x0_s: np.ndarray, w_dep: np.n
              crowding: bool = True) -> Dict[str, np.ndarray]:
     """Run the closed loop on the truth model; w_dep: (steps, N) departure delays [s].
 
-    Returns x (steps+1, N), u_cmd and u_applied (steps, N) [s].  Stages >= horizon use u = 0.
+    Returns x (steps+1, N), u_cmd and u_applied (steps, N) [s], and ``arr`` (steps+1, N):
+    arrival deviations [s] of the trains of x (row 0 nan).  Stages >= horizon use u = 0.
+    Every train is ready at its timetable (the simulation of Lin 2010a, Exp. 2);
+    :func:`simulate_linked` adds the turnback link.
+    """
+    return simulate_linked(line, regulator, x0_s, w_dep, horizon, None, saturation,
+                           knock_on, crowding)
+
+
+def simulate_linked(line: LineData, regulator: Regulator, x0_s: np.ndarray,
+                    w_dep: np.ndarray, horizon: int, ready_dev_s: Optional[np.ndarray],
+                    saturation: bool = True, knock_on: bool = True, crowding: bool = True
+                    ) -> Dict[str, np.ndarray]:
+    """:func:`simulate` with the turnback link of every dispatched train.
+
+    ``ready_dev_s`` (steps,) [s]: the train dispatched at stage k comes out of a turnback
+    (:func:`metro_atc.core.service.turnback.turnback_link`, the delay it inherits from its
+    previous trip): it reaches the first platform no earlier than its timetable plus
+    ready_dev_s[k], and whatever the regulator commands it does not depart before that
+    (a regulator may not dispatch a train before it can have turned back).  None: no link,
+    exactly :func:`simulate`.
     """
     steps = w_dep.shape[0]
     n = line.n_stations
+    ready = np.zeros(steps) if ready_dev_s is None else np.asarray(ready_dev_s, dtype=float)
+    if ready.shape != (steps,) or not np.all(np.isfinite(ready)):
+        raise ValueError(f"ready_dev_s must be {steps} finite values [s], got shape "
+                         f"{ready.shape}")
     t0, t1 = timetable_state(line, 0), timetable_state(line, 1)
+    arr_ref = truth_arrivals_departures(line, t0, np.zeros(n), 0.0, saturation=saturation,
+                                        knock_on=knock_on, crowding=crowding)[0]
     x = np.zeros((steps + 1, n))
     x[0] = x0_s
+    arr = np.full((steps + 1, n), np.nan)
     u_cmd = np.zeros((steps, n))
     u_app = np.zeros((steps, n))
     for k in range(steps):
@@ -53,9 +81,15 @@ def simulate(line: LineData, regulator: Regulator, x0_s: np.ndarray, w_dep: np.n
             u_app[k] = du_r + du_d
         else:
             u_app[k] = u_cmd[k]
-        x[k + 1] = truth_step(line, t0 + x[k], u_cmd[k], 0.0, w_dep=w_dep[k],
-                              saturation=saturation, knock_on=knock_on, crowding=crowding) - t1
-    return {"x": x, "u_cmd": u_cmd, "u_applied": u_app}
+        z = max(0.0, float(ready[k]))
+        a, d = truth_arrivals_departures(line, t0 + x[k], u_cmd[k], z, w_dep=w_dep[k],
+                                         saturation=saturation, knock_on=knock_on,
+                                         crowding=crowding)
+        x[k + 1] = d - t1
+        if ready_dev_s is not None:
+            x[k + 1, 0] = max(x[k + 1, 0], z)
+        arr[k + 1] = a - arr_ref
+    return {"x": x, "u_cmd": u_cmd, "u_applied": u_app, "arr": arr}
 
 
 def kpis(traj: Dict[str, np.ndarray], line: LineData, weights: CostWeights,

@@ -157,6 +157,21 @@ def truth_step(line: LineData, t_k: np.ndarray, u: np.ndarray, z_k: float | np.n
     station 0) instant of train k [s]; w_dep / w_run: departure / running disturbances [s].
     Flags switch off the nonlinearities (then the step equals Lin 2010a, eq. 5).
     """
+    return truth_arrivals_departures(line, t_k, u, z_k, w_dep, w_run, headway_s,
+                                     flow_factor, saturation, knock_on, crowding)[1]
+
+
+def truth_arrivals_departures(line: LineData, t_k: np.ndarray, u: np.ndarray,
+                              z_k: float | np.ndarray, w_dep: Optional[np.ndarray] = None,
+                              w_run: Optional[np.ndarray] = None,
+                              headway_s: Optional[float] = None, flow_factor: float = 1.0,
+                              saturation: bool = True, knock_on: bool = True,
+                              crowding: bool = True) -> Tuple[np.ndarray, np.ndarray]:
+    """:func:`truth_step` with the arrivals: (arrival instants, t(k+1)) [s], both like t_k.
+
+    Entry i of the arrivals is the arrival of the same train as t(k+1)_i at station i
+    (z_k at station 0); the turnback link of a terminus needs the arrival there.
+    """
     t_k = np.asarray(t_k, dtype=float)
     u = np.broadcast_to(np.asarray(u, dtype=float), t_k.shape)
     c = line.c(flow_factor)
@@ -184,7 +199,7 @@ def truth_step(line: LineData, t_k: np.ndarray, u: np.ndarray, z_k: float | np.n
         gap_nom = (1.0 - c) * h_sched
         excess = np.clip(gap / gap_nom - 1.0, 0.0, 1.0)
         board = np.minimum(board * (1.0 + line.crowding_gain * excess), line.board_max_s)
-    return arr + hold + board
+    return arr, arr + hold + board
 
 
 def truth_step_dev(line: LineData, x_k: np.ndarray, u: np.ndarray,
