@@ -77,12 +77,24 @@ class DayPeriod:
 
 @dataclass(frozen=True)
 class TerminusSpec:
-    """A terminus: station code, layout data, minimum turnback time [s], depot connection."""
+    """A terminus: station code, layout data, turnback times [s], depot connection.
+
+    ``min_turnback_s`` [s] is the technical minimum (routes, reversal, platform work);
+    ``buffer_s`` [s] the recovery margin the timetable adds on top, so a scheduled layover
+    is at least ``layover_s`` = minimum + buffer, and a terminal delay up to the buffer is
+    absorbed (Lin 2010a, Experiment 2: 210 s at the 105 s peak headway).
+    """
 
     station: str
     layout: Layout
     min_turnback_s: float
     depot: str | None
+    buffer_s: float = 0.0
+
+    @property
+    def layover_s(self) -> float:
+        """Shortest layover the timetable schedules [s]: minimum turnback plus buffer."""
+        return self.min_turnback_s + self.buffer_s
 
 
 @dataclass(frozen=True)
@@ -153,11 +165,11 @@ def trip_time_s(line: LineData, headway_s: float, flow_factor: float) -> float:
 
 
 def cycle_time_s(plan: DayPlan, n: int) -> float:
-    """Cycle time [s] of period n: both trip times plus both minimum turnbacks."""
+    """Cycle time [s] of period n: both trip times plus both scheduled minimum layovers."""
     p = plan.periods[n]
     return (trip_time_s(plan.line, p.headway_s, p.flow_up)
             + trip_time_s(plan.line, p.headway_s, p.flow_down)
-            + plan.termini[0].min_turnback_s + plan.termini[1].min_turnback_s)
+            + plan.termini[0].layover_s + plan.termini[1].layover_s)
 
 
 def trips(plan: DayPlan) -> List[Trip]:
@@ -196,7 +208,7 @@ def run_day(plan: DayPlan, stable_after_s: float = 1800.0
     (``prefer="shortest_wait"``) so that surplus trains stand and are withdrawn once.
     """
     ts = trips(plan)
-    tb = {t.station: t.min_turnback_s for t in plan.termini}
+    tb = {t.station: t.layover_s for t in plan.termini}
     depots = {t.station for t in plan.termini if t.depot is not None}
     try:
         circ = build_circulation(ts, tb, depots, stable_after_s, "shortest_wait")
@@ -260,7 +272,8 @@ def _map(raw: Any, path: str, src: str, keys: Sequence[str]) -> Dict[str, Any]:
     if unknown:
         raise DayError(one_line(f"day {src}: {path}: unknown key {unknown[0]!r} "
                                 f"(known: {', '.join(keys)})"))
-    missing = [k for k in keys if k not in raw and k not in ("depot", "basis", "n_sidings")]
+    missing = [k for k in keys if k not in raw
+               and k not in ("depot", "basis", "n_sidings", "turnback_buffer_s")]
     if missing:
         raise DayError(one_line(f"day {src}: {path}: missing key {missing[0]!r}"))
     return raw
@@ -295,7 +308,8 @@ def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
     for i, t in enumerate(top["termini"]):
         path = f"termini[{i}]"
         m = _map(t, path, src, ("station", "layout", "reversal_s", "crossover_speed_kmh",
-                                "n_sidings", "min_turnback_s", "depot", "depot_station"))
+                                "n_sidings", "min_turnback_s", "turnback_buffer_s", "depot",
+                                "depot_station"))
         if m["station"] != ends[i]:
             raise DayError(one_line(f"day {src}: {path}.station: expected terminus "
                                     f"{ends[i]}, got {short_repr(m['station'])}"))
@@ -318,8 +332,10 @@ def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
                 f"day {src}: {path}: terminus {m['station']} turnback {tb:.0f} s is shorter "
                 f"than its {lay.name} layout needs ({need:.0f} s: routes at their speed "
                 f"limits + {lay.reversal_s:.0f} s reversal)"))
+        buf = 0.0 if m.get("turnback_buffer_s") is None else _num(
+            m["turnback_buffer_s"], f"{path}.turnback_buffer_s", src, 0.0, 7200.0)
         termini.append(TerminusSpec(m["station"], lay, tb,
-                                    str(m.get("depot")) if dst is not None else None))
+                                    str(m.get("depot")) if dst is not None else None, buf))
     if not isinstance(top["periods"], list) or not top["periods"]:
         raise DayError(one_line(f"day {src}: periods: expected a non-empty list"))
     periods: List[DayPeriod] = []
