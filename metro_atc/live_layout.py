@@ -48,7 +48,7 @@ def _series(path: str, label: str) -> dict[str, Any]:
 
 
 def layout(train_ids: Sequence[str]) -> dict[str, Any]:
-    """The layout (a Foxglove layout file's JSON object) for a line run by ``train_ids``."""
+    """The Foxglove layout file's JSON object for a line run by ``train_ids``."""
     time_distance = _plot(
         "time-distance: chainage of each train [m]",
         [_series(f"{TRAINS_TOPIC}.position[{k}]", t) for k, t in enumerate(train_ids)])

@@ -237,7 +237,6 @@ def test_bridge_binds_loopback_unless_told(ros_domain: int, host: str | None,
         assert node.port == port
         assert _listening(port) == expect
     finally:
-        node.close()
         node.destroy_node()
         rclpy.shutdown(context=ctx)
     assert _listening(port) == set()

@@ -1,4 +1,4 @@
-"""foxglove_bridge node: the graph's topics over the Foxglove WebSocket protocol (``run --foxglove``).
+"""foxglove_bridge node: the graph's topics over Foxglove's WebSocket protocol (``--foxglove``).
 
 A viewer (Foxglove, Lichtblick) connects to ``ws://127.0.0.1:PORT`` and sees:
 
@@ -32,6 +32,7 @@ import collections
 import time
 from typing import Any, Sequence
 
+from foxglove.websocket import ServerListener
 from metro_atc_msgs.msg import LineLayout, TrainEvent
 from rcl_interfaces.msg import Log
 from rclpy.clock import Clock, ClockType
@@ -77,7 +78,7 @@ def reader_qos(qos: QoSProfile) -> QoSProfile:
                       else ReliabilityPolicy.BEST_EFFORT, durability=qos.durability)
 
 
-class _Listener:
+class _Listener(ServerListener):
     """Foxglove server callbacks (server threads): note each subscription for the node."""
 
     def __init__(self) -> None:
@@ -147,9 +148,9 @@ class FoxgloveBridge(Node):
         self.layout_pub.publish(layout)
         self.listener = _Listener()
         try:
-            self.server = foxglove.start_server(name="metro_atc", host=host, port=int(port),
-                                                server_listener=self.listener,
-                                                context=self.fg)
+            self.server: Any = foxglove.start_server(
+                name="metro_atc", host=host, port=int(port), server_listener=self.listener,
+                context=self.fg)
         except Exception as exc:  # the SDK raises its own error types (bind, address)
             raise NodeConfigError(f"cannot serve on {host}:{port}: {exc}") from None
         self.host = host
@@ -237,10 +238,18 @@ class FoxgloveBridge(Node):
                                   "rejected_inputs": self.count["rejected"]})]
 
     def close(self) -> None:
-        """Stop the server (viewers are disconnected) and close the channels."""
+        """Stop the server (viewers are disconnected) and close the channels (once)."""
+        if self.server is None:
+            return
         self.server.stop()
+        self.server = None
         for ch in self.channels.values():
             ch.close()
+
+    def destroy_node(self) -> None:
+        """:meth:`close`, then destroy the node."""
+        self.close()
+        super().destroy_node()
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -28,7 +28,6 @@ from metro_atc_msgs.msg import LineLayout
 from sensor_msgs.msg import JointState
 
 from metro_atc.nodes.wire import cdr
-from metro_atc.nodes.wire.fleet_state import FleetStateView
 
 KMH = 1.0 / 3.6
 """[m/s] per km/h."""
@@ -68,8 +67,11 @@ class TrainsBuilder:
         self.index = {t: k for k, t in enumerate(self.order)}
         self.names = cdr.string_seq(self.order)
 
-    def build(self, view: FleetStateView) -> bytes:
-        """The JointState of one decoded FleetState (trains not in it: NaN)."""
+    def build(self, view: Any) -> bytes:
+        """The JointState of one decoded FleetState view (trains not in it: NaN).
+
+        ``view``: what :func:`metro_atc.nodes.wire.fleet_state.decode` returns.
+        """
         n = len(self.order)
         rows = [self.index.get(t, -1) for t in view.train_id]
         w = cdr.Writer()
