@@ -371,6 +371,26 @@ def _stop(procs: list[tuple[str, Proc]], grace_s: float = 15.0) -> None:
             p.wait()
 
 
+def check_listen(host: str, port: int) -> str | None:
+    """Check that a server can listen on ``host``:``port`` now; one error line or None.
+
+    Called before any node starts: the live view's bridge would otherwise fail once the
+    graph runs (port 0: any free port, always possible).
+    """
+    import socket
+    if not 0 <= port <= 65535:
+        return f"--foxglove {port}: not a TCP port (0..65535)"
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+        with socket.socket(infos[0][0], socket.SOCK_STREAM) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.bind(infos[0][4])
+    except OSError as exc:
+        return f"--foxglove {port} on {host}: cannot listen there: " \
+            f"{getattr(exc, 'strerror', None) or exc}"
+    return None
+
+
 def check_out_dir(path: Path) -> str | None:
     """Create ``path`` if needed and check it is a writable directory; one error line or None.
 
@@ -430,9 +450,9 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
     if problem is None and a.single_process and (a.record is not None
                                                  or a.wait_for_subscribers):
         problem = "--record and --wait-for-subscribers need the multi-process graph"
-    if problem is None and a.foxglove is not None and (a.single_process
-                                                       or not 0 <= a.foxglove <= 65535):
-        problem = "--foxglove needs the multi-process graph and a port in 0..65535"
+    if problem is None and a.foxglove is not None:
+        problem = check_listen(a.foxglove_host, a.foxglove) if not a.single_process else \
+            "--foxglove needs the multi-process graph"
     if problem is None and (a.respawn_limit < 0 or not a.checkpoint_period >= 0
                             or not 0 <= a.step_timeout <= 600):
         problem = "--respawn-limit, --checkpoint-period and --step-timeout (<= 600) must " \

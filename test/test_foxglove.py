@@ -216,6 +216,30 @@ def test_launcher_adds_the_bridge_on_loopback() -> None:
     assert (p["host"], p["port"]) == ("0.0.0.0", 9001)
 
 
+def test_run_refuses_a_port_in_use(tmp_path: Path, capsys: pytest.CaptureFixture[str]
+                                   ) -> None:
+    """``--foxglove PORT`` with PORT taken, or with --single-process: exit 2, one line,
+    before any node starts."""
+    from metro_atc.exit_codes import Exit
+    from metro_atc.launcher import main
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        code = main(["--scenario", "mini", "--out", str(tmp_path / "a"), "--foxglove",
+                     str(port)])
+        assert code == Exit.REFUSED
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [f"metro_atc run: error: --foxglove {port} on 127.0.0.1: cannot listen "
+                       "there: Address already in use"]
+    code = main(["--scenario", "mini", "--out", str(tmp_path / "b"), "--single-process",
+                 "--foxglove"])
+    assert code == Exit.REFUSED
+    assert "--foxglove needs the multi-process graph" in capsys.readouterr().err
+    assert not (tmp_path / "a" / "logs").exists()
+
+
 @pytest.mark.parametrize("host,expect", [(None, {"127.0.0.1"}), ("0.0.0.0", {"0.0.0.0"})])
 def test_bridge_binds_loopback_unless_told(ros_domain: int, host: str | None,
                                            expect: set[str]) -> None:
