@@ -62,7 +62,7 @@ EVENTS_TOPIC = "/line/events"
 """The arrivals and departures /line/event_log is derived from."""
 READER_DEPTH = 100
 """Reader queue of a forwarded topic [messages]."""
-SUBSCRIBE_PERIOD_S = 0.1
+SUBSCRIBE_PERIOD_S = 0.2
 """Wall period of the look at which channels viewers subscribe to [s]."""
 
 
@@ -264,9 +264,12 @@ def main(args: Sequence[str] | None = None) -> int:
             if node.changed:
                 node.changed = False
                 poller = SubscriptionPoller(ctx, list(node.subs.values()))
+            if not node.subs:  # no viewer: only the timers, at their own pace
+                executor.spin_once(timeout_sec=0.1)
+                continue
             poller.poll(0.05)
             now = time.monotonic()
-            if now - last_slow >= 0.05:
+            if now - last_slow >= 0.1:
                 last_slow = now
                 executor.spin_once(timeout_sec=0.0)
 
