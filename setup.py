@@ -15,7 +15,8 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.xml")),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.xml")
+         + glob("config/*.json")),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],
     install_requires=["setuptools"],
@@ -32,6 +33,7 @@ setup(
             f"ato_controller = {PACKAGE}.nodes.ato_controller:main",
             f"brake_diagnostic = {PACKAGE}.nodes.brake_diagnostic:main",
             f"bag_recorder = {PACKAGE}.nodes.bag_recorder:main",
+            f"foxglove_bridge = {PACKAGE}.nodes.foxglove_bridge:main",
         ],
     },
 )

@@ -27,7 +27,7 @@ from typing import Any, Callable, Iterator, Sequence
 DOC = Path(__file__).resolve().parent / "parameters.md"
 
 NODES = ("line_simulator", "ats_regulator", "ato_controller", "brake_diagnostic",
-         "bag_recorder")
+         "bag_recorder", "foxglove_bridge")
 """The executables, in the order of the document."""
 
 RCLPY_OWN = ("use_sim_time", "start_type_description_service")
@@ -101,6 +101,10 @@ def _build(ctx: Any, kind: str, tmp: Path) -> Any:
         from metro_atc.nodes.bag_recorder import BagRecorder
         over.append(Parameter("output", value=str(tmp / "bag")))
         return BagRecorder(context=ctx, parameter_overrides=over)
+    if kind == "foxglove_bridge":
+        from metro_atc.nodes.foxglove_bridge import FoxgloveBridge
+        over.append(Parameter("port", value=0))  # any free port
+        return FoxgloveBridge(context=ctx, parameter_overrides=over)
     raise ValueError(kind)
 
 

@@ -69,6 +69,37 @@ def _field_types(text: str, package: str) -> list[str]:
     return out
 
 
+class TypeDefs:
+    """Message definitions as a bag and a viewer take them: a ``rosbags`` Jazzy typestore.
+
+    The ROS 2 Jazzy types it ships, and the others (the project's own, ``msg_defs/msg``)
+    registered from their ``.msg`` text (``find_msg(package, name)``), nested types first.
+    :meth:`msgdef` is a type's schema text in the ``ros2msg`` encoding (the type's .msg,
+    then each nested type's after a ``MSG: pkg/msg/Name`` separator), the text rosbag2
+    writes into an MCAP schema and the Foxglove WebSocket protocol advertises.
+    """
+
+    def __init__(self, find_msg: Callable[[str, str], str]) -> None:
+        """A Jazzy typestore; ``find_msg`` gives the .msg text of a type it lacks."""
+        self.find_msg = find_msg
+        self.store: Any = get_typestore(Stores.ROS2_JAZZY)
+
+    def register(self, type_name: str) -> None:
+        """Make ``pkg/msg/Name`` known to the typestore (from its .msg text, nested first)."""
+        if type_name in self.store.types:
+            return
+        pkg, _, name = type_name.split("/")
+        text = self.find_msg(pkg, name)
+        for nested in _field_types(text, pkg):
+            self.register(nested)
+        self.store.register(get_types_from_msg(text, type_name))
+
+    def msgdef(self, type_name: str) -> str:
+        """The ``ros2msg`` schema text of ``pkg/msg/Name`` (registered first if need be)."""
+        self.register(type_name)
+        return str(self.store.generate_msgdef(type_name, ros_version=2)[0])
+
+
 @dataclass
 class _Topic:
     name: str
@@ -97,21 +128,11 @@ class BagWriter:
 
     def open(self) -> None:
         """Create the directory and start the MCAP file."""
-        self._store = get_typestore(Stores.ROS2_JAZZY)
+        self._store = TypeDefs(self.find_msg)
         w = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
         w.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         w.open()
         self._writer = w
-
-    def _register(self, type_name: str) -> None:
-        """Make ``pkg/msg/Name`` known to the typestore (from its .msg text, nested first)."""
-        if type_name in self._store.types:
-            return
-        pkg, _, name = type_name.split("/")
-        text = self.find_msg(pkg, name)
-        for nested in _field_types(text, pkg):
-            self._register(nested)
-        self._store.register(get_types_from_msg(text, type_name))
 
     def add_topic(self, name: str, type_name: str, offered: Sequence[Qos],
                   type_hash: str = "") -> None:
@@ -121,11 +142,11 @@ class BagWriter:
         """
         if name in self.topics:
             return
-        self._register(type_name)
+        self._store.register(type_name)
         msgdef = rihs = None
         if type_hash:
-            msgdef, rihs = self._store.generate_msgdef(type_name, ros_version=2)[0], type_hash
-        con = self._writer.add_connection(name, type_name, typestore=self._store,
+            msgdef, rihs = self._store.msgdef(type_name), type_hash
+        con = self._writer.add_connection(name, type_name, typestore=self._store.store,
                                           msgdef=msgdef, rihs01=rihs,
                                           offered_qos_profiles=list(offered))
         self.topics[name] = _Topic(name, type_name, con)

@@ -25,7 +25,9 @@ started (2), a process failed beyond its respawn limit (3, naming it and its rea
 outputs not written (4), trains that did not complete (5), a run cut by ``--duration`` (6),
 a graph whose ATOs never answered (7), the wall-clock ``--timeout`` (124).
 ``--record DIR`` adds the ``bag_recorder`` node (a rosbag2 MCAP directory of every topic)
-and the simulator waits for it before step 0.
+and the simulator waits for it before step 0.  ``--foxglove [PORT]`` adds the
+``foxglove_bridge`` node (the topics over the Foxglove WebSocket protocol, bound to
+127.0.0.1 unless ``--foxglove-host`` says otherwise); the lockstep does not wait for it.
 
 The process list comes from :func:`graph_processes` (ROS-free), which the launch file
 ``launch/metro_line.launch.py`` uses as well.
@@ -64,9 +66,11 @@ ZYGOTE_ENV = "METRO_ATC_ZYGOTE"
 """Environment variable: ``0`` makes ``run`` exec every node process (no fork server)."""
 
 NODE_EXECUTABLES = ("line_simulator", "ats_regulator", "ato_controller", "brake_diagnostic",
-                    "bag_recorder")
+                    "bag_recorder", "foxglove_bridge")
 RECORDER_NODE = "bag_recorder"
 """Node name of the recorder (the simulator waits for it before step 0)."""
+BRIDGE_NODE = "foxglove_bridge"
+"""Node name of the live view's WebSocket bridge (``--foxglove``)."""
 POLL_S = 0.05
 """Wall period at which ``run`` looks at its processes [s] (the simulator's end is seen at
 most this late; a look costs one ``waitpid`` per process)."""
@@ -118,6 +122,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--record", nargs="?", const="", default=None, metavar="BAG_DIR",
                    help="record every topic to a rosbag2 MCAP directory (default OUT/bag); "
                         "the lockstep waits for the recorder before step 0")
+    p.add_argument("--foxglove", nargs="?", type=int, const=8765, default=None,
+                   metavar="PORT",
+                   help="serve the topics to Foxglove / Lichtblick over WebSocket on PORT "
+                        "(default 8765), on 127.0.0.1 only (see --foxglove-host)")
+    p.add_argument("--foxglove-host", default="127.0.0.1", metavar="HOST",
+                   help="address the --foxglove server binds (default 127.0.0.1; another "
+                        "address exposes the live view to that network)")
     p.add_argument("--progress", choices=("auto", "always", "never"), default="auto",
                    help="progress lines on stderr while the graph runs (auto: when stderr is "
                         "a terminal)")
@@ -172,7 +183,8 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
                     weights_file: str = "", checkpoint_dir: str = "",
                     checkpoint_period_s: float = 60.0,
                     step_timeout_s: float = 0.0,
-                    plan_store_dir: str = "", finished_file: str = "") -> list[ProcessSpec]:
+                    plan_store_dir: str = "", finished_file: str = "",
+                    foxglove: tuple[str, int] | None = None) -> list[ProcessSpec]:
     """The processes of a run, as ``run`` starts them and the launch file declares them.
 
     ``weights_file``: the aoc/dhp weights the ATS loads ('' : it looks them up itself).
@@ -182,6 +194,7 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
     (:mod:`metro_atc.core.ato.plan_store`; '' : none). ``finished_file``: the file the
     simulator creates when its run is over ('' : none; ``run`` then stops the other nodes
     while the simulator writes its outputs; the launch file stops them at its exit).
+    ``foxglove`` (host, port): the live view's bridge (None: none).
     """
     cfg = cfg or config_dir()
     base: dict[str, Any] = {"use_sim_time": True, "scenario": scenario}
@@ -222,6 +235,10 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
     if record_dir is not None:
         procs.append(ProcessSpec("bag_recorder", "bag_recorder", None,
                                  dict(base, output=str(record_dir))))
+    if foxglove is not None:
+        procs.append(ProcessSpec(BRIDGE_NODE, BRIDGE_NODE, None,
+                                 dict(base, use_sim_time=False, host=str(foxglove[0]),
+                                      port=int(foxglove[1]))))
     return procs
 
 
@@ -259,7 +276,8 @@ def processes_for(a: argparse.Namespace, train_ids: Sequence[str],
         weights_file=getattr(a, "weights_file", ""),
         checkpoint_dir=str(checkpoint_dir(out_dir)), checkpoint_period_s=a.checkpoint_period,
         step_timeout_s=a.step_timeout, plan_store_dir=plan_store_dir,
-        finished_file=finished_file)
+        finished_file=finished_file,
+        foxglove=None if a.foxglove is None else (a.foxglove_host, a.foxglove))
 
 
 def checkpoint_dir(out_dir: Path) -> Path:
@@ -353,6 +371,26 @@ def _stop(procs: list[tuple[str, Proc]], grace_s: float = 15.0) -> None:
             p.wait()
 
 
+def check_listen(host: str, port: int) -> str | None:
+    """Check that a server can listen on ``host``:``port`` now; one error line or None.
+
+    Called before any node starts: the live view's bridge would otherwise fail once the
+    graph runs (port 0: any free port, always possible).
+    """
+    import socket
+    if not 0 <= port <= 65535:
+        return f"--foxglove {port}: not a TCP port (0..65535)"
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+        with socket.socket(infos[0][0], socket.SOCK_STREAM) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.bind(infos[0][4])
+    except OSError as exc:
+        return f"--foxglove {port} on {host}: cannot listen there: " \
+            f"{getattr(exc, 'strerror', None) or exc}"
+    return None
+
+
 def check_out_dir(path: Path) -> str | None:
     """Create ``path`` if needed and check it is a writable directory; one error line or None.
 
@@ -380,7 +418,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     zygote = None
     if not a.single_process:
         # the fork server preloads while this process loads the scenario and checks options
-        names = [x for x in NODE_EXECUTABLES if x != RECORDER_NODE or a.record is not None]
+        names = [x for x in NODE_EXECUTABLES if (x != RECORDER_NODE or a.record is not None)
+                 and (x != BRIDGE_NODE or a.foxglove is not None)]
         if all(forkable(executable(x)) for x in names):
             zygote = start_zygote(names)
     try:
@@ -411,6 +450,9 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
     if problem is None and a.single_process and (a.record is not None
                                                  or a.wait_for_subscribers):
         problem = "--record and --wait-for-subscribers need the multi-process graph"
+    if problem is None and a.foxglove is not None:
+        problem = check_listen(a.foxglove_host, a.foxglove) if not a.single_process else \
+            "--foxglove needs the multi-process graph"
     if problem is None and (a.respawn_limit < 0 or not a.checkpoint_period >= 0
                             or not 0 <= a.step_timeout <= 600):
         problem = "--respawn-limit, --checkpoint-period and --step-timeout (<= 600) must " \

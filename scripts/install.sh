@@ -95,4 +95,22 @@ else
   rm -f "$KSTAMP"
   echo "[install] numba kernels NOT precompiled: they compile at first use"
 fi
+# 6. the outside readers of the tests (test/js: Foxglove's MCAP, ros2msg/CDR and WebSocket
+# libraries), installed by `npm ci` from its lock file when that changed; without npm they
+# are not installed and their tests skip
+JS="$ROOT/test/js"
+if command -v npm >/dev/null 2>&1 && command -v node >/dev/null 2>&1; then
+  JSTAMP="$JS/node_modules/.metro_atc_lock.sha"
+  LOCK_SHA="$(sha256sum "$JS/package-lock.json" | cut -d' ' -f1)"
+  if [ "$(cat "$JSTAMP" 2>/dev/null || true)" != "$LOCK_SHA" ]; then
+    echo "[install] npm ci (test/js: the Foxglove readers of the tests)"
+    (cd "$JS" && npm ci --no-audit --no-fund --loglevel=error) > "$ROOT/log_npm_ci.txt" 2>&1 \
+      || { tail -20 "$ROOT/log_npm_ci.txt"; exit 1; }
+    echo "$LOCK_SHA" > "$JSTAMP"
+  else
+    echo "[install] npm packages up to date"
+  fi
+else
+  echo "[install] node/npm not found: the Foxglove reader tests (test/js) will skip"
+fi
 echo "[install] done: source env.sh"

@@ -18,7 +18,8 @@ ROOT = Path(__file__).resolve().parent.parent
 PYTHON_KEYS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml",
                "matplotlib": "python3-matplotlib", "torch": "python3-torch",
                "mcap": "python3-mcap", "numba": "python3-numba",
-               "rosbags": "python3-rosbags-pip", "llvmlite": "python3-llvmlite"}
+               "rosbags": "python3-rosbags-pip", "llvmlite": "python3-llvmlite",
+               "foxglove": "python3-foxglove-sdk-pip"}
 """Imported Python distributions -> their rosdep keys."""
 
 LAUNCH_ONLY = {"launch", "launch_ros"}
