@@ -306,6 +306,8 @@ class Dispatcher:
                 self.stale += 1
                 continue
             out.append(self._apply(cmd, int(step)))
+        if any(a.command.kind in (KIND_TSR_IMPOSE, KIND_TSR_LIFT) for a in out):
+            self.sim.tsrs_changed()  # once for all the step's TSRs
         return out
 
     # ------------------------------------------------------------------ applying
@@ -319,12 +321,10 @@ class Dispatcher:
             self.tsr_index[cmd.tsr_id] = len(inc.tsrs)
             inc.tsrs.append((float(cmd.start_m), float(cmd.end_m), float(cmd.speed_mps),
                              float(cmd.from_s), math.inf))
-            sim.tsrs_changed()
         elif cmd.kind == KIND_TSR_LIFT:
             n = self.tsr_index[cmd.tsr_id]
             a, b, v, f, _ = inc.tsrs[n]
             inc.tsrs[n] = (a, b, v, f, t)
-            sim.tsrs_changed()
         else:
             i, j = self.trains[cmd.train_id], self.stations[cmd.station]
             if cmd.kind == KIND_HOLD:
