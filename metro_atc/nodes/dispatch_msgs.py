@@ -36,8 +36,11 @@ def _float(v: Any) -> float:
 
 def command_from_msg(msg: Any) -> Command:
     """The core command of a DispatcherCommand (values as sent; checked by the core)."""
-    return Command(kind=int(msg.kind), **{n: _float(getattr(msg, n)) for n in _FLOATS},
-                   **{n: str(getattr(msg, n)) for n in _STRINGS})
+    f = {n: _float(getattr(msg, n)) for n in _FLOATS}
+    t = {n: str(getattr(msg, n)) for n in _STRINGS}
+    return Command(kind=int(msg.kind), track=t["track"], start_m=f["start_m"],
+                   end_m=f["end_m"], speed_mps=f["speed_mps"], from_s=f["from_s"],
+                   tsr_id=t["tsr_id"], train_id=t["train_id"], station=t["station"])
 
 
 def applied_msg(a: Applied) -> DispatcherCommand:

@@ -426,11 +426,11 @@ class LineSimulator(Node):
         n = 0
         while n < DISPATCH_PER_STEP:
             with srv.handle:
-                request, header = srv.handle.service_take_request(srv.srv_type.Request)
+                request, header = srv.handle.service_take_request(Dispatch.Request)
             if header is None:
                 break
             n += 1
-            srv.send_response(self._on_dispatch(request, srv.srv_type.Response()), header)
+            srv.send_response(self._on_dispatch(request, Dispatch.Response()), header)
         return n
 
     def apply_dispatch(self) -> list[Applied]:

@@ -57,8 +57,9 @@ def write_outputs(out_dir: str, line: Any, kpis: dict[str, Any], with_plots: boo
     the KPIs itself), else ``events.csv``; ``planned``: the speed profiles the ATOs
     published (train -> station -> (positions [m], speeds [m/s])); ``dispatched``: the
     dispatcher's applied commands and their station index (events.csv rows). A failure of
-    the CSV or plots is logged (``logger``), the KPIs are written all the same, then an OSError names
-    what is missing (the node's exit code says the outputs were not written).
+    the CSV or plots is logged (``logger``), the KPIs are written all the same, then an
+    OSError names what is missing (the node's exit code says the outputs were not
+    written).
     """
     if not out_dir:
         return
