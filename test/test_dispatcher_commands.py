@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 
 import pytest
@@ -169,3 +170,37 @@ def test_replay_reproduces_the_events() -> None:
 
 def test_lead_leaves_the_atos_time() -> None:
     assert LEAD_S >= 20 * 0.25
+
+
+def test_checkpoint_keeps_the_dispatcher_state(tmp_path) -> None:
+    """A simulator resumed from a checkpoint taken mid-hold ends as the one never stopped:
+    the hold (and the TSR) are still released (lifted) by name, the log is kept."""
+    from types import SimpleNamespace
+
+    from metro_atc.core.checkpoint import load, save
+    from metro_atc.core.plant.snapshot import static_parts
+
+    sim = _sim()
+    d = Dispatcher(sim)
+    assert d.submit(Command(KIND_HOLD, train_id="train_02", station="Charlie"))[0]
+    assert d.submit(tsr(f=150.0, name="w"))[0]
+    _run(sim, d, 600.0)
+    path = tmp_path / "ck.npz"
+    save(path, SimpleNamespace(line=sim, dispatch_state=d.state), static_parts(sim))
+
+    sim2 = _sim()
+    d2 = Dispatcher(sim2)
+    holder = SimpleNamespace(line=sim2, dispatch_state=d2.state)
+    load(path, holder, static_parts(sim2))
+    d2.state = holder.dispatch_state
+    assert json.dumps(d2.state) == json.dumps(d.state)  # NaN fields: compared as text
+    assert d2.holds == {(1, 2): 0.0}
+    assert d2.submit(Command(KIND_TSR_LIFT, tsr_id="w"))[0]
+    assert d2.submit(Command(KIND_RELEASE, train_id="train_02", station="Charlie"))[0]
+    assert d.submit(Command(KIND_TSR_LIFT, tsr_id="w"))[0]
+    assert d.submit(Command(KIND_RELEASE, train_id="train_02", station="Charlie"))[0]
+    _run(sim2, d2, 2000.0)
+    _run(sim, d, 2000.0)
+    assert repr(sim2.event_log()) == repr(sim.event_log())  # NaN fields: as text
+    assert json.dumps(d2.state) == json.dumps(d.state)
+    assert len(d2.log) == 4

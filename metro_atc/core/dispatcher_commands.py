@@ -343,6 +343,35 @@ class Dispatcher:
         return self.stations.get(a.command.station, -1) \
             if a.command.kind in (KIND_HOLD, KIND_RELEASE) else -1
 
+    @property
+    def state(self) -> dict[str, Any]:
+        """What a checkpoint keeps of it, as plain values (see :meth:`restore`)."""
+        def cmd(c: Command) -> list[Any]:
+            return [c.kind, c.track, c.start_m, c.end_m, c.speed_mps, c.from_s, c.tsr_id,
+                    c.train_id, c.station]
+        return {"log": [[a.step, a.t_s, a.sequence, a.event_index, *cmd(a.command)]
+                        for a in self.log],
+                "queue": [[n, *cmd(c)] for n, c in self.queue],
+                "holds": [[i, j, v] for (i, j), v in self.holds.items()],
+                "tsr_index": dict(self.tsr_index),
+                "counts": [self.tickets, self.accepted, self.applied_count, self.stale],
+                "refused": dict(self.refused)}
+
+    @state.setter
+    def state(self, st: dict[str, Any]) -> None:
+        """Take a :attr:`state` back (a resumed simulator)."""
+        def cmd(v: Sequence[Any]) -> Command:
+            return Command(int(v[0]), str(v[1]), float(v[2]), float(v[3]), float(v[4]),
+                           float(v[5]), str(v[6]), str(v[7]), str(v[8]))
+        self.log = [Applied(int(r[0]), float(r[1]), int(r[2]), cmd(r[4:]), int(r[3]))
+                    for r in st["log"]]
+        self.queue = deque((int(r[0]), cmd(r[1:])) for r in st["queue"])
+        self.holds = {(int(i), int(j)): float(v) for i, j, v in st["holds"]}
+        self.tsr_index = {str(k): int(v) for k, v in st["tsr_index"].items()}
+        self.tickets, self.accepted, self.applied_count, self.stale = (
+            int(x) for x in st["counts"])
+        self.refused = {str(k): int(v) for k, v in st["refused"].items()}
+
     def counters(self) -> dict[str, Any]:
         """For /diagnostics and the KPIs: accepted, applied, queued, refused per kind, stale."""
         return {"accepted": self.accepted, "applied": self.applied_count,

@@ -92,14 +92,15 @@ _REGULATOR_NAMES = {code: name for name, code in conv.REGULATOR_CODES.items()}
 NODE_STATE = ("k", "cmd_step", "cmd_effort", "lockstep_misses", "rejected", "rejections",
               "event_seq", "sensor_last_t", "dep_received", "dep_given_up", "ats_misses",
               "_next_status_t", "_next_progress_t", "regulators", "planners", "planned",
-              "watchdog", "brake_assessed")
+              "watchdog", "brake_assessed", "dispatch_state")
 """Node attributes saved with the plant in a checkpoint."""
 _STATE_ELSEWHERE = {"sensor_last_t": ("sensors", "last_t"),
                     "dep_received": ("departures", "received"),
                     "dep_given_up": ("departures", "given_up"),
                     "ats_misses": ("departures", "ats_misses"),
                     "regulators": ("departures", "regulators"),
-                    "brake_assessed": ("sensors", "assessed")}
+                    "brake_assessed": ("sensors", "assessed"),
+                    "dispatch_state": ("dispatcher", "state")}
 """The :data:`NODE_STATE` values a collaborator holds: name -> (node attribute, its
 attribute)."""
 
@@ -372,12 +373,17 @@ class LineSimulator(Node):
                 self.get_logger().error(f"journaled departure command {e} not applied: {exc}")
 
     def republish_history(self) -> None:
-        """Publish the restored event history again (a restarted ATS replays it)."""
+        """Publish the restored event history again (a restarted ATS replays it).
+
+        The dispatcher's applied commands too (a restarted ATO learns its TSRs).
+        """
         seq = np.zeros(len(self.ids), dtype=np.int64)
         for ev in self.sim.event_log():
             seq[ev.train_idx] += 1
             self.event_pub.publish(conv.event_msg(ev, self.ids, self.sim.station_names,
                                                   int(seq[ev.train_idx])))
+        for a in self.dispatcher.log:
+            self.dispatch_pub.publish(dispatch_msgs.applied_msg(a))
 
     def _on_profile(self, msg: SpeedProfile) -> None:
         name = str(msg.planner)[:32] or "unknown"
