@@ -8,7 +8,9 @@ fleet command), ``/line/brake_sensors`` (one FleetBrakeSensorData per
 ``/<train>/brake_sensors`` (the same samples per train, best effort, only while the topic
 has a reader), ``/line/events`` and ``/line/status``; subscribes to ``/line/fleet_command``
 (the commands of one ATO process per message, taken as CDR bytes), ``/<train>/command``
-(ATO traction/brake of one train) and ``/<train>/departure_command`` (ATS).  The fleet
+(ATO traction/brake of one train) and ``/<train>/departure_command`` (ATS); serves
+``/line/dispatch`` (the dispatcher's commands, :mod:`metro_atc.core.dispatcher_commands`,
+applied at a step boundary and published on ``/line/dispatcher_commands``).  The fleet
 state, ``/clock`` and the sensor batches go out as CDR bytes (:mod:`metro_atc.nodes.wire`).
 
 Lockstep (default): step k -> k+1 happens only once every active train's command for step
