@@ -108,15 +108,21 @@ class TsrBook:
         """No TSR yet; ``notice_s``: the line's ``signalling.tsr_notice_s`` [s]."""
         self.notice_s = float(notice_s)
         self.zones: dict[str, Any] = {}
-        self.seen: set[int] = set()
+        self.seen: set[tuple[int, int, int, str]] = set()
 
     def apply(self, a: Applied) -> bool:
-        """Take an applied command (once per sequence); True when the zones changed."""
+        """Take an applied command once; True when the zones changed.
+
+        Once: by (sequence, step, kind, name), so the history a resumed simulator publishes
+        again changes nothing, while a command it applies anew under a sequence number of
+        one lost with the rewind is taken.
+        """
         from metro_atc.core.ato.onboard import TsrZone
         c = a.command
-        if a.sequence in self.seen or c.kind not in (KIND_TSR_IMPOSE, KIND_TSR_LIFT):
+        key = (a.sequence, a.step, c.kind, c.tsr_id)
+        if key in self.seen or c.kind not in (KIND_TSR_IMPOSE, KIND_TSR_LIFT):
             return False
-        self.seen.add(a.sequence)
+        self.seen.add(key)
         if c.kind == KIND_TSR_IMPOSE:
             self.zones[c.tsr_id] = TsrZone(c.start_m, c.end_m, c.speed_mps,
                                            max(c.from_s - self.notice_s, 0.0), c.from_s,
