@@ -154,6 +154,10 @@ def _parser() -> argparse.ArgumentParser:
                         "a respawned node must be back within it")
     p.add_argument("--resume", action="store_true",
                    help="continue the run in --out from its checkpoints (default: remove them)")
+    p.add_argument("--replay-commands", default="", metavar="BAG",
+                   help="apply the dispatcher commands a recorded run's bag holds at the steps "
+                        "they were applied at (same scenario, seed and options: the same "
+                        "events.csv); live /line/dispatch requests are refused")
     p.add_argument("--wait-for-subscribers", default="", metavar="NODE[,NODE]",
                    help="node names that must subscribe to the simulator's topics before "
                         "step 0 (e.g. an outside recorder)")
@@ -184,7 +188,8 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
                     checkpoint_period_s: float = 60.0,
                     step_timeout_s: float = 0.0,
                     plan_store_dir: str = "", finished_file: str = "",
-                    foxglove: tuple[str, int] | None = None) -> list[ProcessSpec]:
+                    foxglove: tuple[str, int] | None = None,
+                    replay_commands: str = "") -> list[ProcessSpec]:
     """The processes of a run, as ``run`` starts them and the launch file declares them.
 
     ``weights_file``: the aoc/dhp weights the ATS loads ('' : it looks them up itself).
@@ -195,6 +200,8 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
     simulator creates when its run is over ('' : none; ``run`` then stops the other nodes
     while the simulator writes its outputs; the launch file stops them at its exit).
     ``foxglove`` (host, port): the live view's bridge (None: none).
+    ``replay_commands``: a recorded run's bag whose dispatcher commands the simulator
+    applies at their steps ('' : none; live dispatcher requests are served).
     """
     cfg = cfg or config_dir()
     base: dict[str, Any] = {"use_sim_time": True, "scenario": scenario}
@@ -206,6 +213,8 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
         sim["wait_for_subscribers"] = waits
     if finished_file:
         sim["finished_file"] = str(finished_file)
+    if replay_commands:
+        sim["replay_commands"] = str(replay_commands)
     resume: dict[str, Any] = {"checkpoint_dir": str(checkpoint_dir)} if checkpoint_dir else {}
     if checkpoint_dir:
         sim.update(resume, checkpoint_period_s=float(checkpoint_period_s))
@@ -277,7 +286,22 @@ def processes_for(a: argparse.Namespace, train_ids: Sequence[str],
         checkpoint_dir=str(checkpoint_dir(out_dir)), checkpoint_period_s=a.checkpoint_period,
         step_timeout_s=a.step_timeout, plan_store_dir=plan_store_dir,
         finished_file=finished_file,
-        foxglove=None if a.foxglove is None else (a.foxglove_host, a.foxglove))
+        foxglove=None if a.foxglove is None else (a.foxglove_host, a.foxglove),
+        replay_commands=a.replay_commands)
+
+
+def replay_problem(bag: str) -> str | None:
+    """Why ``--replay-commands BAG`` cannot run (one line), or None."""
+    from metro_atc.nodes.dispatch_msgs import APPLIED_TOPIC, recorded_commands
+    try:
+        got = recorded_commands(bag)
+    except ValueError as exc:
+        return f"--replay-commands {exc}"
+    except ImportError as exc:
+        return f"--replay-commands needs the built interfaces (make setup): {exc}"
+    print(f"metro_atc run: replaying {len(got)} dispatcher commands of {bag} "
+          f"({APPLIED_TOPIC})", file=sys.stderr, flush=True)
+    return None
 
 
 def checkpoint_dir(out_dir: Path) -> Path:
@@ -448,11 +472,15 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
         else:
             problem = check_out_dir(bag.parent)
     if problem is None and a.single_process and (a.record is not None
-                                                 or a.wait_for_subscribers):
-        problem = "--record and --wait-for-subscribers need the multi-process graph"
+                                                 or a.wait_for_subscribers
+                                                 or a.replay_commands):
+        problem = "--record, --wait-for-subscribers and --replay-commands need the " \
+            "multi-process graph"
     if problem is None and a.foxglove is not None:
         problem = check_listen(a.foxglove_host, a.foxglove) if not a.single_process else \
             "--foxglove needs the multi-process graph"
+    if problem is None and a.replay_commands:
+        problem = replay_problem(a.replay_commands)
     if problem is None and (a.respawn_limit < 0 or not a.checkpoint_period >= 0
                             or not 0 <= a.step_timeout <= 600):
         problem = "--respawn-limit, --checkpoint-period and --step-timeout (<= 600) must " \

@@ -24,7 +24,7 @@ import json
 import math
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
@@ -45,19 +45,32 @@ def _plt() -> Any:
     return plt
 
 
-def write_events_csv(sim: "LineSim", path: Path) -> None:
-    """Write the event log as CSV (one row per arrival/departure)."""
+def write_events_csv(sim: "LineSim", path: Path,
+                     dispatched: Sequence[tuple[Any, int]] = ()) -> None:
+    """Write the event log as CSV (one row per arrival/departure).
+
+    ``dispatched``: the dispatcher's applied commands and their station index (-1: none),
+    (:class:`metro_atc.core.dispatcher_commands.Applied`, int); each is a row at its place
+    among the events (``kind`` its name, ``detail`` its step and zone).
+    """
+    extra = sorted(dispatched, key=lambda d: (d[0].event_index, d[0].sequence))
     with path.open("w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(["train_id", "station_index", "station_name", "kind", "t_s",
                     "scheduled_t_s", "delay_s", "boarded", "alighted", "dwell_s",
-                    "stop_error_m"])
-        for e in sim.event_log():
+                    "stop_error_m", "detail"])
+        k = 0
+        for n, e in enumerate(sim.event_log()):
+            while k < len(extra) and extra[k][0].event_index <= n:
+                w.writerow(extra[k][0].csv_row(sim.station_names, extra[k][1]))
+                k += 1
             w.writerow([sim.train_ids[e.train_idx], e.station_idx,
                         sim.station_names[e.station_idx], e.kind, f"{e.t_s:.2f}",
                         f"{e.scheduled_t_s:.2f}", f"{e.delay_s:.2f}", e.boarded, e.alighted,
                         f"{e.dwell_s:.2f}",
-                        "" if math.isnan(e.stop_error_m) else f"{e.stop_error_m:.3f}"])
+                        "" if math.isnan(e.stop_error_m) else f"{e.stop_error_m:.3f}", ""])
+        for a, j in extra[k:]:
+            w.writerow(a.csv_row(sim.station_names, j))
 
 
 def _trace_arrays(sim: "LineSim") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
@@ -370,15 +383,18 @@ def plot_energy(sim: "LineSim", path: Path) -> None:
 
 
 def output_jobs(sim: "LineSim", out: Path, speed_trains: list[int] | None = None,
-                planned: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] | None = None
+                planned: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] | None = None,
+                dispatched: Sequence[tuple[Any, int]] = ()
                 ) -> list[tuple[Path, Callable[[], None]]]:
     """The files of a run but ``kpis.json``: (path, a call that writes it).
 
     The PNGs (train graph, speed profiles, energy) and the events CSV, in the order
-    :func:`write_outputs` lists them; ``speed_trains`` / ``planned`` as there.
+    :func:`write_outputs` lists them; ``speed_trains`` / ``planned`` / ``dispatched`` as
+    there.
     """
     ev = out / "events.csv"
-    jobs: list[tuple[Path, Callable[[], None]]] = [(ev, partial(write_events_csv, sim, ev))]
+    jobs: list[tuple[Path, Callable[[], None]]] = [
+        (ev, partial(write_events_csv, sim, ev, dispatched))]
     tg = out / "train_graph.png"
     jobs.append((tg, partial(plot_train_graph, sim, tg)))
     if speed_trains is None:
@@ -396,14 +412,16 @@ def write_outputs(sim: "LineSim", out_dir: str | Path,
                   speed_trains: list[int] | None = None,
                   kpis: dict[str, Any] | None = None,
                   planned: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] | None = None,
-                  workers: int | None = None) -> list[Path]:
+                  workers: int | None = None,
+                  dispatched: Sequence[tuple[Any, int]] = ()) -> list[Path]:
     """Write KPIs JSON, events CSV and the PNGs into ``out_dir``; returns the files written.
 
     Files: ``kpis.json``, ``events.csv``, ``train_graph.png``, ``speed_<train>.png``,
     ``energy.png``.  ``speed_trains`` selects the speed-profile trains (default: first,
     middle and last of the trains that ran); ``kpis`` (default :meth:`LineSim.kpis`) is
     what ``kpis.json`` holds, written once; ``planned`` (train index -> departure
-    station -> planned curve) adds the ATO's plans to the speed plots.  The files are
+    station -> planned curve) adds the ATO's plans to the speed plots; ``dispatched`` the
+    dispatcher's applied commands to events.csv (:func:`write_events_csv`).  The files are
     written in parallel
     (:func:`metro_atc.forked.run_jobs`, ``workers`` processes; default: the usable cores;
     the six PNGs of a whole run took 5.3 s one after another).
@@ -415,7 +433,7 @@ def write_outputs(sim: "LineSim", out_dir: str | Path,
     kp.write_text(json.dumps(json_safe(kpis if kpis is not None else sim.kpis()), indent=2,
                              sort_keys=True, allow_nan=False), encoding="utf-8")
     files.append(kp)
-    jobs = output_jobs(sim, out, speed_trains, planned)
+    jobs = output_jobs(sim, out, speed_trains, planned, dispatched)
     _plt()  # imported before the workers fork: they share it
     run_jobs(jobs, workers)
     files += [jobs[-1][0]] + [path for path, _ in jobs[:-1]]  # events.csv, then the PNGs

@@ -45,8 +45,8 @@ from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
-from metro_atc_msgs.msg import (DepartureCommand, FleetCommand, FleetState, SpeedProfile,
-                                TractionCommand)
+from metro_atc_msgs.msg import (DepartureCommand, DispatcherCommand, FleetCommand, FleetState,
+                                SpeedProfile, TractionCommand)
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -59,13 +59,16 @@ from metro_atc.core.ato.planner import Profile
 from metro_atc.core.ato.registry import PLANNERS, TRACKERS
 from metro_atc.core.ato.wiring import MmasSettings, ato_wiring
 from metro_atc.core.bridge import timetable_for
+from metro_atc.core.dispatcher_commands import TsrBook
 from metro_atc.core.journal import read_entries
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, StepWindow, bounds_for
 from metro_atc.nodes import conversions as conv
+from metro_atc.nodes import dispatch_msgs
 from metro_atc.nodes.wire import fleet_command, fleet_state, traction_command
 from metro_atc.nodes.wire.cdr import stamp_parts
-from metro_atc.nodes.common import (OK, QOS_LATCHED, QOS_LATCHED_IN, QOS_RELIABLE, WARN,
+from metro_atc.nodes.common import (OK, QOS_EVENTS, QOS_LATCHED, QOS_LATCHED_IN, QOS_RELIABLE,
+                                    WARN,
                                     NodeConfigError, RuntimeParams, bulk_publisher,
                                     bulk_subscription, declare, diag_status, run_nodes,
                                     spin_fast, static)
@@ -156,8 +159,14 @@ class AtoController(Node):
             if shared is not None:
                 shared["plan_kernel_loaded"] = True
 
+        self.tsr_notice_s = float(scenario.signalling.tsr_notice_s)
+        self.dispatched_tsrs: tuple[Any, ...] = ()
+        """The dispatcher's TSRs (:class:`TsrBook`), known to the ATO as scripted ones."""
+
         def new_onboard() -> OnboardAto:
-            return self.wiring.onboard(shared)
+            ob = self.wiring.onboard(shared)
+            ob.tsrs = tuple(self.wiring.tsrs) + self.dispatched_tsrs
+            return ob
 
         self._new_onboard = new_onboard
         self.onboard = new_onboard()
@@ -501,6 +510,24 @@ class FleetLink:
         # their scenario; otherwise every entry takes the per-train path)
         b = {n.bounds for n in nodes}
         self.bounds = next(iter(b)) if len(b) == 1 else None
+        # the dispatcher's applied commands: its TSRs become zones of every hosted ATO
+        self.book = TsrBook(host.tsr_notice_s)
+        self.dispatch_sub = host.create_subscription(
+            DispatcherCommand, dispatch_msgs.APPLIED_TOPIC, self.on_dispatched, QOS_EVENTS)
+
+    def on_dispatched(self, msg: DispatcherCommand) -> None:
+        """An applied dispatcher command: a TSR imposed or lifted reaches every hosted ATO."""
+        try:
+            changed = self.book.apply(dispatch_msgs.applied_from_msg(msg))
+        except (ValueError, TypeError, OverflowError) as exc:
+            next(iter(self.nodes.values()))._reject("dispatcher command", conv.MessageRejected(
+                "dispatch", f"{dispatch_msgs.APPLIED_TOPIC}: {exc}"))
+            return
+        if changed:
+            zones = self.book.tuple()
+            for node in self.nodes.values():
+                node.dispatched_tsrs = zones
+                node.onboard.tsrs = tuple(node.wiring.tsrs) + zones
 
     def on_fleet_state(self, data: "bytes | FleetState") -> None:
         """Answer the hosted trains of a fleet state (a malformed message: counted, dropped).
@@ -658,7 +685,8 @@ def main(args: Sequence[str] | None = None) -> int:
         atos = [n for n in nodes if isinstance(n, AtoController)]
         subs = [s for n in atos for s in n.fast_subs]
         if atos:
-            subs.insert(0, FleetLink(atos).sub)
+            link = FleetLink(atos)
+            subs[:0] = [link.dispatch_sub, link.sub]
         spin_fast(executor, nodes, subs, slow_period_s=EXECUTOR_PERIOD_S)
 
     return run_nodes(build_nodes, loop, args)

@@ -39,7 +39,8 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from metro_atc_msgs.msg import (BrakeDiagnosis, DepartureCommand, FleetBrakeSensorData,
+from metro_atc_msgs.msg import (BrakeDiagnosis, DepartureCommand, DispatcherCommand,
+                                FleetBrakeSensorData,
                                 FleetCommand, FleetState, LineStatus, SpeedProfile,
                                 TractionCommand, TrainEvent, TrainState)
 from rcl_interfaces.msg import Log, ParameterEvent
@@ -58,6 +59,7 @@ from metro_atc.nodes.common import (OK, FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_DIAGN
                                     QOS_RELIABLE, WARN, NodeConfigError,
                                     RuntimeParams, SubscriptionPoller, diag_status, run_nodes,
                                     static, stop_requested)
+from metro_atc.nodes.dispatch_msgs import APPLIED_TOPIC
 from metro_atc.nodes.sim_domain import RECORDER_GATE_TOPIC
 
 QOS_LOG = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
@@ -155,6 +157,8 @@ def graph_topics(train_ids: Sequence[str]) -> list[tuple[str, Any, QoSProfile]]:
         ("/rosout", Log, QOS_LOG), ("/parameter_events", ParameterEvent, QOS_LOG),
         ("/line/fleet_state", FleetState, QOS_RELIABLE),
         ("/line/fleet_command", FleetCommand, QOS_RELIABLE),
+        # the dispatcher's applied commands (what run --replay-commands reads back)
+        (APPLIED_TOPIC, DispatcherCommand, QOS_EVENTS),
         # the brake sensor samples of all trains (the per-train /<train>/brake_sensors are
         # published only while read: recording them would make the simulator publish them)
         (FLEET_SENSOR_TOPIC, FleetBrakeSensorData, QOS_FLEET_SENSOR)]

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 from metro_atc.jsonsafe import json_safe
 
@@ -48,15 +48,18 @@ def regulator_label(seen: dict[str, int]) -> str:
 
 
 def write_outputs(out_dir: str, line: Any, kpis: dict[str, Any], with_plots: bool,
-                  planned: dict[int, Any], logger: Any) -> None:
+                  planned: dict[int, Any], logger: Any,
+                  dispatched: Sequence[tuple[Any, int]] = ()) -> None:
     """Write the run's outputs into ``out_dir`` ('' : none); raise OSError if any is missing.
 
     ``line``: the plant (its event log); ``kpis``: the run's KPIs (``kpis.json``);
     ``with_plots``: the PNG plots too (:func:`metro_atc.plots.write_outputs`, which writes
     the KPIs itself), else ``events.csv``; ``planned``: the speed profiles the ATOs
-    published (train -> station -> (positions [m], speeds [m/s])). A failure of the CSV or
-    plots is logged (``logger``), the KPIs are written all the same, then an OSError names
-    what is missing (the node's exit code says the outputs were not written).
+    published (train -> station -> (positions [m], speeds [m/s])); ``dispatched``: the
+    dispatcher's applied commands and their station index (events.csv rows). A failure of
+    the CSV or plots is logged (``logger``), the KPIs are written all the same, then an
+    OSError names what is missing (the node's exit code says the outputs were not
+    written).
     """
     if not out_dir:
         return
@@ -69,9 +72,9 @@ def write_outputs(out_dir: str, line: Any, kpis: dict[str, Any], with_plots: boo
     try:
         from metro_atc import plots
         if with_plots:
-            plots.write_outputs(line, out, kpis=kpis, planned=planned)
+            plots.write_outputs(line, out, kpis=kpis, planned=planned, dispatched=dispatched)
             return
-        plots.write_events_csv(line, out / "events.csv")
+        plots.write_events_csv(line, out / "events.csv", dispatched)
     except Exception as exc:  # noqa: BLE001 - outputs must not hide the KPIs
         failed = f"{'plots/events.csv' if with_plots else 'events.csv'} in {out}: {exc}"
         logger.error(f"writing outputs to {out} failed: {exc}")

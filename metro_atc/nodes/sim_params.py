@@ -76,6 +76,14 @@ class SimParams:
             "simulated time between /clock messages [s] (0: every step; -1: "
             "train_state_period_s); nothing in the graph steps on /clock (the lockstep "
             "carries the time), but outside tools see a lockstep hold on it", -1.0, 3600.0)
+        self.dispatch_queue_max = static(
+            node, "dispatch_queue_max", 64,
+            "dispatcher commands (/line/dispatch) accepted and waiting for the next step at "
+            "most; more are refused (queue full) and counted on /diagnostics", 1, 100_000)
+        self.replay_commands = static(
+            node, "replay_commands", "",
+            "a recorded run's bag directory: its /line/dispatcher_commands are applied at "
+            "their steps and live /line/dispatch requests are refused ('' : none)")
         self.rt = RuntimeParams(node, health)
         self.step_timeout_s = self.rt.dynamic(
             "step_timeout_s", 10.0, "lockstep: wall time to wait for all commands [s]",

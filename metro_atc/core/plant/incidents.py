@@ -59,12 +59,7 @@ class Incidents:
             elif inc.kind == "breakdown":
                 self.push(inc.at_s, "breakdown", train=tid[inc.train], dur=inc.duration_s)
         self.notice_s = scn.signalling.tsr_notice_s
-        notice = self.notice_s
-        self.tsr_times = sorted({max(f - notice, 0.0) for (_, _, _, f, _) in self.tsrs}
-                                | {f for (_, _, _, f, _) in self.tsrs}
-                                | {e for (_, _, _, _, e) in self.tsrs if math.isfinite(e)})
-        self._tsr_ptr = 0
-        self.next_tsr_t = 0.0
+        self.reschedule_tsrs()
         self.sensor_faults: list[dict[str, Any]] = []
         for fl in scn.faults:
             i = tid[fl.train]
@@ -78,6 +73,18 @@ class Incidents:
                 self.sensor_faults.append({"train": i, "axles": axes, "kind": fl.kind,
                                            "channel": fl.channel, "t0": fl.at_s,
                                            "t1": fl.at_s + fl.duration_s, "stuck": None})
+
+    def reschedule_tsrs(self) -> None:
+        """The TSR calendar of :attr:`tsrs` (after a change): known, in force, lifted [s].
+
+        The next :meth:`tsr_changed` (forced) walks it up to the current time.
+        """
+        notice = self.notice_s
+        self.tsr_times = sorted({max(f - notice, 0.0) for (_, _, _, f, _) in self.tsrs}
+                                | {f for (_, _, _, f, _) in self.tsrs}
+                                | {e for (_, _, _, _, e) in self.tsrs if math.isfinite(e)})
+        self._tsr_ptr = 0
+        self.next_tsr_t = 0.0
 
     def push(self, t: float, kind: str, **data: Any) -> None:
         """Queue an event at time ``t`` [s] (ties keep the insertion order)."""

@@ -159,6 +159,23 @@ class LineSim:
                                  target_running_time_s, dwell_limit_s):
             self._t_next = min(self._t_next, float(self.fleet.release_t[train_idx]))
 
+    def tsrs_changed(self) -> None:
+        """``incidents.tsrs`` changed (a dispatcher's TSR): new calendar, grids at ``t``."""
+        self.incidents.reschedule_tsrs()
+        self._refresh_tsr(force=True)
+        self._t_next = min(self._t_next, self.incidents.next_t())
+
+    def hold_changed(self, train_idx: int, station_idx: int) -> None:
+        """``incidents.extra_hold[train_idx, station_idx]`` changed (a dispatcher's hold).
+
+        A train dwelling there gets its departure time again (an infinite hold: none).
+        """
+        fl = self.fleet
+        if fl.dwelling[train_idx] and fl.cur_station[train_idx] == station_idx \
+                and fl.status[train_idx] == RUN:
+            self.stations.set_release(train_idx, station_idx, redraw=False)
+            self._t_next = min(self._t_next, float(fl.release_t[train_idx]))
+
     def next_stop_position(self) -> FloatArray:
         """Chainage of each train's next stop point [m] (tail stop while turning back)."""
         return self.fleet.stop_x.copy()

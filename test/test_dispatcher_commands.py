@@ -1,0 +1,206 @@
+"""The dispatcher's commands on the ROS-free plant: validation, queue, application, replay."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import pytest
+
+from metro_atc.core.dispatcher_commands import (KIND_HOLD, KIND_RELEASE, KIND_TSR_IMPOSE,
+                                                KIND_TSR_LIFT, LEAD_S, Command, Dispatcher,
+                                                TsrBook)
+from metro_atc.core.line.scenario import load_scenario
+from metro_atc.core.plant.driver import simple_driver
+from metro_atc.core.plant.line import LineSim
+
+
+def _sim() -> LineSim:
+    return LineSim(load_scenario("mini"), seed=3, trace_period_s=0.0)
+
+
+def _run(sim: LineSim, d: Dispatcher, until_s: float, script=None) -> None:
+    """Step with the simple driver; ``script(step)`` may submit commands before the step."""
+    while not sim.done and sim.t < until_s - 1e-9:
+        if script is not None:
+            script(sim.step_count)
+        d.apply_due(sim.step_count)
+        sim.step(simple_driver(sim))
+
+
+def tsr(start: float = 1000.0, end: float = 1800.0, v: float = 10.0, f: float = 150.0,
+        name: str = "") -> Command:
+    return Command(KIND_TSR_IMPOSE, start_m=start, end_m=end, speed_mps=v, from_s=f,
+                   tsr_id=name)
+
+
+@pytest.mark.parametrize("cmd, why", [
+    (Command(99), "kind 99"),
+    (tsr(start=math.nan), "start_m is nan"),
+    (tsr(v=math.inf), "speed_mps is inf"),
+    (tsr(start=-5000.0), "not on the line"),
+    (tsr(end=9000.0), "not on the line"),
+    (tsr(start=1800.0, end=1000.0), "expected end_m > start_m"),
+    (tsr(v=30.0), "below the line's limit there"),
+    (tsr(v=0.0), "below the line's limit there"),
+    (tsr(f=100.0), "the earliest is 125"),
+    (tsr(name="a b"), "letters, digits"),
+    (Command(KIND_TSR_IMPOSE, track="down", start_m=1000.0, end_m=1800.0, speed_mps=10.0,
+             from_s=200.0), "one track"),
+    (Command(KIND_TSR_LIFT, tsr_id="nope"), "no such restriction"),
+    (Command(KIND_HOLD, train_id="train_99", station="Bravo"), "unknown train"),
+    (Command(KIND_HOLD, train_id="train_01", station="Zulu"), "unknown station"),
+    (Command(KIND_RELEASE, train_id="train_01", station="Bravo"), "is not held"),
+])
+def test_refused_with_one_line_and_nothing_queued(cmd: Command, why: str) -> None:
+    sim = _sim()
+    d = Dispatcher(sim)
+    ok, reason, ticket = d.submit(cmd)
+    assert not ok and ticket == 0 and why in reason and "\n" not in reason, reason
+    assert not d.queue and d.refused == {"invalid": 1}
+    assert d.apply_due(0) == [] and len(sim.incidents.tsrs) == 0
+
+
+def test_speed_limit_is_the_line_limit_in_the_zone() -> None:
+    """60 km/h on [1200, 1500] m: 17 m/s is a restriction there, not on [1250, 1450] m."""
+    d = Dispatcher(_sim())
+    assert d.check(tsr(1100.0, 1300.0, 17.0)) is None  # the zone reaches 80 km/h track
+    assert "16.667" in (d.check(tsr(1250.0, 1450.0, 17.0)) or "")
+
+
+def test_hold_refused_for_a_train_out_of_service_or_past_the_station() -> None:
+    sim = _sim()
+    d = Dispatcher(sim)
+    _run(sim, d, 200.0)
+    assert int(sim.fleet.next_stop[0]) >= 2  # train_01 has left Bravo
+    assert "has left Bravo" in (d.check(Command(KIND_HOLD, train_id="train_01",
+                                                station="Bravo")) or "")
+    assert d.check(Command(KIND_HOLD, train_id="train_01", station="MN04")) is None
+    _run(sim, d, 2000.0)
+    assert "out of service" in (d.check(Command(KIND_HOLD, train_id="train_01",
+                                                station="Delta")) or "")
+
+
+def test_queue_is_bounded_excess_counted() -> None:
+    d = Dispatcher(_sim(), queue_max=3)
+    got = [d.submit(tsr(name=f"z{k}", f=1e5)) for k in range(5)]
+    assert [g[0] for g in got] == [True, True, True, False, False]
+    assert [g[2] for g in got] == [1, 2, 3, 0, 0]
+    assert "queue full" in got[3][1] and d.refused == {"queue_full": 2}
+    assert len(d.apply_due(0)) == 3 and not d.queue
+    assert d.submit(tsr(name="z0", f=1e5))[1].endswith("already imposed")
+
+
+def test_tsr_applies_through_the_incidents_at_its_time() -> None:
+    """The ATP learns the zone tsr_notice_s before from_s and supervises it from from_s."""
+    sim = _sim()
+    d = Dispatcher(sim)
+    g = sim.geometry
+    cell = int((1400.0 - g.x0) / g.dx)
+    assert d.submit(tsr(f=150.0, name="works"))[0]
+    _run(sim, d, 29.0)
+    assert sim.atp.tsr_notice_s == 120.0
+    _run(sim, d, 149.0)
+    assert sim.incidents.tsrs == [(1000.0, 1800.0, 10.0, 150.0, math.inf)]
+    assert [a.command.tsr_id for a in d.log] == ["works"] and d.log[0].step == 0
+    assert float(sim.incidents.ceiling(g, 149.0, 0.0)[cell]) > 10.0
+    assert float(sim.incidents.ceiling(g, 150.0, 0.0)[cell]) == 10.0
+    # lifted at once
+    assert d.submit(Command(KIND_TSR_LIFT, tsr_id="works"))[0]
+    _run(sim, d, 160.0)
+    lift = d.log[1]
+    assert sim.incidents.tsrs[0][4] == lift.t_s == 149.0
+    assert float(sim.incidents.ceiling(g, 160.0, 0.0)[cell]) > 10.0
+    assert "already lifted" in (d.check(Command(KIND_TSR_LIFT, tsr_id="works")) or "")
+
+
+def test_tsr_book_gives_the_ato_the_scripted_zone() -> None:
+    """The zone an ATO learns is the one ato.onboard.tsr_zones gives a scripted TSR."""
+    from metro_atc.core.ato.onboard import tsr_zones
+    from metro_atc.core.line.scenario import IncidentSpec
+    sim = _sim()
+    d = Dispatcher(sim)
+    d.submit(tsr(f=150.0, v=10.0, name="w"))
+    a = d.apply_due(0)[0]
+    book = TsrBook(120.0)
+    assert book.apply(a) and not book.apply(a)
+    scn = load_scenario("mini")
+    scripted = dataclasses.replace(scn, incidents=[IncidentSpec(
+        kind="tsr", at_s=150.0, duration_s=math.inf, start_m=1000.0, end_m=1800.0,
+        limit_kmh=36.0)])
+    assert book.tuple() == tuple(tsr_zones(scripted))
+
+
+def _held_run(release_at_s: float) -> tuple[list, Dispatcher, LineSim]:
+    sim = _sim()
+    d = Dispatcher(sim)
+
+    def script(step: int) -> None:
+        if step == 0:
+            assert d.submit(Command(KIND_HOLD, train_id="train_02", station="Charlie"))[0]
+        if abs(sim.t - release_at_s) < 1e-9:
+            assert d.submit(Command(KIND_RELEASE, train_id="train_02", station="MN03"))[0]
+    _run(sim, d, 2000.0, script)
+    return sim.event_log(), d, sim
+
+
+def test_hold_keeps_the_train_until_released() -> None:
+    ev, d, sim = _held_run(700.0)
+    dep = [e for e in ev if e.train_idx == 1 and e.station_idx == 2 and e.kind == "departure"]
+    arr = [e for e in ev if e.train_idx == 1 and e.station_idx == 2 and e.kind == "arrival"]
+    assert arr and arr[0].t_s < 650.0
+    assert dep and dep[0].t_s == 700.0  # released at 700 s, dwell long done: leaves then
+    assert [a.step for a in d.log] == [0, 2800]
+    assert sim.fleet.n_done == 2 and float(sim.incidents.extra_hold[1, 2]) == 0.0
+
+
+def test_replay_reproduces_the_events() -> None:
+    ev, d, _ = _held_run(650.0)
+    sim = _sim()
+    r = Dispatcher(sim)
+    r.load_replay((a.step, a.command) for a in d.log)
+    assert r.submit(tsr())[1].startswith("replaying")
+    _run(sim, r, 2000.0)
+    assert sim.event_log() == ev and [a.step for a in r.log] == [a.step for a in d.log]
+    plain = _sim()
+    _run(plain, Dispatcher(plain), 2000.0)
+    assert plain.event_log() != ev
+
+
+def test_lead_leaves_the_atos_time() -> None:
+    assert LEAD_S >= 20 * 0.25
+
+
+def test_checkpoint_keeps_the_dispatcher_state(tmp_path) -> None:
+    """A simulator resumed from a checkpoint taken mid-hold ends as the one never stopped:
+    the hold (and the TSR) are still released (lifted) by name, the log is kept."""
+    from types import SimpleNamespace
+
+    from metro_atc.core.checkpoint import load, save
+    from metro_atc.core.plant.snapshot import static_parts
+
+    sim = _sim()
+    d = Dispatcher(sim)
+    assert d.submit(Command(KIND_HOLD, train_id="train_02", station="Charlie"))[0]
+    assert d.submit(tsr(f=150.0, name="w"))[0]
+    _run(sim, d, 600.0)
+    path = tmp_path / "ck.npz"
+    save(path, SimpleNamespace(line=sim, dispatch_state=d.state), static_parts(sim))
+
+    sim2 = _sim()
+    d2 = Dispatcher(sim2)
+    holder = SimpleNamespace(line=sim2, dispatch_state=d2.state)
+    load(path, holder, static_parts(sim2))
+    d2.state = holder.dispatch_state
+    assert json.dumps(d2.state) == json.dumps(d.state)  # NaN fields: compared as text
+    assert d2.holds == {(1, 2): 0.0}
+    assert d2.submit(Command(KIND_TSR_LIFT, tsr_id="w"))[0]
+    assert d2.submit(Command(KIND_RELEASE, train_id="train_02", station="Charlie"))[0]
+    assert d.submit(Command(KIND_TSR_LIFT, tsr_id="w"))[0]
+    assert d.submit(Command(KIND_RELEASE, train_id="train_02", station="Charlie"))[0]
+    _run(sim2, d2, 2000.0)
+    _run(sim, d, 2000.0)
+    assert repr(sim2.event_log()) == repr(sim.event_log())  # NaN fields: as text
+    assert json.dumps(d2.state) == json.dumps(d.state)
+    assert len(d2.log) == 4
