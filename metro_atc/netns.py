@@ -73,11 +73,11 @@ class Lab:
     @property
     def hub(self) -> str:
         """The hub namespace (the bridge ``br0`` and the hosts' veth peers)."""
-        return f"ma{self.tag}hub"
+        return f"ma{self.tag}s{self.subnet}hub"
 
     def ns(self, k: int) -> str:
         """Host ``k``'s namespace (1-based)."""
-        return f"ma{self.tag}h{k}"
+        return f"ma{self.tag}s{self.subnet}h{k}"
 
     def address(self, k: int) -> str:
         """Host ``k``'s address (1-based)."""
