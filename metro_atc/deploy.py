@@ -472,9 +472,31 @@ def share_end(a: argparse.Namespace, code: int, log_dir: Path) -> int:
     return int(m[1])
 
 
+def profile_main(argv: Sequence[str] | None = None) -> int:
+    """``python -m metro_atc.deploy profile FILE``: this host's Fast DDS profile on stdout.
+
+    For ROS tools beside a split run (``ros2 topic echo`` on one of the hosts): save it and
+    export ``FASTRTPS_DEFAULT_PROFILES_FILE`` to it with ``ROS_AUTOMATIC_DISCOVERY_RANGE=
+    SYSTEM_DEFAULT``.  Exit 2 with one line for a bad peer list.
+    """
+    p = argparse.ArgumentParser(prog="python -m metro_atc.deploy profile")
+    p.add_argument("hosts_file", metavar="FILE")
+    a = p.parse_args(argv)
+    from metro_atc.dds import config_dir
+    try:
+        hosts = read_hosts(a.hosts_file)
+    except ValueError as exc:
+        print(f"metro_atc.deploy: error: {exc}", file=sys.stderr)
+        return int(Exit.REFUSED)
+    sys.stdout.write(profile_xml(hosts, config_dir() / "fastdds_profile.xml"))
+    return 0
+
+
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "watch":
         sys.exit(watch_main(sys.argv[2:]))
-    print("usage: python -m metro_atc.deploy watch [--timeout S] [--duration S]",
-          file=sys.stderr)
+    if len(sys.argv) > 1 and sys.argv[1] == "profile":
+        sys.exit(profile_main(sys.argv[2:]))
+    print("usage: python -m metro_atc.deploy {watch [--timeout S] [--duration S], "
+          "profile FILE}", file=sys.stderr)
     sys.exit(int(Exit.REFUSED))

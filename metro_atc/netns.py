@@ -80,7 +80,7 @@ class Lab:
         return f"ma{self.tag}s{self.subnet}h{k}"
 
     def address(self, k: int) -> str:
-        """Host ``k``'s address (1-based)."""
+        """The address of host ``k`` (1-based)."""
         return f"{SUBNET_PREFIX}.{self.subnet}.{k}"
 
     @property
