@@ -171,3 +171,20 @@ def test_watcher_verdict(finished: bool, completed: int, t: float, duration: flo
     """A host without the simulator ends with the run's own outcome."""
     got, line = deploy.watch_verdict(finished, completed, 2, t, duration)
     assert got == code and f"{completed} of 2 trains completed" in line
+
+
+def test_profile_command_prints_the_hosts_profile(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """``python -m metro_atc.deploy profile FILE``: the profile of this host's address; a
+    bad list: exit 2 and one line."""
+    f = tmp_path / "peers.txt"
+    f.write_text("10.213.7.1 a\n10.213.7.2 b\n")
+    monkeypatch.setattr(deploy, "is_local", lambda x: x == "10.213.7.2")
+    monkeypatch.setattr(deploy, "route_problem", lambda x: None)
+    assert deploy.profile_main([str(f)]) == 0
+    out = capsys.readouterr().out
+    assert "DDS on 10.213.7.2 only" in out and "<address>10.213.7.1</address>" in out
+    monkeypatch.setattr(deploy, "route_problem", lambda x: "Network is unreachable")
+    assert deploy.profile_main([str(f)]) == Exit.REFUSED
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "10.213.7.1 unreachable from 10.213.7.2" in err[0]
