@@ -16,11 +16,11 @@ shared memory between the processes of one host.  Without the option nothing cha
 
 A host that does not run the simulator runs a watcher in its place
 (``python -m metro_atc.deploy watch``, :func:`watch_main`): it follows the simulator's
-latched ``/line/status`` and ends this host's share when the simulator reports the run's
-end (exit 0; 5 when trains did not complete; 6 when ``--duration`` cut it), or gives up
-with exit 7 when no simulator appeared within ``--peer-timeout`` wall seconds, or with
-exit 3 when the simulator left the domain without ending the run.  This module is ROS-free
-but for :func:`watch_main`.
+latched ``/line/status`` and ends this host's share when the simulator, having reported
+the run's end, leaves the domain (exit 0; 5 when trains did not complete; 6 when
+``--duration`` cut it), or gives up with exit 7 when no simulator appeared within
+``--peer-timeout`` wall seconds, or with exit 3 when the simulator left the domain without
+ending the run.  This module is ROS-free but for :func:`watch_main`.
 """
 
 from __future__ import annotations
@@ -392,9 +392,11 @@ def watch_verdict(finished: bool, completed: int, trains: int, sim_time_s: float
 def watch_main(argv: Sequence[str] | None = None) -> int:
     """``python -m metro_atc.deploy watch``: follow the simulator of another host.
 
-    Exit 0 / 5 / 6 when the simulator reports the end of the run (:func:`watch_verdict`),
-    7 when no simulator appeared within ``--timeout`` wall seconds, 3 when it left the
-    domain for :data:`LEFT_GRACE_S` without reporting the end; one line on stderr.
+    Exit 0 / 5 / 6 when the simulator, having reported the end of the run
+    (:func:`watch_verdict`), left the domain (after writing its outputs: until then it may
+    wait for this host's brake diagnosis to acknowledge its last samples), 7 when no
+    simulator appeared within ``--timeout`` wall seconds, 3 when it left the domain for
+    :data:`LEFT_GRACE_S` without reporting the end; one line on stderr.
     """
     p = argparse.ArgumentParser(prog="python -m metro_atc.deploy watch")
     p.add_argument("--timeout", type=float, default=PEER_TIMEOUT_S)
@@ -413,19 +415,24 @@ def watch_main(argv: Sequence[str] | None = None) -> int:
     say = node.get_logger()
     t0 = time.monotonic()
     seen_at: float | None = None
+    verdict: tuple[Exit, str] | None = None
     absent_since: float | None = None
     try:
         while True:
             rclpy.spin_once(node, timeout_sec=0.2)
             now = time.monotonic()
-            if last and last[-1].finished:
+            if verdict is None and last and last[-1].finished:
                 m = last[-1]
-                code, line = watch_verdict(True, m.completed_trains, m.trains,
-                                           m.sim_time_s, a.duration)
-                print(f"simulator_watch: exit {int(code)}: {line}", file=sys.stderr,
-                      flush=True)
-                return int(code)
+                verdict = watch_verdict(True, m.completed_trains, m.trains, m.sim_time_s,
+                                        a.duration)
+                say.info("the simulator reported the end of the run; waiting for it to "
+                         "leave (its last sensor samples still need this host)")
             present = node.count_publishers("/line/status") > 0
+            if verdict is not None and not present:
+                # the simulator wrote its outputs and left: this host's part is done
+                print(f"simulator_watch: exit {int(verdict[0])}: {verdict[1]}",
+                      file=sys.stderr, flush=True)
+                os._exit(int(verdict[0]))  # no DDS teardown to wait for
             if present:
                 if seen_at is None:
                     seen_at = now
@@ -436,14 +443,14 @@ def watch_main(argv: Sequence[str] | None = None) -> int:
                       f"{os.environ.get('ROS_DOMAIN_ID', '0')} within {a.timeout:g} s "
                       "(check the peer list, the other hosts and that one of them runs "
                       "--only simulator)", file=sys.stderr, flush=True)
-                return int(Exit.GRAPH_NOT_READY)
+                os._exit(int(Exit.GRAPH_NOT_READY))
             elif seen_at is not None:
                 absent_since = now if absent_since is None else absent_since
                 if now - absent_since > LEFT_GRACE_S:
                     print(f"simulator_watch: error: the simulator left the domain "
                           f"{LEFT_GRACE_S:g} s ago without reporting the end of the run",
                           file=sys.stderr, flush=True)
-                    return int(Exit.NODE_FAILED)
+                    os._exit(int(Exit.NODE_FAILED))
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

@@ -45,7 +45,7 @@ if WHY is not None:
 SCENARIO = "mini"
 SHARES = ("simulator,ats", "ato:1/2,brake", "ato:2/2")
 """``--only`` of hosts 1, 2, 3."""
-RUN_TIMEOUT_S = 600.0
+RUN_TIMEOUT_S = 300.0
 """Wall-clock limit of a split run [s] (~12 s on a quiet 2-core machine)."""
 KILL_AT_S = 300.0
 """Simulated time [s] at which host 3's ATO process (train_02, in service 170-600 s) is
@@ -79,9 +79,12 @@ def _finish(p: subprocess.Popen[str], timeout: float = RUN_TIMEOUT_S) -> dict[st
     try:
         stdout, stderr = p.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
+        tree = subprocess.run(["ps", "-e", "-o", "pid,ppid,stat,etimes,args"],
+                              capture_output=True, text=True).stdout
         p.send_signal(signal.SIGTERM)
         stdout, stderr = p.communicate(timeout=60)
-        pytest.fail(f"run did not end in {timeout:g} s\n{stderr[-3000:]}")
+        pytest.fail(f"run did not end in {timeout:g} s: {p.args}\n{stderr[-3000:]}\n"
+                    f"processes then:\n{tree[-6000:]}")
     return {"code": p.returncode, "stdout": stdout, "stderr": stderr}
 
 
