@@ -181,6 +181,9 @@ def test_split_run_equals_the_one_host_run(lab_runs: dict[str, Any],
     assert (run["out"] / "events.csv").read_text() == events
     assert _comparable(json.loads((run["out"] / "kpis.json").read_text())) == \
         _comparable(kpis)
+    # the brake diagnosis on host 2 acknowledged the last samples (its host did not stop it
+    # before the simulator was done with it)
+    assert "did not acknowledge" not in (run["out"] / "logs" / "line_simulator.log").read_text()
     # the hosts without the simulator say how the run ended
     for res in run["hosts"][1:]:
         assert "the simulator ended the run at t=" in res["stderr"]
