@@ -252,8 +252,8 @@ def test_split_run_is_short(lab_runs: dict[str, Any]) -> None:
 def _bad_lab() -> Iterator[tuple[netns.Lab, list[int]]]:
     domains = DomainAllocator()
     with domains.allocate() as a, domains.allocate() as b, domains.allocate() as c, \
-            netns.Lab(3, a) as lab:
-        yield lab, [a, b, c]
+            domains.allocate() as d, netns.Lab(3, a) as lab:
+        yield lab, [a, b, c, d]
 
 
 @pytest.fixture(scope="module")
@@ -276,12 +276,27 @@ def bad_runs(installed: Path, tmp_path_factory: pytest.TempPathFactory
             "two_sims_1": _start(lab, 1, doms[2], tmp / "c1", "--dds-hosts", str(peers13), *t),
             "two_sims_3": _start(lab, 3, doms[2], tmp / "c3", "--dds-hosts", str(peers13), *t),
         }
+        # the simulator killed mid-run, not restarted (its host's run fails): the ATO host
+        # gives up once it is gone
+        peers23 = _peers(tmp / "peers23.txt", lab, (2, 3))
+        starts["sim_left_2"] = _start(lab, 2, doms[3], tmp / "d2", "--only",
+                                      "simulator,ats,brake", "--respawn-limit", "0",
+                                      "--dds-hosts", str(peers23))
+        starts["sim_left_3"] = _start(lab, 3, doms[3], tmp / "d3", "--only", "ato",
+                                      "--dds-hosts", str(peers23))
         for name in ("malformed", "noroute", "notmine"):
             starts[name] = _start(lab, 1, doms[0], tmp / name, "--dds-hosts",
                                   str(tmp / f"{name}.txt"))
         t0 = time.monotonic()
         ends: dict[str, float] = {}
+        sim_log = tmp / "d2" / "logs" / "line_simulator.log"
+        killed_at = math.nan
         while len(ends) < len(starts) and time.monotonic() - t0 < RUN_TIMEOUT_S:
+            if math.isnan(killed_at) and sim_log.is_file() and \
+                    "graph ready" in sim_log.read_text(errors="replace"):
+                pids = json.loads((tmp / "d2" / "logs" / "pids.json").read_text())
+                os.kill(int(pids["line_simulator"]), signal.SIGKILL)
+                killed_at = time.monotonic()
             for name, p in starts.items():
                 if name not in ends and p.poll() is not None:
                     ends[name] = time.monotonic() - t0
@@ -289,7 +304,8 @@ def bad_runs(installed: Path, tmp_path_factory: pytest.TempPathFactory
         res = {}
         for name, p in starts.items():
             res[name] = dict(_finish(p, timeout=60.0), wall_s=ends.get(name, math.inf),
-                             out=tmp / name)
+                             out=tmp / name, end=t0 + ends.get(name, math.inf))
+        res["sim_left_3"]["after_kill_s"] = res["sim_left_3"]["end"] - killed_at
         return res
 
 
@@ -325,6 +341,18 @@ def test_two_simulators_on_one_domain_refused(bad_runs: dict[str, Any]) -> None:
         assert r["code"] not in (0, 5, 6), r["stderr"][-2000:]
         assert "another line_simulator publishes /line/fleet_state" in r["stderr"], \
             r["stderr"][-2000:]
+
+
+def test_ato_host_gives_up_when_the_simulator_leaves(bad_runs: dict[str, Any]) -> None:
+    """The simulator killed mid-run and not restarted: its host's run fails (3), and the ATO
+    host ends with 3 and one line once the simulator is gone (its participant's 10 s lease,
+    then deploy.LEFT_GRACE_S), not at its --timeout."""
+    from metro_atc.deploy import LEFT_GRACE_S
+    assert bad_runs["sim_left_2"]["code"] == 3, bad_runs["sim_left_2"]["stderr"][-2000:]
+    r = bad_runs["sim_left_3"]
+    assert r["code"] == 3, r["stderr"][-2000:]
+    assert "the simulator left the domain" in _one_error(r["stderr"])
+    assert r["after_kill_s"] < 10.0 + LEFT_GRACE_S + START_ALLOWANCE_S
 
 
 @pytest.mark.parametrize("name,words", [
