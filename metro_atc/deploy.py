@@ -36,7 +36,7 @@ import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 from metro_atc.exit_codes import Exit
 
@@ -159,15 +159,16 @@ def check(a: argparse.Namespace, train_ids: Sequence[str]) -> str | None:
     return None
 
 
-def share(a: argparse.Namespace, specs: Sequence[Any], train_ids: Sequence[str]) -> list[Any]:
+def share(a: argparse.Namespace, specs: Sequence[Any], train_ids: Sequence[str],
+          groups: Callable[[Sequence[str], int], list[list[str]]]) -> list[Any]:
     """The process specs (:class:`metro_atc.launcher.ProcessSpec`) this host starts.
 
     ``specs`` is the whole graph.  The ATO processes of a share ``ato:K/N`` are made from
     the whole graph's first ATO process (same parameters, the share's trains composed
-    ``--ato-per-process`` to a process).  In a split run the simulator waits
-    ``--peer-timeout`` for the graph (``startup_timeout_s``, ``ato_absent_timeout_s``).
+    ``--ato-per-process`` to a process by ``groups``, the launcher's ``ato_groups``).
+    In a split run the simulator waits ``--peer-timeout`` for the graph
+    (``startup_timeout_s``, ``ato_absent_timeout_s``).
     """
-    from metro_atc.launcher import ato_groups
     sh = share_of(a)
     out: list[Any] = []
     for spec in specs:
@@ -180,7 +181,7 @@ def share(a: argparse.Namespace, specs: Sequence[Any], train_ids: Sequence[str])
     if sh is not None and sh.ato_shares:
         template = next(s for s in specs if s.executable == "ato_controller")
         for k, n in sh.ato_shares:
-            for group in ato_groups(share_trains(train_ids, k, n), a.ato_per_process):
+            for group in groups(share_trains(train_ids, k, n), a.ato_per_process):
                 out.append(replace(template, label=f"ato_{group[0]}",
                                    params=dict(template.params, train_ids=group)))
     return out

@@ -308,7 +308,7 @@ def build_commands(a: argparse.Namespace, train_ids: Sequence[str],
     A host without the simulator runs :data:`deploy.WATCH_LABEL` first, in its place.
     """
     specs = deploy.share(a, processes_for(a, train_ids, out_dir, plan_store_dir,
-                                          finished_file), train_ids)
+                                          finished_file), train_ids, ato_groups)
     watch = deploy.watch_command(a)
     return ([(deploy.WATCH_LABEL, watch)] if watch else []) + \
         [(p.label, executable(p.executable)

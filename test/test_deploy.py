@@ -65,7 +65,7 @@ def test_share_keeps_the_chosen_parts_with_the_whole_graph_parameters() -> None:
     a = parse_args(["--scenario", "mini", "--only", "simulator,ato:2/3",
                     "--ato-per-process", "1", "--peer-timeout", "7"])
     whole = _specs(a)
-    got = deploy.share(a, whole, TRAINS)
+    got = deploy.share(a, whole, TRAINS, ato_groups)
     assert [s.label for s in got] == ["line_simulator", "ato_train_02", "ato_train_05"]
     assert got[0].params["startup_timeout_s"] == 7.0
     assert got[0].params["ato_absent_timeout_s"] == 7.0
@@ -73,7 +73,7 @@ def test_share_keeps_the_chosen_parts_with_the_whole_graph_parameters() -> None:
     assert got[1].params == dict(ato.params, train_ids=["train_02"])
     assert deploy.watch_command(a) is None
     b = parse_args(["--scenario", "mini", "--only", "ato:2/3,brake", "--ato-per-process", "2"])
-    assert [s.label for s in deploy.share(b, _specs(b), TRAINS)] == \
+    assert [s.label for s in deploy.share(b, _specs(b), TRAINS, ato_groups)] == \
         ["brake_diagnostic", "ato_train_02"]
     watch = deploy.watch_command(b)
     assert watch is not None and watch[2:4] == ["metro_atc.deploy", "watch"]
@@ -83,7 +83,7 @@ def test_whole_graph_unchanged_without_the_options() -> None:
     """No --only, no --dds-hosts: the process list is the whole graph's, untouched."""
     a = parse_args(["--scenario", "mini"])
     assert not deploy.split(a)
-    assert deploy.share(a, _specs(a), TRAINS) == _specs(a)
+    assert deploy.share(a, _specs(a), TRAINS, ato_groups) == _specs(a)
 
 
 @pytest.mark.parametrize("argv,words", [
