@@ -188,3 +188,25 @@ def test_profile_command_prints_the_hosts_profile(tmp_path: Path, monkeypatch: p
     assert deploy.profile_main([str(f)]) == Exit.REFUSED
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "10.213.7.1 unreachable from 10.213.7.2" in err[0]
+
+
+def test_wire_sizes_are_the_codecs_bytes() -> None:
+    """``bench hosts``' payload table: linear in the trains, equal to a message's bytes."""
+    from metro_atc.bench.hosts import wire_sizes
+    from metro_atc.nodes.wire import fleet_command
+    from metro_atc.nodes.wire import fleet_state
+    few, many = wire_sizes(30), wire_sizes(300)
+    pad = 8 * len(fleet_state.ARRAYS)  # each array's alignment: < 8 B
+    assert abs(many["fleet_state"] - few["fleet_state"]
+               - 270 * few["fleet_state_per_train"]) < pad
+    assert many["fleet_command"] == len(fleet_command.encode(
+        (1, 0), "line", 1, [f"train_{k:02d}" for k in range(1, 301)], [0.5] * 300, [1] * 300))
+    assert few["fleet_state_per_train"] > 8 * 8  # at least its eight float64 fields
+
+
+def test_bench_hosts_refuses_bad_options(capsys: pytest.CaptureFixture[str]) -> None:
+    """One line and exit 2 before any namespace is made."""
+    from metro_atc.bench.hosts import main
+    assert main(["--hosts", "4"]) == 2
+    assert main(["--pairs", "0"]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 2
