@@ -18,6 +18,7 @@ from typing import Sequence
 
 BENCHES = {
     "perf": "metro_atc.bench.perf",
+    "hosts": "metro_atc.bench.hosts",
     "ttobench": "metro_atc.bench.ttobench",
     "regulator-synthesis": "metro_atc.bench.regulator_synthesis",
     "regulation": "metro_atc.bench.regulation",

@@ -52,6 +52,7 @@ from typing import Any, Sequence, Union
 
 import numpy as np
 
+from metro_atc import deploy
 from metro_atc.core.atr.registry import REGULATORS
 from metro_atc.dds import clean_killed_shm, config_dir, dds_defaults
 from metro_atc.exit_codes import NO_RESPAWN, NORMAL_END, Exit, outcome
@@ -161,6 +162,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--wait-for-subscribers", default="", metavar="NODE[,NODE]",
                    help="node names that must subscribe to the simulator's topics before "
                         "step 0 (e.g. an outside recorder)")
+    deploy.add_options(p)
     return p
 
 
@@ -343,10 +345,17 @@ def ros_param_value(v: Any) -> str:
 def build_commands(a: argparse.Namespace, train_ids: Sequence[str],
                    out_dir: Path, plan_store_dir: str = "",
                    finished_file: str = "") -> list[tuple[str, list[str]]]:
-    """The process list of a run: (label, argv)."""
-    return [(p.label, executable(p.executable)
-             + _ros_args(p.params, Path(p.params_file) if p.params_file else None))
-            for p in processes_for(a, train_ids, out_dir, plan_store_dir, finished_file)]
+    """The process list of a run: (label, argv); this host's share of it (``--only``).
+
+    A host without the simulator runs :data:`deploy.WATCH_LABEL` first, in its place.
+    """
+    specs = deploy.share(a, processes_for(a, train_ids, out_dir, plan_store_dir,
+                                          finished_file), train_ids, ato_groups)
+    watch = deploy.watch_command(a)
+    return ([(deploy.WATCH_LABEL, watch)] if watch else []) + \
+        [(p.label, executable(p.executable)
+          + _ros_args(p.params, Path(p.params_file) if p.params_file else None))
+         for p in specs]
 
 
 def node_env() -> dict[str, str]:
@@ -438,6 +447,10 @@ def check_out_dir(path: Path) -> str | None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one scenario through the graph; print KPIs (``--json``: one JSON object)."""
     a = parse_args(argv)
+    problem, profile = deploy.configure(a)  # --dds-hosts: before the DDS defaults
+    if problem:
+        print(f"metro_atc run: error: {problem}", file=sys.stderr)
+        return Exit.REFUSED
     dds_defaults()
     zygote = None
     if not a.single_process:
@@ -451,6 +464,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if zygote is not None:
             zygote.close()
+        if profile is not None:
+            profile.unlink(missing_ok=True)
 
 
 def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
@@ -471,6 +486,8 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
             problem = f"--record {bag}: already exists (rosbag2 does not overwrite a bag)"
         else:
             problem = check_out_dir(bag.parent)
+    if problem is None:
+        problem = deploy.check(a, train_ids)
     if problem is None and a.single_process and (a.record is not None
                                                  or a.wait_for_subscribers
                                                  or a.replay_commands):
@@ -514,6 +531,8 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
     # the regulator's training (if any) is part of the run's wall time
     wall = time.monotonic() - t0 + training_s
     kpi_file = out_dir / "kpis.json"
+    if not a.single_process and deploy.watch_command(a) is not None:
+        return deploy.share_end(a, code, Path(a.log_dir) if a.log_dir else out_dir / "logs")
     if code != 0:
         return code
     try:
@@ -829,7 +848,8 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
                 why = f"killed by {signal.Signals(-rc).name}" if rc < 0 and \
                     -rc in signal.valid_signals() else _last_error_line(log_dir / f"{label}.log")
                 killed = killed or rc == -signal.SIGKILL
-                if respawns[label] < a.respawn_limit and rc not in NO_RESPAWN:
+                if respawns[label] < a.respawn_limit and rc not in NO_RESPAWN and \
+                        label != deploy.WATCH_LABEL:
                     respawns[label] += 1
                     print(f"metro_atc run: {label} exited with {rc} ({why}); restarting it "
                           f"({respawns[label]} of {a.respawn_limit})", file=sys.stderr,
@@ -838,7 +858,8 @@ def _run_processes(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Pat
                     write_pids(log_dir, procs)
                     continue
                 limit = " (not restarted: a restart cannot mend it)" if rc in NO_RESPAWN \
-                    else " (respawn limit reached)" if a.respawn_limit else ""
+                    or label == deploy.WATCH_LABEL else " (respawn limit reached)" \
+                    if a.respawn_limit else ""
                 print(f"metro_atc run: error: {label} exited with {rc}{limit}: {why} "
                       f"(log: {log_dir / (label + '.log')})", file=sys.stderr)
                 # the simulator's own verdicts stand (outputs not written, no ATO answered)
