@@ -86,6 +86,9 @@ class RollingStockSpec:
                                          "wheel [kW] (constant power above P/F)")
     accel_max_mps2: float | None = _f(None, 0.05, 3.0, "starting-acceleration cap [m/s^2]")
     service_brake_mps2: float | None = _f(None, 0.1, 3.0, "maximum service deceleration")
+    service_brake_load_pax: float | None = _f(None, 0.0, 5000.0, "load up to which the "
+                                              "service brake is load-weighed (default: "
+                                              "capacity_pax, crush)")
     regen_force_kn: float | None = _f(None, 0.0, 5000.0, "maximum electric brake force [kN]")
     friction_brake_force_kn: float | None = _f(None, 0.0, 10000.0, "maximum friction "
                                                "(pneumatic) service brake force [kN]")

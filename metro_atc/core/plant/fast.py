@@ -142,7 +142,9 @@ class NumbaStepper:
                 ("davis_b", p.davis_b_n_per_mps), ("davis_c", p.davis_c_n_per_mps2),
                 ("dt", dt), ("tol", sim.tol_stop), ("code_step", 5.0 * KMH),
                 ("fixed", bool(atp.fixed_block)), ("n_sid", g.n_sid),
-                ("substeps", sim.substeps), ("fc_per_n", br.fc_per_n), ("jw", br.jw))
+                ("substeps", sim.substeps), ("fc_per_n", br.fc_per_n), ("jw", br.jw),
+                ("m_trac", p.mass_kg), ("meff_sb", p.service_brake_meff_limit_kg),
+                ("meff_eb", p.emergency_brake_meff_limit_kg))
         self.noise = getattr(sim.sensors, "noise", np.zeros(4))
         self.c = _record_vector(kn.CONSTANTS, vals + (("noise", self.noise),))
         """The run constants: a float vector the kernels read as ``kernel.CONSTANTS``."""

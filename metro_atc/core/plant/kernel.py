@@ -29,7 +29,8 @@ CONSTANT_FIELDS = (
     "x0", "inv_dx", "train_length", "x_switch", "block", "margin", "eoa_end", "g_down", "b_g",
     "t_r", "t_sbi", "sbi_offset", "ceiling_tol", "bs", "eb_decel", "jerk", "jerk_eb",
     "civil_tol", "n_ax", "trac_adh", "mu_pk", "inv_nax", "inv_nmot", "davis_a", "davis_b",
-    "davis_c", "dt", "tol", "code_step", "fixed", "n_sid", "substeps", "fc_per_n", "jw")
+    "davis_c", "dt", "tol", "code_step", "fixed", "n_sid", "substeps", "fc_per_n", "jw",
+    "m_trac", "meff_sb", "meff_eb")
 """Scalar fields of :data:`CONSTANTS` (float64, in the vector's order).
 
 Grid x0 [m] and 1/dx [1/m]; train length [m]; turn-back switch position [m]; block length
@@ -40,7 +41,10 @@ acceleration g_down [m/s^2], guaranteed brake b_g [m/s^2], reaction time t_r [s]
 brakes: axles per train, peak adhesion x motored axles [-], peak adhesion [-], 1/axles,
 1/motored axles; Davis a [N], b [N s/m], c [N s^2/m^2]; control period dt [s]; stopping
 tolerance [m]; speed-code step [m/s]; fixed block 0/1; turn-back sidings; RK4 substeps;
-clamp force per brake force [-]; wheel inertia [kg m^2].
+clamp force per brake force [-]; wheel inertia [kg m^2]; the mass the traction curve is
+specified at [kg] (:func:`metro_atc.core.laws.traction_mass`); the effective masses up to
+which the service and the emergency brake are load-weighed [kg]
+(:func:`metro_atc.core.laws.load_weighed_decel`).
 """
 CONSTANTS = np.dtype([(f, np.float64) for f in CONSTANT_FIELDS]
                      + [("noise", np.float64, (4,))])
@@ -251,20 +255,24 @@ def front(cn, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb
     bs = cn["bs"]
     fast = not (any_slide or any_wsp)
     slide_ratio, fric_mult = bk[0], bk[1]
+    m_trac, meff_sb = cn["m_trac"], cn["meff_sb"]
     for i in range(n):
         ui = auto_u[i] if auto[i] else blk[O_U, i]
-        f_max = phi[i] * mass[i] * trac_level[i]
-        a_t = ui * f_max / meff[i] if ui >= 0.0 else ui * bs
+        # motor force limit above the load the curve is given at; service brake at its
+        # load-weighed rate (its maximum force above the load-weigh limit)
+        f_max = phi[i] * laws.traction_mass(mass[i], m_trac) * trac_level[i]
+        bs_i = laws.load_weighed_decel(bs, meff[i], meff_sb)
+        a_t = ui * f_max / meff[i] if ui >= 0.0 else ui * bs_i
         if hold[i]:
-            a_t = -bs
+            a_t = -bs_i
         jmax = cn["jerk"]
         ebm = False
         if override:
             ebm = eb[i] or broken[i]
             if sb[i]:
-                a_t = _mn(a_t, -bs)
+                a_t = _mn(a_t, -bs_i)
             if ebm:
-                a_t = -cn["eb_decel"]
+                a_t = -laws.load_weighed_decel(cn["eb_decel"], meff[i], cn["meff_eb"])
                 jmax = cn["jerk_eb"]
         a_d = _mn(_mx(a_t, a_prev[i] - jmax), a_prev[i] + jmax)
         blk[O_AD, i] = a_d

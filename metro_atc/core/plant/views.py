@@ -43,6 +43,8 @@ def target_running_time(sim: Any, rows: NDArray[np.intp]) -> NDArray[np.float64]
 def plant_states(sim: Any) -> dict[str, Any]:
     """Per-train state arrays (copies); ``mode`` uses the TrainState.MODE_* values.
 
+    ``mass_kg`` is the load-weigh mass of each train [kg] (the on-board ATO's).
+
     The :data:`FLEET_KEYS` arrays are :func:`fleet_state_rows` of every train (one formula
     for both); the others are copies of the components' arrays.
     """
@@ -56,6 +58,7 @@ def plant_states(sim: Any) -> dict[str, Any]:
         "atp_limit_mps": f["atp_limit_mps"], "movement_authority_m": f["movement_authority_m"],
         "speed_code_mps": atp.speed_code.copy(),
         "atp_interventions": atp.interventions.copy(), "load_pax": fl.load.copy(),
+        "mass_kg": fl.mass.copy(),
         "in_service": fl.run.copy(),
         "target_running_time_s": f["target_running_time_s"],
         "departure_time_s": f["departure_time_s"],
