@@ -197,4 +197,6 @@ def test_ato_at_a_heavier_mass_plans_its_runs_apart() -> None:
     pa = a.plan(0, 110.0, 0.0).profile
     pb = b.plan(0, 110.0, 0.0).profile
     assert pa is not pb
-    assert b.core.run is not a.core.run and b.core.run.train is b.train
+    run_a, run_b = a.core.run, b.core.run
+    assert run_a is not None and run_b is not None
+    assert run_b is not run_a and run_b.train is b.train and run_a.train is p

@@ -91,8 +91,8 @@ USERS: dict[str, list[str]] = {
 The ATO's change adds ``core/ato/step_kernel.py``, ``core/ato/control_kernel.py``,
 ``core/ato/strategy.py``, ``core/ato/oracle.py`` (traction, Davis) and
 ``core/ato/onboard.py`` (ATP curve) here."""
-INTERNAL = {"fmin", "fmax", "grade_sine", "brake_force_max", "on_array", "njit", "_compile", "_plain",
-            "__getattr__"}
+INTERNAL = {"fmin", "fmax", "grade_sine", "brake_force_max", "on_array", "njit", "_compile",
+            "_plain", "__getattr__"}
 """Helpers and laws used by the other laws (no module calls them directly), and the
 module's lazy-compilation machinery."""
 

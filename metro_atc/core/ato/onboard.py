@@ -722,13 +722,13 @@ def limits_at_mass(limits: OperatingLimits, base: TrainParams,
     acceleration limit is at most the train's constant-torque traction a_1 at the mass;
     ``limits`` itself when neither is lower.
     """
-    over: dict[str, float] = {}
+    brake, accel = limits.brake_decel_mps2, limits.accel_max_mps2
     if train.max_service_brake_mps2 < base.max_service_brake_mps2:
-        over["brake_decel_mps2"] = limits.brake_decel_mps2 * (
-            train.max_service_brake_mps2 / base.max_service_brake_mps2)
-    if train.a1_mps2 < limits.accel_max_mps2:
-        over["accel_max_mps2"] = train.a1_mps2
-    return dataclasses.replace(limits, **over) if over else limits
+        brake = brake * (train.max_service_brake_mps2 / base.max_service_brake_mps2)
+    accel = min(accel, train.a1_mps2)
+    if brake == limits.brake_decel_mps2 and accel == limits.accel_max_mps2:
+        return limits
+    return dataclasses.replace(limits, brake_decel_mps2=brake, accel_max_mps2=accel)
 
 
 def envelope_limits(scn: Any, train: TrainParams) -> OperatingLimits:
