@@ -200,9 +200,9 @@ class OnboardAto:
         return True
 
     def _load_weigh(self, s: dict[str, Any]) -> None:
-        """Take the state's load-weigh mass ``mass_kg`` [kg] when it has one."""
+        """Take the state's load-weigh mass ``mass_kg`` [kg] when it has one (not NaN)."""
         m = s.get("mass_kg")
-        if m is not None:
+        if m is not None and m == m:
             self.set_load_mass(m)
 
     def plan(self, st: int, target_s: float, stamp_s: float, late: bool = False) -> PlanEvent:
