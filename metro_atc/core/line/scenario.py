@@ -667,7 +667,9 @@ def _check_stock(b: _Builder, s: Scenario) -> None:
         raise b.err("trains.instrumented_car", f"expected <= cars ({p.cars}), "
                     f"got {s.trains.instrumented_car}")
     law = laws.plain  # one-off evaluations: the laws uncompiled (no numba at load time)
-    f_start = min(law.traction_force(0.0, p.mass_kg, *p.traction_law),
+    # the plant's force limit at crush (the curve's force at its reference mass)
+    f_start = min(law.traction_force(0.0, law.traction_mass(m_crush, p.mass_kg),
+                                     *p.traction_law),
                   law.adhesion_limit(curve.mu_peak, law.axle_load(m_crush, n_ax)) * n_mot)
     up = max([0.0] + [g.grade_permille / 1000.0 for g in s.line.gradients])
     f_need = law.davis_resistance(0.0, p.davis_a_n, p.davis_b_n_per_mps,

@@ -43,7 +43,9 @@ class TrainParams:
     """
 
     mass_kg: float = 214_000.0
-    """Total mass incl. nominal load [kg] (ACTP n.d., eq. 1/2 consistency, estimate)."""
+    """Total mass incl. nominal load [kg] (ACTP n.d., eq. 1/2 consistency, estimate): the
+    reference mass at which the traction curve and the brake rates are given (above it
+    the motors are force-limited, :func:`metro_atc.core.laws.traction_mass`)."""
     rotary_allowance: float = 0.08
     """Rotating-mass allowance lambda: effective mass = m (1 + lambda) [-] (estimate)."""
     davis_a_n: float = 0.020084 * 214_000.0
