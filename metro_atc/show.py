@@ -57,6 +57,8 @@ STOCK_ROWS: tuple[tuple[str, str, str, float, tuple[str, ...]], ...] = (
     ("b3_mps", "traction b_3", "m/s", 1.0, ("traction_power_kw",)),
     ("max_service_brake_mps2", "service deceleration", "m/s^2", 1.0,
      ("service_brake_mps2", "regen_force_kn", "friction_brake_force_kn")),
+    ("service_brake_load_pax", "service brake load-weighed up to", "persons", 1.0,
+     ("service_brake_load_pax",)),
     ("max_regen_power_w", "electric brake power", "kW", 1e-3, ("regen_power_kw",)),
     ("regen_fade_speed_mps", "electric brake fade-out below", "km/h", KMH,
      ("regen_fade_speed_kmh",)),
@@ -83,6 +85,8 @@ _MASS_SCALED = ("davis_a_n", "davis_b_n_per_mps", "a1_mps2")
 def _stock_value(p: TrainParams, attr: str) -> float:
     if attr == "traction_force_n":
         return p.mass_kg * p.a1_mps2
+    if attr == "service_brake_load_pax" and p.service_brake_load_pax is None:
+        return p.capacity_pax  # the default: load-weighed to crush
     return float(getattr(p, attr))
 
 

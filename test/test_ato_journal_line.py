@@ -29,7 +29,7 @@ def _state(rng: random.Random) -> dict[str, object]:
             "v_mps": f(), "a_mps2": f(), "current_station": rng.randint(-1, 40),
             "next_station": rng.randint(-1, 40), "mode": rng.randint(0, 7),
             "departure_time_s": f(), "target_running_time_s": f(),
-            "supervision_speed_mps": f(), "movement_authority_m": f(),
+            "supervision_speed_mps": f(), "movement_authority_m": f(), "mass_kg": f(),
             "again": rng.random() < 0.5}
 
 

@@ -24,7 +24,8 @@ from metro_atc.nodes.wire import cdr as codec
 from metro_atc.nodes.wire import fleet_command, fleet_state, traction_command
 
 F64 = ("position_m", "speed_mps", "acceleration_mps2", "departure_time_s",
-       "target_running_time_s", "supervision_speed_mps", "movement_authority_m")
+       "target_running_time_s", "supervision_speed_mps", "movement_authority_m",
+       "mass_kg")
 SPECIAL = (0.0, -0.0, math.inf, -math.inf, math.nan, 5e-324, 1.7976931348623157e308,
            struct.unpack("<d", b"\x01\x00\x00\x00\x00\x00\xf8\x7f")[0])  # a NaN payload
 
@@ -247,7 +248,7 @@ def test_validated_entries_of_a_decoded_view_equal_the_messages() -> None:
                 f = rng.choice(F64 + ("current_station", "mode"))
                 vals = list(getattr(m, f))
                 vals[rng.randrange(len(vals))] = rng.choice(
-                    (math.nan, -1e9, 300) if f in ("current_station", "mode")
+                    (-1e9, 300) if f in ("current_station", "mode")  # no NaN int32
                     else (math.nan, math.inf, -1e9)) if f != "mode" else 200
                 setattr(m, f, [int(v) for v in vals] if f in ("current_station", "mode")
                         else vals)
@@ -311,3 +312,42 @@ def test_encode_traction_command_equals_rclpy() -> None:
             traction_command.encode((0, 0), "line", "a", *bad)
     with pytest.raises(ValueError):
         traction_command.encode((0, 0), "line", "a\x00", 1, 0.0, 1)
+
+
+def test_fleet_state_carries_the_load_weigh_mass_to_the_ato() -> None:
+    """The plant's train masses reach the ATO's validated states through the wire (fast and
+    per-entry paths); the per-train TrainState carries it too; a mass out of range is
+    rejected, NaN (no signal) passes."""
+    from metro_atc.core.line.scenario import load_scenario
+    from metro_atc.core.plant.line import LineSim
+    from metro_atc.core.validate import Rejected, StepWindow, bounds_for
+    from metro_atc.nodes import conversions as conv
+
+    scn = load_scenario("mini")
+    b = bounds_for(scn)
+    ids = list(scn.train_ids)
+    sim = LineSim(scn, seed=3)
+    sim.fleet.load[:] = np.linspace(0.0, sim.p.capacity_pax, sim.n)
+    for i in range(sim.n):
+        sim.fleet.set_mass_from_load(i)
+    st = sim.states()
+    topic = "/line/fleet_state"
+    hosted = {i: None for i in ids}
+    m = fleet_state.to_msg(ids, np.arange(len(ids)), st, 0, 0.0, np.zeros(len(ids), bool))
+    view = fleet_state.decode(serialize_message(m))
+    got = fleet_state.checked(view, topic, hosted, b)  # type: ignore[arg-type]
+    assert got is not None
+    assert [s["mass_kg"] for _, s, _ in got] == sim.fleet.mass.tolist()
+    for j, (tid, e) in enumerate(fleet_state.entries(m, topic, hosted)):
+        s = conv.state_from_msg(e, topic, tid, b, StepWindow())
+        assert s["mass_kg"] == sim.fleet.mass[j]
+    ts = conv.state_msgs(ids, [0], st, 0, 0.0)[0][1]
+    assert ts.mass_kg == sim.fleet.mass[0]
+    ts.mass_kg = math.nan
+    assert math.isnan(conv.state_from_msg(ts, f"/{ids[0]}/state", ids[0], b,
+                                          StepWindow())["mass_kg"])
+    ts.mass_kg = -5.0
+    with pytest.raises(Rejected):
+        conv.state_from_msg(ts, f"/{ids[0]}/state", ids[0], b, StepWindow())
+    m.mass_kg = [-5.0] * len(ids)
+    assert fleet_state.checked(m, topic, hosted, b) is None

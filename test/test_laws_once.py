@@ -55,6 +55,8 @@ USERS: dict[str, list[str]] = {
     "traction_a3": ["core/line/vehicle.py"],
     "traction_force": ["core/line/vehicle.py"],
     "traction_demand_force": ["core/plant/kernel.py"],
+    "traction_mass": ["core/plant/kernel.py", "core/line/vehicle.py"],
+    "load_weighed_decel": ["core/plant/kernel.py", "core/line/vehicle.py"],
     "command_effort": ["core/line/vehicle.py"],
     "davis_resistance": ["core/line/vehicle.py", "core/plant/kernel_step.py",
                          "core/brake/metro_car.py", "core/brake/train_watch.py"],
@@ -89,8 +91,8 @@ USERS: dict[str, list[str]] = {
 The ATO's change adds ``core/ato/step_kernel.py``, ``core/ato/control_kernel.py``,
 ``core/ato/strategy.py``, ``core/ato/oracle.py`` (traction, Davis) and
 ``core/ato/onboard.py`` (ATP curve) here."""
-INTERNAL = {"fmin", "fmax", "grade_sine", "on_array", "njit", "_compile", "_plain",
-            "__getattr__"}
+INTERNAL = {"fmin", "fmax", "grade_sine", "brake_force_max", "on_array", "njit", "_compile",
+            "_plain", "__getattr__"}
 """Helpers and laws used by the other laws (no module calls them directly), and the
 module's lazy-compilation machinery."""
 

@@ -214,13 +214,13 @@ def test_rk4_resting_branch_equals_standstill_branch() -> None:
     f_brake = rng.uniform(2.0e5, 6.0e5, n)
     v = np.zeros(n)
     rest, e_rest = motion(v, f_brake)
-    assert np.all(rest[kn.O_V1] == 0.0) and np.array_equal(rest[kn.O_X1], x)
+    assert np.all(rest[kn.OUT.v1] == 0.0) and np.array_equal(rest[kn.OUT.x1], x)
     assert not np.any(e_rest[6])  # no stop correction
     v_mix, f_mix = v.copy(), f_brake.copy()
     v_mix[0], f_mix[0] = 0.05, 3.0e5 - p.davis_a_n  # comes to rest inside the period
     mix, e_mix = motion(v_mix, f_mix)
-    assert mix[kn.O_V1, 0] == 0.0 and mix[kn.O_X1, 0] > x[0]
-    for row in (kn.O_X1, kn.O_V1, kn.O_ACC):
+    assert mix[kn.OUT.v1, 0] == 0.0 and mix[kn.OUT.x1, 0] > x[0]
+    for row in (kn.OUT.x1, kn.OUT.v1, kn.OUT.acc):
         np.testing.assert_array_equal(rest[row, 1:], mix[row, 1:])
     for a, b in zip(e_rest, e_mix):
         np.testing.assert_array_equal(a[1:], b[1:])

@@ -194,7 +194,8 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
                  "departure_time_s": float(st["departure_time_s"][i]),
                  "target_running_time_s": float(st["target_running_time_s"][i]),
                  "supervision_speed_mps": sup if math.isfinite(sup) else math.inf,
-                 "movement_authority_m": ma if math.isfinite(ma) else math.inf}
+                 "movement_authority_m": ma if math.isfinite(ma) else math.inf,
+                 "mass_kg": float(st["mass_kg"][i])}
             u[i] = atos[i].control(s)[0]
         run = sim.active_mask()
         res = sim.step(u.copy())

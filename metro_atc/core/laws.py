@@ -134,6 +134,45 @@ def traction_force(v: float, mass: float, a1: float, v1: float, v2: float, a2: f
 
 
 @njit(cache=True)
+def traction_mass(mass: float, m_ref: float) -> float:
+    """Mass [kg] the tractive force is scaled by: ``min(mass, m_ref)``.
+
+    The traction curve phi(v) (:func:`traction_accel`) is specified at the reference mass
+    ``m_ref`` [kg] (the rolling stock's ``mass_kg`` with its ``mass_load_pax``).  Up to
+    that load the drive is load-weighed (the same acceleration at every load, as the ATP's
+    worst-case response acceleration ``phi + g max_down`` assumes); above it the motors are
+    at their force limit ``phi(v) m_ref``, so a fuller train accelerates less.  The maximum
+    tractive force of a train of ``mass`` is ``traction_force(v, traction_mass(mass,
+    m_ref), ...)``.
+    """
+    return fmin(mass, m_ref)
+
+
+@njit(cache=True)
+def load_weighed_decel(decel: float, meff: float, meff_limit: float) -> float:
+    """Full deceleration [m/s^2] of a load-weighed brake on the effective mass ``meff`` [kg].
+
+    The brake's load-weighing valve compensates up to the effective mass ``meff_limit``
+    [kg]: below it the full brake gives ``decel`` [m/s^2] at every load; above it the brake
+    is at its maximum force ``decel meff_limit`` [N] (:func:`brake_force_max`) and the
+    deceleration falls as ``decel meff_limit / meff``.
+    """
+    if meff <= meff_limit:
+        return decel
+    return brake_force_max(decel, meff_limit) / meff
+
+
+@njit(cache=True)
+def brake_force_max(decel: float, meff_limit: float) -> float:
+    """Maximum force [N] of a brake of rate ``decel`` [m/s^2] load-weighed up to ``meff_limit``.
+
+    ``decel meff_limit``: the force at the largest effective mass [kg] the load-weighing
+    compensates (:func:`load_weighed_decel`).
+    """
+    return decel * meff_limit
+
+
+@njit(cache=True)
 def traction_demand_force(a_d: float, meff: float, f_max: float, f_adh: float) -> float:
     """Tractive force [N] for the demanded acceleration ``a_d`` [m/s^2].
 

@@ -425,7 +425,7 @@ class AtoController(Node):
 
 _STATE_KEYS = ("step", "t_s", "x_m", "v_mps", "a_mps2", "current_station", "next_station",
                "mode", "departure_time_s", "target_running_time_s", "supervision_speed_mps",
-               "movement_authority_m", "again")
+               "movement_authority_m", "mass_kg", "again")
 """The keys of a validated state (:func:`conversions.state_from_msg`), in its order."""
 
 
@@ -450,28 +450,30 @@ def state_json(s: dict[str, Any]) -> str:
     general.  Any other dict (keys, order or value types not a validated state's) goes to
     ``json.dumps``.
     """
-    if len(s) != 13 or tuple(s) != _STATE_KEYS:
+    if len(s) != 14 or tuple(s) != _STATE_KEYS:
         return json.dumps(s)
-    k, t, x, v, a, cur, nxt, md, dep, tgt, sup, ma, again = s.values()
+    k, t, x, v, a, cur, nxt, md, dep, tgt, sup, ma, mass, again = s.values()
     if not (type(k) is int and type(cur) is int and type(nxt) is int  # noqa: E721
             and type(md) is int and type(again) is bool and type(t) is float
             and type(x) is float and type(v) is float and type(a) is float
             and type(dep) is float and type(tgt) is float and type(sup) is float
-            and type(ma) is float):
+            and type(ma) is float and type(mass) is float):
         return json.dumps(s)
-    if _isfinite(t + x + v + a + dep + tgt + sup + ma):
+    if _isfinite(t + x + v + a + dep + tgt + sup + ma + mass):
         # a finite sum: no NaN or infinity among them, each written as float.__repr__
         # (``!r`` of a float; one format, no call per field)
         return (f'{{"step": {k}, "t_s": {t!r}, "x_m": {x!r}, "v_mps": {v!r}, '
                 f'"a_mps2": {a!r}, "current_station": {cur}, "next_station": {nxt}, '
                 f'"mode": {md}, "departure_time_s": {dep!r}, '
                 f'"target_running_time_s": {tgt!r}, "supervision_speed_mps": {sup!r}, '
-                f'"movement_authority_m": {ma!r}, "again": {"true" if again else "false"}}}')
+                f'"movement_authority_m": {ma!r}, "mass_kg": {mass!r}, '
+                f'"again": {"true" if again else "false"}}}')
     return (f'{{"step": {k}, "t_s": {_jf(t)}, "x_m": {_jf(x)}, "v_mps": {_jf(v)}, '
             f'"a_mps2": {_jf(a)}, "current_station": {cur}, "next_station": {nxt}, '
             f'"mode": {md}, "departure_time_s": {_jf(dep)}, '
             f'"target_running_time_s": {_jf(tgt)}, "supervision_speed_mps": {_jf(sup)}, '
-            f'"movement_authority_m": {_jf(ma)}, "again": {"true" if again else "false"}}}')
+            f'"movement_authority_m": {_jf(ma)}, "mass_kg": {_jf(mass)}, '
+            f'"again": {"true" if again else "false"}}}')
 
 
 def _state_key(s: dict[str, Any]) -> str:

@@ -181,6 +181,8 @@ def state_msgs(train_ids: Sequence[str], idx: Iterable[int], states: Mapping[str
         m.atp_interventions = int(ai[i]) if ai is not None else 0
         m.traction_energy_j = float(states["traction_energy_j"][i])
         m.regenerated_energy_j = float(states["regen_energy_j"][i])
+        mass = g("mass_kg")
+        m.mass_kg = float(mass[i]) if mass is not None else math.nan
         out.append((i, m))
     return out
 
@@ -221,9 +223,22 @@ def state_from_msg(msg: TrainState, topic: str, train_id: str, b: Bounds,
                                                 msg.supervision_speed_mps, 0.0, b.v_max_mps,
                                                 "speed"),
            "movement_authority_m": _authority(f"{topic}.movement_authority_m",
-                                              msg.movement_authority_m, b)}
+                                              msg.movement_authority_m, b),
+           "mass_kg": _mass(f"{topic}.mass_kg", msg.mass_kg)}
     out["again"] = steps.accept(k, f"{topic}.step") == "again"
     return out
+
+
+MASS_MIN_KG, MASS_MAX_KG = 1e3, 1e7
+"""Range of a train's load-weigh mass [kg] (NaN: no signal)."""
+
+
+def _mass(name: str, value: float) -> float:
+    """Load-weigh mass of a train [kg]: NaN (no signal) or in the mass range."""
+    v = float(value)
+    if v != v:
+        return v
+    return check_range(name, v, MASS_MIN_KG, MASS_MAX_KG, "mass")
 
 
 def _authority(name: str, value: float, b: Bounds) -> float:

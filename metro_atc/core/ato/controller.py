@@ -133,6 +133,13 @@ class AtoCore:
         self._ce_s = math.nan
         self._ce_v = 0.0
         self._kplan: Optional[tuple[Any, Any, tuple[Any, ...]]] = None
+        self._train0 = train
+        self._mass_key: tuple[Any, ...] = ()
+        self._derive()
+
+    def _derive(self) -> None:
+        """The rates derived from the train and the limits (at build and :meth:`set_train`)."""
+        train = self.train
         a_ref = max(train.a1_mps2, train.max_service_brake_mps2)
         self._du_max_per_s = self.limits.jerk_max_mps3 / max(a_ref, 1e-6)
         # jerk [m/s^3] at which the surplus traction can be taken off: the ATO's rate limit
@@ -146,6 +153,24 @@ class AtoCore:
                                                                1e-6)
         """The planned braking deceleration as an effort (a share of the service brake) [-]."""
 
+    def set_train(self, train: TrainParams, limits: OperatingLimits) -> None:
+        """Plan and track from now on with the rolling stock ``train`` at its load.
+
+        ``train``: the reference stock's :meth:`~TrainParams.at_mass` (the load-weigh mass
+        at departure), ``limits`` the planning limits at that mass.  Runs, pre-work and
+        plans of a mass other than the first train's are kept apart (keyed by the mass) in
+        the shared caches.  Takes effect at the next :meth:`plan`.
+        """
+        if train is self.train and limits is self.limits:
+            return
+        self.train = train
+        self.limits = limits
+        self._mass_key = () if train is self._train0 \
+            else (("mass_kg", float(train.mass_kg)),)
+        self._cache = self._shared.setdefault("prework", {}) if not self._mass_key \
+            else self._shared.setdefault("prework_mass", {}).setdefault(self._mass_key, {})
+        self._derive()
+
     # ------------------------------------------------------------------ planning
     def plan(self, x_start_m: float, x_stop_m: float, target_running_time_s: float,
              restrictions: tuple[tuple[float, float, float], ...] = ()) -> Profile:
@@ -154,7 +179,7 @@ class AtoCore:
         ``restrictions``: temporary speed limits the run respects as civil limits, (start
         [m], end [m], limit [m/s]) (:func:`metro_atc.core.ato.tsr_plan.tsrs_for_run`).
         """
-        key: tuple[Any, ...] = (float(x_start_m), float(x_stop_m))
+        key: tuple[Any, ...] = (float(x_start_m), float(x_stop_m)) + self._mass_key
         cache = self._cache
         if restrictions:
             # a run of its own (envelope, pre-work tables and plans keyed by the TSRs too)

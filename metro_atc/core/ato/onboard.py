@@ -127,6 +127,11 @@ class OnboardAto:
                             control_period_s=control_period_s, limits=limits, shared=shared,
                             **planner_params)
         self.train = train
+        self.base_train = train
+        """The rolling stock at its reference mass (``train`` is it at the load-weigh mass)."""
+        self.base_limits = self.core.limits
+        self.mass_rejected = 0
+        """Load-weigh masses ignored (not finite or outside empty .. 1.5 x crush) [-]."""
         self.track = track
         self.stations = np.asarray(stations_m, dtype=float)
         self._stations_list: list[float] = self.stations.tolist()  # read per step (floats)
@@ -171,6 +176,35 @@ class OnboardAto:
             return self.plan(st, float(running_s), stamp_s)
         return None
 
+    def set_load_mass(self, mass_kg: float) -> bool:
+        """Plan and track from the next plan on with the train at ``mass_kg`` [kg].
+
+        The load-weigh mass of the train: traction, service brake and effective mass of
+        :meth:`TrainParams.at_mass` (the plant's force limits at that mass), the planning
+        limits scaled with them (:func:`limits_at_mass`).  A mass that is not finite or
+        outside the empty train .. 1.5 x the crush-loaded train is ignored and counted
+        (``mass_rejected``); returns whether the mass was taken.
+        """
+        b = self.base_train
+        m = float(mass_kg)
+        if not (math.isfinite(m)
+                and b.tare_mass_kg <= m <= 1.5 * b.mass_at_load(b.capacity_pax)):
+            self.mass_rejected += 1
+            return False
+        if m == self.train.mass_kg:
+            return True
+        train = b.at_mass(m)
+        self.train = train
+        self.core.set_train(train, limits_at_mass(self.base_limits, b, train))
+        self._kconst = None  # the compiled step's constants hold the train
+        return True
+
+    def _load_weigh(self, s: dict[str, Any]) -> None:
+        """Take the state's load-weigh mass ``mass_kg`` [kg] when it has one (not NaN)."""
+        m = s.get("mass_kg")
+        if m is not None and m == m:
+            self.set_load_mass(m)
+
     def plan(self, st: int, target_s: float, stamp_s: float, late: bool = False) -> PlanEvent:
         """Plan the run from station ``st`` to ``st + 1``."""
         x0, x1 = float(self.stations[st]), float(self.stations[st + 1])
@@ -199,9 +233,11 @@ class OnboardAto:
             late = float(s["t_s"]) - float(s["departure_time_s"])
             if math.isfinite(late) and late > 1.0:
                 target = float(max(round(target - late), 1.0))
+            self._load_weigh(s)
             planned = self.plan(cur, target, float(s["t_s"]), late=late > 1.0)
         elif self.planned_from != cur and 0 <= cur == nxt - 1:
             # started mid-run (e.g. the node was restarted): plan from here
+            self._load_weigh(s)
             planned = self.plan(cur, float(s["target_running_time_s"]), float(s["t_s"]))
         if self._kstep is not None:
             out = self._kernel_control(s)
@@ -675,6 +711,24 @@ def atp_model_for(scn: Any, train: TrainParams) -> AtpModel:
                     grid_dx_m=float(geom.dx), sbi_static_mps=np.asarray(sbi, dtype=float),
                     tol_mps=float(geom.ceiling_tol), resp_dist_m=float(c.n_resp * geom.dx),
                     sbi_dist_m=float(c.n_sbi * geom.dx))
+
+
+def limits_at_mass(limits: OperatingLimits, base: TrainParams,
+                   train: TrainParams) -> OperatingLimits:
+    """Planning limits ``limits`` of the stock ``base`` for ``train`` (``base.at_mass``).
+
+    The planned braking deceleration keeps its share of the service brake (scaled by the
+    service rate at the mass over the reference one when that is lower) and the net
+    acceleration limit is at most the train's constant-torque traction a_1 at the mass;
+    ``limits`` itself when neither is lower.
+    """
+    brake, accel = limits.brake_decel_mps2, limits.accel_max_mps2
+    if train.max_service_brake_mps2 < base.max_service_brake_mps2:
+        brake = brake * (train.max_service_brake_mps2 / base.max_service_brake_mps2)
+    accel = min(accel, train.a1_mps2)
+    if brake == limits.brake_decel_mps2 and accel == limits.accel_max_mps2:
+        return limits
+    return dataclasses.replace(limits, brake_decel_mps2=brake, accel_max_mps2=accel)
 
 
 def envelope_limits(scn: Any, train: TrainParams) -> OperatingLimits:

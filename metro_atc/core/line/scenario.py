@@ -86,6 +86,9 @@ class RollingStockSpec:
                                          "wheel [kW] (constant power above P/F)")
     accel_max_mps2: float | None = _f(None, 0.05, 3.0, "starting-acceleration cap [m/s^2]")
     service_brake_mps2: float | None = _f(None, 0.1, 3.0, "maximum service deceleration")
+    service_brake_load_pax: float | None = _f(None, 0.0, 5000.0, "load up to which the "
+                                              "service brake is load-weighed (default: "
+                                              "capacity_pax, crush)")
     regen_force_kn: float | None = _f(None, 0.0, 5000.0, "maximum electric brake force [kN]")
     friction_brake_force_kn: float | None = _f(None, 0.0, 10000.0, "maximum friction "
                                                "(pneumatic) service brake force [kN]")
@@ -664,7 +667,9 @@ def _check_stock(b: _Builder, s: Scenario) -> None:
         raise b.err("trains.instrumented_car", f"expected <= cars ({p.cars}), "
                     f"got {s.trains.instrumented_car}")
     law = laws.plain  # one-off evaluations: the laws uncompiled (no numba at load time)
-    f_start = min(law.traction_force(0.0, p.mass_kg, *p.traction_law),
+    # the plant's force limit at crush (the curve's force at its reference mass)
+    f_start = min(law.traction_force(0.0, law.traction_mass(m_crush, p.mass_kg),
+                                     *p.traction_law),
                   law.adhesion_limit(curve.mu_peak, law.axle_load(m_crush, n_ax)) * n_mot)
     up = max([0.0] + [g.grade_permille / 1000.0 for g in s.line.gradients])
     f_need = law.davis_resistance(0.0, p.davis_a_n, p.davis_b_n_per_mps,

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -42,7 +43,9 @@ class TrainParams:
     """
 
     mass_kg: float = 214_000.0
-    """Total mass incl. nominal load [kg] (ACTP n.d., eq. 1/2 consistency, estimate)."""
+    """Total mass incl. nominal load [kg] (ACTP n.d., eq. 1/2 consistency, estimate): the
+    reference mass at which the traction curve and the brake rates are given (above it
+    the motors are force-limited, :func:`metro_atc.core.laws.traction_mass`)."""
     rotary_allowance: float = 0.08
     """Rotating-mass allowance lambda: effective mass = m (1 + lambda) [-] (estimate)."""
     davis_a_n: float = 0.020084 * 214_000.0
@@ -107,6 +110,9 @@ class TrainParams:
     """Wheel-to-line efficiency of regenerative braking [-] (estimate)."""
     aux_power_w: float = 150e3
     """Auxiliary (HVAC, lighting) power drawn while in service [W] (estimate)."""
+    service_brake_load_pax: float | None = None
+    """Load up to which the service brake is load-weighed [persons] (None: ``capacity_pax``,
+    crush; estimate: metro brake valves typically compensate up to crush load)."""
 
     @property
     def tare_mass_kg(self) -> float:
@@ -125,6 +131,76 @@ class TrainParams:
     def effective_mass_kg(self) -> float:
         """Mass including the rotating-mass allowance [kg]."""
         return self.mass_kg * (1.0 + self.rotary_allowance)
+
+    def effective_mass_at(self, mass: Any) -> Any:
+        """Effective mass [kg] of the train at ``mass`` [kg] (float or array).
+
+        The rotating parts do not change with the load: ``mass + lambda mass_kg`` (the
+        plant's model; equal to :attr:`effective_mass_kg` at ``mass_kg``).
+        """
+        return mass + self.rotary_allowance * self.mass_kg
+
+    @property
+    def service_brake_meff_limit_kg(self) -> float:
+        """Effective mass [kg] up to which the service brake is load-weighed.
+
+        At :attr:`service_brake_load_pax` (crush when None); above it the service brake is
+        at its maximum force (:func:`metro_atc.core.laws.load_weighed_decel`).
+        """
+        load = self.capacity_pax if self.service_brake_load_pax is None \
+            else self.service_brake_load_pax
+        return float(self.effective_mass_at(self.mass_at_load(load)))
+
+    @property
+    def emergency_brake_meff_limit_kg(self) -> float:
+        """Effective mass [kg] up to which the emergency brake is load-weighed: at crush.
+
+        The emergency brake holds its rate at every load up to ``capacity_pax`` (the ATP's
+        guaranteed deceleration relies on it).
+        """
+        return float(self.effective_mass_at(self.mass_at_load(self.capacity_pax)))
+
+    def at_mass(self, mass: float) -> "TrainParams":
+        """The rolling stock as a train of ``mass`` [kg] sees it (the on-board ATO's model).
+
+        ``mass_kg`` is the reference mass m_ref at which the traction curve and the brake
+        rates are specified.  The result has ``mass_kg = mass`` and:
+
+        - the traction curve phi scaled by ``min(mass, m_ref) / mass`` (so that its
+          ``mass_kg phi`` is the force limit ``phi min(mass, m_ref)``,
+          :func:`metro_atc.core.laws.traction_mass`): below m_ref the curve is unchanged
+          (load-weighed drive), above it a fuller train accelerates less;
+        - the rotating-mass allowance ``lambda m_ref / mass`` (the same rotating mass,
+          :meth:`effective_mass_at`);
+        - the service and emergency rates at that mass
+          (:func:`metro_atc.core.laws.load_weighed_decel` with
+          :attr:`service_brake_meff_limit_kg` / :attr:`emergency_brake_meff_limit_kg`);
+        - the load ``nominal_load_pax`` that mass carries, the load-weigh limit kept.
+
+        ``at_mass(mass_kg)`` is this object itself.  Call it on the reference stock only
+        (the result's ``mass_kg`` is no longer the reference mass).  ValueError for a mass
+        that is not positive.
+        """
+        m_ref = self.mass_kg
+        if mass == m_ref:
+            return self
+        if not (math.isfinite(mass) and mass > 0.0):
+            raise ValueError(f"mass: expected a finite mass > 0 kg, got {mass!r}")
+        law = laws.plain
+        meff = float(self.effective_mass_at(mass))
+        over: dict[str, Any] = {
+            "mass_kg": float(mass), "rotary_allowance": self.rotary_allowance * m_ref / mass,
+            "nominal_load_pax": self.nominal_load_pax + (mass - m_ref) / self.pax_mass_kg,
+            "max_service_brake_mps2": law.load_weighed_decel(
+                self.max_service_brake_mps2, meff, self.service_brake_meff_limit_kg),
+            "emergency_brake_actual_mps2": law.load_weighed_decel(
+                self.emergency_brake_actual_mps2, meff, self.emergency_brake_meff_limit_kg),
+            "service_brake_load_pax": self.capacity_pax if self.service_brake_load_pax is None
+            else self.service_brake_load_pax}
+        m_trac = law.traction_mass(mass, m_ref)
+        if m_trac != mass:
+            over["a1_mps2"] = self.a1_mps2 * (m_trac / mass)
+        return dataclasses.replace(self, **over)
 
     @property
     def a2(self) -> float:
@@ -325,7 +401,8 @@ STOCK_KEYS = (
     "length_m", "cars", "max_speed_kmh",
     "davis_a_n", "davis_b_n_per_mps", "davis_c_n_per_mps2",
     "traction_force_kn", "traction_power_kw", "accel_max_mps2",
-    "service_brake_mps2", "regen_force_kn", "regen_power_kw", "friction_brake_force_kn",
+    "service_brake_mps2", "service_brake_load_pax", "regen_force_kn", "regen_power_kw",
+    "friction_brake_force_kn",
     "emergency_brake_mps2", "emergency_brake_actual_mps2", "jerk_max_mps3",
     "emergency_jerk_mps3", "regen_fade_speed_kmh", "axles_per_car", "motored_axle_fraction",
     "wheel_radius_m", "wheel_inertia_kgm2", "brake_radius_m", "pad_mu_nominal",
@@ -356,7 +433,8 @@ def train_params_from_data(base: TrainParams, data: dict[str, float | int | None
       below v_1 = P / (m a_max) is then m a_max);
     - ``service_brake_mps2``, or brake forces ``regen_force_kn`` + ``friction_brake_force_kn``
       divided by the mass (the smaller of the two when both are given);
-      ``regen_power_kw``: electric brake power limit;
+      ``regen_power_kw``: electric brake power limit; ``service_brake_load_pax``: the load
+      up to which the service brake is load-weighed (default: ``capacity_pax``, crush);
     - ``emergency_brake_mps2`` (guaranteed, used by ATP), ``emergency_brake_actual_mps2``
       (nominal), ``jerk_max_mps3``, ``emergency_jerk_mps3`` (build-up rate);
     - ``regen_fade_speed_kmh``, ``axles_per_car``, ``motored_axle_fraction``,
@@ -397,7 +475,8 @@ def train_params_from_data(base: TrainParams, data: dict[str, float | int | None
               "wheel_radius_m": "wheel_radius_m", "wheel_inertia_kgm2": "wheel_inertia_kgm2",
               "brake_radius_m": "brake_radius_m", "pad_mu_nominal": "pad_mu_nominal",
               "traction_efficiency": "traction_efficiency",
-              "regen_efficiency": "regen_efficiency"}
+              "regen_efficiency": "regen_efficiency",
+              "service_brake_load_pax": "service_brake_load_pax"}
     for key, attr in simple.items():
         if key in d:
             over[attr] = int(d[key]) if attr in ("cars", "axles_per_car") else float(d[key])

@@ -142,7 +142,9 @@ class NumbaStepper:
                 ("davis_b", p.davis_b_n_per_mps), ("davis_c", p.davis_c_n_per_mps2),
                 ("dt", dt), ("tol", sim.tol_stop), ("code_step", 5.0 * KMH),
                 ("fixed", bool(atp.fixed_block)), ("n_sid", g.n_sid),
-                ("substeps", sim.substeps), ("fc_per_n", br.fc_per_n), ("jw", br.jw))
+                ("substeps", sim.substeps), ("fc_per_n", br.fc_per_n), ("jw", br.jw),
+                ("m_trac", p.mass_kg), ("meff_sb", p.service_brake_meff_limit_kg),
+                ("meff_eb", p.emergency_brake_meff_limit_kg))
         self.noise = getattr(sim.sensors, "noise", np.zeros(4))
         self.c = _record_vector(kn.CONSTANTS, vals + (("noise", self.noise),))
         """The run constants: a float vector the kernels read as ``kernel.CONSTANTS``."""
@@ -203,7 +205,8 @@ class NumbaStepper:
         fs, _, bs = self._sync(fl, sim.atp, sim.brakes, en)[:3]
         ks = self.ks
         return int(ks.motion(self.c, fl.x, fl.v, f_trac, f_brake, f_e, f_bdem,
-                             fs[ks.F_MP:ks.F_MP + 5], self.geo, bs[ks.B_MASKS:], fl.stop_x,
+                             fs[ks.FS.mass:ks.FS.mass + len(ks.MASS)], self.geo,
+                             bs[ks.BOOLS.run:], fl.stop_x,
                              en.e_trac, en.e_elec, en.e_fric, en.e_res, en.e_curve,
                              en.e_grade, en.e_stop_corr, en.n_in_service, blk))
 
@@ -214,7 +217,7 @@ class NumbaStepper:
         if same(cur, self.blk0_rows):
             return self.blk0
         blk0 = np.zeros((kn.N_OUT, fl.n))  # rebound elsewhere (set_xv, restore, copy)
-        for row, arr in zip((kn.O_X1, kn.O_V1, kn.O_U, kn.O_AD, kn.O_EOA), cur):
+        for row, arr in zip((kn.OUT.x1, kn.OUT.v1, kn.OUT.u, kn.OUT.ad, kn.OUT.eoa), cur):
             blk0[row] = arr
         return blk0
 
@@ -270,7 +273,7 @@ class NumbaStepper:
         t0 = sim.t
         auto = auto_u is None and fl.any_auto  # the kernel drives the turning-back trains
         if auto_u is not None:
-            fs[self.ks.F_AUTO] = auto_u
+            fs[self.ks.FS.auto] = auto_u
         r = self.step_rows(
             self.c, self.tabs, self.geo, self.stab, self.dcs, fs, ints, bools, grids, axc,
             blk0, blk, u, ax_out, br.r_w, sidx, slip0, self.no_ts if ts is None else ts,
@@ -280,13 +283,13 @@ class NumbaStepper:
         if gmin < atp.min_sep:
             atp.min_sep = gmin
         atp.steps_above_civil += n_civil
-        x1, v1, acc, lim, eoa, a_d, f_fa, w_ax, u_clean = blk[:kn.O_DRV]
+        x1, v1, acc, lim, eoa, a_d, f_fa, w_ax, u_clean = blk[:kn.OUT.drv]
         atp.atp_limit, atp.eoa = lim, eoa
         fl.u_last, fl.a_dem = u_clean, a_d
         if n_hit < 0:  # an axle may slide: the numpy adhesion / WSP model, then the motion
-            f_brake = br.rail_force(blk[kn.O_FE], blk[kn.O_FF], w_ax, a_d, fl.v)
-            n_hit = self._motion(sim, blk[kn.O_FTRAC], f_brake, blk[kn.O_FE],
-                                 blk[kn.O_FBDEM], blk)
+            f_brake = br.rail_force(blk[kn.OUT.fe], blk[kn.OUT.ff], w_ax, a_d, fl.v)
+            n_hit = self._motion(sim, blk[kn.OUT.ftrac], f_brake, blk[kn.OUT.fe],
+                                 blk[kn.OUT.fbdem], blk)
             br.follow(acc)
             self.drv_state = ()
         else:
@@ -300,7 +303,7 @@ class NumbaStepper:
                            zpos, k)
         fl.acc, fl.x, fl.v = acc, x1, v1
         self.blk0, self.blk0_rows = blk, (x1, v1, u_clean, a_d, eoa)
-        d = blk[kn.O_D]
+        d = blk[kn.OUT.d]
         hit = None
         if n_hit > 0:
             tol = sim.tol_stop
@@ -321,7 +324,7 @@ class NumbaStepper:
             st = self.drv_state
             if (st and st[0] is fl.x and st[1] is fl.v and st[2] is atp.eoa
                     and st[3] is fl.stop_x):
-                return self.drv_blk[self.kn.O_DRV].copy()
+                return self.drv_blk[self.kn.OUT.drv].copy()
         out = np.empty(fl.n)
         ks.driver(self.dc, fl.x, fl.v, fl.stop_x, atp.eoa, atp.speed_code, atp.drive_env,
                   atp.sbi_static, fl.status, atp.fixed_block, active_only, out)
@@ -331,9 +334,12 @@ class NumbaStepper:
 def _blocks(n: int, n_cells: int) -> Blocks:
     """The persistent blocks of :func:`.kernel_step.step_rows`.
 
-    ``F_*``, ``I_*``, ``B_*`` rows and the supervision grids ``G_*``, of the components
+    The rows of ``kernel_step.FS``, ``INTS``, ``BOOLS`` and the supervision grids
+    ``kernel.GRIDS``, of the components
     (fleet, atp, energy, brakes).
     """
+    from . import kernel as kn
+    from . import kernel_step as ks
     own_f = ((0, "trac_level"), (0, "stop_x"), (1, "speed_code"), (2, "e_trac"),
              (2, "e_elec"), (2, "e_fric"), (2, "e_res"), (2, "e_curve"), (2, "e_grade"),
              (2, "e_stop_corr"))
@@ -345,8 +351,12 @@ def _blocks(n: int, n_cells: int) -> Blocks:
          (2, "n_in_service", True))
     b = ((1, "eb", True), (1, "sb", True), (1, "in_violation", True), (0, "run", False),
          (0, "hold", False), (0, "broken", False), (0, "auto", False), (0, "cand", False))
-    grids = ("ebi_static", "sbi_static", "ceiling_phys", "limit_eff", "drive_env")
-    g = tuple((1, a, False) for a in grids)
+    g = tuple((1, a, False) for a in kn.GRIDS._fields)
+    # the kernels read these rows by the names of kernel_step.FS / INTS / BOOLS (the
+    # float block's last row, ``auto``, is scratch)
+    for rows, names in ((f, ks.FS._fields[:-1]), (i, ks.INTS._fields), (b, ks.BOOLS._fields)):
+        if tuple(a for _, a, _ in rows) != names:
+            raise AssertionError(f"block rows {[a for _, a, _ in rows]} are not {names}")
     return Blocks((((n,), float, 1, f), ((n,), np.int64, 0, i), ((n,), bool, 0, b),
                    ((n_cells,), float, 0, g)), 4)
 

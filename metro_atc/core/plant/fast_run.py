@@ -118,7 +118,7 @@ def run_compiled(sim: Any, u0: FloatArray, t_next: float, until_s: float, sample
         return 0, None, None
     # the plant state of the last step (what NumbaStepper.advance binds)
     blk = blks[k - 1]
-    x1, v1, acc, lim, eoa, a_d, _, _, u_clean = blk[:kn.O_DRV]
+    x1, v1, acc, lim, eoa, a_d, _, _, u_clean = blk[:kn.OUT.drv]
     atp.atp_limit, atp.eoa = lim, eoa
     fl.u_last, fl.a_dem = u_clean, a_d
     atp.any_atp, atp.any_violation = bool(res["any_atp"]), bool(res["any_viol"])
@@ -130,7 +130,7 @@ def run_compiled(sim: Any, u0: FloatArray, t_next: float, until_s: float, sample
     def axle(j: int) -> AxleState:
         b = blks[j]
         arr = (axs[j % 2, 0], axs[j % 2, 1], axs[j % 2, 2]) if samples else None
-        return AxleState(b[kn.O_FFA], b[kn.O_ACC], b[kn.O_WAX], coef, arr)
+        return AxleState(b[kn.OUT.ffa], b[kn.OUT.acc], b[kn.OUT.wax], coef, arr)
 
     br.ax_prev, br.ax = (axle(k - 2) if k > 1 else br.ax), axle(k - 1)
     fl.acc, fl.x, fl.v = acc, x1, v1
@@ -159,10 +159,10 @@ def run_compiled(sim: Any, u0: FloatArray, t_next: float, until_s: float, sample
         for j in range(every - 1 - sc % every, k, every):
             bj = blks[j]
             tr["t"].append(float(tk[j]))
-            tr["x"].append(bj[kn.O_X1].copy())
-            tr["v"].append(bj[kn.O_V1].copy())
+            tr["x"].append(bj[kn.OUT.x1].copy())
+            tr["v"].append(bj[kn.OUT.v1].copy())
             tr["run"].append(fl.run)
-            tr["atp"].append(bj[kn.O_LIM].copy())
+            tr["atp"].append(bj[kn.OUT.lim].copy())
     sim.t, sim.step_count = t_last, sc + k
     out.steps += k
     out.kernel_steps += k
@@ -170,7 +170,7 @@ def run_compiled(sim: Any, u0: FloatArray, t_next: float, until_s: float, sample
     out.atp_interventions += res["n_int"]
     if not hit_step:
         return k, None, None
-    d = blk[kn.O_D]
+    d = blk[kn.OUT.d]
     tol = sim.tol_stop
     return k, fl.cand & ((d > tol) | ((v1 <= 0.0) & (d >= -tol))), d
 

@@ -10,7 +10,7 @@ kernels read and write the components' own arrays (:mod:`.atp`, :mod:`.braking`,
 Constants of a run travel as one float vector (built by :mod:`.fast`) that each kernel reads
 through the record :data:`CONSTANTS` (``c.view(CONSTANTS)[0]``: free in compiled code; numpy
 record fields cost ~1 us each from Python, so the Python side keeps the plain vector);
-per-step outputs are the rows of one fresh ``[N_OUT, n]`` block (``O_*``: the fleet's and
+per-step outputs are the rows of one fresh ``[N_OUT, n]`` block (:data:`OUT`: the fleet's and
 the ATP's arrays are views of those rows).
 Compiled on first use and cached on disk (``cache=True``; numba falls back to the user
 cache directory when the package directory is read-only).
@@ -19,6 +19,8 @@ cache directory when the package directory is read-only).
 from __future__ import annotations
 
 import math
+from collections import namedtuple
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -29,7 +31,8 @@ CONSTANT_FIELDS = (
     "x0", "inv_dx", "train_length", "x_switch", "block", "margin", "eoa_end", "g_down", "b_g",
     "t_r", "t_sbi", "sbi_offset", "ceiling_tol", "bs", "eb_decel", "jerk", "jerk_eb",
     "civil_tol", "n_ax", "trac_adh", "mu_pk", "inv_nax", "inv_nmot", "davis_a", "davis_b",
-    "davis_c", "dt", "tol", "code_step", "fixed", "n_sid", "substeps", "fc_per_n", "jw")
+    "davis_c", "dt", "tol", "code_step", "fixed", "n_sid", "substeps", "fc_per_n", "jw",
+    "m_trac", "meff_sb", "meff_eb")
 """Scalar fields of :data:`CONSTANTS` (float64, in the vector's order).
 
 Grid x0 [m] and 1/dx [1/m]; train length [m]; turn-back switch position [m]; block length
@@ -40,7 +43,10 @@ acceleration g_down [m/s^2], guaranteed brake b_g [m/s^2], reaction time t_r [s]
 brakes: axles per train, peak adhesion x motored axles [-], peak adhesion [-], 1/axles,
 1/motored axles; Davis a [N], b [N s/m], c [N s^2/m^2]; control period dt [s]; stopping
 tolerance [m]; speed-code step [m/s]; fixed block 0/1; turn-back sidings; RK4 substeps;
-clamp force per brake force [-]; wheel inertia [kg m^2].
+clamp force per brake force [-]; wheel inertia [kg m^2]; the mass the traction curve is
+specified at [kg] (:func:`metro_atc.core.laws.traction_mass`); the effective masses up to
+which the service and the emergency brake are load-weighed [kg]
+(:func:`metro_atc.core.laws.load_weighed_decel`).
 """
 CONSTANTS = np.dtype([(f, np.float64) for f in CONSTANT_FIELDS]
                      + [("noise", np.float64, (4,))])
@@ -51,14 +57,33 @@ call from Python (:func:`.kernel_step.step_rows`, :func:`.kernel_run.run_rows`, 
 wrappers :func:`.kernel_step.motion` / :func:`.kernel_step.driver`) and handed down."""
 
 
-# rows of the per-step output block
-(O_X1, O_V1, O_ACC, O_LIM, O_EOA, O_AD, O_FFA, O_WAX, O_U, O_DRV, O_PHI, O_FTRAC, O_FBDEM,
- O_FE, O_FF, O_FBRK, O_D, O_VSBI, O_OBST, O_EBR, N_OUT) = range(21)
-# rows of the packed fleet masks / mass constants / supervision grids
-M_RUN, M_HOLD, M_BROKEN, M_AUTO, M_CAND = range(5)
-P_MASS, P_MEFF, P_INV_M, P_CB, P_CC = range(5)
-G_EBI, G_SBI, G_CEIL, G_LIM, G_ENV = range(5)
+def rows(*names: str) -> Any:
+    """Named rows of a block: a namedtuple of the row indices 0, 1, ... of ``names``.
 
+    Read as ``blk[OUT.x1, i]`` in compiled code (numba freezes the global tuple: the
+    index is a constant, as the numbered constants were) and from Python alike.
+    """
+    return namedtuple("Rows", names)(*range(len(names)))
+
+
+OUT = rows("x1", "v1", "acc", "lim", "eoa", "ad", "ffa", "wax", "u", "drv", "phi", "ftrac",
+           "fbdem", "fe", "ff", "fbrk", "d", "vsbi", "obst", "ebr")
+"""Rows of the per-step output block ``[N_OUT, n]``: position, speed, acceleration after the
+step [m, m/s, m/s^2]; ATP limit [m/s]; movement authority [m]; demanded acceleration
+[m/s^2]; friction force per axle [N]; axle load [N]; clean command [-]; the reference
+driver's next command [-]; traction curve phi [m/s^2]; tractive force, brake demand,
+electric and friction brake force, brake force on the rail [N]; distance past the stop
+point [m]; SBI speed [m/s]; obstacle ahead [m]; electric brake limit [N]."""
+N_OUT = len(OUT)
+"""Rows of the output block."""
+MASKS = rows("run", "hold", "broken", "auto", "cand")
+"""Rows of the packed fleet masks (in service, held, broken down, plant-driven, arrival
+candidate)."""
+MASS = rows("mass", "meff", "inv_meff", "davis_b", "davis_c")
+"""Rows of the packed mass constants: mass, effective mass [kg], 1 / M_eff [1/kg], Davis B
+and C over M_eff [1/s, 1/m] (the fleet's attributes of these names)."""
+GRIDS = rows("ebi_static", "sbi_static", "ceiling_phys", "limit_eff", "drive_env")
+"""Rows of the packed supervision grids (the ATP's attributes of these names) [m/s]."""
 _TURNBACK = 2
 
 
@@ -161,12 +186,15 @@ def front(cn, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb
     n = x.shape[0]
     fixed = cn["fixed"] != 0.0
     n_cells = grids.shape[1]
-    run, hold, broken, auto = masks[M_RUN], masks[M_HOLD], masks[M_BROKEN], masks[M_AUTO]
-    mass, meff = mp[P_MASS], mp[P_MEFF]
-    ebi_s, sbi_s, ceil_p, lim_eff = grids[G_EBI], grids[G_SBI], grids[G_CEIL], grids[G_LIM]
+    run, hold = masks[MASKS.run], masks[MASKS.hold]
+    broken, auto = masks[MASKS.broken], masks[MASKS.auto]
+    mass, meff = mp[MASS.mass], mp[MASS.meff]
+    ebi_s, sbi_s = grids[GRIDS.ebi_static], grids[GRIDS.sbi_static]
+    ceil_p, lim_eff = grids[GRIDS.ceiling_phys], grids[GRIDS.limit_eff]
     tv, tphi, tebr = tabs[0], tabs[1], tabs[2]
     x0, inv_dx = cn["x0"], cn["inv_dx"]
-    obst, eoa, lim, vsbi, phi = blk[O_OBST], blk[O_EOA], blk[O_LIM], blk[O_VSBI], blk[O_PHI]
+    obst, eoa, lim = blk[OUT.obst], blk[OUT.eoa], blk[OUT.lim]
+    vsbi, phi = blk[OUT.vsbi], blk[OUT.phi]
     any_atp = False
     any_viol = False
     any_broken = False
@@ -174,7 +202,7 @@ def front(cn, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb
         ui = u[i]
         if ui != ui:
             ui = u_last[i]
-        blk[O_U, i] = _mn(_mx(ui, -1.0), 1.0)
+        blk[OUT.u, i] = _mn(_mx(ui, -1.0), 1.0)
         any_atp = any_atp or eb[i] or sb[i]
         any_viol = any_viol or in_violation[i]
         any_broken = any_broken or broken[i]
@@ -194,7 +222,7 @@ def front(cn, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb
         jv = interp_j(v[i], tv)  # one look-up for the traction and e-brake tables
         ph = interp_at(v[i], tv, tphi, jv)
         phi[i] = ph
-        blk[O_EBR, i] = interp_at(v[i], tv, tebr, jv)
+        blk[OUT.ebr, i] = interp_at(v[i], tv, tebr, jv)
         a_w = ph + cn["g_down"]
         c0, c1, c2 = laws.ebi_coef(cn["b_g"], cn["t_r"], a_w)
         v_ma = laws.ebi_speed_from(c0, c1, c2, dist)
@@ -251,41 +279,45 @@ def front(cn, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb
     bs = cn["bs"]
     fast = not (any_slide or any_wsp)
     slide_ratio, fric_mult = bk[0], bk[1]
+    m_trac, meff_sb = cn["m_trac"], cn["meff_sb"]
     for i in range(n):
-        ui = auto_u[i] if auto[i] else blk[O_U, i]
-        f_max = phi[i] * mass[i] * trac_level[i]
-        a_t = ui * f_max / meff[i] if ui >= 0.0 else ui * bs
+        ui = auto_u[i] if auto[i] else blk[OUT.u, i]
+        # motor force limit above the load the curve is given at; service brake at its
+        # load-weighed rate (its maximum force above the load-weigh limit)
+        f_max = phi[i] * laws.traction_mass(mass[i], m_trac) * trac_level[i]
+        bs_i = laws.load_weighed_decel(bs, meff[i], meff_sb)
+        a_t = ui * f_max / meff[i] if ui >= 0.0 else ui * bs_i
         if hold[i]:
-            a_t = -bs
+            a_t = -bs_i
         jmax = cn["jerk"]
         ebm = False
         if override:
             ebm = eb[i] or broken[i]
             if sb[i]:
-                a_t = _mn(a_t, -bs)
+                a_t = _mn(a_t, -bs_i)
             if ebm:
-                a_t = -cn["eb_decel"]
+                a_t = -laws.load_weighed_decel(cn["eb_decel"], meff[i], cn["meff_eb"])
                 jmax = cn["jerk_eb"]
         a_d = _mn(_mx(a_t, a_prev[i] - jmax), a_prev[i] + jmax)
-        blk[O_AD, i] = a_d
+        blk[OUT.ad, i] = a_d
         w_ax = laws.axle_load(mass[i], cn["n_ax"])
-        blk[O_WAX, i] = w_ax
-        blk[O_FTRAC, i] = laws.traction_demand_force(a_d, meff[i], f_max,
-                                                     w_ax * cn["trac_adh"])
+        blk[OUT.wax, i] = w_ax
+        blk[OUT.ftrac, i] = laws.traction_demand_force(a_d, meff[i], f_max,
+                                                       w_ax * cn["trac_adh"])
         f_bdem = laws.brake_demand_force(a_d, meff[i])
-        blk[O_FBDEM, i] = f_bdem
-        f_e = laws.electric_brake_share(f_bdem, blk[O_EBR, i])
+        blk[OUT.fbdem, i] = f_bdem
+        f_e = laws.electric_brake_share(f_bdem, blk[OUT.ebr, i])
         if ebm:
             f_e = 0.0
-        blk[O_FE, i] = f_e
+        blk[OUT.fe, i] = f_e
         f_f = f_bdem - f_e
-        blk[O_FF, i] = f_f
+        blk[OUT.ff, i] = f_f
         f_fa = f_f * cn["inv_nax"]
-        blk[O_FFA, i] = f_fa
+        blk[OUT.ffa, i] = f_fa
         if (f_e * cn["inv_nmot"] + f_fa > laws.adhesion_limit(cn["mu_pk"], w_ax)
                 or f_fa * slide_ratio[i] > w_ax):
             fast = False
-        blk[O_FBRK, i] = f_e + f_fa * fric_mult[i]
+        blk[OUT.fbrk, i] = f_e + f_fa * fric_mult[i]
     return n_int, any_atp, any_viol, gmin, n_civil, fast
 
 

@@ -3,7 +3,7 @@
 :func:`run_rows` repeats what a Python loop of :func:`.driver.simple_driver` +
 :meth:`.line.LineSim.step` does between two points that need Python (see
 :mod:`.fast_run`), one compiled call for many steps: each step's command is the reference
-driver's, computed by the previous step (row ``O_DRV``); the sample instants are read from
+driver's, computed by the previous step (row ``OUT.drv``); the sample instants are read from
 the sensors' laid-out clock and the noise from their normals buffer (both advanced as the
 per-step path does).  It stops *before* a step (other than the first, whose discrete
 events the caller has done) that starts at or after the next discrete time, the duration
@@ -20,11 +20,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .kernel import CONSTANTS, O_AD, O_DRV, O_EOA, O_U, O_V1, O_X1, _mn
-from .kernel_step import (B_EB, B_INVIOL, B_MASKS, B_SB, DRIVER, F_AUTO, F_BK, F_CODE,
-                          F_EELEC, F_EFRIC, F_ECURVE, F_EGRADE, F_ERES, F_ESTOP, F_ETRAC,
-                          F_MP, F_STOP_X, F_TRAC, I_INTERV, I_NSERV, I_STATUS, I_VIOL,
-                          step_all)
+from .kernel import CONSTANTS, MASS, OUT, _mn
+from .kernel_step import BOOLS, DRIVER, FS, INTS, step_all
 
 # why run_rows stopped
 (STOP_TIME, STOP_SLOW, STOP_HIT, STOP_CLOCK, STOP_NORMALS, STOP_BUFFER) = range(6)
@@ -68,8 +65,8 @@ def run_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blks, u
     cap = o4.shape[1]
     noise = cn["noise"]
     dr, dr_auto = dcs[0].view(DRIVER)[0], dcs[1].view(DRIVER)[0]
-    eb, sb, inv = bools[B_EB], bools[B_SB], bools[B_INVIOL]
-    interv, viol, code = ints[I_INTERV], ints[I_VIOL], fs[F_CODE]
+    eb, sb, inv = bools[BOOLS.eb], bools[BOOLS.sb], bools[BOOLS.in_violation]
+    interv, viol, code = ints[INTS.interventions], ints[INTS.violations], fs[FS.speed_code]
     save_b = eb.copy()
     save_s, save_v, save_i = sb.copy(), inv.copy(), interv.copy()
     save_w, save_c = viol.copy(), code.copy()
@@ -111,13 +108,14 @@ def run_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blks, u
         blk = blks[k]
         ax_out = axs[k % 2]
         r = step_all(
-            cn, prev[O_X1], prev[O_V1], ints[I_STATUS], bools[B_MASKS:], u, prev[O_U],
-            fs[F_AUTO], prev[O_AD], fs[F_MP:F_MP + 5], fs[F_TRAC], eb, sb, interv, viol, inv,
-            grids, tabs, code, fs[F_BK:F_BK + 2], any_slide, any_wsp, blk, geo,
-            fs[F_STOP_X], fs[F_ETRAC], fs[F_EELEC], fs[F_EFRIC], fs[F_ERES], fs[F_ECURVE],
-            fs[F_EGRADE], fs[F_ESTOP], ints[I_NSERV], axc, stab, ax_out, dr, True, sidx,
-            r_w, sl, clock[cpos:end], t, t1, zbuf, zpos, noise,
-            o4[:, s_off:s_off + n_s], o2[:, s_off:s_off + n_s], auto, prev[O_EOA], dr_auto)
+            cn, prev[OUT.x1], prev[OUT.v1], ints[INTS.status], bools[BOOLS.run:], u,
+            prev[OUT.u], fs[FS.auto], prev[OUT.ad], fs[FS.mass:FS.mass + len(MASS)],
+            fs[FS.trac_level], eb, sb, interv, viol, inv, grids, tabs, code,
+            fs[FS.slide_ratio:FS.fric_mult + 1], any_slide, any_wsp, blk, geo, fs[FS.stop_x],
+            fs[FS.e_trac], fs[FS.e_elec], fs[FS.e_fric], fs[FS.e_res], fs[FS.e_curve],
+            fs[FS.e_grade], fs[FS.e_stop_corr], ints[INTS.n_in_service], axc, stab, ax_out, dr,
+            True, sidx, r_w, sl, clock[cpos:end], t, t1, zbuf, zpos, noise,
+            o4[:, s_off:s_off + n_s], o2[:, s_off:s_off + n_s], auto, prev[OUT.eoa], dr_auto)
         if r[5] < 0:  # the numpy slide model: undo the step's ATP updates, Python steps
             eb[:] = save_b
             sb[:] = save_s
@@ -138,7 +136,7 @@ def run_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blks, u
         cpos = end
         t = t1
         prev = blk
-        u = blk[O_DRV]
+        u = blk[OUT.drv]
         tk[k] = t
         k += 1
         if r[5] > 0:

@@ -12,9 +12,8 @@ from numba import njit
 
 from metro_atc.core import laws
 
-from .kernel import (CONSTANTS, G_ENV, G_SBI, M_CAND, M_RUN, O_ACC, O_AD, O_D, O_DRV, O_EOA,
-                     O_FBDEM, O_FBRK, O_FE, O_FFA, O_FTRAC, O_U, O_V1, O_WAX, O_X1, P_CB, P_CC,
-                     P_INV_M, P_MASS, P_MEFF, _cell, _mn, _mx, axle_fill, front)
+from .kernel import (CONSTANTS, GRIDS, MASKS, MASS, OUT, _cell, _mn, _mx, axle_fill, front,
+                     rows)
 from .kernel_aux import sensor_block
 
 DRIVER_FIELDS = ("x0", "inv_dx", "b_drive", "t_sbi", "c0", "c2", "c1", "bs", "tol", "gain",
@@ -26,13 +25,20 @@ look-ahead [s] (:func:`.driver.driver_command`)."""
 DRIVER = np.dtype([(f, np.float64) for f in DRIVER_FIELDS])
 """The reference driver's constants by name: a float vector viewed as this record in
 :func:`driver` (one row of ``dcs``: the reference driver's, the plant driver's)."""
-# rows of the persistent blocks of :func:`step_rows` (:mod:`.fast_state`): float state
-# (owned), then mass constants (``P_*`` order) and brake ratios (copied), then the
-# plant driver's command (scratch); integer state; boolean state then masks (``M_*``)
-(F_TRAC, F_STOP_X, F_CODE, F_ETRAC, F_EELEC, F_EFRIC, F_ERES, F_ECURVE, F_EGRADE, F_ESTOP,
- F_MP, F_BK, F_AUTO, N_F) = (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 15, 17, 18)
-I_STATUS, I_INTERV, I_VIOL, I_NSERV = range(4)
-B_EB, B_SB, B_INVIOL, B_MASKS = range(4)
+FS = rows("trac_level", "stop_x", "speed_code", "e_trac", "e_elec", "e_fric", "e_res",
+          "e_curve", "e_grade", "e_stop_corr", *MASS._fields, "slide_ratio", "fric_mult", "auto")
+"""Rows of the persistent float block of :func:`step_rows` (:mod:`.fast_state`, laid out
+by ``fast._blocks`` from these names): the state the kernel owns (traction level [-],
+stop point [m], speed code [m/s], energy counters [J]), then the copied mass constants
+(:data:`.kernel.MASS` order, from ``mass``) and brake ratios (from ``slide_ratio``), then
+the plant driver's command (scratch, ``auto``)."""
+N_F = len(FS)
+"""Rows of the float block."""
+INTS = rows("status", "interventions", "violations", "n_in_service")
+"""Rows of the integer block (the fleet's, ATP's and energy meter's attributes)."""
+BOOLS = rows("eb", "sb", "in_violation", *MASKS._fields)
+"""Rows of the boolean block: the ATP's flags, then the fleet masks (:data:`.kernel.MASKS`
+order, from ``run``)."""
 
 
 @njit(cache=True)
@@ -57,7 +63,8 @@ def motion_rec(cn, x, v, f_trac, f_brake, f_e, f_bdem, mp, geo, masks, stop_x, e
     """
     n = x.shape[0]
     n_cells = geo.shape[1]
-    mass, meff, inv_m, cb, cc = mp[P_MASS], mp[P_MEFF], mp[P_INV_M], mp[P_CB], mp[P_CC]
+    mass, meff, inv_m = mp[MASS.mass], mp[MASS.meff], mp[MASS.inv_meff]
+    cb, cc = mp[MASS.davis_b], mp[MASS.davis_c]
     x0, inv_dx = cn["x0"], cn["inv_dx"]
     da, db, dc = cn["davis_a"], cn["davis_b"], cn["davis_c"]
     dt = cn["dt"]
@@ -115,7 +122,7 @@ def motion_rec(cn, x, v, f_trac, f_brake, f_e, f_bdem, mp, geo, masks, stop_x, e
     inv_dt = 1.0 / dt
     n_hit = 0
     tol = cn["tol"]
-    run, cand = masks[M_RUN], masks[M_CAND]
+    run, cand = masks[MASKS.run], masks[MASKS.cand]
     for i in range(n):
         x1, v1, v0 = xs[i], vs[i], v[i]
         dxt = x1 - x[i]
@@ -136,11 +143,11 @@ def motion_rec(cn, x, v, f_trac, f_brake, f_e, f_bdem, mp, geo, masks, stop_x, e
         e_grade[i] += w_grade[i]
         if run[i]:
             n_in_service[i] += 1
-        blk[O_X1, i] = x1
-        blk[O_V1, i] = v1
-        blk[O_ACC, i] = (v1 - v0) * inv_dt
+        blk[OUT.x1, i] = x1
+        blk[OUT.v1, i] = v1
+        blk[OUT.acc, i] = (v1 - v0) * inv_dt
         d = x1 - stop_x[i]
-        blk[O_D, i] = d
+        blk[OUT.d, i] = d
         if cand[i] and (d > tol or (v1 <= 0.0 and d >= -tol)):
             n_hit += 1
     return n_hit
@@ -207,7 +214,7 @@ def step_all(cn, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level,
     trains ``sidx`` at the instants ``ts`` (when ``o4`` has samples and ``ax_out`` rows:
     :func:`.kernel_aux.sensor_block` with the normals ``zbuf[zpos:]``, previous axle slips
     ``slip0``) and, with ``want_drv`` and no arrival candidate, the reference driver's next
-    command (row ``O_DRV``).  Returns front's figures and the number of arrival candidates
+    command (row ``OUT.drv``).  Returns front's figures and the number of arrival candidates
     (-1: rail force left to numpy).  With ``auto`` the commands of the plant-driven
     trains are first computed into ``auto_u`` (:func:`driver_rec`, constants ``dr_auto``,
     movement authority ``eoa0`` of the previous step).  ``cn``: the run constants (a
@@ -215,24 +222,25 @@ def step_all(cn, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level,
     """
     fixed = cn["fixed"] != 0.0
     if auto:
-        driver_rec(dr_auto, x, v, stop_x, eoa0, speed_code, grids[G_ENV], grids[G_SBI],
-                   status, fixed, False, auto_u)
+        driver_rec(dr_auto, x, v, stop_x, eoa0, speed_code, grids[GRIDS.drive_env],
+                   grids[GRIDS.sbi_static], status, fixed, False, auto_u)
     r = front(cn, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb, sb,
               interventions, violations, in_violation, grids, tabs, speed_code, bk,
               any_slide, any_wsp, blk)
     if not r[5]:
         return r[0], r[1], r[2], r[3], r[4], -1
-    n_hit = motion_rec(cn, x, v, blk[O_FTRAC], blk[O_FBRK], blk[O_FE], blk[O_FBDEM], mp,
+    n_hit = motion_rec(cn, x, v, blk[OUT.ftrac], blk[OUT.fbrk], blk[OUT.fe], blk[OUT.fbdem], mp,
                        geo, masks, stop_x, e_trac, e_elec, e_fric, e_res, e_curve, e_grade,
                        e_stop_corr, n_in_service, blk)
     if ax_out.shape[1]:
-        axle_fill(cn, blk[O_FFA], blk[O_ACC], blk[O_WAX], axc, stab, ax_out)
+        axle_fill(cn, blk[OUT.ffa], blk[OUT.acc], blk[OUT.wax], axc, stab, ax_out)
         if o4.shape[1]:
-            sensor_block(sidx, r_w, slip0, ax_out[2], ax_out[1], v, blk[O_V1], blk[O_ACC],
+            sensor_block(sidx, r_w, slip0, ax_out[2], ax_out[1], v, blk[OUT.v1], blk[OUT.acc],
                          ts, t0, t1, zbuf[zpos:], noise, o4, o2)
     if want_drv and n_hit == 0:
-        driver_rec(dr, blk[O_X1], blk[O_V1], stop_x, blk[O_EOA], speed_code, grids[G_ENV],
-                   grids[G_SBI], status, fixed, True, blk[O_DRV])
+        driver_rec(dr, blk[OUT.x1], blk[OUT.v1], stop_x, blk[OUT.eoa], speed_code,
+                   grids[GRIDS.drive_env], grids[GRIDS.sbi_static], status, fixed, True,
+                   blk[OUT.drv])
     return r[0], r[1], r[2], r[3], r[4], n_hit
 
 
@@ -242,10 +250,11 @@ def step_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blk, u
               want_drv: bool, auto: bool, t0: float, t1: float):  # type: ignore
     """:func:`step_all` on the persistent blocks (few arguments: cheap to call).
 
-    ``fs`` / ``ints`` / ``bools``: the ``F_*`` / ``I_*`` / ``B_*`` rows; ``blk0``: the
-    previous step's output block (x, v, commanded and demanded effort, movement authority
-    are its rows); ``dcs`` = (reference driver, plant driver) constants; ``so``: flat
-    buffer of the sensor samples, (omega, clamp) [2, s, m, 4] then (accel, vref) [2, s, m].
+    ``fs`` / ``ints`` / ``bools``: the :data:`FS` / :data:`INTS` / :data:`BOOLS` rows;
+    ``blk0``: the previous step's output block (x, v, commanded and demanded effort,
+    movement authority are its rows); ``dcs`` = (reference driver, plant driver)
+    constants; ``so``: flat buffer of the sensor samples, (omega, clamp) [2, s, m, 4]
+    then (accel, vref) [2, s, m].
     """
     ns, m, na = ts.shape[0], sidx.shape[0], ax_out.shape[2]
     k4 = 2 * ns * m * na
@@ -253,11 +262,13 @@ def step_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blk, u
     o2 = so[k4:k4 + 2 * ns * m].reshape((2, ns, m))
     cn = c.view(CONSTANTS)[0]
     return step_all(
-        cn, blk0[O_X1], blk0[O_V1], ints[I_STATUS], bools[B_MASKS:], u, blk0[O_U],
-        fs[F_AUTO], blk0[O_AD], fs[F_MP:F_MP + 5], fs[F_TRAC], bools[B_EB], bools[B_SB],
-        ints[I_INTERV], ints[I_VIOL], bools[B_INVIOL], grids, tabs, fs[F_CODE],
-        fs[F_BK:F_BK + 2], any_slide, any_wsp, blk, geo, fs[F_STOP_X], fs[F_ETRAC],
-        fs[F_EELEC], fs[F_EFRIC], fs[F_ERES], fs[F_ECURVE], fs[F_EGRADE], fs[F_ESTOP],
-        ints[I_NSERV], axc, stab, ax_out, dcs[0].view(DRIVER)[0], want_drv, sidx, r_w, slip0,
-        ts, t0, t1, zbuf, zpos, cn["noise"], o4, o2, auto, blk0[O_EOA],
+        cn, blk0[OUT.x1], blk0[OUT.v1], ints[INTS.status], bools[BOOLS.run:], u,
+        blk0[OUT.u], fs[FS.auto], blk0[OUT.ad], fs[FS.mass:FS.mass + len(MASS)],
+        fs[FS.trac_level], bools[BOOLS.eb], bools[BOOLS.sb], ints[INTS.interventions],
+        ints[INTS.violations], bools[BOOLS.in_violation], grids, tabs, fs[FS.speed_code],
+        fs[FS.slide_ratio:FS.fric_mult + 1], any_slide, any_wsp, blk, geo, fs[FS.stop_x],
+        fs[FS.e_trac], fs[FS.e_elec], fs[FS.e_fric], fs[FS.e_res], fs[FS.e_curve],
+        fs[FS.e_grade], fs[FS.e_stop_corr], ints[INTS.n_in_service], axc, stab, ax_out,
+        dcs[0].view(DRIVER)[0], want_drv, sidx, r_w, slip0,
+        ts, t0, t1, zbuf, zpos, cn["noise"], o4, o2, auto, blk0[OUT.eoa],
         dcs[1].view(DRIVER)[0])

@@ -19,7 +19,7 @@ from .fleet import DONE, WAIT
 
 FLEET_KEYS = ("x_m", "v_mps", "a_mps2", "current_station", "next_station", "mode",
               "departure_time_s", "target_running_time_s", "atp_limit_mps",
-              "movement_authority_m")
+              "movement_authority_m", "mass_kg")
 """The keys of :func:`plant_states` that :func:`fleet_state_rows` gives."""
 
 
@@ -43,6 +43,8 @@ def target_running_time(sim: Any, rows: NDArray[np.intp]) -> NDArray[np.float64]
 def plant_states(sim: Any) -> dict[str, Any]:
     """Per-train state arrays (copies); ``mode`` uses the TrainState.MODE_* values.
 
+    ``mass_kg`` is the load-weigh mass of each train [kg] (the on-board ATO's).
+
     The :data:`FLEET_KEYS` arrays are :func:`fleet_state_rows` of every train (one formula
     for both); the others are copies of the components' arrays.
     """
@@ -56,6 +58,7 @@ def plant_states(sim: Any) -> dict[str, Any]:
         "atp_limit_mps": f["atp_limit_mps"], "movement_authority_m": f["movement_authority_m"],
         "speed_code_mps": atp.speed_code.copy(),
         "atp_interventions": atp.interventions.copy(), "load_pax": fl.load.copy(),
+        "mass_kg": f["mass_kg"],
         "in_service": fl.run.copy(),
         "target_running_time_s": f["target_running_time_s"],
         "departure_time_s": f["departure_time_s"],
@@ -82,6 +85,7 @@ def fleet_state_rows(sim: Any, rows: NDArray[np.intp]) -> dict[str, Any]:
         "target_running_time_s": target_running_time(sim, rows),
         "atp_limit_mps": np.maximum(atp.atp_limit[rows], 0.0),
         "movement_authority_m": atp.eoa[rows],
+        "mass_kg": fl.mass[rows],
     }
 
 

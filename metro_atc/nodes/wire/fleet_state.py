@@ -41,7 +41,7 @@ CORE_KEYS = {"position_m": "x_m", "speed_mps": "v_mps", "acceleration_mps2": "a_
              "mode": "mode", "departure_time_s": "departure_time_s",
              "target_running_time_s": "target_running_time_s",
              "supervision_speed_mps": "atp_limit_mps",
-             "movement_authority_m": "movement_authority_m"}
+             "movement_authority_m": "movement_authority_m", "mass_kg": "mass_kg"}
 """Per-train field -> core state key (:mod:`metro_atc.core.plant.views`); the order is the
 one :func:`checked` reads them in.  ``echo`` is not a core state."""
 ECHO = "echo"
@@ -323,27 +323,30 @@ def checked(msg: Any, topic: str, hosted: Mapping[str, Any],
         check_time(f"{topic}.header.stamp", t, b)
     except (Rejected, TypeError, ValueError, AttributeError):
         return None
-    xs, vs, accs, curs, nxts, modes, deps, tgts, sups, mas = arrays
+    xs, vs, accs, curs, nxts, modes, deps, tgts, sups, mas, masses = arrays
     x0, x1, vmax, amax, hor = b.x_min_m, b.x_max_m, b.v_max_mps, b.a_max_mps2, b.horizon_s
     last, mmax = b.n_stations - 1, len(conv.MODES) - 1
     out = []
     for j in rows:
         x, v, a, cur, nxt, md = xs[j], vs[j], accs[j], curs[j], nxts[j], modes[j]
-        dep, tgt, sup, ma = deps[j], tgts[j], sups[j], mas[j]
+        dep, tgt, sup, ma, mass = deps[j], tgts[j], sups[j], mas[j], masses[j]
         if isinstance(md, bytes):
             md = md[0]
         if not (type(x) is float and type(v) is float and type(a) is float  # noqa: E721
                 and type(dep) is float and type(tgt) is float and type(sup) is float
-                and type(ma) is float and type(cur) is int and type(nxt) is int
+                and type(ma) is float and type(mass) is float
+                and type(cur) is int and type(nxt) is int
                 and type(md) is int
                 and x0 <= x <= x1 and 0.0 <= v <= vmax and -amax <= a <= amax
                 and -1 <= cur <= last and -1 <= nxt <= last and 0 <= md <= mmax
                 and (dep != dep or 0.0 <= dep <= hor) and (tgt != tgt or 0.0 <= tgt <= hor)
-                and 0.0 <= sup <= vmax and (ma == math.inf or x0 <= ma <= x1)):
+                and 0.0 <= sup <= vmax and (ma == math.inf or x0 <= ma <= x1)
+                and (mass != mass or conv.MASS_MIN_KG <= mass <= conv.MASS_MAX_KG)):
             return None
         out.append((ids[j], {"step": k, "t_s": t, "x_m": x, "v_mps": v, "a_mps2": a,
                              "current_station": cur, "next_station": nxt, "mode": md,
                              "departure_time_s": dep, "target_running_time_s": tgt,
-                             "supervision_speed_mps": sup, "movement_authority_m": ma},
+                             "supervision_speed_mps": sup, "movement_authority_m": ma,
+                             "mass_kg": mass},
                     bool(echo[j])))
     return out
