@@ -204,3 +204,21 @@ def test_checkpoint_keeps_the_dispatcher_state(tmp_path) -> None:
     assert repr(sim2.event_log()) == repr(sim.event_log())  # NaN fields: as text
     assert json.dumps(d2.state) == json.dumps(d.state)
     assert len(d2.log) == 4
+
+
+def test_restrictions_in_force_are_bounded() -> None:
+    """Beyond TSR_MAX dispatcher restrictions in force or announced, impositions are refused
+    (counted as tsr_limit) whatever the step timing; lifting one makes room again."""
+    from metro_atc.core.dispatcher_commands import TSR_MAX
+    sim = _sim()
+    d = Dispatcher(sim, queue_max=10 * TSR_MAX)
+    got = [d.submit(tsr(f=1e6 + k, name=f"z{k}")) for k in range(TSR_MAX + 5)]
+    assert [a for a, _, _ in got] == [True] * TSR_MAX + [False] * 5
+    assert d.refused == {"tsr_limit": 5} and "lift one first" in got[-1][1]
+    d.apply_due(0)
+    assert d.tsrs_in_force() == TSR_MAX
+    assert not d.submit(tsr(f=2e6, name="more"))[0]
+    assert d.submit(Command(KIND_TSR_LIFT, tsr_id="z0"))[0]
+    d.apply_due(1)
+    assert d.tsrs_in_force() == TSR_MAX - 1
+    assert d.submit(tsr(f=2e6, name="more"))[0]

@@ -45,6 +45,10 @@ LEAD_S = 5.0
 0.25 s): the applied command reaches every ATO process before it matters."""
 QUEUE_MAX = 64
 """Default bound of the queue of accepted commands waiting for a step boundary."""
+TSR_MAX = 64
+"""Dispatcher restrictions in force or announced at once (more impositions are refused):
+the ATP and every ATO supervise each zone, so their number is bounded, whatever the rate
+at which requests arrive."""
 NAME_MAX = 64
 """Longest train id, station or TSR name a request may carry [characters]."""
 _TSR_ID = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
@@ -276,6 +280,11 @@ class Dispatcher:
         if len(self.queue) >= self.queue_max:
             return self._refuse("queue_full", f"queue full ({self.queue_max} commands wait "
                                 "for the next step)")
+        if getattr(cmd, "kind", None) == KIND_TSR_IMPOSE \
+                and self.tsrs_in_force() + sum(1 for _, c in self.queue
+                                               if c.kind == KIND_TSR_IMPOSE) >= TSR_MAX:
+            return self._refuse("tsr_limit", f"{TSR_MAX} dispatcher restrictions are in "
+                                "force or announced: lift one first")
         reason = self.check(cmd, [c for _, c in self.queue])
         if reason is not None:
             return self._refuse("invalid", reason)
@@ -284,6 +293,11 @@ class Dispatcher:
         self.queue.append((self.tickets, cmd))
         return True, f"queued as {self.tickets}: {KIND_NAMES[cmd.kind]} at the next step", \
             self.tickets
+
+    def tsrs_in_force(self) -> int:
+        """Dispatcher restrictions imposed and not lifted (in force or announced)."""
+        tsrs = self.sim.incidents.tsrs
+        return sum(1 for i in self.tsr_index.values() if not math.isfinite(tsrs[i][4]))
 
     def _refuse(self, kind: str, reason: str) -> tuple[bool, str, int]:
         self.refused[kind] = self.refused.get(kind, 0) + 1
