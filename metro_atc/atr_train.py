@@ -11,20 +11,21 @@ and writes a small weights file the node loads, stamped with the line's traffic-
 (:mod:`metro_atc.core.atr.weights_store`).  ``--direction up|down`` trains on that direction
 of the line at the peak of a service day (``--day``, default the shipped Taipei Blue day):
 the line as seen running that way, with the peak period's flow factor of that direction
-(:func:`metro_atc.core.service.regulation.peak_lines`); its own traffic-model hash.  Progress on stderr, then the file written and,
-if the weights' own validation cost is above the timetable's, a warning with the figures
-(``run`` refuses such weights unless ``--accept-worse-regulator``).  Deterministic for a
-given --seed on one CPU thread.
+(:func:`metro_atc.core.service.regulation.peak_lines`); its own traffic-model hash.
+Progress on stderr, then the file written and, if the weights' own validation cost is above
+the timetable's, a warning with the figures (``run`` refuses such weights unless
+``--accept-worse-regulator``).  Deterministic for a given --seed on one CPU thread.
 
 The shipped defaults were produced with::
 
     python -m metro_atc.atr_train aoc --scenario taipei_blue --seed 0 \\
         --out metro_atc/data/aoc_taipei_blue.pt
-    python -m metro_atc.atr_train dhp --scenario taipei_blue --seed 0 \\
+    python -m metro_atc.atr_train dhp --scenario taipei_blue --seed 0 --epochs 600 \\
         --out metro_atc/data/dhp_taipei_blue.pt
 
 and the down direction's (``metro_atc/data/<method>_taipei_blue_down.pt``) with
-``--direction down`` and the ``--epochs`` recorded in the file's ``info.command``.
+``--direction down`` (the exact commands: ``metro_atc/data/README.md`` and each file's
+``info.command``).
 """
 
 from __future__ import annotations

@@ -114,3 +114,17 @@ def test_shipped_weights_pass_their_validation(blue: Dict[str, LineData], kind: 
     w = CostWeights(q=c["q"], r=c["r"], x_scale_s=c["x_scale_s"], horizon=c["horizon"])
     now = store.validate(line, reg, w, episodes=SHORT_EPISODES)
     assert now["cost"] < now["cost_none"], now
+
+
+def test_energy_table_of_the_down_line_runs_backwards(blue: Dict[str, LineData]) -> None:
+    """ELQR's energy table of the down line: down run 0 (BL23 -> BL22) is the up line's last
+    segment run the other way (same length: flat-out times within 3 s), not the up line's
+    first segment (1440 m vs 1060 m: 16 s apart)."""
+    from metro_atc.core.atr.energy import build_energy_table
+    from metro_atc.core.line.scenario import load_scenario
+    scn = load_scenario("taipei_blue")
+    last = blue["up"].n_stations - 2
+    up = build_energy_table(scn, blue["up"], runs=[0, last])
+    down = build_energy_table(scn, blue["down"], runs=[0])
+    assert abs(down.r_fast_s[0] - up.r_fast_s[1]) < 3.0
+    assert abs(down.r_fast_s[0] - up.r_fast_s[0]) > 10.0

@@ -421,9 +421,10 @@ def build_energy_table(scn: Scenario, line: Optional[LineData] = None, source: s
     it gives the scheduled and maximum running times; a line whose stations are the
     scenario's in reverse order (the down direction,
     :func:`metro_atc.core.service.regulation.direction_line`) is tabulated for runs in that
-    direction (run j from its station j to j+1, chainage decreasing).  source: ``dp`` (minimum-energy
-    reference; grid ``ds_m`` [m] x ``de_m2s2`` [m^2/s^2], ``n_mu`` multipliers) or ``ectp``
-    (ACTP n.d. coasting family at Level II; step ``h_m`` [m], ``n_coast`` coasting points).
+    direction (run j from its station j to j+1, chainage decreasing).
+    source: ``dp`` (minimum-energy reference; grid ``ds_m`` [m] x ``de_m2s2`` [m^2/s^2],
+    ``n_mu`` multipliers) or ``ectp`` (ACTP n.d. coasting family at Level II; step ``h_m``
+    [m], ``n_coast`` coasting points).
     n_grid: running times per run from the planner's flat-out time to ``run_max_s``; the
     model is fitted from the last grid point at or below ``run_min_s`` on.
     runs: subset of run indices (default all; a subset gives a table of that subset).
