@@ -128,3 +128,18 @@ def test_energy_table_of_the_down_line_runs_backwards(blue: Dict[str, LineData])
     down = build_energy_table(scn, blue["down"], runs=[0])
     assert abs(down.r_fast_s[0] - up.r_fast_s[1]) < 3.0
     assert abs(down.r_fast_s[0] - up.r_fast_s[0]) > 10.0
+
+
+def test_train_command_trains_the_down_line(blue: Dict[str, LineData], tmp_path: Path) -> None:
+    """``train aoc --direction down`` writes weights with the down line's hash, which the down
+    line accepts and the up line refuses; ``--day`` alone is a usage error."""
+    from metro_atc import atr_train
+    out = tmp_path / "w.pt"
+    assert atr_train.main(["aoc", "--scenario", "taipei_blue", "--direction", "down",
+                           "--epochs", "1", "--quiet", "--out", str(out)]) == 0
+    assert read_blob(out)["line_hash"] == line_hash(blue["down"])
+    assert load_weights(out, blue["down"]).name == "aoc"
+    with pytest.raises(ValueError, match="trained on another line"):
+        load_weights(out, blue["up"])
+    with pytest.raises(SystemExit):
+        atr_train.main(["aoc", "--day", "x.yaml", "--epochs", "1", "--out", str(out)])
