@@ -8,17 +8,24 @@ with saturation, crowding, knock-on delays and exponential departure delays) on 
 line of ``--scenario`` (for a scenario: the model the ``ats_regulator`` node builds of it)
 and writes a small weights file the node loads, stamped with the line's traffic-model hash
 (the node refuses it on any other line); ``--cache`` writes it where ``run`` looks
-(:mod:`metro_atc.core.atr.weights_store`).  Progress on stderr, then the file written and,
-if the weights' own validation cost is above the timetable's, a warning with the figures
-(``run`` refuses such weights unless ``--accept-worse-regulator``).  Deterministic for a
-given --seed on one CPU thread.
+(:mod:`metro_atc.core.atr.weights_store`).  ``--direction up|down`` trains on that direction
+of the line at the peak of a service day (``--day``, default the shipped Taipei Blue day):
+the line as seen running that way, with the peak period's flow factor of that direction
+(:func:`metro_atc.core.service.regulation.peak_lines`); its own traffic-model hash.
+Progress on stderr, then the file written and, if the weights' own validation cost is above
+the timetable's, a warning with the figures (``run`` refuses such weights unless
+``--accept-worse-regulator``).  Deterministic for a given --seed on one CPU thread.
 
 The shipped defaults were produced with::
 
     python -m metro_atc.atr_train aoc --scenario taipei_blue --seed 0 \\
         --out metro_atc/data/aoc_taipei_blue.pt
-    python -m metro_atc.atr_train dhp --scenario taipei_blue --seed 0 \\
+    python -m metro_atc.atr_train dhp --scenario taipei_blue --seed 0 --epochs 600 \\
         --out metro_atc/data/dhp_taipei_blue.pt
+
+and the down direction's (``metro_atc/data/<method>_taipei_blue_down.pt``) with
+``--direction down`` (the exact commands: ``metro_atc/data/README.md`` and each file's
+``info.command``).
 """
 
 from __future__ import annotations
@@ -37,6 +44,8 @@ from metro_atc.core.atr.lines import get_line
 from metro_atc.core.atr.registry import TRAINED
 from metro_atc.core.atr.weights_store import (DEFAULT_EPOCHS, cached_path, train_weights,
                                               validation_problem)
+from metro_atc.core.service.day import load_day
+from metro_atc.core.service.regulation import DIRECTIONS, peak_lines
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -52,6 +61,12 @@ def main(argv: Optional[List[str]] = None) -> int:
     dest.add_argument("--cache", action="store_true",
                       help="write into the weights cache, where 'run' finds it "
                            "(metro_atc.core.atr.weights_store)")
+    ap.add_argument("--direction", choices=DIRECTIONS,
+                    help="train on this direction of the line at the peak of the service "
+                         "day --day (default: the line as it is)")
+    ap.add_argument("--day", type=Path,
+                    help="service day period table (YAML) for --direction (default: the "
+                         "shipped Taipei Blue day)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--epochs", type=int, default=DEFAULT_EPOCHS)
     ap.add_argument("--q", type=float, default=CostWeights.q, help="state weight")
@@ -64,8 +79,12 @@ def main(argv: Optional[List[str]] = None) -> int:
         ap.error("--epochs must be >= 1")
     try:
         line = get_line(a.scenario)
+        if a.direction is not None:
+            line = peak_lines(load_day(a.day, line), line)[a.direction]
+        elif a.day is not None:
+            ap.error("--day needs --direction")
         weights = CostWeights(q=a.q, r=a.r, horizon=a.horizon)
-    except ValueError as exc:
+    except ValueError as exc:  # DayError is a ValueError
         ap.error(str(exc))
     out = a.out if a.out is not None else cached_path(a.method, line)
     torch.set_num_threads(1)

@@ -418,9 +418,13 @@ def build_energy_table(scn: Scenario, line: Optional[LineData] = None, source: s
     """Tabulate and fit E_j(R) [J] for the runs of a scenario (Sheu 2011 / ACTP n.d.).
 
     line: the ATR line of the scenario (default :func:`metro_atc.core.bridge.atr_line_for`);
-    it gives the scheduled and maximum running times.  source: ``dp`` (minimum-energy
-    reference; grid ``ds_m`` [m] x ``de_m2s2`` [m^2/s^2], ``n_mu`` multipliers) or ``ectp``
-    (ACTP n.d. coasting family at Level II; step ``h_m`` [m], ``n_coast`` coasting points).
+    it gives the scheduled and maximum running times; a line whose stations are the
+    scenario's in reverse order (the down direction,
+    :func:`metro_atc.core.service.regulation.direction_line`) is tabulated for runs in that
+    direction (run j from its station j to j+1, chainage decreasing).
+    source: ``dp`` (minimum-energy reference; grid ``ds_m`` [m] x ``de_m2s2`` [m^2/s^2],
+    ``n_mu`` multipliers) or ``ectp`` (ACTP n.d. coasting family at Level II; step ``h_m``
+    [m], ``n_coast`` coasting points).
     n_grid: running times per run from the planner's flat-out time to ``run_max_s``; the
     model is fitted from the last grid point at or below ``run_min_s`` on.
     runs: subset of run indices (default all; a subset gives a table of that subset).
@@ -436,6 +440,9 @@ def build_energy_table(scn: Scenario, line: Optional[LineData] = None, source: s
     tt = timetable_for(scn)
     ln = line if line is not None else atr_line_for(scn, tt)
     pos = np.asarray(tt.station_positions_m, dtype=float)
+    names = tuple(tt.station_names)
+    if tuple(ln.station_names) == names[::-1] and names != names[::-1]:
+        pos = pos[::-1].copy()  # the line runs the scenario's stations backwards (down)
     if pos.size - 1 != ln.run_s.size:
         raise ValueError(f"line {ln.name!r} has {ln.run_s.size} runs, scenario "
                          f"{scn.name!r} has {pos.size - 1}")

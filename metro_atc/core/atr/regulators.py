@@ -252,11 +252,16 @@ def build_lqr(name: str, inputs: RegulatorInputs) -> Regulator:
 def build_trained(name: str, inputs: RegulatorInputs) -> Regulator:
     """Factory of the trained regulators (``dhp``, ``aoc``): load and check the weights.
 
-    The file (default: the shipped weights for the line) must hold a ``name`` policy trained
-    on this line; its cost weights and horizon come from the file.
+    The file (default: the shipped weights trained on the line, found by its traffic-model
+    hash, :func:`metro_atc.core.atr.weights_store.shipped_weights`; none: the file named
+    after the line, refused or missing) must hold a ``name`` policy trained on this line;
+    its cost weights and horizon come from the file.
     """
-    path = inputs.weights_path if inputs.weights_path is not None else \
-        default_weights_path(name, inputs.line.name)
+    path = inputs.weights_path
+    if path is None:
+        from metro_atc.core.atr.weights_store import shipped_weights
+        path = shipped_weights(name, inputs.line) or default_weights_path(name,
+                                                                          inputs.line.name)
     reg = load_weights(path, inputs.line)
     if reg.name != name:
         raise ValueError(f"{path} holds a {reg.name!r} regulator, not {name!r}")

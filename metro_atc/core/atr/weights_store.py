@@ -81,11 +81,12 @@ def _matches(path: Path, kind: str, digest: str) -> bool:
     return blob.get("method") == kind and blob.get("line_hash") == digest
 
 
-def find_weights(kind: str, line: LineData, cache: Optional[Path] = None,
-                 shipped: Optional[Path] = None) -> Optional[Path]:
-    """Weights of ``kind`` trained on ``line`` (same traffic-model hash), or None.
+def shipped_weights(kind: str, line: LineData, shipped: Optional[Path] = None
+                    ) -> Optional[Path]:
+    """The shipped file ``<shipped>/<kind>_*.pt`` trained on ``line`` (its hash), or None.
 
-    Looks at the shipped files ``<shipped>/<kind>_*.pt`` first, then the cache file.
+    Shipped files are named per line and direction (``aoc_taipei_blue.pt``,
+    ``aoc_taipei_blue_down.pt``); the hash inside, not the name, decides.
     """
     _check_kind(kind)
     digest = line_hash(line)
@@ -93,8 +94,20 @@ def find_weights(kind: str, line: LineData, cache: Optional[Path] = None,
     for p in sorted(ship.glob(f"{kind}_*.pt")):
         if _matches(p, kind, digest):
             return p
+    return None
+
+
+def find_weights(kind: str, line: LineData, cache: Optional[Path] = None,
+                 shipped: Optional[Path] = None) -> Optional[Path]:
+    """Weights of ``kind`` trained on ``line`` (same traffic-model hash), or None.
+
+    Looks at the shipped files (:func:`shipped_weights`) first, then the cache file.
+    """
+    found = shipped_weights(kind, line, shipped)
+    if found is not None:
+        return found
     c = cached_path(kind, line, cache)
-    return c if c.is_file() and _matches(c, kind, digest) else None
+    return c if c.is_file() and _matches(c, kind, line_hash(line)) else None
 
 
 def validate(line: LineData, regulator: Regulator, weights: CostWeights,

@@ -14,16 +14,20 @@ simulation's arrivals.  The turnback: :func:`metro_atc.core.service.turnback.lin
 buffer, the delay it inherits = max(0, terminal delay - buffer).
 
 Leg 2: the next trip in the other direction on the down line's traffic model
-(:func:`metro_atc.core.service.planned.directed_line`), the delayed train dispatched at
+(:func:`direction_line`: the line as seen running down, with the down direction's flow
+factor of the period, :func:`peak_lines`), the delayed train dispatched at
 stage 0 with the inherited delay as its turnback link (``ready_dev_s``): whatever the
 regulator commands, it does not leave the first platform before it can have turned back.
-A regulator whose weights were trained on the up direction's traffic model is refused on
-the down line (traffic-model hash) and leg 2 is then reported as not assessed.
+Trained regulators (AOC, DHP) have weights per direction: weights trained on the up
+direction's traffic model are refused on the down line (traffic-model hash); a regulator
+without weights for the down line is reported as not assessed on leg 2.
 """
 
 from __future__ import annotations
 
 from typing import Any, Dict, Optional, Sequence
+
+import dataclasses
 
 import numpy as np
 
@@ -31,11 +35,52 @@ from metro_atc.core.atr.blue_line import LineData
 from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.evaluation import incident_scenario, simulate_linked
 from metro_atc.core.atr.regulators import Regulator
-from metro_atc.core.service.day import LIN2010A_TURNBACK_BUFFER_S
+from metro_atc.core.service.day import LIN2010A_TURNBACK_BUFFER_S, DayPlan
+from metro_atc.core.service.planned import directed_line
 from metro_atc.core.service.turnback import link
 
 INITIAL_DELAY_S = 180.0
 """Initial delay at the first station [s] (Lin 2010a, Experiment 2)."""
+DIRECTIONS = ("up", "down")
+"""Running directions of a day (up: from the day's first terminus)."""
+
+
+def direction_line(line: LineData, direction: str, flow_factor: float) -> LineData:
+    """The traffic model of ``line`` run in ``direction`` at a period's ``flow_factor`` [-].
+
+    :func:`metro_atc.core.service.planned.directed_line` (down: every array reversed) with
+    the boarding rates p_j scaled by the flow factor, so that c_j = t_b p_j (Lin 2010a,
+    eq. 4-5) is the direction's in that period; factor 1.0 leaves the line as it is (the up
+    line at the morning peak keeps its traffic-model hash).  ValueError for a factor that
+    is not finite and >= 0.
+    """
+    f = float(flow_factor)
+    if not (np.isfinite(f) and f >= 0.0):
+        raise ValueError(f"flow_factor must be finite and >= 0, got {flow_factor!r}")
+    ln = directed_line(line, direction)
+    if f == 1.0:
+        return ln
+    return dataclasses.replace(ln, boarding_pax_h=ln.boarding_pax_h * f)
+
+
+def peak_period(plan: DayPlan) -> int:
+    """Index of the day's peak period: the first with the shortest headway."""
+    h = min(p.headway_s for p in plan.periods)
+    return next(n for n, p in enumerate(plan.periods) if p.headway_s == h)
+
+
+def peak_lines(plan: DayPlan, line: LineData) -> Dict[str, LineData]:
+    """Both directions' traffic models of ``line`` at the day's peak (:func:`direction_line`).
+
+    ``line`` is the ATR line of the day's line (e.g. the ``taipei_blue`` scenario's); the
+    flow factors are the peak period's ``flow_up`` / ``flow_down``.  ValueError if the
+    line's stations are not the day's.
+    """
+    if tuple(line.station_codes) != tuple(plan.line.station_codes):
+        raise ValueError(f"line {line.name!r} does not have the stations of day {plan.name!r}")
+    p = plan.periods[peak_period(plan)]
+    return {"up": direction_line(line, "up", p.flow_up),
+            "down": direction_line(line, "down", p.flow_down)}
 
 
 def leg(line: LineData, reg: Regulator, x0_s: np.ndarray, w_dep: np.ndarray, horizon: int,
