@@ -8,8 +8,8 @@ These loops advance one trajectory at a time with
 :func:`metro_atc.core.ato.step_kernel.strategy_step_one` (the planners' one step,
 :func:`metro_atc.core.ato.step_kernel.strategy_step`, speed code at infinity, shared with the
 ECTP/ACTP kernel and the DP's tables).  These loops are the DP's only path
-(``NUMBA_DISABLE_JIT=1`` runs them as Python); ``test/test_ato_dp.py`` checks them against the recorded output of the former numpy
-path (``test/data/dp_numpy_ref.npz``).
+(``NUMBA_DISABLE_JIT=1`` runs them as Python); ``test/test_ato_dp.py`` checks them against
+the recorded output of the former numpy path (``test/data/dp_numpy_ref.npz``).
 
 Train constants are packed in a record (:func:`pack_train`).
 """
