@@ -8,8 +8,8 @@ import pytest
 from metro_atc.core.ato import coasting
 from metro_atc.core.ato.envelope import RunModel, profile_energy_time
 from metro_atc.core.ato.envelope import OperatingLimits
-from metro_atc.core.ato.step_kernel import coast_step, pack_train
-from metro_atc.core.ato.strategy import coast_coefficients, coast_speed
+from metro_atc.core.ato.step_kernel import coast_coefficients, coast_step, pack_train
+from metro_atc.core.ato.strategy import coast_speed
 from metro_atc.core.line.vehicle import (TAIPEI_MRT_6CAR, Track, effort_force, grade_force,
                                          resistance_force, rk4_step)
 
@@ -22,8 +22,8 @@ def _blue_run(length: float = 1300.0) -> RunModel:
 
 def test_eq7_solves_the_coasting_ode() -> None:
     """v(t) of ACTP n.d., eq. 7-8 satisfies dv/dt = -(c0 + c1 v + c2 v^2) and v(t_c) = v_c."""
-    c0a, c1, c2 = coast_coefficients(P, grade_force(P, 0.005))
-    c0 = float(c0a)
+    c0, c1, c2 = coast_coefficients(pack_train(P, OperatingLimits()).view(np.recarray)[0],
+                                    float(grade_force(P, 0.005)))
     t = np.linspace(3.0, 40.0, 200)
     v = coast_speed(t, 3.0, 22.0, c0, c1, c2)
     assert v[0] == pytest.approx(22.0, abs=1e-12)

@@ -229,6 +229,22 @@ def net_accel(v: float, effort_n: float, f_grade: float, a: float, b: float, c: 
     return f / meff
 
 
+@njit(cache=True, inline="always")
+def step_force(meff: float, e0: float, e1: float, h: float, v: float, a: float, b: float,
+               c: float, f_grade: float) -> float:
+    """Mean force [N] the train needs over a distance step: the planners' energy integrand.
+
+    ``M_eff (e1 - e0) / h + A + B v + C v^2 + F_grade`` summed left to right: the inertial
+    force of the change of kinetic energy per unit mass e = v^2/2 [m^2/s^2] over h [m],
+    the Davis resistance (ACTP n.d., eq. 1-2) at the step's mean speed v >= 0 [m/s] and the
+    grade force [N]; its positive part times h is the step's traction energy (Ke 2010,
+    eq. 6: the sum of the sections' energies the ant system minimises).  The planners'
+    tables and tours are built on this order (:func:`davis_resistance` grouped first would
+    move their last bits).
+    """
+    return meff * (e1 - e0) / h + a + b * v + c * v * v + f_grade
+
+
 @njit(cache=True)
 def davis_rk4_step(v: float, q: float, cb: float, cc: float,
                    h: float) -> tuple[float, float, float, float]:

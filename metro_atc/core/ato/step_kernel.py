@@ -139,6 +139,17 @@ def _rk4_f(e: float, c0: float, c1: float, c2: float) -> float:
 
 
 @jit
+def coast_coefficients(c: Any, fg: float) -> tuple[float, float, float]:
+    """Coasting deceleration coefficients c0 [m/s^2], c1 [1/s], c2 [1/m] (ACTP n.d., eq. 2, 7).
+
+    ``dv/dt = -(c0 + c1 v + c2 v^2)`` with the Davis terms and the grade force ``fg`` [N]
+    divided by the effective (rotating-mass) mass.
+    """
+    m = c.meff
+    return (c.davis_a + fg) / m, c.davis_b / m, c.davis_c / m
+
+
+@jit
 def coast_step(c: Any, e0: float, h: float, fg: float) -> tuple[float, float, bool]:
     """One coasting step of length h [m] from e0 = v^2/2: (e1, dt [s], stalled).
 
@@ -147,10 +158,7 @@ def coast_step(c: Any, e0: float, h: float, fg: float) -> tuple[float, float, bo
     ``T(w1) - T(w0)`` (the trapezoid time where that is ill-conditioned).  ``stalled``: the
     trajectory stops within the step.
     """
-    m = c.meff
-    c0 = (c.davis_a + fg) / m
-    c1 = c.davis_b / m
-    c2 = c.davis_c / m
+    c0, c1, c2 = coast_coefficients(c, fg)
     v0 = math.sqrt(2.0 * e0)
     k1 = _rk4_f(e0, c0, c1, c2)
     k2 = _rk4_f(e0 + 0.5 * h * k1, c0, c1, c2)
@@ -214,8 +222,7 @@ def strategy_step(c: Any, e: float, h: float, fg: float, e_cap: float, mode: int
     v0 = math.sqrt(2.0 * e0)
     v1 = math.sqrt(2.0 * e1)
     vm = 0.5 * (v0 + v1)
-    force = c.meff * (e1 - e0) / h \
-        + c.davis_a + c.davis_b * vm + c.davis_c * vm * vm + fg
+    force = laws.step_force(c.meff, e0, e1, h, vm, c.davis_a, c.davis_b, c.davis_c, fg)
     energy = 0.0 if coast else mx(force, 0.0) * h
     trap = 2.0 * h / mx(v0 + v1, 1e-300) if v0 + v1 > 0.0 else np.inf
     free_coast = coast and not clamped

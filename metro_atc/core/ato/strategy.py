@@ -1,6 +1,7 @@
 """Closed-form coasting of the driving strategies (ACTP n.d., eq. 7-8; Ke 2010).
 
-The coasting deceleration coefficients and the closed-form coasting speed.  The distance
+The closed-form coasting speed (its coefficients:
+:func:`metro_atc.core.ato.step_kernel.coast_coefficients`).  The distance
 step of every driving strategy (accelerate, cruise, coast, speed code, envelope) is the
 compiled :func:`metro_atc.core.ato.step_kernel.strategy_step`, the planners' one step.
 
@@ -9,33 +10,19 @@ Reconstruction note (ACTP n.d., eq. 7-8).  The extraction prints eq. 7 as
 ``alpha^2 = c0/c2 - c1^2/(4 c2^2)``, ``beta = -c1/(2 c2)``, ``gamma = c2 alpha`` and eq. 8
 ``C_v = t_c + atan((v_c - beta)/alpha)/gamma`` the consistent solution of the coasting ODE is
 ``v(t) = beta + alpha tan(gamma (C_v - t))`` (beta is an offset, not a phase).  For steep
-down-grades (``alpha^2 < 0``) the tan becomes tanh/coth; both branches are implemented.
+down-grades (``alpha^2 < 0``) the tan becomes tanh/coth (both branches:
+:func:`metro_atc.core.ato.step_kernel.coast_x_t`).
 """
 
 from __future__ import annotations
 
-
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-
-from metro_atc.core.line.vehicle import TrainParams
 
 FloatArray = NDArray[np.float64]
 
 
 # ----------------------------------------------------------------------------- coasting
-def coast_coefficients(train: TrainParams, fg_n: ArrayLike
-                       ) -> tuple[FloatArray, float, float]:
-    """Coasting deceleration coefficients c0 [m/s^2], c1 [1/s], c2 [1/m] (ACTP n.d., eq. 2, 7).
-
-    ``dv/dt = -(c0 + c1 v + c2 v^2)`` with the Davis terms and the grade force ``fg_n`` [N]
-    divided by the effective (rotating-mass) mass.
-    """
-    m = train.effective_mass_kg
-    c0 = (train.davis_a_n + np.asarray(fg_n, dtype=float)) / m
-    return c0, train.davis_b_n_per_mps / m, train.davis_c_n_per_mps2 / m
-
-
 def coast_constants(c0: float, c1: float, c2: float) -> tuple[float, float, float]:
     """Constants (alpha [m/s], beta [m/s], gamma [1/s]) of ACTP n.d., eq. 7 (alpha^2 > 0 case)."""
     a2 = c0 / c2 - c1 * c1 / (4.0 * c2 * c2)

@@ -251,8 +251,8 @@ def _step(p: Any, e: float, fg: float, e_cap: float, mode: int, e_code: float,
         v1 = math.sqrt(2.0 * e1)
         if not is_coast:
             vm = 0.5 * (v0 + v1)
-            force = p.meff * (e1 - e0) / h + p.davis_a + p.davis_b * vm + p.davis_c * vm * vm \
-                + fg
+            force = laws.step_force(p.meff, e0, e1, h, vm, p.davis_a, p.davis_b, p.davis_c,
+                                    fg)
             energy = max(force, 0.0) * h
         if v0 + v1 > 0.0:
             dt = 2.0 * h / max(v0 + v1, 1e-300)
