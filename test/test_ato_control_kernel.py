@@ -2,7 +2,8 @@
 
 Closed loops (the graph's data flow, :mod:`metro_atc.core.closed_loop`) of the Blue line,
 its delay/incident variant and generated incident lines (TSRs, breakdowns) run once with
-``METRO_ATC_ATO_KERNEL=python`` and once with the kernel: every control step's effort,
+the compiled step taken away from every ATO (``OnboardAto._kstep = None``: the Python path
+for every step) and once as they run: every control step's effort,
 mode, reason, last effort and guard state must be ``==``.  Replays of the recorded states
 rebuild every ATO mid-run (a restarted node) and switch the kernel off and on at random
 steps (the hand-over both ways), against the Python path.
@@ -21,17 +22,16 @@ from metro_atc.core.ato import control_kernel_pack as pack
 from metro_atc.core.ato.onboard import OnboardAto, atp_model_for, envelope_limits, tsr_zones
 from metro_atc.core.bridge import timetable_for, track_for, train_for
 from metro_atc.core.closed_loop import run_closed_loop
-from metro_atc.core.kernel_choice import numba_available
 from metro_atc.core.line.scenario import Scenario, load_scenario
 from metro_atc.core.linegen import load_generated
-
-pytestmark = pytest.mark.skipif(not numba_available(), reason="numba not installed")
 
 
 def _record(scn: Scenario, kernel: str, duration_s: float,
             mp: pytest.MonkeyPatch) -> tuple[list[Any], int, dict[int, list[Any]]]:
-    """Every control step's outputs and ATO state, the kernel's step count, the inputs."""
-    mp.setenv(pack.KERNEL_ENV, kernel)
+    """Every control step's outputs and ATO state, the kernel's step count, the inputs.
+
+    ``kernel``: ``python`` (the compiled step taken away from every ATO) or ``numba``.
+    """
     orig_c, orig_d = OnboardAto.control, OnboardAto.on_departure
     out: list[Any] = []
     logs: dict[int, list[Any]] = {}
@@ -39,6 +39,8 @@ def _record(scn: Scenario, kernel: str, duration_s: float,
 
     def control(self: OnboardAto, s: dict[str, Any]) -> Any:
         atos[id(self)] = self
+        if kernel == "python":
+            self._kstep = None
         res = orig_c(self, s)
         core = self.core
         out.append((res[0], res[1], core.last_reason, core.last_effort,
@@ -55,7 +57,7 @@ def _record(scn: Scenario, kernel: str, duration_s: float,
         m2.setattr(OnboardAto, "control", control)
         m2.setattr(OnboardAto, "on_departure", on_departure)
         run_closed_loop(scn, duration_s=duration_s)
-    assert all(a.kernel == kernel for a in atos.values())
+    assert all((a._kstep is None) == (kernel == "python") for a in atos.values())
     return out, sum(a.kernel_steps for a in atos.values()), logs
 
 
@@ -96,9 +98,12 @@ def _replay(scn: Scenario, logs: dict[int, list[Any]], kernel: str, rebuild: boo
     rng = random.Random(toggle_seed)
 
     def make() -> OnboardAto:
-        return OnboardAto(train, track, tt.station_positions_m,
-                          control_period_s=float(scn.sim.control_period_s), limits=limits,
-                          shared=shared, tsrs=tsrs, atp=atp, kernel=kernel)
+        ato = OnboardAto(train, track, tt.station_positions_m,
+                         control_period_s=float(scn.sim.control_period_s), limits=limits,
+                         shared=shared, tsrs=tsrs, atp=atp)
+        if kernel == "python":
+            ato._kstep = None
+        return ato
 
     out: list[Any] = []
     for lg in logs.values():
@@ -170,17 +175,11 @@ def test_hostile_states_are_handed_back(monkeypatch: pytest.MonkeyPatch) -> None
     _same(_replay(scn, logs2, "python", False, None), _replay(scn, logs2, "numba", False, None))
 
 
-def test_selection(monkeypatch: pytest.MonkeyPatch) -> None:
-    """auto is the kernel when numba imports; python and the env var are honoured."""
-    monkeypatch.delenv(pack.KERNEL_ENV, raising=False)
-    assert pack.resolve_ato_kernel() == "numba"
-    assert pack.resolve_ato_kernel("python") == "python"
-    monkeypatch.setenv(pack.KERNEL_ENV, "python")
-    assert pack.resolve_ato_kernel() == "python"
-    assert pack.resolve_ato_kernel("auto") == "numba"
-    with pytest.raises(ValueError):
-        pack.resolve_ato_kernel("fortran")
+def test_every_ato_takes_the_compiled_step(monkeypatch: pytest.MonkeyPatch) -> None:
+    """No switch: an ATO holds the compiled step whatever the environment says (the only way
+    to the Python path for the steps it takes is to take it away, as these tests do)."""
+    monkeypatch.setenv("METRO_ATC_ATO_KERNEL", "python")  # the switch this package had
     scn = load_scenario("mini")
     train = train_for(scn)
-    ato = OnboardAto(train, track_for(scn), np.array([0.0, 500.0]), kernel="auto")
-    assert ato.kernel == "numba"
+    ato = OnboardAto(train, track_for(scn), np.array([0.0, 500.0]))
+    assert ato._kstep is pack.control_step_fn()

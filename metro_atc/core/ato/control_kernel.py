@@ -45,9 +45,10 @@ in a thousand; the alias keeps the call.  Without it (not glibc) ``pow`` is call
 
 
 def _cpow_intrinsic() -> Any:
-    """:func:`cpow`: a numba intrinsic calling the C ``pow`` (plain Python without numba)."""
-    from metro_atc.core.kernel_choice import numba_available
-    if not numba_available():
+    """:func:`cpow`: a numba intrinsic calling the C ``pow`` (``x ** y`` in Python when
+    ``NUMBA_DISABLE_JIT=1`` runs the kernels as Python)."""
+    from numba.core import config
+    if config.DISABLE_JIT:
         return lambda x, y: x ** y
     from llvmlite import ir
     from numba import types

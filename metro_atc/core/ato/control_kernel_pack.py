@@ -1,41 +1,31 @@
-"""Selection and packing of the compiled ATO control step (:mod:`.control_kernel_step`).
+"""Loading and packing of the compiled ATO control step (:mod:`.control_kernel_step`).
 
-``METRO_ATC_ATO_KERNEL=auto|numba|python`` (or the ``kernel`` argument of
-:class:`metro_atc.core.ato.onboard.OnboardAto`): ``auto`` takes the numba kernel when numba
-is importable, ``python`` keeps the Python path for every step.  The vectors the kernel reads
-are packed here from plain floats and arrays the objects hand over through their public
-methods (``AtoCore.kernel_constants`` / ``kernel_plan``, ``OnboardAto``'s own tables).
+:class:`metro_atc.core.ato.onboard.OnboardAto` takes every step the kernel takes (no switch:
+numba is a pinned dependency; ``NUMBA_DISABLE_JIT=1`` runs the same source as Python).  The
+vectors the kernel reads are packed here from plain floats and arrays the objects hand over
+through their public methods (``AtoCore.kernel_constants`` / ``kernel_plan``,
+``OnboardAto``'s own tables).
 """
 
 from __future__ import annotations
 
-from typing import Optional, Sequence
+from typing import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from metro_atc.core.ato import control_kernel as ck
 from metro_atc.core.ato.step_kernel import TRACTION_FIELDS, train_fields
-from metro_atc.core.kernel_choice import resolve_kernel
 from metro_atc.core.line.vehicle import TrainParams
 
 FloatArray = NDArray[np.float64]
 
-KERNEL_ENV = "METRO_ATC_ATO_KERNEL"
-"""Environment variable selecting the ATO control step when the caller does not."""
-KERNELS = ("auto", "numba", "python")
-"""Accepted names."""
 ATP_FIELDS = ("g_down", "sbi_offset", "c0a", "bt", "btt", "t_r", "two_b", "t_sbi", "grid_x0",
               "grid_dx")
 """The ATP's fields of :data:`.control_kernel.CONSTANTS`, in :func:`pack_constants`' order."""
 CORE_FIELDS = ("period", "swing", "du_max", "brake_share", "approach_jerk", "feedforward",
                "e_scale", "d_scale", "gain")
 """The controller's fields of :data:`.control_kernel.CONSTANTS` (``AtoCore.kernel_constants``)."""
-
-
-def resolve_ato_kernel(name: Optional[str] = None) -> str:
-    """``numba`` or ``python`` for the requested kernel (argument, else env, else auto)."""
-    return resolve_kernel(name, KERNEL_ENV, "python", "ATO kernel")
 
 
 def pack_constants(train: TrainParams, atp_train: TrainParams, core: Sequence[float],

@@ -39,7 +39,7 @@ from metro_atc.core.ato.controller import (JOIN_BAND_MPS, JOIN_MIN_SPEED_MPS, PR
                                            AtoCore)
 from metro_atc.core.ato.control_kernel import REASONS, STATE_FIELDS, STATE_INDEX
 from metro_atc.core.ato.control_kernel_pack import (control_step_fn, pack_constants, pack_line,
-                                                    pack_plan, resolve_ato_kernel)
+                                                    pack_plan)
 from metro_atc.core.ato.envelope import OperatingLimits
 from metro_atc.core.ato.planner import Profile
 from metro_atc.core.ato.tsr_plan import tsrs_for_run
@@ -117,11 +117,11 @@ class OnboardAto:
                  limits: Optional[OperatingLimits] = None,
                  shared: Optional[dict[str, Any]] = None,
                  tsrs: Sequence[TsrZone] = (), atp: Optional["AtpModel"] = None,
-                 kernel: Optional[str] = None, **planner_params: Any) -> None:
+                 **planner_params: Any) -> None:
         """Build the :class:`AtoCore` and the guard state.
 
-        ``kernel``: ``auto``, ``numba`` or ``python`` for the per-step control
-        (:mod:`metro_atc.core.ato.control_kernel`; None: ``METRO_ATC_ATO_KERNEL``, else auto).
+        Every control step the compiled step (:mod:`metro_atc.core.ato.control_kernel`)
+        takes runs there; the others run :meth:`control`'s Python path.
         """
         self.core = AtoCore(train, track, planner=planner, tracker=tracker,
                             control_period_s=control_period_s, limits=limits, shared=shared,
@@ -150,9 +150,9 @@ class OnboardAto:
         self._peak_mps = 0.0
         self._next_stop_m = math.inf
         self._held_mps = 0.0
-        self.kernel = resolve_ato_kernel(kernel)
-        """``numba`` (the compiled control step where it applies) or ``python``."""
-        self._kstep: Any = control_step_fn() if self.kernel == "numba" else None
+        self._kstep: Any = control_step_fn()
+        """The compiled step; None once the tracker proved not to be the kernel's (then every
+        step runs the Python path)."""
         self._kconst: Any = None
         self._kline: Any = None
         self._kplan: Any = (None, None, None)

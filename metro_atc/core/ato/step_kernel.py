@@ -36,7 +36,6 @@ from numpy.typing import NDArray
 
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, MODE_CRUISE, OperatingLimits
 from metro_atc.core import laws
-from metro_atc.core.kernel_choice import numba_available
 from metro_atc.core.line.vehicle import TrainParams
 
 FloatArray = NDArray[np.float64]
@@ -53,9 +52,7 @@ TINY = 1e-12
 
 
 def jit(fn: Callable[..., Any]) -> Callable[..., Any]:
-    """Compile ``fn`` with numba (cached, numpy error model) when installed, else return it."""
-    if not numba_available():
-        return fn
+    """Compile ``fn`` with numba (cached, numpy error model; numba is a pinned dependency)."""
     from numba import njit
     return njit(cache=True, error_model="numpy")(fn)  # type: ignore[no-any-return]
 
