@@ -26,8 +26,8 @@ from metro_atc.core.line.scenario import Scenario, load_scenario
 from metro_atc.core.linegen import load_generated
 
 
-def _record(scn: Scenario, kernel: str, duration_s: float,
-            mp: pytest.MonkeyPatch) -> tuple[list[Any], int, dict[int, list[Any]]]:
+def _record(scn: Scenario, kernel: str, duration_s: float, mp: pytest.MonkeyPatch,
+            tracker: str = "fuzzy") -> tuple[list[Any], int, dict[int, list[Any]]]:
     """Every control step's outputs and ATO state, the kernel's step count, the inputs.
 
     ``kernel``: ``python`` (the compiled step taken away from every ATO) or ``numba``.
@@ -56,7 +56,7 @@ def _record(scn: Scenario, kernel: str, duration_s: float,
     with mp.context() as m2:
         m2.setattr(OnboardAto, "control", control)
         m2.setattr(OnboardAto, "on_departure", on_departure)
-        run_closed_loop(scn, duration_s=duration_s)
+        run_closed_loop(scn, duration_s=duration_s, tracker=tracker)
     assert all((a._kstep is None) == (kernel == "python") for a in atos.values())
     return out, sum(a.kernel_steps for a in atos.values()), logs
 
@@ -68,16 +68,19 @@ def _same(a: list[Any], b: list[Any]) -> None:
         assert x == y or repr(x) == repr(y), (i, x, y)
 
 
-@pytest.mark.parametrize("name,duration_s", [("taipei_blue", 1200.0),
-                                             ("taipei_blue_delay", 1500.0),
-                                             ("gen1", 1200.0), ("gen2", 900.0)])
-def test_kernel_equals_python_in_closed_loops(name: str, duration_s: float,
+@pytest.mark.parametrize("name,duration_s,tracker", [("taipei_blue", 1200.0, "fuzzy"),
+                                                     ("taipei_blue_delay", 1500.0, "fuzzy"),
+                                                     ("gen1", 1200.0, "fuzzy"),
+                                                     ("gen2", 900.0, "fuzzy"),
+                                                     ("taipei_blue", 1200.0, "pi"),
+                                                     ("gen2", 900.0, "pi")])
+def test_kernel_equals_python_in_closed_loops(name: str, duration_s: float, tracker: str,
                                               monkeypatch: pytest.MonkeyPatch) -> None:
-    """Identical steps with either path; the kernel takes most of them."""
+    """Identical steps with either path and either tracker; the kernel takes most of them."""
     scn = load_generated(int(name[3:]), incidents=True) if name.startswith("gen") \
         else load_scenario(name)
-    ref, k_py, _ = _record(scn, "python", duration_s, monkeypatch)
-    got, k_nb, _ = _record(scn, "numba", duration_s, monkeypatch)
+    ref, k_py, _ = _record(scn, "python", duration_s, monkeypatch, tracker)
+    got, k_nb, _ = _record(scn, "numba", duration_s, monkeypatch, tracker)
     assert k_py == 0
     moving = sum(1 for o in ref if o[1] != 1)
     assert moving > 5000, moving  # a run with real tracking in it

@@ -2,11 +2,11 @@
 
 :func:`control_step` is :meth:`metro_atc.core.ato.onboard.OnboardAto.control` after its
 planning part (the caps of ``_cap_at`` at the preview position, ``_speed_dip``,
-``_authority_speed``, :meth:`AtoCore.command_ex` with the fuzzy tracker, its feedforward and
-bounds, and ``guard``) for the common case: a plan, the fuzzy tracker on a scalar state, no
-TSR known, the static SBI table, a fresh state with a later time stamp, the train not past
-its stopping point (graph speed).  Every operation is written in the Python path's
-order with its builtins' semantics (``min``/``max`` as CPython picks, :func:`pmin` /
+``_authority_speed``, :meth:`AtoCore.command_ex` with its tracker, feedforward and bounds,
+and ``guard``) for the common case: a plan, the incremental fuzzy or the PI tracker on a
+scalar state, no TSR known, the static SBI table, a fresh state with a later time stamp,
+the train not past its stopping point (graph speed).  Every operation is written in the
+Python path's order with its builtins' semantics (``min``/``max`` as CPython picks, :func:`pmin` /
 :func:`pmax`; ``x ** 2`` and ``x ** 3`` as the C ``pow`` CPython calls, the exponent read from
 the constants so that LLVM cannot fold it into products; ``int()`` truncation of finite
 values only).  Compiled with ``cache=True`` and numba's numpy error model (IEEE results
@@ -48,7 +48,7 @@ def _cpow_intrinsic() -> Any:
     """:func:`cpow`: a numba intrinsic calling the C ``pow`` (``x ** y`` in Python when
     ``NUMBA_DISABLE_JIT=1`` runs the kernels as Python)."""
     from numba.core import config
-    if config.DISABLE_JIT:
+    if config.DISABLE_JIT:  # type: ignore[attr-defined]
         return lambda x, y: x ** y
     from llvmlite import ir
     from numba import types
@@ -77,7 +77,7 @@ CONSTANT_FIELDS = (
     "g_down", "sbi_offset", "c0a", "bt", "btt", "t_r", "two_b", "t_sbi", "grid_x0",
     "grid_dx",
     "period", "swing", "du_max", "brake_share", "approach_jerk", "feedforward", "e_scale",
-    "d_scale", "gain")
+    "d_scale", "gain", "pi", "kp", "ki")
 """Constants record (:data:`CONSTANTS`), every field float64.
 
 Train: mass, effective mass [kg], Davis a [N], b [N s/m], c [N s^2/m^2], the traction
@@ -86,7 +86,8 @@ eq. 3-5), the service brake [m/s^2] and the length [m]; ``w_*``: the traction cu
 ATP's train (worst-case response); ATP: g_down [m/s^2], SBI offset [m/s], (b_g t_r)^2,
 b_g t_r, b_g t_r t_r, t_r [s], 2 b_g, t_sbi [s], grid x0 [m], grid dx [m]; controller:
 period [s], swing [s], effort rate [1/s], brake share [-], approach jerk [m/s^3],
-feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-].
+feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-], the tracker (0: the
+incremental fuzzy controller, 1: the PI controller) and the PI gains kp [1/(m/s)], ki [1/m].
 """
 CONSTANTS = np.dtype([(f, np.float64) for f in CONSTANT_FIELDS])
 """The constants the kernel reads, by name: it takes a float vector and reads it through
@@ -113,8 +114,9 @@ STATE_FIELDS = CORE_STATE_FIELDS + ("has_ma", "ma_t", "ma", "v_ma", "peak", "nex
                                     "held")
 """Per-train state record (:data:`STATE`; flags as 0/1): the last step's time [s], effort,
 feedforward, arrival flag, time stood still [s], the tracker's last error [m/s] and
-integrated effort, the last movement authority's time [s] and end [m], the authority speed
-[m/s], the speed peak [m/s], the next stop point [m], the held speed [m/s]."""
+integrated effort (the PI controller's: its last error and its integral [m]), the last
+movement authority's time [s] and end [m], the authority speed [m/s], the speed peak
+[m/s], the next stop point [m], the held speed [m/s]."""
 STATE = np.dtype([(f, np.float64) for f in STATE_FIELDS])
 """The per-train state the kernel reads and updates, by name (a float vector viewed as this
 record in compiled code; numpy's record fields are slow from Python, ~1 us each)."""

@@ -24,7 +24,7 @@ ATP_FIELDS = ("g_down", "sbi_offset", "c0a", "bt", "btt", "t_r", "two_b", "t_sbi
               "grid_dx")
 """The ATP's fields of :data:`.control_kernel.CONSTANTS`, in :func:`pack_constants`' order."""
 CORE_FIELDS = ("period", "swing", "du_max", "brake_share", "approach_jerk", "feedforward",
-               "e_scale", "d_scale", "gain")
+               "e_scale", "d_scale", "gain", "pi", "kp", "ki")
 """The controller's fields of :data:`.control_kernel.CONSTANTS` (``AtoCore.kernel_constants``)."""
 
 
@@ -33,7 +33,8 @@ def pack_constants(train: TrainParams, atp_train: TrainParams, core: Sequence[fl
     """The constants vector (float64, read as :data:`.control_kernel.CONSTANTS` by the kernel).
 
     ``core``: (period [s], swing [s], effort rate [1/s], brake share [-], approach jerk
-    [m/s^3], feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-]);
+    [m/s^3], feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-], PI 0/1, kp
+    [1/(m/s)], ki [1/m]);
     ``atp``: (g_down [m/s^2], SBI offset [m/s], (b_g t_r)^2, b_g t_r, b_g t_r t_r, t_r [s],
     2 b_g, t_sbi [s], grid x0 [m], grid dx [m]).
     """

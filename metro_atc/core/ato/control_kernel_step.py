@@ -72,6 +72,18 @@ def brake_capability(c, ln, x):  # type: ignore[no-untyped-def]
 
 
 @jit
+def set_output(c, u, u_ff, e):  # type: ignore[no-untyped-def]
+    """The tracker's ``set_output(u, u_ff)``: its state for the applied effort u [-].
+
+    The fuzzy controller keeps the feedback part ``u - u_ff``; the PI controller the
+    integral that gives u with its last error e [m/s].
+    """
+    if c.pi != 0.0:
+        return (u - u_ff - c.kp * e) / pmax(c.ki, 1e-12)
+    return u - u_ff
+
+
+@jit
 def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyped-def]
     """One control step: (effort u, reason code) or (nan, FALLBACK) with ``sr`` untouched.
 
@@ -162,19 +174,30 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
             r = pmax(cap_p, 0.0)
         u_ff = feedforward(c, ph, p, s, vc, r, capped, slope) if c.feedforward != 0.0 else 0.0
         last_ff = u_ff
-        # FuzzyController._step_at
         e = r - vc
-        d = 0.0 if not has_e else e - e_prev
-        e_n, d_n = e / c.e_scale, d / c.d_scale
-        if not (math.isfinite(e_n) and math.isfinite(d_n) and math.isfinite(u_ff)):
-            return math.nan, FALLBACK
-        has_e, e_prev = True, e
-        uu = trk_u + c.gain * flc(e_n, d_n)
-        lo, hi = -1.0 - u_ff, 1.0 - u_ff
-        uu = uu if not uu < lo else lo
-        uu = uu if not uu > hi else hi
-        trk_u = uu
-        out = uu + u_ff
+        if c.pi != 0.0:
+            # PIController.step (trk_u: the integral [m])
+            if not (math.isfinite(e) and math.isfinite(u_ff)):
+                return math.nan, FALLBACK
+            has_e, e_prev = True, e
+            i_new = trk_u + e * dt
+            raw = c.kp * e + c.ki * i_new + u_ff
+            if not ((raw > 1.0 and e > 0.0) or (raw < -1.0 and e < 0.0)):
+                trk_u = i_new
+            out = c.kp * e + c.ki * trk_u + u_ff
+        else:
+            # FuzzyController._step_at (trk_u: the integrated effort)
+            d = 0.0 if not has_e else e - e_prev
+            e_n, d_n = e / c.e_scale, d / c.d_scale
+            if not (math.isfinite(e_n) and math.isfinite(d_n) and math.isfinite(u_ff)):
+                return math.nan, FALLBACK
+            has_e, e_prev = True, e
+            uu = trk_u + c.gain * flc(e_n, d_n)
+            lo, hi = -1.0 - u_ff, 1.0 - u_ff
+            uu = uu if not uu < lo else lo
+            uu = uu if not uu > hi else hi
+            trk_u = uu
+            out = uu + u_ff
         u = -1.0 if out < -1.0 else (1.0 if out > 1.0 else out)
         bounded = False
         if u > 0.0 and vc > APPROACH_MIN:
@@ -205,7 +228,7 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
         du = c.du_max * dt
         u_lim = pmin(pmax(u, u_last - du), u_last + du)
         if (u_lim != u or bounded) and reason != R_ENVELOPE:
-            trk_u = u_lim - u_ff
+            trk_u = set_output(c, u_lim, u_ff, e_prev)
         u = u_lim
         if vc <= 1e-6 and s > length - BERTH:
             still += dt
@@ -232,7 +255,7 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
     u = pmin(u_trk, bound)
     if u < u_trk and math.isfinite(u) and u != u_new_last:
         u_new_last = u
-        trk_u = u - last_ff
+        trk_u = set_output(c, u, last_ff, e_prev)
     # ---- write the state back
     st.has_t = 1.0
     st.t = t
