@@ -4,7 +4,8 @@
 planning part (the caps of ``_cap_at`` at the preview position, ``_speed_dip``,
 ``_authority_speed``, :meth:`AtoCore.command_ex` with its tracker, feedforward and bounds,
 and ``guard``) for the common case: a plan, the incremental fuzzy or the PI tracker on a
-scalar state, no TSR known, the static SBI table, a fresh state with a later time stamp,
+scalar state, the TSRs known (their caps and holds), the static SBI table, a fresh state
+with a later time stamp,
 the train not past its stopping point (graph speed).  Every operation is written in the
 Python path's order with its builtins' semantics (``min``/``max`` as CPython picks, :func:`pmin` /
 :func:`pmax`; ``x ** 2`` and ``x ** 3`` as the C ``pow`` CPython calls, the exponent read from
@@ -75,19 +76,22 @@ CONSTANT_FIELDS = (
     "a1", "v1", "v2", "a2", "a3", "b2", "b3", "brake_service", "length",
     "w_a1", "w_v1", "w_v2", "w_a2", "w_a3", "w_b2", "w_b3",
     "g_down", "sbi_offset", "c0a", "bt", "btt", "t_r", "two_b", "t_sbi", "grid_x0",
-    "grid_dx",
+    "grid_dx", "tol", "resp_dist", "sbi_dist", "b_g",
     "period", "swing", "du_max", "brake_share", "approach_jerk", "feedforward", "e_scale",
-    "d_scale", "gain", "pi", "kp", "ki")
+    "d_scale", "gain", "pi", "kp", "ki", "lead", "margin", "accel_max")
 """Constants record (:data:`CONSTANTS`), every field float64.
 
 Train: mass, effective mass [kg], Davis a [N], b [N s/m], c [N s^2/m^2], the traction
 curve (a1 [m/s^2], v1, v2 [m/s], a2 [m^2/s^3], a3 [m^3/s^4], b2, b3 [m/s]; Lin 2013,
 eq. 3-5), the service brake [m/s^2] and the length [m]; ``w_*``: the traction curve of the
 ATP's train (worst-case response); ATP: g_down [m/s^2], SBI offset [m/s], (b_g t_r)^2,
-b_g t_r, b_g t_r t_r, t_r [s], 2 b_g, t_sbi [s], grid x0 [m], grid dx [m]; controller:
+b_g t_r, b_g t_r t_r, t_r [s], 2 b_g, t_sbi [s], grid x0 [m], grid dx [m], the ceiling
+tolerance [m/s], the response and SBI look-ahead distances [m], b_g [m/s^2]; controller:
 period [s], swing [s], effort rate [1/s], brake share [-], approach jerk [m/s^3],
 feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-], the tracker (0: the
-incremental fuzzy controller, 1: the PI controller) and the PI gains kp [1/(m/s)], ki [1/m].
+incremental fuzzy controller, 1: the PI controller), the PI gains kp [1/(m/s)], ki [1/m],
+the restriction lead [m], the speed margin below a TSR [m/s] and the planning
+acceleration limit [m/s^2].
 """
 CONSTANTS = np.dtype([(f, np.float64) for f in CONSTANT_FIELDS])
 """The constants the kernel reads, by name: it takes a float vector and reads it through

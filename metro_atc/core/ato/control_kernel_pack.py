@@ -21,10 +21,10 @@ from metro_atc.core.line.vehicle import TrainParams
 FloatArray = NDArray[np.float64]
 
 ATP_FIELDS = ("g_down", "sbi_offset", "c0a", "bt", "btt", "t_r", "two_b", "t_sbi", "grid_x0",
-              "grid_dx")
+              "grid_dx", "tol", "resp_dist", "sbi_dist", "b_g")
 """The ATP's fields of :data:`.control_kernel.CONSTANTS`, in :func:`pack_constants`' order."""
 CORE_FIELDS = ("period", "swing", "du_max", "brake_share", "approach_jerk", "feedforward",
-               "e_scale", "d_scale", "gain", "pi", "kp", "ki")
+               "e_scale", "d_scale", "gain", "pi", "kp", "ki", "lead", "margin", "accel_max")
 """The controller's fields of :data:`.control_kernel.CONSTANTS` (``AtoCore.kernel_constants``)."""
 
 
@@ -34,9 +34,10 @@ def pack_constants(train: TrainParams, atp_train: TrainParams, core: Sequence[fl
 
     ``core``: (period [s], swing [s], effort rate [1/s], brake share [-], approach jerk
     [m/s^3], feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-], PI 0/1, kp
-    [1/(m/s)], ki [1/m]);
+    [1/(m/s)], ki [1/m], restriction lead [m], TSR speed margin [m/s], accel limit [m/s^2]);
     ``atp``: (g_down [m/s^2], SBI offset [m/s], (b_g t_r)^2, b_g t_r, b_g t_r t_r, t_r [s],
-    2 b_g, t_sbi [s], grid x0 [m], grid dx [m]).
+    2 b_g, t_sbi [s], grid x0 [m], grid dx [m], ceiling tolerance [m/s], response and SBI
+    look-ahead distances [m], b_g [m/s^2]).
     """
     if len(core) != len(CORE_FIELDS) or len(atp) != len(ATP_FIELDS):
         raise ValueError("inconsistent ATO kernel constants")
@@ -69,13 +70,17 @@ def pack_plan(head: Sequence[float], ref_s: FloatArray, ref_e: FloatArray,
 
 
 def pack_line(sbi: FloatArray, grade_starts: FloatArray, grades: FloatArray,
-              stations: FloatArray) -> FloatArray:
-    """The line vector: counts, static SBI table [m/s], grade starts [m], grades, stops [m]."""
+              stations: FloatArray, tsrs: FloatArray) -> FloatArray:
+    """The line vector: counts, static SBI table [m/s], grade starts [m], grades, stops [m],
+    TSRs (n, 5): start [m], end [m], limit [m/s], known from [s], until [s]."""
+    tz = np.asarray(tsrs, dtype=float).reshape(-1, 5)
     if len(sbi) < 1 or len(grades) < 1 or len(grade_starts) != len(grades):
         raise ValueError("inconsistent ATO kernel line tables")
-    return np.concatenate([np.asarray([len(sbi), len(grades), len(stations)], dtype=float),
+    return np.concatenate([np.asarray([len(sbi), len(grades), len(stations), len(tz)],
+                                      dtype=float),
                            np.asarray(sbi, dtype=float), np.asarray(grade_starts, dtype=float),
-                           np.asarray(grades, dtype=float), np.asarray(stations, dtype=float)])
+                           np.asarray(grades, dtype=float), np.asarray(stations, dtype=float),
+                           tz.ravel()])
 
 
 _LOADED: list[bool] = []

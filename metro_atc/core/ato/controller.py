@@ -407,17 +407,20 @@ class AtoCore:
 
         (period [s], swing [s], effort rate [1/s], brake share [-], approach jerk [m/s^3],
         feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-], PI 0/1, PI kp
-        [1/(m/s)], ki [1/m]); None when the tracker is the fuzzy controller's absolute form
-        (the kernel does not cover it).
+        [1/(m/s)], ki [1/m], restriction lead [m], TSR speed margin [m/s], acceleration
+        limit [m/s^2]); None when the tracker is the fuzzy controller's absolute form (the
+        kernel does not cover it).
         """
         tr = self.tracker
         head = [self.period, self.swing_s, self._du_max_per_s, self._brake_share,
                 self.approach_jerk, 1.0 if self.feedforward else 0.0]
+        lim = self.limits
+        tail = [lim.restriction_lead_m, lim.speed_margin_mps, lim.accel_max_mps2]
         if isinstance(tr, PIController):
-            return head + [1.0, 1.0, 0.0, 1.0, tr.p.kp, tr.p.ki]
+            return head + [1.0, 1.0, 0.0, 1.0, tr.p.kp, tr.p.ki] + tail
         if not isinstance(tr, FuzzyController) or not tr.p.incremental:
             return None
-        return head + [tr.p.e_scale_mps, tr.p.d_scale_mps, tr.p.gain, 0.0, 0.0, 0.0]
+        return head + [tr.p.e_scale_mps, tr.p.d_scale_mps, tr.p.gain, 0.0, 0.0, 0.0] + tail
 
     def kernel_plan(self) -> Optional[tuple[Any, ...]]:
         """The plan's tables for the compiled step, the same object while the plan holds.

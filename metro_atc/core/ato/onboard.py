@@ -254,9 +254,6 @@ class OnboardAto:
         tracker at every step, so either path continues where the other stopped.
         """
         t = float(s["t_s"])
-        for z in self.tsrs:
-            if z.known_s <= t < z.to_s:
-                return None  # a TSR known: its holds and curves stay in Python
         atp = self.atp
         core = self.core
         kp = core.kernel_plan()
@@ -275,10 +272,13 @@ class OnboardAto:
             self._kconst = pack_constants(
                 self.train, atp.train, cc,
                 [atp.g_down, atp.sbi_offset_mps, bt2, b * tr, b * tr * tr, tr,
-                 2.0 * b, atp.t_sbi, atp.grid_x0_m, atp.grid_dx_m])
+                 2.0 * b, atp.t_sbi, atp.grid_x0_m, atp.grid_dx_m, atp.tol_mps,
+                 atp.resp_dist_m, atp.sbi_dist_m, b])
             self._kline = pack_line(np.asarray(atp._sbi_list, dtype=float),
                                     np.asarray(self._grade_lists[0], dtype=float),
-                                    np.asarray(self._grade_lists[1], dtype=float), self.stations)
+                                    np.asarray(self._grade_lists[1], dtype=float), self.stations,
+                                    np.asarray([(z.start_m, z.end_m, z.limit_mps, z.known_s,
+                                                 z.to_s) for z in self.tsrs], dtype=float))
         if self._b_run is not core.run:
             self._plan_decel(float(s["x_m"]))  # builds the run's deceleration table
         if self._kplan[0] is not kp or self._kplan[1] is not self._b_list:
@@ -307,7 +307,7 @@ class OnboardAto:
         self.authority_speed_mps = vals[i["v_ma"]]
         self._peak_mps = vals[i["peak"]]
         self._next_stop_m = vals[i["next_stop"]]
-        self._held_mps = 0.0
+        self._held_mps = vals[i["held"]]
         self.kernel_steps += 1
         mode = MODE_ACCELERATE if u > 0.05 else (MODE_BRAKE if u < -0.05 else MODE_COAST)
         return u, mode
