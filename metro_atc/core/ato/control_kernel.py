@@ -46,8 +46,10 @@ in a thousand; the alias keeps the call.  Without it (not glibc) ``pow`` is call
 
 
 def _cpow_intrinsic() -> Any:
-    """:func:`cpow`: a numba intrinsic calling the C ``pow`` (``x ** y`` in Python when
-    ``NUMBA_DISABLE_JIT=1`` runs the kernels as Python)."""
+    """:func:`cpow`: a numba intrinsic calling the C ``pow``.
+
+    ``x ** y`` in Python when ``NUMBA_DISABLE_JIT=1`` runs the kernels as Python.
+    """
     from numba.core import config
     if config.DISABLE_JIT:  # type: ignore[attr-defined]
         return lambda x, y: x ** y

@@ -71,8 +71,10 @@ def pack_plan(head: Sequence[float], ref_s: FloatArray, ref_e: FloatArray,
 
 def pack_line(sbi: FloatArray, grade_starts: FloatArray, grades: FloatArray,
               stations: FloatArray, tsrs: FloatArray) -> FloatArray:
-    """The line vector: counts, static SBI table [m/s], grade starts [m], grades, stops [m],
-    TSRs (n, 5): start [m], end [m], limit [m/s], known from [s], until [s]."""
+    """The line vector: counts, static SBI table [m/s], grade starts [m], grades, stops [m].
+
+    Then the TSRs ``tsrs`` (n, 5): start [m], end [m], limit [m/s], known from [s], until [s].
+    """
     tz = np.asarray(tsrs, dtype=float).reshape(-1, 5)
     if len(sbi) < 1 or len(grades) < 1 or len(grade_starts) != len(grades):
         raise ValueError("inconsistent ATO kernel line tables")

@@ -155,7 +155,7 @@ def brake_capability(c, ln, x):  # type: ignore[no-untyped-def]
 
 @jit
 def set_output(c, u, u_ff, e):  # type: ignore[no-untyped-def]
-    """The tracker's ``set_output(u, u_ff)``: its state for the applied effort u [-].
+    """The tracker's state for the applied effort u [-] (its ``set_output``).
 
     The fuzzy controller keeps the feedback part ``u - u_ff``; the PI controller the
     integral that gives u with its last error e [m/s].

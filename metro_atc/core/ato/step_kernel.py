@@ -116,7 +116,8 @@ def coast_x_t(w: float, d4: float, c2: float, bp: float) -> tuple[float, float]:
     w = v + c1/(2 c2) = v - beta; d4 = c0/c2 - c1^2/(4 c2^2) (= alpha^2 > 0 or -kappa^2 < 0);
     bp = c1/(2 c2).  With dw/dt = -c2 (w^2 + d4): ``T(w) = -atan(w/alpha)/(c2 alpha)``
     (ACTP n.d., eq. 8 solved for t), or ``ln|(kappa+w)/(kappa-w)|/(2 c2 kappa)`` for
-    d4 < 0, and ``X(w) = -ln|w^2 + d4|/(2 c2) - bp T(w)`` (integral of v dt)."""
+    d4 < 0, and ``X(w) = -ln|w^2 + d4|/(2 c2) - bp T(w)`` (integral of v dt).
+    """
     if d4 > 0.0:
         a = math.sqrt(d4)
         t = -math.atan(w / a) / (c2 * a)
