@@ -95,9 +95,11 @@ incremental fuzzy controller, 1: the PI controller), the PI gains kp [1/(m/s)], 
 the restriction lead [m], the speed margin below a TSR [m/s] and the planning
 acceleration limit [m/s^2].
 """
-CONSTANTS = np.dtype([(f, np.float64) for f in CONSTANT_FIELDS])
+CONSTANTS = np.dtype((np.record, [(f, np.float64) for f in CONSTANT_FIELDS]))
 """The constants the kernel reads, by name: it takes a float vector and reads it through
-this record view (``c.view(CONSTANTS)[0]``), which costs nothing in compiled code."""
+this record view (``c.view(CONSTANTS)[0]``), which costs nothing in compiled code.  A
+``np.record`` dtype (as :data:`PLAN` and :data:`STATE`): the element keeps attribute access
+when ``NUMBA_DISABLE_JIT=1`` runs the kernel as Python."""
 
 PLAN_FIELDS = ("x0", "direction", "length", "pss_start", "tail_brake", "ref_length",
                "departure_speed", "creep_start", "brake_start", "creep_v2", "two_decel",
@@ -108,7 +110,7 @@ start [m], brake start [m], creep speed^2, 2 decel, 2 brake, creep speed [m/s]; 
 lengths.  The plan vector holds it, then ref s, ref v^2, grade breakpoints, grade-force
 integral, envelope s, ceiling energy and the planned-deceleration table (``n_*`` long
 each)."""
-PLAN = np.dtype([(f, np.float64) for f in PLAN_FIELDS])
+PLAN = np.dtype((np.record, [(f, np.float64) for f in PLAN_FIELDS]))
 """The plan header by name: the plan vector's first :data:`N_PH` floats, viewed once per
 step as this record (``ph``) and handed with the vector (``p``) to the functions below."""
 N_PH = len(PLAN_FIELDS)
@@ -123,7 +125,7 @@ feedforward, arrival flag, time stood still [s], the tracker's last error [m/s] 
 integrated effort (the PI controller's: its last error and its integral [m]), the last
 movement authority's time [s] and end [m], the authority speed [m/s], the speed peak
 [m/s], the next stop point [m], the held speed [m/s]."""
-STATE = np.dtype([(f, np.float64) for f in STATE_FIELDS])
+STATE = np.dtype((np.record, [(f, np.float64) for f in STATE_FIELDS]))
 """The per-train state the kernel reads and updates, by name (a float vector viewed as this
 record in compiled code; numpy's record fields are slow from Python, ~1 us each)."""
 STATE_INDEX = {f: i for i, f in enumerate(STATE_FIELDS)}

@@ -45,8 +45,10 @@ TRAIN_FIELDS = ("mass", "meff", "davis_a", "davis_b", "davis_c", "a1", "v1", "v2
 """Fields of :data:`TRAIN`: mass, effective mass [kg], Davis a [N], b [N s/m], c [N s^2/m^2],
 the traction curve (a1 [m/s^2], v1, v2 [m/s], a2 [m^2/s^3], a3 [m^3/s^4], b2, b3 [m/s]) and
 the planning acceleration limit [m/s^2]."""
-TRAIN = np.dtype([(f, np.float64) for f in TRAIN_FIELDS])
-"""The train and limit constants the kernels read, by name (one-element arrays)."""
+TRAIN = np.dtype((np.record, [(f, np.float64) for f in TRAIN_FIELDS]))
+"""The train and limit constants the kernels read, by name (one-element arrays; a
+``np.record`` dtype: attribute access also when ``NUMBA_DISABLE_JIT=1`` runs them as
+Python)."""
 
 TINY = 1e-12
 
