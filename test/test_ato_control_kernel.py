@@ -11,8 +11,13 @@ steps (the hand-over both ways), against the Python path.
 
 from __future__ import annotations
 
+import json
 import math
+import os
 import random
+import subprocess
+import sys
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -184,3 +189,49 @@ def test_every_ato_takes_the_compiled_step(monkeypatch: pytest.MonkeyPatch) -> N
     train = train_for(scn)
     ato = OnboardAto(train, track_for(scn), np.array([0.0, 500.0]))
     assert ato._kstep is pack.control_step_fn()
+
+
+_MINI_LOOP = """
+import json
+from metro_atc.core.ato.onboard import OnboardAto
+from metro_atc.core.closed_loop import run_closed_loop
+from metro_atc.core.line.scenario import load_scenario
+out = []
+orig = OnboardAto.control
+def control(self, s):
+    r = orig(self, s)
+    out.append((r[0], r[1], self.kernel_steps))
+    return r
+OnboardAto.control = control
+run_closed_loop(load_scenario("mini"), duration_s=120.0)
+print(json.dumps([[a.hex(), b, k] for a, b, k in out]))
+"""
+
+
+@pytest.mark.parametrize("disable_jit", ["0", "1"])
+def test_the_same_source_runs_as_python(disable_jit: str) -> None:
+    """``NUMBA_DISABLE_JIT=1`` (debugging) runs the planners and the control step as Python:
+    a ``mini`` closed loop gives the compiled run's efforts (bit for bit) and modes, the
+    "kernel" (as Python) taking the same steps."""
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, NUMBA_DISABLE_JIT=disable_jit,
+               PYTHONPATH=os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]))
+    r = subprocess.run([sys.executable, "-c", _MINI_LOOP], env=env, capture_output=True,
+                       text=True, timeout=600, cwd=root)
+    assert r.returncode == 0, r.stderr[-2000:]
+    got = json.loads(r.stdout.strip().splitlines()[-1])
+    out: list[Any] = []
+    orig = OnboardAto.control
+
+    def control(self: OnboardAto, s: dict[str, Any]) -> Any:
+        res = orig(self, s)
+        out.append([float(res[0]).hex(), res[1], self.kernel_steps])
+        return res
+
+    OnboardAto.control = control  # type: ignore[method-assign]
+    try:
+        run_closed_loop(load_scenario("mini"), duration_s=120.0)
+    finally:
+        OnboardAto.control = orig  # type: ignore[method-assign]
+    assert got == out
+    assert max(k for _, _, k in out) > 100
