@@ -1,10 +1,11 @@
 """Micro-bench of ``OnboardAto.control`` per train-step: the Python path against the kernel.
 
 Records every ATO input of a ROS-free closed loop (``taipei_blue`` by default), then replays
-them into fresh ATOs (one process's shared cache) with ``kernel="python"`` and
-``kernel="numba"`` alternately, ``--pairs`` times, and prints the CPU time
-(``time.thread_time``) per train-step of the steps in motion (not dwelling) and per step
-overall, with the medians, and checks that both replays gave the same efforts and modes::
+them into fresh ATOs (one process's shared cache) with the compiled step taken away
+(``python``: the Python path for every step) and as they run (``numba``) alternately,
+``--pairs`` times, and prints the CPU time (``time.thread_time``) per train-step of the
+steps in motion (not dwelling) and per step overall, with the medians, and checks that
+both replays gave the same efforts and modes::
 
     python test/ato_control_bench.py [--scenario taipei_blue] [--duration 1800] [--pairs 3]
 """
@@ -57,7 +58,9 @@ def replay(scn: Any, logs: list[list[Any]], kernel: str) -> tuple[float, float, 
     for lg in logs:
         ato = OnboardAto(train, track, tt.station_positions_m,
                          control_period_s=float(scn.sim.control_period_s), limits=limits,
-                         shared=shared, tsrs=tsr_zones(scn), atp=atp, kernel=kernel)
+                         shared=shared, tsrs=tsr_zones(scn), atp=atp)
+        if kernel == "python":
+            ato._kstep = None
         for kind, a in lg:
             if kind == "d":
                 ato.on_departure(*a)

@@ -7,7 +7,9 @@ import pytest
 
 from metro_atc.core.ato import coasting
 from metro_atc.core.ato.envelope import RunModel, profile_energy_time
-from metro_atc.core.ato.strategy import coast_coefficients, coast_speed, coast_step
+from metro_atc.core.ato.envelope import OperatingLimits
+from metro_atc.core.ato.step_kernel import coast_coefficients, coast_step, pack_train
+from metro_atc.core.ato.strategy import coast_speed
 from metro_atc.core.line.vehicle import (TAIPEI_MRT_6CAR, Track, effort_force, grade_force,
                                          resistance_force, rk4_step)
 
@@ -20,8 +22,8 @@ def _blue_run(length: float = 1300.0) -> RunModel:
 
 def test_eq7_solves_the_coasting_ode() -> None:
     """v(t) of ACTP n.d., eq. 7-8 satisfies dv/dt = -(c0 + c1 v + c2 v^2) and v(t_c) = v_c."""
-    c0a, c1, c2 = coast_coefficients(P, grade_force(P, 0.005))
-    c0 = float(c0a)
+    c0, c1, c2 = coast_coefficients(pack_train(P, OperatingLimits()).view(np.recarray)[0],
+                                    float(grade_force(P, 0.005)))
     t = np.linspace(3.0, 40.0, 200)
     v = coast_speed(t, 3.0, 22.0, c0, c1, c2)
     assert v[0] == pytest.approx(22.0, abs=1e-12)
@@ -34,12 +36,13 @@ def test_eq7_solves_the_coasting_ode() -> None:
 @pytest.mark.parametrize("grade", [0.0, 0.02, -0.01, -0.04])
 def test_coast_step_matches_rk4_time_integration(grade: float) -> None:
     """Closed-form coasting over 600 m equals RK4 integration of Newton's law (zero effort)."""
-    e = np.array([0.5 * 21.0 ** 2])
+    c = pack_train(P, OperatingLimits()).view(np.recarray)[0]
+    e = 0.5 * 21.0 ** 2
     t_cf = 0.0
     for _ in range(300):  # 300 x 2 m
-        e, dt, st = coast_step(P, e, 2.0, grade_force(P, grade))
-        assert not st[0]
-        t_cf += float(dt[0])
+        e, dt, st = coast_step(c, e, 2.0, float(grade_force(P, grade)))
+        assert not st
+        t_cf += dt
     x, v, t = 0.0, 21.0, 0.0
     dt_rk = 0.01
     while x < 600.0:
@@ -50,7 +53,7 @@ def test_coast_step_matches_rk4_time_integration(grade: float) -> None:
             v = v + frac * (float(v_new) - v)
             break
         x, v, t = float(x_new), float(v_new), t + dt_rk
-    assert np.sqrt(2 * e[0]) == pytest.approx(v, abs=2e-4)
+    assert np.sqrt(2 * e) == pytest.approx(v, abs=2e-4)
     assert t_cf == pytest.approx(t, abs=2e-3)
 
 

@@ -2,7 +2,8 @@
 
 Closed loops (the graph's data flow, :mod:`metro_atc.core.closed_loop`) of the Blue line,
 its delay/incident variant and generated incident lines (TSRs, breakdowns) run once with
-``METRO_ATC_ATO_KERNEL=python`` and once with the kernel: every control step's effort,
+the compiled step taken away from every ATO (``OnboardAto._kstep = None``: the Python path
+for every step) and once as they run: every control step's effort,
 mode, reason, last effort and guard state must be ``==``.  Replays of the recorded states
 rebuild every ATO mid-run (a restarted node) and switch the kernel off and on at random
 steps (the hand-over both ways), against the Python path.
@@ -10,8 +11,13 @@ steps (the hand-over both ways), against the Python path.
 
 from __future__ import annotations
 
+import json
 import math
+import os
 import random
+import subprocess
+import sys
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -21,17 +27,16 @@ from metro_atc.core.ato import control_kernel_pack as pack
 from metro_atc.core.ato.onboard import OnboardAto, atp_model_for, envelope_limits, tsr_zones
 from metro_atc.core.bridge import timetable_for, track_for, train_for
 from metro_atc.core.closed_loop import run_closed_loop
-from metro_atc.core.kernel_choice import numba_available
 from metro_atc.core.line.scenario import Scenario, load_scenario
 from metro_atc.core.linegen import load_generated
 
-pytestmark = pytest.mark.skipif(not numba_available(), reason="numba not installed")
 
+def _record(scn: Scenario, kernel: str, duration_s: float, mp: pytest.MonkeyPatch,
+            tracker: str = "fuzzy") -> tuple[list[Any], int, dict[int, list[Any]]]:
+    """Every control step's outputs and ATO state, the kernel's step count, the inputs.
 
-def _record(scn: Scenario, kernel: str, duration_s: float,
-            mp: pytest.MonkeyPatch) -> tuple[list[Any], int, dict[int, list[Any]]]:
-    """Every control step's outputs and ATO state, the kernel's step count, the inputs."""
-    mp.setenv(pack.KERNEL_ENV, kernel)
+    ``kernel``: ``python`` (the compiled step taken away from every ATO) or ``numba``.
+    """
     orig_c, orig_d = OnboardAto.control, OnboardAto.on_departure
     out: list[Any] = []
     logs: dict[int, list[Any]] = {}
@@ -39,6 +44,8 @@ def _record(scn: Scenario, kernel: str, duration_s: float,
 
     def control(self: OnboardAto, s: dict[str, Any]) -> Any:
         atos[id(self)] = self
+        if kernel == "python":
+            self._kstep = None
         res = orig_c(self, s)
         core = self.core
         out.append((res[0], res[1], core.last_reason, core.last_effort,
@@ -54,8 +61,8 @@ def _record(scn: Scenario, kernel: str, duration_s: float,
     with mp.context() as m2:
         m2.setattr(OnboardAto, "control", control)
         m2.setattr(OnboardAto, "on_departure", on_departure)
-        run_closed_loop(scn, duration_s=duration_s)
-    assert all(a.kernel == kernel for a in atos.values())
+        run_closed_loop(scn, duration_s=duration_s, tracker=tracker)
+    assert all((a._kstep is None) == (kernel == "python") for a in atos.values())
     return out, sum(a.kernel_steps for a in atos.values()), logs
 
 
@@ -66,24 +73,25 @@ def _same(a: list[Any], b: list[Any]) -> None:
         assert x == y or repr(x) == repr(y), (i, x, y)
 
 
-@pytest.mark.parametrize("name,duration_s", [("taipei_blue", 1200.0),
-                                             ("taipei_blue_delay", 1500.0),
-                                             ("gen1", 1200.0), ("gen2", 900.0)])
-def test_kernel_equals_python_in_closed_loops(name: str, duration_s: float,
+@pytest.mark.parametrize("name,duration_s,tracker", [("taipei_blue", 1200.0, "fuzzy"),
+                                                     ("taipei_blue_delay", 1500.0, "fuzzy"),
+                                                     ("gen1", 1200.0, "fuzzy"),
+                                                     ("gen2", 900.0, "fuzzy"),
+                                                     ("taipei_blue", 1200.0, "pi"),
+                                                     ("gen2", 900.0, "pi")])
+def test_kernel_equals_python_in_closed_loops(name: str, duration_s: float, tracker: str,
                                               monkeypatch: pytest.MonkeyPatch) -> None:
-    """Identical steps with either path; the kernel takes most of them."""
+    """Identical steps with either path and either tracker; the kernel takes most of them."""
     scn = load_generated(int(name[3:]), incidents=True) if name.startswith("gen") \
         else load_scenario(name)
-    ref, k_py, _ = _record(scn, "python", duration_s, monkeypatch)
-    got, k_nb, _ = _record(scn, "numba", duration_s, monkeypatch)
+    ref, k_py, _ = _record(scn, "python", duration_s, monkeypatch, tracker)
+    got, k_nb, _ = _record(scn, "numba", duration_s, monkeypatch, tracker)
     assert k_py == 0
     moving = sum(1 for o in ref if o[1] != 1)
     assert moving > 5000, moving  # a run with real tracking in it
-    # the kernel ran most moving steps of the Blue line; on the generated incident lines
-    # the Python path ran the steps with a TSR known (the hand-over both ways)
+    # the kernel ran most moving steps (the Python path the hostile ones: the hand-over)
     assert 0 < k_nb < len(ref)
-    if not name.startswith("gen"):
-        assert k_nb > 0.4 * moving, (k_nb, moving)
+    assert k_nb > 0.4 * moving, (k_nb, moving)
     _same(ref, got)
 
 
@@ -96,9 +104,12 @@ def _replay(scn: Scenario, logs: dict[int, list[Any]], kernel: str, rebuild: boo
     rng = random.Random(toggle_seed)
 
     def make() -> OnboardAto:
-        return OnboardAto(train, track, tt.station_positions_m,
-                          control_period_s=float(scn.sim.control_period_s), limits=limits,
-                          shared=shared, tsrs=tsrs, atp=atp, kernel=kernel)
+        ato = OnboardAto(train, track, tt.station_positions_m,
+                         control_period_s=float(scn.sim.control_period_s), limits=limits,
+                         shared=shared, tsrs=tsrs, atp=atp)
+        if kernel == "python":
+            ato._kstep = None
+        return ato
 
     out: list[Any] = []
     for lg in logs.values():
@@ -170,17 +181,57 @@ def test_hostile_states_are_handed_back(monkeypatch: pytest.MonkeyPatch) -> None
     _same(_replay(scn, logs2, "python", False, None), _replay(scn, logs2, "numba", False, None))
 
 
-def test_selection(monkeypatch: pytest.MonkeyPatch) -> None:
-    """auto is the kernel when numba imports; python and the env var are honoured."""
-    monkeypatch.delenv(pack.KERNEL_ENV, raising=False)
-    assert pack.resolve_ato_kernel() == "numba"
-    assert pack.resolve_ato_kernel("python") == "python"
-    monkeypatch.setenv(pack.KERNEL_ENV, "python")
-    assert pack.resolve_ato_kernel() == "python"
-    assert pack.resolve_ato_kernel("auto") == "numba"
-    with pytest.raises(ValueError):
-        pack.resolve_ato_kernel("fortran")
+def test_every_ato_takes_the_compiled_step(monkeypatch: pytest.MonkeyPatch) -> None:
+    """No switch: an ATO holds the compiled step whatever the environment says (the only way
+    to the Python path for the steps it takes is to take it away, as these tests do)."""
+    monkeypatch.setenv("METRO_ATC_ATO_KERNEL", "python")  # the switch this package had
     scn = load_scenario("mini")
     train = train_for(scn)
-    ato = OnboardAto(train, track_for(scn), np.array([0.0, 500.0]), kernel="auto")
-    assert ato.kernel == "numba"
+    ato = OnboardAto(train, track_for(scn), np.array([0.0, 500.0]))
+    assert ato._kstep is pack.control_step_fn()
+
+
+_MINI_LOOP = """
+import json
+from metro_atc.core.ato.onboard import OnboardAto
+from metro_atc.core.closed_loop import run_closed_loop
+from metro_atc.core.line.scenario import load_scenario
+out = []
+orig = OnboardAto.control
+def control(self, s):
+    r = orig(self, s)
+    out.append((r[0], r[1], self.kernel_steps))
+    return r
+OnboardAto.control = control
+run_closed_loop(load_scenario("mini"), duration_s=120.0)
+print(json.dumps([[a.hex(), b, k] for a, b, k in out]))
+"""
+
+
+@pytest.mark.parametrize("disable_jit", ["0", "1"])
+def test_the_same_source_runs_as_python(disable_jit: str) -> None:
+    """``NUMBA_DISABLE_JIT=1`` (debugging) runs the planners and the control step as Python:
+    a ``mini`` closed loop gives the compiled run's efforts (bit for bit) and modes, the
+    "kernel" (as Python) taking the same steps."""
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, NUMBA_DISABLE_JIT=disable_jit,
+               PYTHONPATH=os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]))
+    r = subprocess.run([sys.executable, "-c", _MINI_LOOP], env=env, capture_output=True,
+                       text=True, timeout=600, cwd=root)
+    assert r.returncode == 0, r.stderr[-2000:]
+    got = json.loads(r.stdout.strip().splitlines()[-1])
+    out: list[Any] = []
+    orig = OnboardAto.control
+
+    def control(self: OnboardAto, s: dict[str, Any]) -> Any:
+        res = orig(self, s)
+        out.append([float(res[0]).hex(), res[1], self.kernel_steps])
+        return res
+
+    OnboardAto.control = control  # type: ignore[method-assign]
+    try:
+        run_closed_loop(load_scenario("mini"), duration_s=120.0)
+    finally:
+        OnboardAto.control = orig  # type: ignore[method-assign]
+    assert got == out
+    assert max(k for _, _, k in out) > 100

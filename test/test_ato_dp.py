@@ -158,6 +158,10 @@ def _hilly() -> RunModel:
     return RunModel(TAIPEI_MRT_6CAR, track, 0.0, 1600.0)
 
 
+RTOL = 1e-9
+"""Round-off between the recorded numpy path and the compiled one (as the plant's goldens)."""
+
+
 def _close(a: np.ndarray, b: np.ndarray, rtol: float = 1e-12, atol: float = 1e-9) -> None:
     """Same finite / infinite pattern, finite entries equal to round-off."""
     a, b = np.asarray(a), np.asarray(b)
@@ -191,6 +195,12 @@ def test_compiled_simulation_equals_recorded_numpy() -> None:
 def test_compiled_passes_equal_recorded_numpy() -> None:
     """Backward / forward passes (batched multipliers, per-candidate policies and start
     stages) and the whole solve equal the former numpy path's recorded output.
+
+    Discrete results (controls) exactly, figures to round-off (relative ``RTOL``): the
+    tables now come from the compiled strategy step, whose coasting entries differ from the
+    former numpy step's in the last bits (it added 1e-12 to the log of every element of a
+    batch holding one steep-descent element, and numpy's vectorised log / arctan differ
+    from libm's by an ulp): up to 2.4e-11 m^2/s^2 in e, 1.4e-11 relative in the passes.
     """
     import metro_atc.core.ato.dp as dp
     ref = np.load(REF_NPZ)
@@ -199,21 +209,21 @@ def test_compiled_passes_equal_recorded_numpy() -> None:
     mus = ref["mus"]
     j_all = dp._backward(tab, mus)
     step = int(ref["j_stage_step"])
-    np.testing.assert_allclose(j_all[:, ::step], ref["j_sub"], rtol=1e-12, atol=0.0)
+    np.testing.assert_allclose(j_all[:, ::step], ref["j_sub"], rtol=RTOL, atol=0.0)
     fw = dp._forward(tab, mus, j_all, ref["fw_policy"].astype(np.int64))
     fm = dp._forward_multi(tab, mus, j_all, ref["fm_pol"].astype(np.int64), ref["fm_e0"],
                            ref["fm_k0"].astype(np.int64))
     for f, key in ((fw, "fw"), (fm, "fm")):
         assert np.array_equal(f.controls, ref[key + "_controls"])
-        _close(f.energy_j, ref[key + "_e"], atol=0.0)
-        _close(f.time_s, ref[key + "_t"], atol=0.0)
-    np.testing.assert_allclose(fw.e_path, ref["fw_path"], rtol=1e-12)
+        _close(f.energy_j, ref[key + "_e"], rtol=RTOL, atol=0.0)
+        _close(f.time_s, ref[key + "_t"], rtol=RTOL, atol=0.0)
+    np.testing.assert_allclose(fw.e_path, ref["fw_path"], rtol=RTOL)
     short = RunModel(run.train, run.track, 0.0, 900.0)      # climb and descent
     res = solve_dp(short, 80.0)
     assert res.feasible and bool(ref["solve_feasible"])
     assert np.array_equal(res.controls, ref["solve_controls"])
     assert res.levels is not None
-    np.testing.assert_allclose(res.levels, ref["solve_levels"], rtol=1e-12)
-    assert res.energy_j == pytest.approx(float(ref["solve_e"]), rel=1e-12)
-    assert res.time_s == pytest.approx(float(ref["solve_t"]), rel=1e-12)
-    np.testing.assert_allclose(res.v_profile, ref["solve_v"], rtol=1e-12)
+    np.testing.assert_allclose(res.levels, ref["solve_levels"], rtol=RTOL)
+    assert res.energy_j == pytest.approx(float(ref["solve_e"]), rel=RTOL)
+    assert res.time_s == pytest.approx(float(ref["solve_t"]), rel=RTOL)
+    np.testing.assert_allclose(res.v_profile, ref["solve_v"], rtol=RTOL)

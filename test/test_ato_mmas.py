@@ -379,7 +379,9 @@ def test_tour_kernel_pruning_is_exact() -> None:
 
 def test_colony_equals_the_recorded_numpy_colony() -> None:
     """The colony (compiled construction) runs the same as the former numpy construction
-    did: recorded best-so-far history, modes and codes.
+    did: recorded modes and codes exactly, best-so-far history to round-off (the tables'
+    coasting entries come from the compiled strategy step since its numpy twin went: the
+    last bits differ, 1e-13 relative in the history; relative 1e-9 as the plant's goldens).
     """
     ref = np.load(MMAS_REF_NPZ)
     run = _graded_run()
@@ -388,7 +390,7 @@ def test_colony_equals_the_recorded_numpy_colony() -> None:
                                   np.full((1, 12), tab.n_codes - 1, dtype=np.int64))[0][0])
     par = MmasParams(seed=2, n_iterations=15, local_search=False)
     a = solve_mmas(tab, t_fast * 1.15, par)
-    assert np.array_equal(np.asarray(a.history), ref["colony_history"])
+    np.testing.assert_allclose(np.asarray(a.history), ref["colony_history"], rtol=1e-9)
     assert np.array_equal(a.modes, ref["colony_modes"])
     assert np.array_equal(a.codes, ref["colony_codes"])
 

@@ -3,7 +3,8 @@
 :func:`metro_atc.core.ato.coasting.simulate_switching` runs ECTP's and ACTP's strategies
 through :mod:`metro_atc.core.ato.switching_kernel`.  ``test/data/ato_switching_golden.npz``
 holds the outputs of the numpy reference it had (one array step per distance step, the
-vectorised :func:`metro_atc.core.ato.strategy.strategy_step`) for the inputs below, taken
+vectorised numpy strategy step since replaced by
+:func:`metro_atc.core.ato.step_kernel.strategy_step`) for the inputs below, taken
 before that reference was dropped; the kernel repeats its operations in the same order, so
 the tolerance is float round-off (relative 1e-9, as the plant's golden traces), stall flags
 identical.  The inputs are regenerated here (the same seeds): a changed generator fails too.

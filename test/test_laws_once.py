@@ -8,9 +8,8 @@ power limit ``max_regen_power_w / v``, Roeckl's ``650.0 /``.  The patterns match
 copies the package had before the laws were gathered (``test_patterns_find_the_old_copies``
 keeps them able to fail).
 
-The ATO and its planners (``core/ato``) still compute some laws inline: they are listed in
-:data:`PENDING` and move to :mod:`metro_atc.core.laws` with the ATO's own change (which
-then adds its modules to :data:`USERS` and empties its entries here).
+No module computes a law inline (:data:`PENDING` is empty; a module that must, for a
+reason stated there, would be listed with it).
 """
 
 from __future__ import annotations
@@ -50,7 +49,8 @@ PATTERNS: dict[str, list[str]] = {
 """Regular expressions of each law's inline shape (on code without comments/strings)."""
 
 USERS: dict[str, list[str]] = {
-    "traction_accel": ["core/line/vehicle.py"],
+    "traction_accel": ["core/line/vehicle.py", "core/ato/oracle.py", "core/ato/step_kernel.py",
+                       "core/ato/tour_kernel.py", "core/ato/control_kernel.py"],
     "traction_a2": ["core/line/vehicle.py"],
     "traction_a3": ["core/line/vehicle.py"],
     "traction_force": ["core/line/vehicle.py"],
@@ -59,15 +59,18 @@ USERS: dict[str, list[str]] = {
     "load_weighed_decel": ["core/plant/kernel.py", "core/line/vehicle.py"],
     "command_effort": ["core/line/vehicle.py"],
     "davis_resistance": ["core/line/vehicle.py", "core/plant/kernel_step.py",
+                         "core/ato/step_kernel.py", "core/ato/control_kernel.py",
                          "core/brake/metro_car.py", "core/brake/train_watch.py"],
     "davis_odd": ["core/brake/metro_kernel.py", "core/brake/metro_car.py"],
     "grade_force": ["core/line/vehicle.py"],
+    "grade_sine": ["core/line/geometry.py"],
     "curve_resistance_per_kg": ["core/line/track.py"],
     "net_accel": ["core/line/vehicle.py"],
     "davis_rk4_step": ["core/plant/kernel_step.py"],
+    "step_force": ["core/ato/step_kernel.py", "core/ato/tour_kernel.py"],
     "stop_distance_in_step": ["core/plant/kernel_step.py"],
     "brake_demand_force": ["core/plant/kernel.py"],
-    "electric_brake_force_max": ["core/plant/tables.py"],
+    "electric_brake_force_max": ["core/plant/tables.py", "bench/ttobench.py"],
     "electric_brake_share": ["core/plant/kernel.py"],
     "pad_torque": ["core/plant/braking.py", "core/brake/metro_car.py",
                    "core/brake/paper_vehicle.py"],
@@ -75,45 +78,27 @@ USERS: dict[str, list[str]] = {
     "axle_load": ["core/plant/kernel.py"],
     "adhesion_limit": ["core/plant/kernel.py"],
     "burckhardt_mu": ["core/line/adhesion.py", "core/brake/metro_car.py"],
-    "ebi_coef": ["core/plant/kernel.py", "core/line/track.py"],
-    "ebi_speed_from": ["core/plant/kernel.py", "core/plant/kernel_step.py"],
+    "ebi_coef": ["core/plant/kernel.py", "core/line/track.py", "core/ato/onboard.py"],
+    "ebi_speed_from": ["core/plant/kernel.py", "core/plant/kernel_step.py",
+                       "core/ato/onboard.py", "core/ato/control_kernel_step.py"],
     "ebi_speed": ["core/line/track.py"],
     "stopping_distance": ["core/line/track.py"],
     "response_distance": ["core/line/atp_constants.py"],
-    "braking_speed": ["core/plant/kernel.py", "core/plant/kernel_step.py"],
+    "braking_speed": ["core/plant/kernel.py", "core/plant/kernel_step.py",
+                      "core/ato/onboard.py", "core/ato/control_kernel_step.py"],
     "downhill_accel": ["core/line/atp_constants.py"],
     "guaranteed_decel_on_grade": ["core/line/atp_constants.py"],
     "response_accel": ["core/line/atp_constants.py"],
     "adhesion_guaranteed_decel": ["core/line/guarantee.py"],
 }
-"""Modules (under ``metro_atc/``) that must call each law (directly or its ``*_array``).
-
-The ATO's change adds ``core/ato/step_kernel.py``, ``core/ato/control_kernel.py``,
-``core/ato/strategy.py``, ``core/ato/oracle.py`` (traction, Davis) and
-``core/ato/onboard.py`` (ATP curve) here."""
-INTERNAL = {"fmin", "fmax", "grade_sine", "brake_force_max", "on_array", "njit", "_compile",
-            "_plain", "__getattr__"}
+"""Modules (under ``metro_atc/``) that must call each law (directly or its ``*_array``)."""
+INTERNAL = {"fmin", "fmax", "brake_force_max", "on_array", "njit", "_compile", "_plain",
+            "__getattr__", "_law_at", "_elementwise", "_compile_arrays"}
 """Helpers and laws used by the other laws (no module calls them directly), and the
 module's lazy-compilation machinery."""
 
-PENDING: dict[str, set[str]] = {
-    # the planners' traction energy M dE/ds + A + B v + C v^2 + F_g summed left to right
-    # (the law groups A + B v + C v^2 first: other last bits of the plan energies)
-    "core/ato/step_kernel.py": {"davis"},
-    "core/ato/strategy.py": {"davis"},
-    "core/ato/tour_kernel.py": {"davis"},
-    # the tangents of the traction branches (each branch at any speed, no 1e-12 guard)
-    "core/ato/oracle.py": {"traction"},
-    # the drive envelope's running-time estimate writes Davis as ((F - A) - B v) - C v^2:
-    # calling the law moves the timetable's running times by round-off
-    "core/line/service.py": {"davis"},
-    # the cell grade table averages sin(atan(i)) with numpy, whose sin/arctan differ from
-    # libm's by an ulp on some grades: calling the law moves the plant's grade forces
-    "core/line/geometry.py": {"grade"},
-    # TTOBench's energy: power-limited electric brake without the low-speed fade
-    "bench/ttobench.py": {"electric_brake"},
-}
-"""Modules that still compute a law inline (module -> law families), each with its reason."""
+PENDING: dict[str, set[str]] = {}
+"""Modules that compute a law inline (module -> law families), each with its reason: none."""
 
 
 def _code(path: Path) -> str:
@@ -183,13 +168,12 @@ def test_users_call_the_law(law: str) -> None:
 
 
 def test_every_law_has_a_user() -> None:
-    """Every function of laws.py is a law with a user, an array form, or an internal helper."""
+    """Every function of laws.py is a law with a user or an internal helper (no array copy)."""
     tree = ast.parse((PKG / "core" / "laws.py").read_text())
     defs = {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}
-    scalars = {d for d in defs if not d.endswith("_array")}
-    assert scalars - INTERNAL == set(USERS), sorted((scalars - INTERNAL) ^ set(USERS))
-    for d in defs - scalars - INTERNAL:
-        assert d[:-len("_array")] in scalars, d
+    assert not {d for d in defs - INTERNAL if d.endswith("_array")}, "see laws.ARRAY_LAWS"
+    assert defs - INTERNAL == set(USERS), sorted((defs - INTERNAL) ^ set(USERS))
+    assert set(laws.ARRAY_LAWS) <= defs
 
 
 def test_patterns_find_the_old_copies() -> None:

@@ -4,8 +4,8 @@ Two checks over the source of ``metro_atc/core/ato``: the kernels and planners r
 the laws' functions (by AST: ``laws.<name>`` or ``from metro_atc.core.laws import <name>``),
 and no module there writes a law inline (the Davis sum ``A + B v ...``, the constant-power
 traction branch ``a3 / (...)``, the gravity constant), comments and strings left out.  The
-few inline expressions that remain are listed with the reason; the list must match exactly,
-so a new copy fails and a removed one asks for the list to shrink.
+list of inline expressions that remain (:data:`ALLOWED`, with the reason) is empty and must
+match exactly, so a new copy fails.
 """
 
 from __future__ import annotations
@@ -25,12 +25,12 @@ from metro_atc.core.ato import control_kernel
 ATO_DIR = Path(__file__).resolve().parents[1] / "metro_atc" / "core" / "ato"
 
 USES = {
-    "step_kernel.py": {"traction_accel", "davis_resistance"},
-    "tour_kernel.py": {"traction_accel", "davis_resistance"},
+    "step_kernel.py": {"traction_accel", "davis_resistance", "step_force"},
+    "tour_kernel.py": {"traction_accel", "davis_resistance", "step_force"},
     "control_kernel.py": {"davis_resistance", "traction_accel"},
     "control_kernel_step.py": {"braking_speed", "ebi_speed_from", "guaranteed_decel_on_grade"},
     "onboard.py": {"braking_speed", "ebi_speed_from", "ebi_coef"},
-    "strategy.py": {"davis_resistance_array", "on_array"},
+    "oracle.py": {"traction_accel_array", "on_array"},
     "planner.py": {"G_MPS2"},
     "sections.py": {"G_MPS2"},
 }
@@ -46,16 +46,7 @@ PATTERNS = {
 }
 """Inline forms of the laws (on the code's tokens joined by single spaces)."""
 
-ALLOWED = {
-    # the tangents of the traction branches (each branch at any speed, no 1e-12 guard)
-    ("oracle.py", "traction"): 1,
-    # the traction energy's force M dE/ds + A + B v + C v^2 + F_g: summed left to right,
-    # laws.davis_resistance would group A + B v + C v^2 first (other last bits of the energy
-    # the plans compare)
-    ("step_kernel.py", "davis"): 1,
-    ("strategy.py", "davis"): 1,
-    ("tour_kernel.py", "davis"): 1,
-}
+ALLOWED: dict[tuple[str, str], int] = {}
 """(module, law) -> inline occurrences that remain (with the reason)."""
 
 

@@ -38,6 +38,7 @@ from metro_atc.core.ato.envelope import RunModel, profile_energy_time
 from metro_atc.core.ato.mmas import MmasParams, solve_mmas
 from metro_atc.core.ato.oracle import solve_oracle
 from metro_atc.core.ato.sections import build_section_tables
+from metro_atc.core import laws
 from metro_atc.core.bridge import ato_limits_for, track_for, train_for
 from metro_atc.core.line.scenario import Scenario, parse_scenario
 from metro_atc.core.line.vehicle import TrainParams
@@ -46,6 +47,8 @@ from metro_atc.ttobench.importer import data_dir, import_ttobench
 
 FloatArray = NDArray[np.float64]
 J_PER_KWH = 3.6e6
+REGEN_MIN_SPEED_MPS = 0.1
+"""Speed floor of the electric brake's power limit in TTOBench's energy [m/s]."""
 TRACK = "CN_Songjiazhuang_Yizhuang"
 TRAIN = "CN_Beijing_Subway"
 FACTORS = (1.05, 1.10, 1.20)
@@ -77,13 +80,18 @@ def substation_kwh(run: RunModel, s: FloatArray, v: FloatArray) -> tuple[float, 
     """(traction at the wheel, net substation energy) [kWh] of a profile (s [m], v [m/s]).
 
     Substation = traction / eta_traction - eta_regen x electric braking work, the electric
-    brake limited to min(service-brake force m b, regen power / v) (line receptivity 1).
+    brake limited to min(service-brake force m b, regen power / v) (line receptivity 1),
+    without fade (:func:`metro_atc.core.laws.electric_brake_force_max` with its fade speed at
+    the speed floor ``REGEN_MIN_SPEED_MPS``).
     """
     p: TrainParams = run.train
     e_tr, _, force = profile_energy_time(run, s, v)
     ds = np.diff(s)
-    vm = np.maximum(0.5 * (v[:-1] + v[1:]), 0.1)
-    f_el = np.minimum(p.max_service_brake_mps2 * p.mass_kg, p.max_regen_power_w / vm)
+    vm = np.maximum(0.5 * (v[:-1] + v[1:]), REGEN_MIN_SPEED_MPS)
+    # no fade: the law's fade factor min(v / v_fade, 1) is 1 from its fade speed up
+    f_el = laws.electric_brake_force_max_array(np.ascontiguousarray(vm), p.mass_kg,
+                                               p.max_service_brake_mps2, p.max_regen_power_w,
+                                               REGEN_MIN_SPEED_MPS)
     regen = float(np.sum(np.minimum(np.maximum(-force, 0.0), f_el) * ds))
     sub = e_tr / p.traction_efficiency - p.regen_efficiency * regen
     return e_tr / J_PER_KWH, sub / J_PER_KWH

@@ -9,7 +9,8 @@ proofs are in ``test/test_laws.py``, the one-source check in ``test/test_laws_on
 Squares are products ``x * x`` (correctly rounded; C ``pow(x, 2)``, which CPython's
 ``x ** 2`` calls, is one ulp off for about 1 value in 1 200).  Transcendentals are libm's
 (``math.exp``, ``math.sin``, ``math.atan``); numpy's vectorised ones differ from them by an
-ulp on some arguments, so array callers go through the ``*_array`` loops below.
+ulp on some arguments, so array callers go through the ``*_array`` forms (one loop for
+every law, :data:`ARRAY_LAWS`).
 ``NUMBA_DISABLE_JIT=1`` runs the same source as plain Python (debugging).
 
 The laws are compiled at their first use, not at import: the first attribute access of a
@@ -267,6 +268,22 @@ def net_accel(v: float, effort_n: float, f_grade: float, a: float, b: float, c: 
     return f / meff
 
 
+@njit(cache=True, inline="always")
+def step_force(meff: float, e0: float, e1: float, h: float, v: float, a: float, b: float,
+               c: float, f_grade: float) -> float:
+    """Mean force [N] the train needs over a distance step: the planners' energy integrand.
+
+    ``M_eff (e1 - e0) / h + A + B v + C v^2 + F_grade`` summed left to right: the inertial
+    force of the change of kinetic energy per unit mass e = v^2/2 [m^2/s^2] over h [m],
+    the Davis resistance (ACTP n.d., eq. 1-2) at the step's mean speed v >= 0 [m/s] and the
+    grade force [N]; its positive part times h is the step's traction energy (Ke 2010,
+    eq. 6: the sum of the sections' energies the ant system minimises).  The planners'
+    tables and tours are built on this order (:func:`davis_resistance` grouped first would
+    move their last bits).
+    """
+    return meff * (e1 - e0) / h + a + b * v + c * v * v + f_grade
+
+
 @njit(cache=True)
 def davis_rk4_step(v: float, q: float, cb: float, cc: float,
                    h: float) -> tuple[float, float, float, float]:
@@ -480,98 +497,63 @@ def adhesion_guaranteed_decel(mu_slide: float, tare_kg: float, m_rot_kg: float) 
 # ---------------------------------------------------------------------------- arrays
 
 
-@njit(cache=True)
-def traction_accel_array(v: FloatArray, a1: float, v1: float, v2: float, a2: float,
-                         a3: float, b2: float, b3: float) -> FloatArray:
-    """:func:`traction_accel` of each speed of a 1-d array [m/s] -> [m/s^2]."""
-    out = np.empty(v.shape[0])
-    for i in range(v.shape[0]):
-        out[i] = traction_accel(v[i], a1, v1, v2, a2, a3, b2, b3)
-    return out
+ARRAY_LAWS = ("traction_accel", "davis_resistance", "davis_odd", "electric_brake_force_max",
+              "burckhardt_mu", "curve_resistance_per_kg", "stopping_distance", "grade_force",
+              "net_accel", "grade_sine")
+"""Laws with an array form ``<law>_array(x, *args)``: the law of each element of the 1-d
+float64 array ``x``; an argument that is an array of x's length is taken element by element,
+a float as it is (:func:`_elementwise`, reached as ``laws.<law>_array``)."""
 
 
-@njit(cache=True)
-def davis_resistance_array(v: FloatArray, a: float, b: float, c: float) -> FloatArray:
-    """:func:`davis_resistance` of each speed of a 1-d array [m/s] -> [N]."""
-    out = np.empty(v.shape[0])
-    for i in range(v.shape[0]):
-        out[i] = davis_resistance(v[i], a, b, c)
-    return out
+_ARRAYS_READY: list[bool] = []
+"""Not empty once :func:`_compile_arrays` registered the compiled :func:`_law_at`."""
 
 
-@njit(cache=True)
-def davis_odd_array(v: FloatArray, a: float, b: float, c: float) -> FloatArray:
-    """:func:`davis_odd` of each speed of a 1-d array [m/s]."""
-    out = np.empty(v.shape[0])
-    for i in range(v.shape[0]):
-        out[i] = davis_odd(v[i], a, b, c)
-    return out
+def _law_at(name: str, i: int, x: FloatArray, args: tuple[Any, ...]) -> float:
+    """The law ``name`` at element i of x and of the array arguments (plain Python).
+
+    Compiled code calls the implementation :func:`_compile_arrays` registers instead (the
+    law inlined, the argument list written for the arguments' types at compile time).
+    """
+    law = globals()[name]
+    return law(x[i], *[a[i] if isinstance(a, np.ndarray) else a for a in args])  # type: ignore
 
 
-@njit(cache=True)
-def electric_brake_force_max_array(v: FloatArray, mass: float, brake_decel: float,
-                                   power_max_w: float, fade_speed_mps: float) -> FloatArray:
-    """:func:`electric_brake_force_max` of each speed of a 1-d array [m/s] -> [N]."""
-    out = np.empty(v.shape[0])
-    for i in range(v.shape[0]):
-        out[i] = electric_brake_force_max(v[i], mass, brake_decel, power_max_w,
-                                          fade_speed_mps)
-    return out
+def _elementwise(name: str) -> Callable[..., FloatArray]:
+    """``<name>_array``: the one loop of every array form, compiled for the law ``name``.
+
+    The loop's only free variable is the law's name (a string constant to numba), so
+    numba's on-disk cache keys each law's loop by it and reloads it in the next process.
+    """
+    from numba import njit as numba_njit
+
+    def loop(x: FloatArray, *args: Any) -> FloatArray:
+        out = np.empty(x.shape[0])
+        for i in range(x.shape[0]):
+            out[i] = _law_at(name, i, x, args)
+        return out
+    loop.__name__ = loop.__qualname__ = f"{name}_array"
+    loop.__doc__ = f":func:`{name}` of each element of a 1-d array (:data:`ARRAY_LAWS`)."
+    return numba_njit(cache=True)(loop)  # type: ignore[no-any-return]
 
 
-@njit(cache=True)
-def burckhardt_mu_array(s: FloatArray, c1: float, c2: float, c3: float) -> FloatArray:
-    """:func:`burckhardt_mu` of each slip of a 1-d array [-] -> [-]."""
-    out = np.empty(s.shape[0])
-    for i in range(s.shape[0]):
-        out[i] = burckhardt_mu(s[i], c1, c2, c3)
-    return out
+def _compile_arrays() -> None:
+    """Register the compiled :func:`_law_at` (once; the laws compiled first)."""
+    if _ARRAYS_READY:
+        return
+    from numba import types as nbt
+    from numba.extending import overload
 
-
-@njit(cache=True)
-def curve_resistance_per_kg_array(r: FloatArray) -> FloatArray:
-    """:func:`curve_resistance_per_kg` of each radius of a 1-d array [m] -> [N/kg]."""
-    out = np.empty(r.shape[0])
-    for i in range(r.shape[0]):
-        out[i] = curve_resistance_per_kg(r[i])
-    return out
-
-
-@njit(cache=True)
-def stopping_distance_array(v: FloatArray, a_w: float, t_r: float, b_g: float) -> FloatArray:
-    """:func:`stopping_distance` of each speed of a 1-d array [m/s] -> [m]."""
-    out = np.empty(v.shape[0])
-    for i in range(v.shape[0]):
-        out[i] = stopping_distance(v[i], a_w, t_r, b_g)
-    return out
-
-
-@njit(cache=True)
-def grade_force_array(grade: FloatArray, mass: float) -> FloatArray:
-    """:func:`grade_force` of each grade of a 1-d array [-] -> [N]."""
-    out = np.empty(grade.shape[0])
-    for i in range(grade.shape[0]):
-        out[i] = grade_force(grade[i], mass)
-    return out
-
-
-@njit(cache=True)
-def net_accel_array(v: FloatArray, effort_n: FloatArray, f_grade: FloatArray, a: float,
-                    b: float, c: float, meff: float) -> FloatArray:
-    """:func:`net_accel` of equal-length 1-d arrays (speed, effort, grade force)."""
-    out = np.empty(v.shape[0])
-    for i in range(v.shape[0]):
-        out[i] = net_accel(v[i], effort_n[i], f_grade[i], a, b, c, meff)
-    return out
-
-
-@njit(cache=True)
-def grade_sine_array(grade: FloatArray) -> FloatArray:
-    """:func:`grade_sine` of each grade of a 1-d array [-] -> [-]."""
-    out = np.empty(grade.shape[0])
-    for i in range(grade.shape[0]):
-        out[i] = grade_sine(grade[i])
-    return out
+    @overload(_law_at)  # type: ignore[misc]
+    def _law_at_impl(name, i, x, args):  # type: ignore[no-untyped-def]
+        if not isinstance(name, nbt.StringLiteral):
+            return None
+        terms = "".join(f", args[{k}][i]" if isinstance(a, nbt.Array) else f", args[{k}]"
+                        for k, a in enumerate(args))
+        ns = {"law": globals()[name.literal_value]}
+        exec(f"def impl(name, i, x, args):\n    return law(x[i]{terms})\n", ns)
+        return ns["impl"]
+    _ARRAYS_READY.append(True)
 
 
 def on_array(fn, x, *args):  # type: ignore[no-untyped-def]
@@ -590,10 +572,20 @@ def _compile() -> None:
 
 
 def __getattr__(name: str) -> Any:
-    """The compiled law ``name`` (the first access compiles them all: module docstring)."""
+    """The compiled law ``name`` (the first access compiles them all: module docstring).
+
+    ``<law>_array`` (:data:`ARRAY_LAWS`): its loop, built at its first access.
+    """
     if name in _LAWS:
         _compile()
         return globals()[name]
+    if name.endswith("_array") and name[:-len("_array")] in ARRAY_LAWS:
+        if "traction_accel" not in globals():
+            _compile()
+        _compile_arrays()
+        fn = _elementwise(name[:-len("_array")])
+        globals()[name] = fn
+        return fn
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 

@@ -7,17 +7,13 @@ needs them (~20 s of CPU in the simulator and each ATO process: `make demo` on a
 clone paid it).  A short ROS-free closed loop of the ``mini`` scenario with the brake
 diagnosis on calls the plant, ATO and brake kernels with the argument types a graph run
 passes (one type signature each; the test checks that a ``taipei_blue`` run then compiles
-nothing new; its ATOs run the compiled control step of :mod:`.ato.control_kernel_step`,
-whatever ``METRO_ATC_ATO_KERNEL`` says during the install).  A short
-:meth:`LineSim.run_driven` of the same scenario compiles the
-multi-step kernel of ``bench perf`` and the headless runs (:mod:`.plant.kernel_run`).
+nothing new; its ATOs run the compiled control step of :mod:`.ato.control_kernel_step`).
+A short :meth:`LineSim.run_driven` of the same scenario compiles the multi-step kernel of
+``bench perf`` and the headless runs (:mod:`.plant.kernel_run`).
 """
 
 from __future__ import annotations
 
-import os
-
-from metro_atc.core.ato.control_kernel_pack import KERNEL_ENV
 from metro_atc.core.brake.metro_car import precompile_metro_kernels
 from metro_atc.core.closed_loop import run_closed_loop
 from metro_atc.core.line.scenario import load_scenario
@@ -35,14 +31,6 @@ def precompile_graph_kernels() -> int:
     Fewer than 3 brake kernel steps means the brake observer ran its numpy path.
     """
     steps = precompile_metro_kernels()
-    old = os.environ.get(KERNEL_ENV)
-    os.environ[KERNEL_ENV] = "auto"  # the compiled ATO step, as a graph run takes it
-    try:
-        run_closed_loop(load_scenario(WARMUP_SCENARIO), duration_s=WARMUP_S, brake=True)
-    finally:
-        if old is None:
-            del os.environ[KERNEL_ENV]
-        else:
-            os.environ[KERNEL_ENV] = old
+    run_closed_loop(load_scenario(WARMUP_SCENARIO), duration_s=WARMUP_S, brake=True)
     LineSim(load_scenario(WARMUP_SCENARIO)).run_driven(WARMUP_S)
     return steps

@@ -6,7 +6,7 @@ from the coasting point ``y_c`` (closed form, eq. 7-8) until the braking curve o
 (the regenerating point, eq. 12), braking to the stop.  The running time is the sum of the
 mode durations (eq. 13): traction, cruise and braking by the trapezoid rule of the
 distance-step simulation, coasting by the closed-form time of eq. 8
-(:func:`metro_atc.core.ato.strategy.coast_step`).
+(:func:`metro_atc.core.ato.step_kernel.coast_step`).
 
 Profile systems (ACTP n.d., Sec. 1):
 

@@ -2,11 +2,12 @@
 
 :func:`control_step` is :meth:`metro_atc.core.ato.onboard.OnboardAto.control` after its
 planning part (the caps of ``_cap_at`` at the preview position, ``_speed_dip``,
-``_authority_speed``, :meth:`AtoCore.command_ex` with the fuzzy tracker, its feedforward and
-bounds, and ``guard``) for the common case: a plan, the fuzzy tracker on a scalar state, no
-TSR known, the static SBI table, a fresh state with a later time stamp, the train not past
-its stopping point (graph speed).  Every operation is written in the Python path's
-order with its builtins' semantics (``min``/``max`` as CPython picks, :func:`pmin` /
+``_authority_speed``, :meth:`AtoCore.command_ex` with its tracker, feedforward and bounds,
+and ``guard``) for the common case: a plan, the incremental fuzzy or the PI tracker on a
+scalar state, the TSRs known (their caps and holds), the static SBI table, a fresh state
+with a later time stamp,
+the train not past its stopping point (graph speed).  Every operation is written in the
+Python path's order with its builtins' semantics (``min``/``max`` as CPython picks, :func:`pmin` /
 :func:`pmax`; ``x ** 2`` and ``x ** 3`` as the C ``pow`` CPython calls, the exponent read from
 the constants so that LLVM cannot fold it into products; ``int()`` truncation of finite
 values only).  Compiled with ``cache=True`` and numba's numpy error model (IEEE results
@@ -45,9 +46,12 @@ in a thousand; the alias keeps the call.  Without it (not glibc) ``pow`` is call
 
 
 def _cpow_intrinsic() -> Any:
-    """:func:`cpow`: a numba intrinsic calling the C ``pow`` (plain Python without numba)."""
-    from metro_atc.core.kernel_choice import numba_available
-    if not numba_available():
+    """:func:`cpow`: a numba intrinsic calling the C ``pow``.
+
+    ``x ** y`` in Python when ``NUMBA_DISABLE_JIT=1`` runs the kernels as Python.
+    """
+    from numba.core import config
+    if config.DISABLE_JIT:  # type: ignore[attr-defined]
         return lambda x, y: x ** y
     from llvmlite import ir
     from numba import types
@@ -74,22 +78,28 @@ CONSTANT_FIELDS = (
     "a1", "v1", "v2", "a2", "a3", "b2", "b3", "brake_service", "length",
     "w_a1", "w_v1", "w_v2", "w_a2", "w_a3", "w_b2", "w_b3",
     "g_down", "sbi_offset", "c0a", "bt", "btt", "t_r", "two_b", "t_sbi", "grid_x0",
-    "grid_dx",
+    "grid_dx", "tol", "resp_dist", "sbi_dist", "b_g",
     "period", "swing", "du_max", "brake_share", "approach_jerk", "feedforward", "e_scale",
-    "d_scale", "gain")
+    "d_scale", "gain", "pi", "kp", "ki", "lead", "margin", "accel_max")
 """Constants record (:data:`CONSTANTS`), every field float64.
 
 Train: mass, effective mass [kg], Davis a [N], b [N s/m], c [N s^2/m^2], the traction
 curve (a1 [m/s^2], v1, v2 [m/s], a2 [m^2/s^3], a3 [m^3/s^4], b2, b3 [m/s]; Lin 2013,
 eq. 3-5), the service brake [m/s^2] and the length [m]; ``w_*``: the traction curve of the
 ATP's train (worst-case response); ATP: g_down [m/s^2], SBI offset [m/s], (b_g t_r)^2,
-b_g t_r, b_g t_r t_r, t_r [s], 2 b_g, t_sbi [s], grid x0 [m], grid dx [m]; controller:
+b_g t_r, b_g t_r t_r, t_r [s], 2 b_g, t_sbi [s], grid x0 [m], grid dx [m], the ceiling
+tolerance [m/s], the response and SBI look-ahead distances [m], b_g [m/s^2]; controller:
 period [s], swing [s], effort rate [1/s], brake share [-], approach jerk [m/s^3],
-feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-].
+feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-], the tracker (0: the
+incremental fuzzy controller, 1: the PI controller), the PI gains kp [1/(m/s)], ki [1/m],
+the restriction lead [m], the speed margin below a TSR [m/s] and the planning
+acceleration limit [m/s^2].
 """
-CONSTANTS = np.dtype([(f, np.float64) for f in CONSTANT_FIELDS])
+CONSTANTS = np.dtype((np.record, [(f, np.float64) for f in CONSTANT_FIELDS]))
 """The constants the kernel reads, by name: it takes a float vector and reads it through
-this record view (``c.view(CONSTANTS)[0]``), which costs nothing in compiled code."""
+this record view (``c.view(CONSTANTS)[0]``), which costs nothing in compiled code.  A
+``np.record`` dtype (as :data:`PLAN` and :data:`STATE`): the element keeps attribute access
+when ``NUMBA_DISABLE_JIT=1`` runs the kernel as Python."""
 
 PLAN_FIELDS = ("x0", "direction", "length", "pss_start", "tail_brake", "ref_length",
                "departure_speed", "creep_start", "brake_start", "creep_v2", "two_decel",
@@ -100,7 +110,7 @@ start [m], brake start [m], creep speed^2, 2 decel, 2 brake, creep speed [m/s]; 
 lengths.  The plan vector holds it, then ref s, ref v^2, grade breakpoints, grade-force
 integral, envelope s, ceiling energy and the planned-deceleration table (``n_*`` long
 each)."""
-PLAN = np.dtype([(f, np.float64) for f in PLAN_FIELDS])
+PLAN = np.dtype((np.record, [(f, np.float64) for f in PLAN_FIELDS]))
 """The plan header by name: the plan vector's first :data:`N_PH` floats, viewed once per
 step as this record (``ph``) and handed with the vector (``p``) to the functions below."""
 N_PH = len(PLAN_FIELDS)
@@ -112,9 +122,10 @@ STATE_FIELDS = CORE_STATE_FIELDS + ("has_ma", "ma_t", "ma", "v_ma", "peak", "nex
                                     "held")
 """Per-train state record (:data:`STATE`; flags as 0/1): the last step's time [s], effort,
 feedforward, arrival flag, time stood still [s], the tracker's last error [m/s] and
-integrated effort, the last movement authority's time [s] and end [m], the authority speed
-[m/s], the speed peak [m/s], the next stop point [m], the held speed [m/s]."""
-STATE = np.dtype([(f, np.float64) for f in STATE_FIELDS])
+integrated effort (the PI controller's: its last error and its integral [m]), the last
+movement authority's time [s] and end [m], the authority speed [m/s], the speed peak
+[m/s], the next stop point [m], the held speed [m/s]."""
+STATE = np.dtype((np.record, [(f, np.float64) for f in STATE_FIELDS]))
 """The per-train state the kernel reads and updates, by name (a float vector viewed as this
 record in compiled code; numpy's record fields are slow from Python, ~1 us each)."""
 STATE_INDEX = {f: i for i, f in enumerate(STATE_FIELDS)}

@@ -1,41 +1,31 @@
-"""Selection and packing of the compiled ATO control step (:mod:`.control_kernel_step`).
+"""Loading and packing of the compiled ATO control step (:mod:`.control_kernel_step`).
 
-``METRO_ATC_ATO_KERNEL=auto|numba|python`` (or the ``kernel`` argument of
-:class:`metro_atc.core.ato.onboard.OnboardAto`): ``auto`` takes the numba kernel when numba
-is importable, ``python`` keeps the Python path for every step.  The vectors the kernel reads
-are packed here from plain floats and arrays the objects hand over through their public
-methods (``AtoCore.kernel_constants`` / ``kernel_plan``, ``OnboardAto``'s own tables).
+:class:`metro_atc.core.ato.onboard.OnboardAto` takes every step the kernel takes (no switch:
+numba is a pinned dependency; ``NUMBA_DISABLE_JIT=1`` runs the same source as Python).  The
+vectors the kernel reads are packed here from plain floats and arrays the objects hand over
+through their public methods (``AtoCore.kernel_constants`` / ``kernel_plan``,
+``OnboardAto``'s own tables).
 """
 
 from __future__ import annotations
 
-from typing import Optional, Sequence
+from typing import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from metro_atc.core.ato import control_kernel as ck
 from metro_atc.core.ato.step_kernel import TRACTION_FIELDS, train_fields
-from metro_atc.core.kernel_choice import resolve_kernel
 from metro_atc.core.line.vehicle import TrainParams
 
 FloatArray = NDArray[np.float64]
 
-KERNEL_ENV = "METRO_ATC_ATO_KERNEL"
-"""Environment variable selecting the ATO control step when the caller does not."""
-KERNELS = ("auto", "numba", "python")
-"""Accepted names."""
 ATP_FIELDS = ("g_down", "sbi_offset", "c0a", "bt", "btt", "t_r", "two_b", "t_sbi", "grid_x0",
-              "grid_dx")
+              "grid_dx", "tol", "resp_dist", "sbi_dist", "b_g")
 """The ATP's fields of :data:`.control_kernel.CONSTANTS`, in :func:`pack_constants`' order."""
 CORE_FIELDS = ("period", "swing", "du_max", "brake_share", "approach_jerk", "feedforward",
-               "e_scale", "d_scale", "gain")
+               "e_scale", "d_scale", "gain", "pi", "kp", "ki", "lead", "margin", "accel_max")
 """The controller's fields of :data:`.control_kernel.CONSTANTS` (``AtoCore.kernel_constants``)."""
-
-
-def resolve_ato_kernel(name: Optional[str] = None) -> str:
-    """``numba`` or ``python`` for the requested kernel (argument, else env, else auto)."""
-    return resolve_kernel(name, KERNEL_ENV, "python", "ATO kernel")
 
 
 def pack_constants(train: TrainParams, atp_train: TrainParams, core: Sequence[float],
@@ -43,9 +33,11 @@ def pack_constants(train: TrainParams, atp_train: TrainParams, core: Sequence[fl
     """The constants vector (float64, read as :data:`.control_kernel.CONSTANTS` by the kernel).
 
     ``core``: (period [s], swing [s], effort rate [1/s], brake share [-], approach jerk
-    [m/s^3], feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-]);
+    [m/s^3], feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-], PI 0/1, kp
+    [1/(m/s)], ki [1/m], restriction lead [m], TSR speed margin [m/s], accel limit [m/s^2]);
     ``atp``: (g_down [m/s^2], SBI offset [m/s], (b_g t_r)^2, b_g t_r, b_g t_r t_r, t_r [s],
-    2 b_g, t_sbi [s], grid x0 [m], grid dx [m]).
+    2 b_g, t_sbi [s], grid x0 [m], grid dx [m], ceiling tolerance [m/s], response and SBI
+    look-ahead distances [m], b_g [m/s^2]).
     """
     if len(core) != len(CORE_FIELDS) or len(atp) != len(ATP_FIELDS):
         raise ValueError("inconsistent ATO kernel constants")
@@ -78,13 +70,19 @@ def pack_plan(head: Sequence[float], ref_s: FloatArray, ref_e: FloatArray,
 
 
 def pack_line(sbi: FloatArray, grade_starts: FloatArray, grades: FloatArray,
-              stations: FloatArray) -> FloatArray:
-    """The line vector: counts, static SBI table [m/s], grade starts [m], grades, stops [m]."""
+              stations: FloatArray, tsrs: FloatArray) -> FloatArray:
+    """The line vector: counts, static SBI table [m/s], grade starts [m], grades, stops [m].
+
+    Then the TSRs ``tsrs`` (n, 5): start [m], end [m], limit [m/s], known from [s], until [s].
+    """
+    tz = np.asarray(tsrs, dtype=float).reshape(-1, 5)
     if len(sbi) < 1 or len(grades) < 1 or len(grade_starts) != len(grades):
         raise ValueError("inconsistent ATO kernel line tables")
-    return np.concatenate([np.asarray([len(sbi), len(grades), len(stations)], dtype=float),
+    return np.concatenate([np.asarray([len(sbi), len(grades), len(stations), len(tz)],
+                                      dtype=float),
                            np.asarray(sbi, dtype=float), np.asarray(grade_starts, dtype=float),
-                           np.asarray(grades, dtype=float), np.asarray(stations, dtype=float)])
+                           np.asarray(grades, dtype=float), np.asarray(stations, dtype=float),
+                           tz.ravel()])
 
 
 _LOADED: list[bool] = []

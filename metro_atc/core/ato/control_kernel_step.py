@@ -2,8 +2,9 @@
 
 :func:`control_step` over the vectors of :mod:`metro_atc.core.ato.control_kernel` (the
 module docstring there: what it covers, when it hands the state back, how it keeps the
-Python path's floats).  Line vector: ``[n_sbi, n_grades, n_stations]``, then the static SBI
-table, the grade starts [m], the grades [-] and the stop points [m].
+Python path's floats).  Line vector: ``[n_sbi, n_grades, n_stations, n_tsrs]``, then the
+static SBI table, the grade starts [m], the grades [-], the stop points [m] and the TSRs as
+the ATO knows them (start [m], end [m], limit [m/s], known from [s], until [s] each).
 """
 
 from __future__ import annotations
@@ -14,18 +15,51 @@ from metro_atc.core.ato.control_kernel import (
     APPROACH_MIN, AUTH_MARGIN, BERTH, CONSTANTS, FALLBACK, GUARD_GAIN, GUARD_SLACK, HOLD_BRAKE,
     JOIN_BAND, JOIN_MIN, LOOKAHEAD, N_PH, PLAN, PREVIEW, R_ENVELOPE, R_PSS, R_STOPPED, R_TRACKING,
     RESTART_MAX, SAFE_BRAKE, SPEED_MARGIN, STATE, STOP_GUARD, approach_bound, atp_traction,
-    bisect_right, brake_onset_bound, ceiling_e, feedforward, flc, pmax, pmin, speed_at,
-    stop_bound)
+    bisect_right, brake_onset_bound, ceiling_e, cpow, feedforward, flc, grade_force, pmax, pmin,
+    resistance, speed_at, stop_bound, train_traction)
 from metro_atc.core.ato.step_kernel import jit
 from metro_atc.core.laws import braking_speed, ebi_speed_from, guaranteed_decel_on_grade
 
-N_LH = 3
+N_LH = 4
 """Line vector header length."""
+N_TSR = 5
+"""Floats per TSR in the line vector (start, end, limit, known from, until)."""
 
 
 @jit
-def cap_at(c, ph, p, ln, x, v, cap, ma, c0, c2, authority):  # type: ignore[no-untyped-def]
-    """``OnboardAto._cap_at`` with no TSR known (cap: the supervision cap) [m/s]."""
+def plan_decel(ph, p, x):  # type: ignore[no-untyped-def]
+    """``OnboardAto._plan_decel`` (the run's table) at chainage x [m/s^2]."""
+    nb = int(ph.n_brake)
+    bo = N_PH + 2 * int(ph.n_ref) + 2 * int(ph.n_grade) + 2 * int(ph.n_env)
+    i = int((ph.direction * (x - ph.x0) + 50.0) / 10.0)
+    return p[bo + (0 if i < 0 else (i if i < nb else nb - 1))]
+
+
+@jit
+def tsr_offset(ln):  # type: ignore[no-untyped-def]
+    """Index of the first TSR in the line vector."""
+    return N_LH + int(ln[0]) + 2 * int(ln[1]) + int(ln[2])
+
+
+@jit
+def tsr_known(ln, o, t):  # type: ignore[no-untyped-def]
+    """The TSR at ``ln[o:]`` is known and not yet ended at time t [s]."""
+    return ln[o + 3] <= t < ln[o + 4]
+
+
+@jit
+def sbi_speed_to(c, dist, target):  # type: ignore[no-untyped-def]
+    """``AtpModel.sbi_speed_to``: static SBI speed [m/s] ``dist`` before a limit ``target``."""
+    d = pmax(dist - c.resp_dist - c.sbi_dist, 0.0)
+    e = math.sqrt(cpow(target + c.tol, 2.0) + 2.0 * c.b_g * d)
+    vv = e - (atp_traction(c, e) + c.g_down) * c.t_r
+    vv = e - (atp_traction(c, pmax(vv, 0.0)) + c.g_down) * c.t_r
+    return vv - c.sbi_offset
+
+
+@jit
+def cap_at(c, ph, p, ln, x, v, cap, ma, c0, c2, authority, t):  # type: ignore[no-untyped-def]
+    """``OnboardAto._cap_at`` (cap: the supervision cap; t: the state's time [s]) [m/s]."""
     n = int(ln[0])
     x0, dx = c.grid_x0, c.grid_dx
     k0 = int((x - x0) / dx)
@@ -39,10 +73,7 @@ def cap_at(c, ph, p, ln, x, v, cap, ma, c0, c2, authority):  # type: ignore[no-u
     cc = m - c.sbi_offset - SPEED_MARGIN
     if cc < cap:
         cap = cc
-    nb = int(ph.n_brake)
-    bo = N_PH + 2 * int(ph.n_ref) + 2 * int(ph.n_grade) + 2 * int(ph.n_env)
-    i = int((ph.direction * (x - ph.x0) + 50.0) / 10.0)
-    b = p[bo + (0 if i < 0 else (i if i < nb else nb - 1))]
+    b = plan_decel(ph, p, x)
     if authority and math.isfinite(ma):
         d = ma - x - AUTH_MARGIN
         cc = braking_speed(d, b)
@@ -51,7 +82,58 @@ def cap_at(c, ph, p, ln, x, v, cap, ma, c0, c2, authority):  # type: ignore[no-u
         cc = ebi_speed_from(c0, c.two_b, c2, d - c.t_sbi * v) - c.sbi_offset - SPEED_MARGIN
         if cc < cap:
             cap = cc
+    zo = tsr_offset(ln)
+    rear = x - c.length
+    for k in range(int(ln[3])):
+        o = zo + N_TSR * k
+        if not tsr_known(ln, o, t) or rear >= ln[o + 1]:
+            continue
+        limit = ln[o + 2]
+        lim = pmax(limit - c.margin, 0.5 * limit)
+        d = ln[o] - c.lead - x
+        cap = pmin(pmin(cap, math.sqrt(lim * lim + 2.0 * b * pmax(d, 0.0))),
+                   sbi_speed_to(c, ln[o] - x - v * LOOKAHEAD, limit) - SPEED_MARGIN)
     return 0.0 if 0.0 > cap else cap
+
+
+@jit
+def net_accel(c, ph, p, x, v):  # type: ignore[no-untyped-def]
+    """``AtoCore.net_accel``: full traction's net acceleration at chainage x [m/s^2]."""
+    s = ph.direction * (x - ph.x0)
+    f = c.mass * train_traction(c, v) - resistance(c, v) - grade_force(c, ph, p, s)
+    return pmin(pmax(f / c.meff, 0.0), c.accel_max)
+
+
+@jit
+def tsr_hold(c, ph, p, ln, xp, v, r, dip, x_stop, cap0, ma, c0, c2,
+             t):  # type: ignore[no-untyped-def]
+    """``OnboardAto._tsr_hold`` (with ``_tsr_dip_hold``): no traction toward r [m/s]."""
+    if r <= v + JOIN_BAND:
+        return False
+    zo = tsr_offset(ln)
+    nz = int(ln[3])
+    if dip:
+        for k in range(nz):
+            o = zo + N_TSR * k
+            if not tsr_known(ln, o, t):
+                continue
+            limit = ln[o + 2]
+            lim = pmax(limit - c.margin, 0.5 * limit)
+            if xp < ln[o] - c.lead < x_stop and lim + JOIN_BAND < v:
+                return True
+    a = net_accel(c, ph, p, xp, v)
+    b = plan_decel(ph, p, xp)
+    dv2 = r * r - v * v
+    reach = v * c.swing + dv2 / (2.0 * b) + (dv2 / (2.0 * a) if a > 1e-3 else math.inf)
+    rear = xp - c.length
+    for k in range(nz):
+        o = zo + N_TSR * k
+        if not tsr_known(ln, o, t) or rear >= ln[o + 1]:
+            continue
+        x_e = pmin(xp + reach, pmax(ln[o] - c.lead, xp))
+        if cap_at(c, ph, p, ln, x_e, v, cap0, ma, c0, c2, False, t) < v:
+            return True
+    return False
 
 
 @jit
@@ -69,6 +151,18 @@ def brake_capability(c, ln, x):  # type: ignore[no-untyped-def]
         return math.nan
     g = pmin(ln[so + ng + i0], ln[so + ng + i1])
     return pmax(guaranteed_decel_on_grade(c.brake_service, -pmin(g, 0.0)), 0.05)
+
+
+@jit
+def set_output(c, u, u_ff, e):  # type: ignore[no-untyped-def]
+    """The tracker's state for the applied effort u [-] (its ``set_output``).
+
+    The fuzzy controller keeps the feedback part ``u - u_ff``; the PI controller the
+    integral that gives u with its last error e [m/s].
+    """
+    if c.pi != 0.0:
+        return (u - u_ff - c.kp * e) / pmax(c.ki, 1e-12)
+    return u - u_ff
 
 
 @jit
@@ -115,10 +209,10 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
         cap0 = sup - c.sbi_offset - SPEED_MARGIN
     c0 = c.c0a + c.btt * a_w
     c2 = c.bt + c.t_r * a_w
-    cap_p = cap_at(c, ph, p, ln, xp, v, cap0, ma, c0, c2, True)
+    cap_p = cap_at(c, ph, p, ln, xp, v, cap0, ma, c0, c2, True, t)
     if cap_p - v > JOIN_BAND and v > JOIN_MIN and u_last > 0.0:
         xp += v * c.swing
-        cap_p = pmin(cap_p, cap_at(c, ph, p, ln, xp, v, cap0, ma, c0, c2, True))
+        cap_p = pmin(cap_p, cap_at(c, ph, p, ln, xp, v, cap0, ma, c0, c2, True, t))
     # _speed_dip (its state; no TSR known: no hold)
     ns, ng = int(ln[0]), int(ln[1])
     n_st = int(ln[2])
@@ -127,7 +221,22 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
     peak = st.peak
     if v >= cc - JOIN_BAND or v > peak:
         peak = v
-    cap_h = cap_at(c, ph, p, ln, xp + h, v, cap0, ma, c0, c2, True)
+    # the TSR hold (OnboardAto.control)
+    known = False
+    zo = tsr_offset(ln)
+    for k in range(int(ln[3])):
+        if tsr_known(ln, zo + N_TSR * k, t):
+            known = True
+    hold = False
+    if known and v > JOIN_MIN and cap_p > v:
+        r_x = speed_at(ph, p, ph.direction * (xp - ph.x0))
+        hold = tsr_hold(c, ph, p, ln, xp, v, pmin(cap_p, r_x), v < peak - JOIN_BAND, x_stop,
+                        cap0, ma, c0, c2, t)
+    held = 0.0
+    if hold:
+        cap_p = pmin(v, st.held) if st.held > 0.0 else v
+        held = cap_p
+    cap_h = cap_p if hold else cap_at(c, ph, p, ln, xp + h, v, cap0, ma, c0, c2, True, t)
     slope = (cap_h * cap_h - cap_p * cap_p) / (2.0 * h) \
         if math.isfinite(cap_p) and math.isfinite(cap_h) else 0.0
     # _authority_speed
@@ -137,7 +246,7 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
     elif 0.0 < t - st.ma_t <= 2.0:
         v_ma = pmax((ma - st.ma) / (t - st.ma_t), 0.0)
     if slope < 0.0 and v_ma > 0.0 and v > 0.0 \
-            and cap_p < cap_at(c, ph, p, ln, xp, v, cap0, ma, c0, c2, False) - 1e-9:
+            and cap_p < cap_at(c, ph, p, ln, xp, v, cap0, ma, c0, c2, False, t) - 1e-9:
         slope *= pmin(pmax(1.0 - v_ma / v, 0.0), 1.0)
     # ---- AtoCore.command_ex
     vc = pmax(v, 0.0)
@@ -162,19 +271,30 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
             r = pmax(cap_p, 0.0)
         u_ff = feedforward(c, ph, p, s, vc, r, capped, slope) if c.feedforward != 0.0 else 0.0
         last_ff = u_ff
-        # FuzzyController._step_at
         e = r - vc
-        d = 0.0 if not has_e else e - e_prev
-        e_n, d_n = e / c.e_scale, d / c.d_scale
-        if not (math.isfinite(e_n) and math.isfinite(d_n) and math.isfinite(u_ff)):
-            return math.nan, FALLBACK
-        has_e, e_prev = True, e
-        uu = trk_u + c.gain * flc(e_n, d_n)
-        lo, hi = -1.0 - u_ff, 1.0 - u_ff
-        uu = uu if not uu < lo else lo
-        uu = uu if not uu > hi else hi
-        trk_u = uu
-        out = uu + u_ff
+        if c.pi != 0.0:
+            # PIController.step (trk_u: the integral [m])
+            if not (math.isfinite(e) and math.isfinite(u_ff)):
+                return math.nan, FALLBACK
+            has_e, e_prev = True, e
+            i_new = trk_u + e * dt
+            raw = c.kp * e + c.ki * i_new + u_ff
+            if not ((raw > 1.0 and e > 0.0) or (raw < -1.0 and e < 0.0)):
+                trk_u = i_new
+            out = c.kp * e + c.ki * trk_u + u_ff
+        else:
+            # FuzzyController._step_at (trk_u: the integrated effort)
+            d = 0.0 if not has_e else e - e_prev
+            e_n, d_n = e / c.e_scale, d / c.d_scale
+            if not (math.isfinite(e_n) and math.isfinite(d_n) and math.isfinite(u_ff)):
+                return math.nan, FALLBACK
+            has_e, e_prev = True, e
+            uu = trk_u + c.gain * flc(e_n, d_n)
+            lo, hi = -1.0 - u_ff, 1.0 - u_ff
+            uu = uu if not uu < lo else lo
+            uu = uu if not uu > hi else hi
+            trk_u = uu
+            out = uu + u_ff
         u = -1.0 if out < -1.0 else (1.0 if out > 1.0 else out)
         bounded = False
         if u > 0.0 and vc > APPROACH_MIN:
@@ -205,7 +325,7 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
         du = c.du_max * dt
         u_lim = pmin(pmax(u, u_last - du), u_last + du)
         if (u_lim != u or bounded) and reason != R_ENVELOPE:
-            trk_u = u_lim - u_ff
+            trk_u = set_output(c, u_lim, u_ff, e_prev)
         u = u_lim
         if vc <= 1e-6 and s > length - BERTH:
             still += dt
@@ -225,14 +345,14 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
         a_req = v * v / (2.0 * pmax(dd - 0.15, 0.05))
         if a_req > STOP_GUARD * b_ach:
             bound = pmin(bound, -pmin(1.0, (a_req + bs - b_ach) / bs))
-    cap = cap_at(c, ph, p, ln, x, v, cap0, ma, c0, c2, True)
+    cap = cap_at(c, ph, p, ln, x, v, cap0, ma, c0, c2, True, t)
     over = v - cap - GUARD_SLACK
     if over > 0.0:
         bound = pmin(bound, -pmin(1.0, (bs - b_ach) / bs + GUARD_GAIN * over))
     u = pmin(u_trk, bound)
     if u < u_trk and math.isfinite(u) and u != u_new_last:
         u_new_last = u
-        trk_u = u - last_ff
+        trk_u = set_output(c, u, last_ff, e_prev)
     # ---- write the state back
     st.has_t = 1.0
     st.t = t
@@ -249,5 +369,5 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
     st.v_ma = v_ma
     st.peak = peak
     st.next_stop = x_stop
-    st.held = 0.0
+    st.held = held
     return u, reason

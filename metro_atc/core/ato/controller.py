@@ -431,15 +431,21 @@ class AtoCore:
         """The controller constants of the compiled ATO step (``control_kernel_pack``).
 
         (period [s], swing [s], effort rate [1/s], brake share [-], approach jerk [m/s^3],
-        feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-]); None when the
-        tracker is not the incremental fuzzy controller (the kernel does not cover it).
+        feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-], PI 0/1, PI kp
+        [1/(m/s)], ki [1/m], restriction lead [m], TSR speed margin [m/s], acceleration
+        limit [m/s^2]); None when the tracker is the fuzzy controller's absolute form (the
+        kernel does not cover it).
         """
         tr = self.tracker
+        head = [self.period, self.swing_s, self._du_max_per_s, self._brake_share,
+                self.approach_jerk, 1.0 if self.feedforward else 0.0]
+        lim = self.limits
+        tail = [lim.restriction_lead_m, lim.speed_margin_mps, lim.accel_max_mps2]
+        if isinstance(tr, PIController):
+            return head + [1.0, 1.0, 0.0, 1.0, tr.p.kp, tr.p.ki] + tail
         if not isinstance(tr, FuzzyController) or not tr.p.incremental:
             return None
-        return [self.period, self.swing_s, self._du_max_per_s, self._brake_share,
-                self.approach_jerk, 1.0 if self.feedforward else 0.0, tr.p.e_scale_mps,
-                tr.p.d_scale_mps, tr.p.gain]
+        return head + [tr.p.e_scale_mps, tr.p.d_scale_mps, tr.p.gain, 0.0, 0.0, 0.0] + tail
 
     def kernel_plan(self) -> Optional[tuple[Any, ...]]:
         """The plan's tables for the compiled step, the same object while the plan holds.
@@ -468,8 +474,7 @@ class AtoCore:
         Their values in that order; None when the tracker's state is not a plain one-train
         state.
         """
-        ts = self.tracker.scalar_state() if isinstance(self.tracker, FuzzyController) \
-            else None
+        ts = self.tracker.scalar_state()
         if ts is None:
             return None
         lt = self._last_t
@@ -485,7 +490,6 @@ class AtoCore:
         self._last_ff = st[i["ff"]]
         self._arrived = st[i["arrived"]] != 0.0
         self._still_s = st[i["still"]]
-        assert isinstance(self.tracker, FuzzyController)
         self.tracker.set_scalar_state(st[i["has_e"]] != 0.0, st[i["e"]], st[i["tu"]])
         self.last_reason = reason
 

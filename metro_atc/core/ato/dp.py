@@ -8,7 +8,7 @@ control problem: maximum traction, speed holding, coasting, braking):
 - ``cruise`` (hold the stage entry speed),
 - ``coast`` (closed-form coasting, ACTP n.d., eq. 7-8),
 
-each simulated exactly over the stage by :func:`metro_atc.core.ato.strategy.strategy_step`
+each simulated exactly over the stage by :func:`metro_atc.core.ato.step_kernel.strategy_step`
 (the same physics and the same envelope -- limits incl. train length, braking curves,
 programmed stopping -- as every planner; braking happens where the envelope demands it).
 The landing speed of a control is off-grid, so the value function of the next stage is
@@ -72,7 +72,7 @@ from numpy.typing import ArrayLike, NDArray
 from metro_atc.core.ato import dp_kernel
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, MODE_CRUISE, RunModel
 from metro_atc.core.ato.polish import polish_sequence
-from metro_atc.core.ato.strategy import strategy_step
+from metro_atc.core.ato.step_kernel import pack_train, run_substeps
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -179,18 +179,17 @@ def build_dp_tables(run: RunModel, ds_m: float = 10.0, de_m2s2: float = 1.0,
     e_next = np.empty((n_st, n_states, n_u))
     en = np.empty_like(e_next)
     tm = np.empty_like(e_next)
+    tr = pack_train(run.train, run.limits).view(np.recarray)
+    e_flat = np.ascontiguousarray(e_start).reshape(-1)
+    no_code = np.full(e_flat.size, np.inf)
+    no_latch = np.zeros(e_flat.size, dtype=bool)
     for u, (mode, level) in enumerate(zip(CONTROL_MODES, CONTROL_LEVELS)):
-        cur = e_start
-        t_u = np.zeros_like(e_start)
-        j_u = np.zeros_like(e_start)
-        for q in range(n_sub):
-            cur, dt, de, _ = strategy_step(run.train, run.limits, cur, h, fg_sub[:, q, None],
-                                           cap_sub[:, q, None], mode, np.inf, e_start, level)
-            t_u += dt
-            j_u += de
-        e_next[..., u] = cur
-        en[..., u] = j_u
-        tm[..., u] = t_u
+        cur, t_u, j_u, _ = run_substeps(tr, e_flat, h, fg_sub, cap_sub, mode, no_code, e_flat,
+                                        float(level), run.limits.brake_decel_mps2, no_latch,
+                                        False)
+        e_next[..., u] = cur.reshape(e_start.shape)
+        en[..., u] = j_u.reshape(e_start.shape)
+        tm[..., u] = t_u.reshape(e_start.shape)
     infeasible = ~np.isfinite(tm)
     tm[infeasible] = np.inf
     en[infeasible] = np.inf

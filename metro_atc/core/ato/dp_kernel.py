@@ -1,15 +1,15 @@
-"""Compiled (numba) exact stage simulation of the DP: :func:`strategy_step` element by element.
+"""Compiled (numba) exact stage simulation of the DP: the strategy step element by element.
 
 The DP's exact simulations (:func:`metro_atc.core.ato.dp.simulate_path` and the single-stage
 simulations of its blend and rollout) advance a few dozen candidate sequences over a few
 hundred stages; in numpy every sub-step is one call over a short array, so the interpreter
 overhead dominates (about 1 ms per sub-step, 85 % of the DP's time before this module).
 These loops advance one trajectory at a time with
-:func:`metro_atc.core.ato.step_kernel.strategy_step_one` (the compiled twin of
-:func:`metro_atc.core.ato.strategy.strategy_step`, speed code at infinity, shared with the
-ECTP/ACTP kernel).  These loops are the DP's only path (``NUMBA_DISABLE_JIT=1`` runs them as
-Python); ``test/test_ato_dp.py`` checks them against the recorded output of the former numpy
-path (``test/data/dp_numpy_ref.npz``).
+:func:`metro_atc.core.ato.step_kernel.strategy_step_one` (the planners' one step,
+:func:`metro_atc.core.ato.step_kernel.strategy_step`, speed code at infinity, shared with the
+ECTP/ACTP kernel and the DP's tables).  These loops are the DP's only path
+(``NUMBA_DISABLE_JIT=1`` runs them as Python); ``test/test_ato_dp.py`` checks them against
+the recorded output of the former numpy path (``test/data/dp_numpy_ref.npz``).
 
 Train constants are packed in a record (:func:`pack_train`).
 """

@@ -39,7 +39,7 @@ from metro_atc.core.ato.controller import (JOIN_BAND_MPS, JOIN_MIN_SPEED_MPS, PR
                                            AtoCore)
 from metro_atc.core.ato.control_kernel import REASONS, STATE_FIELDS, STATE_INDEX
 from metro_atc.core.ato.control_kernel_pack import (control_step_fn, pack_constants, pack_line,
-                                                    pack_plan, resolve_ato_kernel)
+                                                    pack_plan)
 from metro_atc.core.ato.envelope import OperatingLimits
 from metro_atc.core.ato.planner import Profile
 from metro_atc.core.ato.tsr_plan import tsrs_for_run
@@ -117,11 +117,11 @@ class OnboardAto:
                  limits: Optional[OperatingLimits] = None,
                  shared: Optional[dict[str, Any]] = None,
                  tsrs: Sequence[TsrZone] = (), atp: Optional["AtpModel"] = None,
-                 kernel: Optional[str] = None, **planner_params: Any) -> None:
+                 **planner_params: Any) -> None:
         """Build the :class:`AtoCore` and the guard state.
 
-        ``kernel``: ``auto``, ``numba`` or ``python`` for the per-step control
-        (:mod:`metro_atc.core.ato.control_kernel`; None: ``METRO_ATC_ATO_KERNEL``, else auto).
+        Every control step the compiled step (:mod:`metro_atc.core.ato.control_kernel`)
+        takes runs there; the others run :meth:`control`'s Python path.
         """
         self.core = AtoCore(train, track, planner=planner, tracker=tracker,
                             control_period_s=control_period_s, limits=limits, shared=shared,
@@ -155,9 +155,9 @@ class OnboardAto:
         self._peak_mps = 0.0
         self._next_stop_m = math.inf
         self._held_mps = 0.0
-        self.kernel = resolve_ato_kernel(kernel)
-        """``numba`` (the compiled control step where it applies) or ``python``."""
-        self._kstep: Any = control_step_fn() if self.kernel == "numba" else None
+        self._kstep: Any = control_step_fn()
+        """The compiled step; None once the tracker proved not to be the kernel's (then every
+        step runs the Python path)."""
         self._kconst: Any = None
         self._kline: Any = None
         self._kplan: Any = (None, None, None)
@@ -290,9 +290,6 @@ class OnboardAto:
         tracker at every step, so either path continues where the other stopped.
         """
         t = float(s["t_s"])
-        for z in self.tsrs:
-            if z.known_s <= t < z.to_s:
-                return None  # a TSR known: its holds and curves stay in Python
         atp = self.atp
         core = self.core
         kp = core.kernel_plan()
@@ -311,10 +308,13 @@ class OnboardAto:
             self._kconst = pack_constants(
                 self.train, atp.train, cc,
                 [atp.g_down, atp.sbi_offset_mps, bt2, b * tr, b * tr * tr, tr,
-                 2.0 * b, atp.t_sbi, atp.grid_x0_m, atp.grid_dx_m])
+                 2.0 * b, atp.t_sbi, atp.grid_x0_m, atp.grid_dx_m, atp.tol_mps,
+                 atp.resp_dist_m, atp.sbi_dist_m, b])
             self._kline = pack_line(np.asarray(atp._sbi_list, dtype=float),
                                     np.asarray(self._grade_lists[0], dtype=float),
-                                    np.asarray(self._grade_lists[1], dtype=float), self.stations)
+                                    np.asarray(self._grade_lists[1], dtype=float), self.stations,
+                                    np.asarray([(z.start_m, z.end_m, z.limit_mps, z.known_s,
+                                                 z.to_s) for z in self.tsrs], dtype=float))
         if self._b_run is not core.run:
             self._plan_decel(float(s["x_m"]))  # builds the run's deceleration table
         if self._kplan[0] is not kp or self._kplan[1] is not self._b_list:
@@ -343,7 +343,7 @@ class OnboardAto:
         self.authority_speed_mps = vals[i["v_ma"]]
         self._peak_mps = vals[i["peak"]]
         self._next_stop_m = vals[i["next_stop"]]
-        self._held_mps = 0.0
+        self._held_mps = vals[i["held"]]
         self.kernel_steps += 1
         mode = MODE_ACCELERATE if u > 0.05 else (MODE_BRAKE if u < -0.05 else MODE_COAST)
         return u, mode

@@ -44,6 +44,7 @@ from scipy import sparse
 from scipy.optimize import linprog
 
 from metro_atc.core.ato.envelope import RunModel
+from metro_atc.core.laws import on_array, traction_accel_array
 
 FloatArray = NDArray[np.float64]
 
@@ -118,11 +119,15 @@ def traction_limit_tangents(run: RunModel, e_star: FloatArray
     v = np.sqrt(2.0 * es)
     vmax = float(np.sqrt(2.0 * np.max(run.e_ceiling))) + 1.0
     out: list[tuple[FloatArray, FloatArray]] = []
+    a1, _, _, a2, a3, b2, b3 = p.traction_law
+    # each branch at every speed: the law with its region stretched over all speeds (the
+    # constant-voltage region from v_1 = -inf to v_2 = inf, the constant-power one from
+    # v_2 = -inf)
     if p.v1_mps < vmax:
-        f2 = m * p.a2 / (v + p.b2_mps)
+        f2 = m * on_array(traction_accel_array, v, a1, -np.inf, np.inf, a2, a3, b2, b3)
         out.append((f2, -f2 / (v + p.b2_mps) / v))  # dF/dE = dF/dv / v
     if p.v2_mps < vmax:
-        f3 = m * p.a3 / (v + p.b3_mps) ** 2
+        f3 = m * on_array(traction_accel_array, v, a1, -np.inf, -np.inf, a2, a3, b2, b3)
         out.append((f3, -2.0 * f3 / (v + p.b3_mps) / v))
     return out
 

@@ -40,6 +40,20 @@ class PIController:
         self._i = np.asarray(u0, dtype=float) / max(self.p.ki, 1e-12)
         self._e = np.zeros_like(self._i)
 
+    def scalar_state(self) -> Optional[tuple[bool, float, float]]:
+        """(True, last error [m/s], integral [m]) of a one-train controller, else None.
+
+        What the compiled ATO step reads (the fuzzy controller's interface).
+        """
+        if np.ndim(self._e) != 0 or np.ndim(self._i) != 0:
+            return None
+        return True, float(self._e), float(self._i)
+
+    def set_scalar_state(self, has_e: bool, e: float, i: float) -> None:
+        """Set the state :meth:`scalar_state` returns (after a compiled step)."""
+        self._e = np.asarray(e if has_e else 0.0, dtype=float)
+        self._i = np.asarray(i, dtype=float)
+
     def set_output(self, u: ArrayLike, u_ff: ArrayLike = 0.0) -> None:
         """Back-calculate the integrator so that the last output equals the applied u.
 

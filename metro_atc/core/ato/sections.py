@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, MODE_CRUISE, RunModel
-from metro_atc.core.ato.strategy import strategy_step
+from metro_atc.core.ato.step_kernel import pack_train, run_substeps
 from metro_atc.core.laws import G_MPS2
 
 FloatArray = NDArray[np.float64]
@@ -114,25 +114,22 @@ def build_section_tables(run: RunModel, n_sections: int = 50,
     out_e = np.empty((n_sections, 3) + shape[1:])
     out_t = np.empty_like(out_e)
     out_j = np.empty_like(out_e)
+    n_sub_s = np.arange(n_sub) * h
+    s0 = bounds[:-1, None] + n_sub_s[None, :]
+    fg = run.mean_grade_force(s0, s0 + h)
+    cap = run.ceiling_e(s0 + h)
+    tr = pack_train(run.train, run.limits).view(np.recarray)
+    e_flat = np.ascontiguousarray(e_in).reshape(-1)
+    code_flat = np.ascontiguousarray(e_code).reshape(-1)
+    hold = np.minimum(e_flat, code_flat)
     for mode in (MODE_ACCEL, MODE_CRUISE, MODE_COAST):
-        e = e_in.copy()
-        hold = np.minimum(e_in, e_code)
-        latch = (e >= e_code) if mode == MODE_ACCEL else None
-        t = np.zeros(shape)
-        en = np.zeros(shape)
-        stalled = np.zeros(shape, dtype=bool)
-        for k in range(n_sub):
-            s0 = bounds[:-1] + k * h
-            fg = run.mean_grade_force(s0, s0 + h)[:, None, None]
-            cap = run.ceiling_e(s0 + h)[:, None, None]
-            e, dt, de, st = strategy_step(run.train, run.limits, e, h, fg, cap, mode, e_code,
-                                          hold, delta, latch)
-            t += np.where(np.isfinite(dt), dt, 0.0)
-            en += de
-            stalled |= st
-        out_e[:, mode] = e
-        out_t[:, mode] = np.where(stalled, TIME_INFEASIBLE_S, t)
-        out_j[:, mode] = en
+        latch = (e_flat >= code_flat) if mode == MODE_ACCEL else np.zeros(e_flat.size, bool)
+        e, t, en, stalled = run_substeps(tr, e_flat, h, fg, cap, mode, code_flat, hold,
+                                         float(delta), run.limits.brake_decel_mps2, latch,
+                                         True)
+        out_e[:, mode] = e.reshape(shape)
+        out_t[:, mode] = np.where(stalled, TIME_INFEASIBLE_S, t).reshape(shape)
+        out_j[:, mode] = en.reshape(shape)
     v_up = np.sqrt(2.0 * np.array([np.max(run.ceiling_e(np.linspace(a, b, 9)))
                                    for a, b in zip(bounds[:-1], bounds[1:])]))
     allowed = codes[None, :] <= v_up[:, None] + 1e-9

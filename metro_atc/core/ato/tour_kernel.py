@@ -3,7 +3,7 @@
 The MAX-MIN ant system (:mod:`metro_atc.core.ato.mmas`) evaluates tours -- a mode and a
 speed command per section -- on the interpolated pre-work tables; the reported energy and
 time of a tour are its *exact* simulation here (the arithmetic of
-:func:`metro_atc.core.ato.strategy.strategy_step` sub-step by sub-step, no interpolation).
+:func:`metro_atc.core.ato.step_kernel.strategy_step` sub-step by sub-step, no interpolation).
 A numpy simulation cost about 0.5 ms per sub-step whatever the number of tours (numpy call
 overhead on small arrays), i.e. 0.6 s for one tour of a 2.4 km run at 2 m sub-steps; this
 kernel runs the same arithmetic element by element (same operation order, no fast-math),
@@ -71,7 +71,7 @@ def pack_params(train: TrainParams, limits: OperatingLimits, delta: float, h: fl
 
 @njit(cache=True, error_model="numpy")
 def _trac_acc(p: Any, v: float, fg: float) -> float:  # pragma: no cover - compiled
-    """:func:`strategy.traction_accel` for one speed [m/s^2] (the laws of :mod:`.laws`)."""
+    """:func:`.step_kernel.traction_accel` for one speed [m/s^2] (the laws of :mod:`.laws`)."""
     phi = laws.traction_accel(v, p.a1, p.v1, p.v2, p.a2, p.a3, p.b2, p.b3)
     f = p.delta * (p.mass * phi) - laws.davis_resistance(v, p.davis_a, p.davis_b, p.davis_c) \
         - fg
@@ -82,7 +82,7 @@ def _trac_acc(p: Any, v: float, fg: float) -> float:  # pragma: no cover - compi
 @njit(cache=True, error_model="numpy")
 def _coast_xt(w: float, d4: float, c2: float, bp: float, a: float
               ) -> tuple[float, float]:  # pragma: no cover - compiled
-    """:func:`strategy._coast_x_t` for one element (X [m], T [s]); a = sqrt(|d4|)."""
+    """:func:`.step_kernel.coast_x_t` for one element (X [m], T [s]); a = sqrt(|d4|)."""
     if d4 > 0.0:
         t = -math.atan(w / a) / (c2 * a)
         x_log = -0.5 * math.log(w * w + d4) / c2
@@ -135,7 +135,7 @@ def _new_memo():  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
 @njit(cache=True, error_model="numpy")
 def _coast(p: Any, e0: float, v0: float, h: float, fg: float, memo: Any
            ) -> tuple[float, float, bool]:  # pragma: no cover - compiled
-    """:func:`strategy.coast_step` for one element: (e1, dt [s], stalled).
+    """:func:`.step_kernel.coast_step` for one element: (e1, dt [s], stalled).
 
     e0 >= 0 [m^2/s^2] and v0 = sqrt(2 e0) [m/s] (the caller's).  memo (a :data:`MEMO`
     record), NaN when empty: (fg, w, X, T) of the last closed-form evaluation at the end of a
@@ -220,7 +220,7 @@ def _coast(p: Any, e0: float, v0: float, h: float, fg: float, memo: Any
 def _step(p: Any, e: float, fg: float, e_cap: float, mode: int, e_code: float,
           e_hold: float, latch: bool, memo: Any
           ) -> tuple[float, float, float, bool, bool]:  # pragma: no cover - compiled
-    """:func:`strategy.strategy_step` for one trajectory: (e1, dt, energy, stalled, latch).
+    """:func:`.step_kernel.strategy_step` for one trajectory: (e1, dt, energy, stalled, latch).
 
     memo: the coasting step's closed-form memo (:func:`_coast`).
     """
@@ -251,8 +251,8 @@ def _step(p: Any, e: float, fg: float, e_cap: float, mode: int, e_code: float,
         v1 = math.sqrt(2.0 * e1)
         if not is_coast:
             vm = 0.5 * (v0 + v1)
-            force = p.meff * (e1 - e0) / h + p.davis_a + p.davis_b * vm + p.davis_c * vm * vm \
-                + fg
+            force = laws.step_force(p.meff, e0, e1, h, vm, p.davis_a, p.davis_b, p.davis_c,
+                                    fg)
             energy = max(force, 0.0) * h
         if v0 + v1 > 0.0:
             dt = 2.0 * h / max(v0 + v1, 1e-300)

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from metro_atc.core import laws
 from metro_atc.core.line.rolling_stock import KMH
 from metro_atc.core.line.scenario import Scenario, ScenarioError
 from metro_atc.core.line.track import G, cell_min, curve_resistance_per_kg, step_profile
@@ -103,7 +104,7 @@ def build_geometry(scn: Scenario, p: TrainParams) -> LineGeometry:
         m = (xc >= c.start_m) & (xc < c.end_m)
         curv[m] = curve_resistance_per_kg(c.radius_m)
     n_len = max(int(round(length_m / dx)), 1)
-    sin_avg = avg_behind(np.sin(np.arctan(grade)), n_len)
+    sin_avg = avg_behind(laws.on_array(laws.grade_sine_array, grade), n_len)
     return LineGeometry(
         dx=dx, inv_dx=1.0 / dx, x0=x0, n_cells=n_cells, grid_x=nodes[:-1],
         length_m=length_m, n_len=n_len, station_positions_m=stations,

@@ -20,7 +20,7 @@ from metro_atc.core.line.scenario import Scenario
 from metro_atc.core.line.timetable import (PassengerFlow, dispatch_times, nominal_dwells,
                                            schedule)
 from metro_atc.core.line.track import G, braking_envelope, window_min_behind
-from metro_atc.core.line.vehicle import TrainParams, max_traction_accel
+from metro_atc.core.line.vehicle import TrainParams, max_traction_accel, resistance_force
 
 FloatArray = NDArray[np.float64]
 
@@ -61,8 +61,7 @@ def min_running_times(p: TrainParams, geom: LineGeometry, drive_env: FloatArray,
     v = np.zeros(n_sec)
     tsum = np.zeros(n_sec)
     for k in range(n_max):
-        fa = (m * max_traction_accel(p, v) - p.davis_a_n - p.davis_b_n_per_mps * v
-              - p.davis_c_n_per_mps2 * v * v - m * G * res[:, k]) / meff
+        fa = (m * max_traction_accel(p, v) - resistance_force(p, v) - m * G * res[:, k]) / meff
         v2 = np.sqrt(np.maximum(v * v + 2.0 * np.maximum(fa, 0.0) * dx, 0.0))
         v2 = np.minimum(v2, cap[:, k + 1])
         act = k < lens
