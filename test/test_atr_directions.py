@@ -10,6 +10,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from metro_atc.core.atr import regulators as regs  # noqa: E402
 from metro_atc.core.atr import weights_store as store  # noqa: E402
 from metro_atc.core.atr.blue_line import LineData, small_line  # noqa: E402
 from metro_atc.core.atr.cost import CostWeights  # noqa: E402
@@ -75,9 +76,9 @@ def test_down_weights_refused_on_the_up_line(tmp_path: Path) -> None:
         load_weights(w_down, up)
     with pytest.raises(ValueError, match="trained on another line"):
         load_weights(w_up, down)
-    assert store.shipped_weights("aoc", down, tmp_path) == w_down
-    assert store.shipped_weights("aoc", up, tmp_path) == w_up
-    assert store.shipped_weights("dhp", down, tmp_path) is None
+    assert regs.shipped_weights("aoc", down, tmp_path) == w_down
+    assert regs.shipped_weights("aoc", up, tmp_path) == w_up
+    assert regs.shipped_weights("dhp", down, tmp_path) is None
 
 
 @pytest.mark.parametrize("direction", ["up", "down"])
@@ -87,7 +88,7 @@ def test_shipped_weights_of_each_direction(blue: Dict[str, LineData], kind: str,
     """Every trained regulator has shipped weights for both directions, refused on the
     other direction's hash, found by make_regulator without a path."""
     line, other = blue[direction], blue["down" if direction == "up" else "up"]
-    path = store.shipped_weights(kind, line)
+    path = regs.shipped_weights(kind, line)
     assert path is not None, f"no shipped {kind} weights for the {direction} line"
     assert read_blob(path)["line_hash"] == line_hash(line)
     with pytest.raises(ValueError, match="trained on another line"):
@@ -104,7 +105,7 @@ def test_shipped_weights_pass_their_validation(blue: Dict[str, LineData], kind: 
     """Shipped weights regulate better than the timetable: by the validation recorded in the
     file and by a short validation now (same episodes for both, truth traffic model)."""
     line = blue[direction]
-    path = store.shipped_weights(kind, line)
+    path = regs.shipped_weights(kind, line)
     assert path is not None
     assert store.validation_problem(path) is None
     v = read_blob(path)["info"]["validation"]

@@ -31,7 +31,8 @@ from metro_atc.core.atr.blue_line import LineData
 from metro_atc.core.atr.lines import get_line
 from metro_atc.core.atr.registry import REGULATORS, TRAINED
 from metro_atc.core.atr.regulators import Regulator, make_regulator
-from metro_atc.core.atr.weights_store import shipped_weights, validation_problem
+from metro_atc.core.atr.regulators import shipped_weights
+from metro_atc.core.atr.weights_store import validation_problem
 from metro_atc.core.line.scenario import Scenario, load_scenario
 from metro_atc.core.service.day import period_index, run_day, taipei_blue_day
 from metro_atc.core.service.regulation import (INITIAL_DELAY_S, experiment_text, peak_lines,
@@ -47,7 +48,7 @@ def build(name: str, line: LineData, scn: Scenario) -> Regulator:
     """Regulator ``name`` for ``line`` (one direction's traffic model).
 
     Trained regulators: the shipped weights whose traffic-model hash is the line's
-    (:func:`metro_atc.core.atr.weights_store.shipped_weights`); FileNotFoundError when none
+    (:func:`metro_atc.core.atr.regulators.shipped_weights`); FileNotFoundError when none
     is shipped for this line.  ``elqr``: its energy table for ``line``'s runs.
     """
     if name in TRAINED:

@@ -26,7 +26,7 @@ import numpy as np
 from metro_atc.core.atr.blue_line import LineData
 from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.fingerprint import line_hash
-from metro_atc.core.atr.registry import REGULATORS
+from metro_atc.core.atr.registry import REGULATORS, TRAINED
 from metro_atc.core.atr.traffic import linear_model
 
 if TYPE_CHECKING:
@@ -253,13 +253,12 @@ def build_trained(name: str, inputs: RegulatorInputs) -> Regulator:
     """Factory of the trained regulators (``dhp``, ``aoc``): load and check the weights.
 
     The file (default: the shipped weights trained on the line, found by its traffic-model
-    hash, :func:`metro_atc.core.atr.weights_store.shipped_weights`; none: the file named
+    hash, :func:`shipped_weights`; none: the file named
     after the line, refused or missing) must hold a ``name`` policy trained on this line;
     its cost weights and horizon come from the file.
     """
     path = inputs.weights_path
     if path is None:
-        from metro_atc.core.atr.weights_store import shipped_weights
         path = shipped_weights(name, inputs.line) or default_weights_path(name,
                                                                           inputs.line.name)
     reg = load_weights(path, inputs.line)
@@ -285,3 +284,29 @@ def make_regulator(name: str, line: LineData, weights: Optional[CostWeights] = N
                              scenario, float(energy_weight))
     reg: Regulator = entry.load()(name, inputs)
     return reg
+
+
+def weights_match(path: Path, kind: str, digest: str) -> bool:
+    """Whether ``path`` is a readable weights file of ``kind`` for the hash ``digest``."""
+    try:
+        blob = read_blob(path)
+    except (OSError, ValueError):
+        return False
+    return blob.get("method") == kind and blob.get("line_hash") == digest
+
+
+def shipped_weights(kind: str, line: LineData, shipped: Optional[Path] = None
+                    ) -> Optional[Path]:
+    """The shipped file ``<shipped>/<kind>_*.pt`` trained on ``line`` (its hash), or None.
+
+    Shipped files are named per line and direction (``aoc_taipei_blue.pt``,
+    ``aoc_taipei_blue_down.pt``); the hash inside, not the name, decides.
+    """
+    if kind not in TRAINED:
+        raise ValueError(f"weights kind must be one of {', '.join(TRAINED)}, got {kind!r}")
+    digest = line_hash(line)
+    ship = shipped if shipped is not None else DATA_DIR
+    for p in sorted(ship.glob(f"{kind}_*.pt")):
+        if weights_match(p, kind, digest):
+            return p
+    return None

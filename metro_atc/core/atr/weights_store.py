@@ -36,7 +36,8 @@ from metro_atc.core.atr.fingerprint import line_hash
 from metro_atc.core.atr.problems import AtrProblem
 from metro_atc.core.atr.registry import TRAINED
 from metro_atc.core.atr.regulators import (DATA_DIR, NeuralRegulator, NoneRegulator, Regulator,
-                                           read_blob, save_weights)
+                                           read_blob, save_weights, shipped_weights,
+                                           weights_match)
 from metro_atc.core.atr.training import atr_train_config, train
 
 KINDS = TRAINED
@@ -72,31 +73,6 @@ def _check_kind(kind: str) -> None:
         raise ValueError(f"weights kind must be one of {', '.join(KINDS)}, got {kind!r}")
 
 
-def _matches(path: Path, kind: str, digest: str) -> bool:
-    """Whether ``path`` is a readable weights file of ``kind`` for the hash ``digest``."""
-    try:
-        blob = read_blob(path)
-    except (OSError, ValueError):
-        return False
-    return blob.get("method") == kind and blob.get("line_hash") == digest
-
-
-def shipped_weights(kind: str, line: LineData, shipped: Optional[Path] = None
-                    ) -> Optional[Path]:
-    """The shipped file ``<shipped>/<kind>_*.pt`` trained on ``line`` (its hash), or None.
-
-    Shipped files are named per line and direction (``aoc_taipei_blue.pt``,
-    ``aoc_taipei_blue_down.pt``); the hash inside, not the name, decides.
-    """
-    _check_kind(kind)
-    digest = line_hash(line)
-    ship = shipped if shipped is not None else DATA_DIR
-    for p in sorted(ship.glob(f"{kind}_*.pt")):
-        if _matches(p, kind, digest):
-            return p
-    return None
-
-
 def find_weights(kind: str, line: LineData, cache: Optional[Path] = None,
                  shipped: Optional[Path] = None) -> Optional[Path]:
     """Weights of ``kind`` trained on ``line`` (same traffic-model hash), or None.
@@ -107,7 +83,7 @@ def find_weights(kind: str, line: LineData, cache: Optional[Path] = None,
     if found is not None:
         return found
     c = cached_path(kind, line, cache)
-    return c if c.is_file() and _matches(c, kind, line_hash(line)) else None
+    return c if c.is_file() and weights_match(c, kind, line_hash(line)) else None
 
 
 def validate(line: LineData, regulator: Regulator, weights: CostWeights,
