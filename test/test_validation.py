@@ -37,7 +37,7 @@ def _state(step: int, **kw: Any) -> TrainState:
     m = TrainState(train_id="train_01", step=step, position_m=100.0, speed_mps=10.0,
                    acceleration_mps2=0.1, current_station=0, next_station=1, mode=2,
                    departure_time_s=40.0, target_running_time_s=80.0,
-                   supervision_speed_mps=22.0, movement_authority_m=2000.0)
+                   supervision_speed_mps=22.0, movement_authority_m=2000.0, mass_kg=214000.0)
     m.header.stamp = conv.to_time(step * DT)
     for k, v in kw.items():
         setattr(m, k, v)
