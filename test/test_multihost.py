@@ -273,8 +273,12 @@ def bad_runs(installed: Path, tmp_path_factory: pytest.TempPathFactory
                                   "--dds-hosts", str(peers12), *t),
             "no_sim_host": _start(lab, 2, doms[1], tmp / "b2", "--only", "ato",
                                   "--dds-hosts", str(peers12), *t),
-            "two_sims_1": _start(lab, 1, doms[2], tmp / "c1", "--dds-hosts", str(peers13), *t),
-            "two_sims_3": _start(lab, 3, doms[2], tmp / "c3", "--dds-hosts", str(peers13), *t),
+            # the duplicate is found at discovery; 30 s so that a loaded machine's slow
+            # start-up is not taken for absent ATOs first (exit 7 instead of the refusal)
+            "two_sims_1": _start(lab, 1, doms[2], tmp / "c1", "--dds-hosts", str(peers13),
+                                 "--peer-timeout", "30", "--step-timeout", "30"),
+            "two_sims_3": _start(lab, 3, doms[2], tmp / "c3", "--dds-hosts", str(peers13),
+                                 "--peer-timeout", "30", "--step-timeout", "30"),
         }
         # the simulator killed mid-run, not restarted (its host's run fails): the ATO host
         # gives up once it is gone
