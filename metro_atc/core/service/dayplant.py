@@ -1,0 +1,711 @@
+"""A two-direction service day on the plant: ROS-free closed loop of plant, ATO, interlocking.
+
+Every train of the fleet runs the unfolded loop of :mod:`metro_atc.core.service.loop` on its
+own :class:`metro_atc.core.plant.line.LineSim` (one train each: the same plant code, its
+brakes, sensors and energy meter kept across all its trips and blocks); the plants step in
+lockstep and share the platform queues (passengers left behind and the last departure per
+stop).  Per control period:
+
+1. pull-outs due (``PULL_OUT_LEAD_S`` before a block's first trip) enter at the departure
+   berth of their terminus when it is free (a platform neither occupied nor locked);
+2. movement authority of each train (:meth:`LineSim.set_authority_end`): a train inside a
+   terminus (from its arrival route being set until its departure route is set) runs to
+   the exit signal of its set route plus the route's overlap (the ATP margin where it has
+   none) or stands at its berth; a train on the open line runs to the rear of the nearest
+   open-line train ahead on its track (sorted path positions, O(n log n)) minus the ATP
+   margin, and to the entry signal of the terminus ahead until its arrival route is set;
+3. the ATO of each train in service (:class:`metro_atc.core.ato.onboard.OnboardAto`, a new
+   one per lap: the cab changes at the reversal) gives the effort; the plants step;
+4. track occupancy from the trains' positions (their routes' sections over the loop)
+   feeds :meth:`Interlocking.occupy` / ``clear``; arrivals at a route's exit signal report
+   :meth:`Interlocking.arrived`; route requests (the next route of the train's itinerary,
+   the siding / platform chosen free first; a departure route ``REQUEST_LEAD_S`` before
+   its departure) are granted by :meth:`Interlocking.process`; a berth's departure is
+   commanded when its next route is set;
+5. the ATS of this loop: timetable departures (the ``none`` regulator) at every platform;
+   a terminus departure waits for max(scheduled departure, arrival + minimum turnback),
+   so a late arrival delays the next trip by max(0, delay - buffer)
+   (:func:`metro_atc.core.service.circulation.propagate_delay`).
+
+Independent checks every step: :func:`metro_atc.core.service.interlocking.check_safe` on
+each interlocking, no section occupied by two trains, and the separation of open-line
+trains (gap to the train ahead below the ATP margin: a violation, as the plant's own
+monitor counts it); the plants count overspeed violations.
+
+Output: :class:`metro_atc.core.service.records.StopRecord`, ``TurnbackRecord`` and
+``DepotRecord`` lists and the KPIs of the run (:class:`DayResult`).
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
+
+import numpy as np
+
+from metro_atc.core.ato.onboard import OnboardAto
+from metro_atc.core.ato.wiring import ato_wiring
+from metro_atc.core.bridge import timetable_for
+from metro_atc.core.closed_loop import STOP_WINDOW_M, ato_input
+from metro_atc.core.line.scenario import Scenario
+from metro_atc.core.plant.fleet import RUN
+from metro_atc.core.plant.line import LineSim
+
+from .circulation import Block, Circulation, Trip
+from .interlocking import Interlocking, check_safe
+from .loop import LoopLine, TerminusPath
+from .records import DepotRecord, StopRecord, TurnbackRecord
+
+PULL_OUT_LEAD_S = 120.0
+"""A pulled-out train stands at its departure platform this long before its first trip [s]."""
+REQUEST_LEAD_S = 30.0
+"""A departure / reversal route is requested this long before the train may leave [s]."""
+HOLD_S = 1.0e9
+"""Departure command of a train held at a berth until its next route is set [s]."""
+
+
+@dataclass(frozen=True)
+class DayTerminus:
+    """A terminus of the day: station code, minimum turnback [s], depot connection."""
+
+    code: str
+    min_turnback_s: float
+    depot: bool
+
+
+@dataclass
+class DayResult:
+    """What a day on the plant leaves (records) and its figures (SI units)."""
+
+    stops: List[StopRecord]
+    turnbacks: List[TurnbackRecord]
+    depot: List[DepotRecord]
+    trips_planned: int
+    trips_run: int
+    trains_in_depot: int
+    fleet: int
+    atp_violations: int
+    separation_violations: int
+    route_conflicts: int
+    missed_stops: int
+    stop_errors_m: List[float]
+    forced_stop_errors_m: List[float]
+    atp_interventions: int
+    sim_time_s: float
+    wall_s: float
+    finished: bool
+    notes: List[str] = field(default_factory=list)
+
+    def row(self) -> Dict[str, Any]:
+        """JSON-friendly summary."""
+        err = np.abs(np.asarray(self.stop_errors_m, dtype=float))
+        return {"trips_planned": self.trips_planned, "trips_run": self.trips_run,
+                "fleet": self.fleet, "trains_in_depot": self.trains_in_depot,
+                "atp_violations": self.atp_violations,
+                "separation_violations": self.separation_violations,
+                "route_conflicts": self.route_conflicts, "missed_stops": self.missed_stops,
+                "stops": len(self.stops),
+                "stop_error_max_m": float(err.max()) if err.size else math.nan,
+                "stops_outside_0p30_m": int(np.count_nonzero(err > STOP_WINDOW_M)),
+                "forced_stops": len(self.forced_stop_errors_m),
+                "atp_interventions": self.atp_interventions,
+                "sim_time_s": self.sim_time_s, "wall_s": self.wall_s,
+                "finished": self.finished}
+
+
+@dataclass
+class _Req:
+    term: int
+    route: str
+    at_s: float
+    stop: int = -1
+    """Berth the train stands at (-1: requested while running)."""
+    earliest_s: float = -math.inf
+    running_s: float = math.nan
+
+
+@dataclass
+class _Train:
+    name: str
+    sim: LineSim
+    blocks: List[Block]
+    b: int = 0
+    k: int = 0
+    """Next trip of block ``b`` to start."""
+    in_service: bool = False
+    ato: Optional[OnboardAto] = None
+    zone: int = -1
+    """Terminus the train is inside (arrival route set .. departure route set), else -1."""
+    itin: Dict[int, List[str]] = field(default_factory=dict)
+    route: Dict[int, str] = field(default_factory=dict)
+    """Route set for the train at a terminus and not yet arrived at its exit."""
+    req: Optional[_Req] = None
+    trip: Optional[Trip] = None
+    trip_plan: Dict[int, Tuple[float, float]] = field(default_factory=dict)
+    trip_log: Dict[int, List[float]] = field(default_factory=dict)
+    last_arr: Optional[Tuple[Trip, float]] = None
+    withdraw_at: float = math.inf
+    entered_now: bool = False
+
+
+class DayPlant:
+    """The day's plants, interlockings and bookkeeping (see the module docstring)."""
+
+    def __init__(self, loop: LoopLine, circ: Circulation, termini: Sequence[DayTerminus],
+                 planner: str = "ectp", tracker: str = "fuzzy", seed: int = 0,
+                 extra_dwell: Optional[Mapping[Tuple[str, str, int], float]] = None) -> None:
+        """``termini``: A (first station) then B; ``extra_dwell[(train, trip, station)]``
+        [s]: a hold added to that call's departure (a disturbance of a test or study)."""
+        self.loop = loop
+        self.circ = circ
+        self.termini = tuple(termini)
+        codes = [t.code for t in self.termini]
+        for b in circ.blocks:
+            for tr in b.trips:
+                for c in (tr.origin, tr.destination):
+                    if c not in codes:
+                        raise ValueError(f"trip {tr.trip_id}: terminus {c!r} is not one of "
+                                         f"{codes}")
+        self.scn: Scenario = loop.scenario
+        self.il = [Interlocking(tp.layout) for tp in loop.termini]
+        self.extra = dict(extra_dwell or {})
+        by_train: Dict[str, List[Block]] = {}
+        for b in circ.blocks:
+            by_train.setdefault(b.train, []).append(b)
+        tt = timetable_for(self.scn)
+        self.wiring = ato_wiring(self.scn, planner, tracker, tt=tt)
+        self.shared: Dict[str, Any] = {}
+        self.trains: List[_Train] = []
+        first: Optional[LineSim] = None
+        for n, (name, blocks) in enumerate(sorted(by_train.items())):
+            sim = LineSim(self.scn, seed=seed + n, trace_period_s=0.0)
+            sim.external_entries(loop.period_m)
+            if first is None:
+                first = sim
+            else:  # one platform queue per stop for all the trains
+                sim.stations.left_behind = first.stations.left_behind
+                sim.stations.last_dep_t = first.stations.last_dep_t
+            blocks.sort(key=lambda b: b.trips[0].departure_s)
+            self.trains.append(_Train(name, sim, blocks))
+        assert first is not None, "a day needs at least one block"
+        self.sv = first.service
+        self.margin = float(first.atp.margin)
+        self.length = float(first.geometry.length_m)
+        for tp in loop.termini:  # a berth must hold the train (else it blocks its own exit)
+            lay = tp.layout
+            for r in lay.routes:
+                d = r.destination
+                if d != lay.exit_section and lay.section_length_m[d] < self.length:
+                    raise ValueError(f"terminus layout {lay.name}: berth {d} of "
+                                     f"{lay.section_length_m[d]:g} m is shorter than the "
+                                     f"{self.length:g} m train")
+        self.min_dwell = float(self.scn.passengers.min_dwell_s)
+        self.t = 0.0
+        self.step_no = 0
+        self.stops: List[StopRecord] = []
+        self.turnbacks: List[TurnbackRecord] = []
+        self.depot: List[DepotRecord] = []
+        self.route_conflicts = 0
+        self.sep_violations = 0
+        self._in_sep: Dict[str, bool] = {}
+        self._collide: set[Tuple[int, str]] = set()
+        self.stop_err: List[float] = []
+        self.forced_err: List[float] = []
+        self.trips_run = 0
+        self.notes: List[str] = []
+        m = len(loop.stops)
+        self.m = m
+        self._entry = [min(sp.entry_m for sp in tp.spans.values() if sp.route.stage == 0)
+                       for tp in loop.termini]
+
+    # ------------------------------------------------------------------ helpers
+
+    def _norm(self, k: int) -> int:
+        return 0 if k == self.m - 1 else k
+
+    def _term_of(self, code: str) -> int:
+        return [t.code for t in self.termini].index(code)
+
+    def _trip_stops(self, trip: Trip) -> List[int]:
+        """Raw loop stops of a trip (origin departure berth .. destination arrival)."""
+        lp = self.loop
+        n = len(lp.up_stop)
+        if self._term_of(trip.origin) == 0:
+            return [lp.up_stop[j] for j in range(n)]
+        raw_arr_a = lp.down_stop[0] if lp.termini[0].arrival_stop != 0 else self.m - 1
+        return [lp.down_stop[j] for j in range(n - 1, 0, -1)] + [raw_arr_a]
+
+    def trip_plan(self, trip: Trip) -> Dict[int, Tuple[float, float]]:
+        """Scheduled (arrival, departure) [s] per normalised loop stop of a trip.
+
+        The plant's scheduled running times and nominal dwells of the loop scenario, scaled
+        so that the trip ends at ``trip.arrival_s``; nan where an instant does not exist.
+        """
+        ks = self._trip_stops(trip)
+        run = [float(self.sv.sched_running_s[k]) for k in range(ks[0], ks[-1])]
+        inner = [k for k in ks[1:-1]]
+        row = _dwell_row(self.sv, trip.departure_s)
+        dw = [float(row[k]) for k in inner]
+        total = sum(run) + sum(dw)
+        scale = (trip.arrival_s - trip.departure_s) / total
+        out: Dict[int, Tuple[float, float]] = {}
+        t = trip.departure_s
+        out[self._norm(ks[0])] = (math.nan, t)
+        for a, b in zip(ks[:-1], ks[1:]):
+            t_arr = t + scale * sum(float(self.sv.sched_running_s[k]) for k in range(a, b))
+            t = t_arr + (scale * float(row[b]) if b != ks[-1] else 0.0)
+            out[self._norm(b)] = (t_arr, t if b != ks[-1] else math.nan)
+        return out
+
+    def _running(self, j: int) -> float:
+        return float(self.sv.sched_running_s[j])
+
+    # ------------------------------------------------------------------ run
+
+    def run(self, end_s: Optional[float] = None, max_wall_s: float = math.inf) -> DayResult:
+        """Run the day to its last pull-in (or ``end_s``); see the module docstring."""
+        w0 = time.perf_counter()
+        all_trips = [tr for b in self.circ.blocks for tr in b.trips]
+        first = min(b.trips[0].departure_s for b in self.circ.blocks) - PULL_OUT_LEAD_S
+        last = max(tr.arrival_s for tr in all_trips)
+        stop_at = last + 3600.0 if end_s is None else float(end_s)
+        # the plants start at 0: jump their clocks to the first pull-out (nothing runs)
+        t0 = max(0.0, math.floor(first) - 1.0)
+        for tr in self.trains:
+            tr.sim.t = t0
+            tr.sim.sensors.next_sample_t = t0
+        # passengers gather from the first pull-out on (one queue per stop, shared)
+        self.trains[0].sim.stations.last_dep_t[:] = t0
+        self.t = t0
+        dt = float(self.scn.sim.control_period_s)
+        while self.t < stop_at - 1e-9 and time.perf_counter() - w0 < max_wall_s:
+            if all(tr.b >= len(tr.blocks) and not tr.in_service for tr in self.trains):
+                break
+            self._step(dt)
+        finished = all(tr.b >= len(tr.blocks) and not tr.in_service for tr in self.trains)
+        if not finished:
+            self.notes.append(f"stopped at t={self.t:.0f} s before every train was back in "
+                              f"the depot")
+        viol = sum(int(np.sum(tr.sim.atp.violations)) for tr in self.trains)
+        return DayResult(
+            stops=self.stops, turnbacks=self.turnbacks, depot=self.depot,
+            trips_planned=len(all_trips), trips_run=self.trips_run,
+            trains_in_depot=sum(1 for tr in self.trains if not tr.in_service),
+            fleet=len(self.trains), atp_violations=viol + self.sep_violations,
+            separation_violations=self.sep_violations, route_conflicts=self.route_conflicts,
+            missed_stops=sum(int(tr.sim.stations.skipped_stops) for tr in self.trains),
+            stop_errors_m=self.stop_err, forced_stop_errors_m=self.forced_err,
+            atp_interventions=sum(int(np.sum(tr.sim.atp.interventions))
+                                  for tr in self.trains),
+            sim_time_s=self.t, wall_s=time.perf_counter() - w0, finished=finished,
+            notes=self.notes)
+
+    def _step(self, dt: float) -> None:
+        t = self.t
+        self._pull_outs_and_ins(t)
+        self._requests(t)
+        self._authorities()
+        for tr in self.trains:
+            sim = tr.sim
+            u = np.full(1, math.nan)
+            if tr.in_service and tr.ato is not None and sim.fleet.status[0] == RUN:
+                u[0] = tr.ato.control(ato_input(sim.states(), 0, self.step_no, t))[0]
+            res = sim.step(u)
+            tr.entered_now = False
+            for ev in res.events:
+                self._event(tr, ev)
+        self.t = t + dt
+        self.step_no += 1
+        self._occupancy()
+        self._grants()
+        self._checks()
+
+    # ------------------------------------------------------------------ depot
+
+    def _pull_outs_and_ins(self, t: float) -> None:
+        for tr in self.trains:
+            if tr.in_service and t >= tr.withdraw_at - 1e-9:
+                self._withdraw(tr, t)
+            if tr.in_service or tr.b >= len(tr.blocks):
+                continue
+            trip = tr.blocks[tr.b].trips[0]
+            sched = trip.departure_s - PULL_OUT_LEAD_S
+            if t >= sched - 1e-9:
+                self._pull_out(tr, trip, t, sched)
+
+    def _pull_out(self, tr: _Train, trip: Trip, t: float, sched: float) -> None:
+        T = self._term_of(trip.origin)
+        tp = self.loop.termini[T]
+        choice = self._departure_berth(T)
+        if choice is None:
+            return  # berth taken: try again next step
+        arr_route, dep_route = choice
+        tr.in_service = True
+        tr.zone = T
+        tr.itin = {T: [arr_route, dep_route]}
+        tr.route = {}
+        tr.ato = self.wiring.onboard(self.shared)
+        tr.entered_now = True
+        tr.last_arr = None
+        tr.sim.enter(0, tp.departure_stop)
+        tr.sim.set_departure(0, tp.departure_stop, HOLD_S)
+        tr.req = _Req(T, dep_route, trip.departure_s - REQUEST_LEAD_S, tp.departure_stop,
+                      trip.departure_s, self._running(tp.departure_stop))
+        self.depot.append(DepotRecord(tr.name, "pull_out", trip.origin, t, sched))
+        self._occupancy()
+
+    def _departure_berth(self, T: int) -> Optional[Tuple[str, str]]:
+        """(route ending at a free departure berth, departure route from it) or None."""
+        lay = self.loop.termini[T].layout
+        top = max(r.stage for r in lay.routes)
+        il = self.il[T]
+        for dep in (r for r in lay.routes if r.stage == top):
+            into = [r for r in lay.routes if r.exit_signal == dep.entry_signal]
+            if not into:
+                continue
+            berth = into[0].destination
+            if berth in il.occupied or berth in il.lock or self._claimed(T, berth):
+                continue
+            return into[0].name, dep.name
+        return None
+
+    def _claimed(self, T: int, section: str, me: Optional[_Train] = None) -> bool:
+        """A train in service (other than ``me``) has a route into ``section`` at T."""
+        lay = self.loop.termini[T].layout
+        return any(o is not me and o.in_service
+                   and any(lay.route(rn).destination == section for rn in o.itin.get(T, []))
+                   for o in self.trains)
+
+    def _withdraw(self, tr: _Train, t: float) -> None:
+        trip = tr.last_arr[0] if tr.last_arr else None
+        tr.sim.withdraw(0)
+        tr.in_service = False
+        tr.ato = None
+        tr.itin = {}
+        tr.route = {}
+        tr.zone = -1
+        tr.req = None
+        tr.withdraw_at = math.inf
+        tr.b += 1
+        tr.k = 0
+        if trip is not None:
+            self.depot.append(DepotRecord(tr.name, "pull_in", trip.destination, t,
+                                          trip.arrival_s + self.min_dwell))
+        self._occupancy()
+
+    # ------------------------------------------------------------------ routes
+
+    def _requests(self, t: float) -> None:
+        for tr in self.trains:
+            q = tr.req
+            if q is None or q.at_s > t + 1e-9:
+                continue
+            il = self.il[q.term]
+            if not any(r.train == tr.name for r in il.queue):
+                il.request(tr.name, q.route)
+
+    def _grants(self) -> None:
+        for T, il in enumerate(self.il):
+            for name, route in il.process():
+                tr = next(x for x in self.trains if x.name == name)
+                q = tr.req
+                tr.req = None
+                r = il.layout.route(route)
+                top = max(x.stage for x in il.layout.routes)
+                tr.route[T] = route
+                if r.stage == top:
+                    tr.zone = -1  # the departure route leads onto the open line
+                else:
+                    tr.zone = T
+                if q is not None and q.stop >= 0:
+                    dep = max(self.t, q.earliest_s)
+                    tr.sim.set_departure(0, q.stop, dep, q.running_s)
+                    if tr.ato is not None:
+                        tr.ato.on_departure(q.stop, dep, q.running_s, self.t)
+
+    def _choose(self, T: int, tr: _Train) -> str:
+        """The next route of ``tr``'s itinerary at T (a free destination first).
+
+        The candidates continue the routes the train took so far at T
+        (``Layout.itineraries``); a destination neither occupied, locked nor claimed by
+        another train is preferred (the siding or platform chosen free first).
+        """
+        lay = self.loop.termini[T].layout
+        il = self.il[T]
+        done = tr.itin.get(T, [])
+        cands: List[str] = []
+        for it in lay.itineraries:
+            if list(it[:len(done)]) == done and len(it) > len(done) \
+                    and it[len(done)] not in cands:
+                cands.append(it[len(done)])
+        if not cands:
+            raise RuntimeError(f"{tr.name}: no route continues {done} at {lay.name}")
+        for rn in cands:
+            d = lay.route(rn).destination
+            if d not in il.occupied and d not in il.lock and not self._claimed(T, d, tr):
+                return rn
+        return cands[0]
+
+    # ------------------------------------------------------------------ events
+
+    def _event(self, tr: _Train, ev: Any) -> None:
+        j = int(ev.station_idx)
+        t = float(ev.t_s)
+        if ev.kind == "arrival":
+            if tr.entered_now:
+                return  # placed at its departure berth by a pull-out
+            err = float(ev.stop_error_m)
+            if math.isfinite(err):
+                forced = bool(tr.sim.fleet.broken[0] or tr.sim.atp.eb[0])
+                (self.forced_err if forced else self.stop_err).append(err)
+            if j == 0:  # the loop closed: a new lap, a new cab
+                tr.ato = self.wiring.onboard(self.shared)
+            self._arrival(tr, j, t)
+        else:
+            self._departure(tr, j, t)
+
+    def _terminus_at(self, j: int) -> Optional[TerminusPath]:
+        for tp in self.loop.termini:
+            if j in (tp.arrival_stop, tp.reversal_stop, tp.departure_stop):
+                return tp
+        return None
+
+    def _arrival(self, tr: _Train, j: int, t: float) -> None:
+        sim = tr.sim
+        tp = self._terminus_at(j)
+        if tp is None:  # an intermediate platform of the running trip
+            sched = tr.trip_plan.get(j, (math.nan, math.nan))
+            tr.trip_log.setdefault(j, [math.nan, math.nan])[0] = t
+            st = self.loop.stops[j].station
+            extra = self.extra.get((tr.name, tr.trip.trip_id if tr.trip else "", st), 0.0)
+            dep = sched[1] + extra
+            run = self._running(j) * self._scale(tr)
+            sim.set_departure(0, j, dep, run)
+            if tr.ato is not None:
+                tr.ato.on_departure(j, dep, run, t)
+            return
+        T = tp.index
+        lay = tp.layout
+        route = tr.route.pop(T, None)
+        if route is not None:
+            self.il[T].arrived(route)
+        sim.set_departure(0, j, HOLD_S)
+        if j == tp.arrival_stop and tr.trip is not None and \
+                self._term_of(tr.trip.destination) == T:
+            self._end_trip(tr, j, t)
+            if tr.k >= len(tr.blocks[tr.b].trips):  # end of the block: pull in
+                tr.withdraw_at = t + self.min_dwell
+                return
+        spec = self.termini[T]
+        nxt_route = self._choose(T, tr)
+        if j == tp.departure_stop:  # departure berth (also the arrival at a scissors)
+            nxt = self._next_trip(tr)
+            last = tr.last_arr[1] if tr.last_arr else t
+            earliest = max(nxt.departure_s, last + spec.min_turnback_s,
+                           t + (lay.reversal_s if j == tp.reversal_stop else 0.0))
+        elif j == tp.reversal_stop:
+            earliest = t + lay.reversal_s
+        else:
+            earliest = t
+        tr.itin.setdefault(T, []).append(nxt_route)
+        tr.req = _Req(T, nxt_route, earliest - REQUEST_LEAD_S, j, earliest, self._running(j))
+
+    def _scale(self, tr: _Train) -> float:
+        if tr.trip is None:
+            return 1.0
+        ks = self._trip_stops(tr.trip)
+        run = sum(float(self.sv.sched_running_s[k]) for k in range(ks[0], ks[-1]))
+        row = _dwell_row(self.sv, tr.trip.departure_s)
+        dw = sum(float(row[k]) for k in ks[1:-1])
+        return (tr.trip.arrival_s - tr.trip.departure_s) / (run + dw)
+
+    def _next_trip(self, tr: _Train) -> Trip:
+        return tr.blocks[tr.b].trips[tr.k]
+
+    def _end_trip(self, tr: _Train, j: int, t: float) -> None:
+        trip = tr.trip
+        assert trip is not None
+        tr.trip_log.setdefault(j, [math.nan, math.nan])[0] = t
+        direction = "up" if self._term_of(trip.origin) == 0 else "down"
+        for k, (sa, sd) in tr.trip_plan.items():
+            arr, dep = tr.trip_log.get(k, [math.nan, math.nan])
+            st = self.loop.stops[k].station
+            self.stops.append(StopRecord(tr.name, trip.trip_id, direction, st, sa, sd,
+                                         arr if math.isfinite(sa) else math.nan,
+                                         dep if math.isfinite(sd) else math.nan))
+        tr.last_arr = (trip, t)
+        tr.trip = None
+        self.trips_run += 1
+
+    def _departure(self, tr: _Train, j: int, t: float) -> None:
+        tp = self._terminus_at(j)
+        if tp is not None and j == tp.departure_stop:  # a trip starts
+            trip = self._next_trip(tr)
+            tr.k += 1
+            tr.trip = trip
+            tr.trip_plan = self.trip_plan(trip)
+            tr.trip_log = {j: [math.nan, t]}
+            if tr.last_arr is not None:
+                prev, t_arr = tr.last_arr
+                T = tp.index
+                self.turnbacks.append(TurnbackRecord(
+                    tr.name, self.termini[T].code, prev.trip_id, trip.trip_id, t_arr, t,
+                    prev.arrival_s, trip.departure_s, self.termini[T].min_turnback_s))
+            tr.last_arr = None
+        elif tp is None and tr.trip is not None:
+            tr.trip_log.setdefault(j, [math.nan, math.nan])[1] = t
+        # the next stop: the arrival route of a terminus is requested when leaving the
+        # platform before it
+        nxt = self._norm(j + 1)
+        for T, tq in enumerate(self.loop.termini):
+            if nxt == tq.arrival_stop and (tp is None or tp.index != T):
+                tr.itin[T] = []
+                route = self._choose(T, tr)
+                tr.itin[T] = [route]
+                tr.req = _Req(T, route, t)
+
+    # ------------------------------------------------------------------ authority
+
+    def _authorities(self) -> None:
+        P = self.loop.period_m
+        open_s: List[float] = []
+        for tr in self.trains:
+            if tr.in_service and tr.zone < 0:
+                open_s.append(float(tr.sim.fleet.x[0]))
+        open_s.sort()
+        for tr in self.trains:
+            sim = tr.sim
+            if not tr.in_service:
+                sim.set_authority_end(math.inf)
+                continue
+            x = float(sim.fleet.x[0])
+            k = bisect.bisect_right(open_s, x)
+            lead = open_s[k] - self.length - self.margin if k < len(open_s) else math.inf
+            cap = math.inf
+            if tr.zone >= 0:
+                T = tr.zone
+                rn = tr.route.get(T)
+                if rn is not None:
+                    sp = self.loop.termini[T].spans[rn]
+                    r = sp.route
+                    ext = sum(self.loop.termini[T].layout.section_length_m[s]
+                              for s in r.overlap) or self.margin
+                    cap = sp.exit_m + ext
+                else:
+                    cap = float(sim.fleet.stop_x[0]) if not sim.fleet.dwelling[0] else x
+            else:
+                # the entry signal of the terminus ahead until the arrival route is set
+                ahead = [e for e in self._entry if e >= x - 1.0]
+                e = min(ahead) if ahead else self._entry[0] + P
+                T = self._entry.index(e) if ahead else 0
+                rn = tr.route.get(T)
+                if rn is None:
+                    cap = e
+            sim.set_authority_end(min(cap, lead))
+
+    # ------------------------------------------------------------------ occupancy
+
+    def _spans_of(self, tr: _Train, T: int) -> List[Tuple[str, float, float]]:
+        tp = self.loop.termini[T]
+        out: List[Tuple[str, float, float]] = []
+        for rn in tr.itin.get(T, []):
+            out.extend(tp.spans[rn].sections)
+        return out
+
+    def _occupancy(self) -> None:
+        P = self.loop.period_m
+        for T, il in enumerate(self.il):
+            occ: Dict[str, int] = {}
+            for tr in self.trains:
+                if not tr.in_service or not tr.itin.get(T):
+                    continue
+                fl = tr.sim.fleet
+                x = float(fl.x[0])
+                if fl.dwelling[0]:  # standing at a berth: its front is at the stop point
+                    x = min(x, self.loop.stops[int(fl.cur_station[0])].s_m)
+                hit = set()
+                for sec, a, b in self._spans_of(tr, T):
+                    for d in (0.0, P, -P):
+                        lo, hi = x - self.length + d, x + d
+                        if hi > a and lo < b:
+                            hit.add(sec)
+                for s in hit:
+                    occ[s] = occ.get(s, 0) + 1
+            for s, c in occ.items():
+                key = (T, s)
+                if c > 1 and key not in self._collide:
+                    self.route_conflicts += 1
+                    self._collide.add(key)
+                    self.notes.append(f"t={self.t:.2f} s: section {s} of {il.layout.name} "
+                                      f"occupied by {c} trains")
+                elif c <= 1:
+                    self._collide.discard(key)
+            now = set(occ)
+            for s in sorted(now - il.occupied):
+                il.occupy(s)
+            for s in sorted(il.occupied - now):
+                il.clear(s)
+            # a train whose departure route is released has left the terminus
+            for tr in self.trains:
+                rn = tr.route.get(T)
+                if rn is not None and rn not in il.set_routes:
+                    del tr.route[T]
+                    if tr.zone < 0:
+                        tr.itin.pop(T, None)
+
+    def _checks(self) -> None:
+        for il in self.il:
+            why = check_safe(il)
+            if why is not None:
+                self.route_conflicts += 1
+                self.notes.append(f"t={self.t:.2f} s: {il.layout.name}: {why}")
+        # separation of the open-line trains (the plant's own monitor sees no train ahead)
+        rows = sorted((float(tr.sim.fleet.x[0]), tr.name) for tr in self.trains
+                      if tr.in_service and tr.zone < 0)
+        for (x0, n0), (x1, _) in zip(rows[:-1], rows[1:]):
+            bad = x1 - self.length - x0 < self.margin - 1e-6
+            if bad and not self._in_sep.get(n0, False):
+                self.sep_violations += 1
+            self._in_sep[n0] = bad
+        if rows:
+            self._in_sep[rows[-1][1]] = False
+
+
+def _dwell_row(sv: Any, t_s: float) -> Any:
+    """Nominal dwells [s] per loop stop of the timetable period in force at ``t_s``."""
+    return sv.sched_dwell[sv.flow.period(t_s)]
+
+
+def day_trips(loop: LoopLine, sv: Any, codes: Tuple[str, str], first_s: float, end_s: float,
+              headway_s: float) -> List[Trip]:
+    """Trips of both directions every ``headway_s`` [s] from ``first_s`` until ``end_s``.
+
+    Trip time: the loop scenario's scheduled running times and nominal dwells (``sv``: its
+    :class:`metro_atc.core.line.service.ServicePlan`), rounded up to 1 s.  A uniform day
+    (tests, studies of one period); the Taipei day uses :func:`metro_atc.core.service.day`.
+    """
+    n = len(loop.up_stop)
+    m = len(loop.stops)
+    raw_a = loop.down_stop[0] if loop.termini[0].arrival_stop != 0 else m - 1
+    legs = {"up": [loop.up_stop[j] for j in range(n)],
+            "down": [loop.down_stop[j] for j in range(n - 1, 0, -1)] + [raw_a]}
+    out: List[Trip] = []
+    for d, (o, e) in (("up", codes), ("down", codes[::-1])):
+        ks = legs[d]
+        dur = sum(float(sv.sched_running_s[k]) for k in range(ks[0], ks[-1]))
+        row = _dwell_row(sv, first_s)
+        dur += sum(float(row[k]) for k in ks[1:-1])
+        dur = float(math.ceil(dur))
+        z, k = first_s, 0
+        while z < end_s - 1e-9:
+            out.append(Trip(f"{d}{k:03d}", o, e, z, z + dur))
+            z += headway_s
+            k += 1
+    return out
+
+
+__all__ = ["DayPlant", "DayResult", "DayTerminus", "HOLD_S", "PULL_OUT_LEAD_S",
+           "REQUEST_LEAD_S", "day_trips"]
