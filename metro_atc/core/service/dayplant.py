@@ -679,13 +679,15 @@ def _dwell_row(sv: Any, t_s: float) -> Any:
     return sv.sched_dwell[sv.flow.period(t_s)]
 
 
-def day_trips(loop: LoopLine, sv: Any, codes: Tuple[str, str], first_s: float, end_s: float,
-              headway_s: float) -> List[Trip]:
-    """Trips of both directions every ``headway_s`` [s] from ``first_s`` until ``end_s``.
+def day_trips(loop: LoopLine, sv: Any, codes: Tuple[str, str],
+              periods: Sequence[Tuple[float, float, float]]) -> List[Trip]:
+    """Trips of both directions from each terminus; ``periods``: (start, end, headway) [s].
 
-    Trip time: the loop scenario's scheduled running times and nominal dwells (``sv``: its
-    :class:`metro_atc.core.line.service.ServicePlan`), rounded up to 1 s.  A uniform day
-    (tests, studies of one period); the Taipei day uses :func:`metro_atc.core.service.day`.
+    Departures every headway from each period's start until its end, both termini at the
+    same instants.  Trip time: the loop scenario's scheduled running times and nominal
+    dwells (``sv``: its :class:`metro_atc.core.line.service.ServicePlan`, the dwells of the
+    period in force at the departure), rounded up to 1 s.  A simple day for tests and
+    studies; the Taipei day's trips are :func:`metro_atc.core.service.day.trips`.
     """
     n = len(loop.up_stop)
     m = len(loop.stops)
@@ -695,15 +697,16 @@ def day_trips(loop: LoopLine, sv: Any, codes: Tuple[str, str], first_s: float, e
     out: List[Trip] = []
     for d, (o, e) in (("up", codes), ("down", codes[::-1])):
         ks = legs[d]
-        dur = sum(float(sv.sched_running_s[k]) for k in range(ks[0], ks[-1]))
-        row = _dwell_row(sv, first_s)
-        dur += sum(float(row[k]) for k in ks[1:-1])
-        dur = float(math.ceil(dur))
-        z, k = first_s, 0
-        while z < end_s - 1e-9:
-            out.append(Trip(f"{d}{k:03d}", o, e, z, z + dur))
-            z += headway_s
-            k += 1
+        k = 0
+        for start, end, hw in periods:
+            z = float(start)
+            while z < end - 1e-9:
+                row = _dwell_row(sv, z)
+                dur = sum(float(sv.sched_running_s[q]) for q in range(ks[0], ks[-1]))
+                dur += sum(float(row[q]) for q in ks[1:-1])
+                out.append(Trip(f"{d}{k:03d}", o, e, z, z + float(math.ceil(dur))))
+                z += float(hw)
+                k += 1
     return out
 
 

@@ -1,0 +1,105 @@
+"""A two-direction service day on the plant (core/service/dayplant.py), ROS-free.
+
+Short days on the ``mini`` line (4 stations) with both terminus layouts: every planned
+trip runs, every train ends in the depot, no ATP violation, no route conflict (the
+interlocking's brute-force safety check every step), no missed stop, berthing within the
+platform-door window; a late arrival larger than the turnback buffer delays the next trip by
+exactly delay - buffer (:func:`propagate_delay`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+
+from metro_atc.core.line.scenario import load_scenario
+from metro_atc.core.plant.line import LineSim
+from metro_atc.core.service.circulation import build_circulation, propagate_delay
+from metro_atc.core.service.dayplant import DayPlant, DayTerminus, day_trips
+from metro_atc.core.service.interlocking import scissors_terminus, tail_track_terminus
+from metro_atc.core.service.loop import build_loop
+
+CODES = ("MN01", "MN04")
+MIN_TURNBACK_S = 240.0
+PLATFORM_M = 150.0  # the berths hold the 141 m train
+
+LAYOUTS = {
+    "scissors_A_tail_B": lambda: (scissors_terminus(platform_m=PLATFORM_M),
+                                  tail_track_terminus(2, platform_m=PLATFORM_M)),
+    "tail_A_scissors_B": lambda: (tail_track_terminus(1, platform_m=PLATFORM_M),
+                                  scissors_terminus(platform_m=PLATFORM_M)),
+}
+
+
+def _day(layouts, extra=None, depots=CODES):  # type: ignore[no-untyped-def]
+    scn = load_scenario("mini")
+    scn = dataclasses.replace(scn, disturbances=dataclasses.replace(
+        scn.disturbances, departure_delay_prob=0.0))
+    loop = build_loop(scn, layouts)
+    sv = LineSim(loop.scenario, trace_period_s=0.0).service
+    # two periods of 20 min: 300 s then 240 s headway
+    trips = day_trips(loop, sv, CODES, [(3600.0, 4800.0, 300.0), (4800.0, 6000.0, 240.0)])
+    circ = build_circulation(trips, {c: MIN_TURNBACK_S for c in CODES}, set(depots))
+    dp = DayPlant(loop, circ, [DayTerminus(c, MIN_TURNBACK_S, c in depots) for c in CODES],
+                  extra_dwell=extra)
+    return circ, trips, dp
+
+
+@pytest.mark.parametrize("name", sorted(LAYOUTS))
+def test_short_day_runs_every_trip_safely(name: str) -> None:
+    circ, trips, dp = _day(LAYOUTS[name]())
+    res = dp.run()
+    assert res.finished, res.notes
+    assert 3 <= circ.fleet <= 6
+    assert res.trips_run == res.trips_planned == len(trips)
+    assert res.trains_in_depot == res.fleet == circ.fleet
+    assert res.atp_violations == 0 and res.separation_violations == 0
+    assert res.route_conflicts == 0, res.notes
+    assert res.missed_stops == 0
+    assert max(abs(e) for e in res.stop_errors_m) <= 0.30
+    assert not res.forced_stop_errors_m
+    # the records: one per call of every trip, its turnbacks, the depot moves
+    assert len(res.stops) == len(trips) * 4
+    assert sum(1 for d in res.depot if d.kind == "pull_out") == sum(circ.pull_outs.values())
+    assert sum(1 for d in res.depot if d.kind == "pull_in") == sum(circ.pull_ins.values())
+    assert len(res.turnbacks) == sum(len(b.trips) - 1 for b in circ.blocks)
+    for tb in res.turnbacks:  # the minimum turnback holds, the timetable holds
+        assert tb.dep_s >= tb.arr_s + MIN_TURNBACK_S - 1e-6
+        assert tb.dep_s >= tb.sched_dep_s - 1e-6
+    # each train ran its own blocks' trips, in order (identity kept across trips)
+    for b in circ.blocks:
+        ran = [r.trip_id for r in res.stops if r.train == b.train and math.isnan(r.sched_arr_s)]
+        assert [t.trip_id for t in b.trips] == [x for x in ran if x in
+                                                 {t.trip_id for t in b.trips}]
+    for r in res.stops:  # every call happened, departures after arrivals
+        assert math.isfinite(r.arr_s) or math.isnan(r.sched_arr_s)
+        assert math.isfinite(r.dep_s) or math.isnan(r.sched_dep_s)
+        if math.isfinite(r.arr_s) and math.isfinite(r.dep_s):
+            assert r.dep_s > r.arr_s
+
+
+def test_late_arrival_delays_the_next_trip_by_delay_minus_buffer() -> None:
+    layouts = LAYOUTS["scissors_A_tail_B"]
+    circ, _, dp0 = _day(layouts())
+    blk = next(b for b in circ.blocks if len(b.trips) >= 2)
+    first, second = blk.trips[0], blk.trips[1]
+    buffer = (second.departure_s - first.arrival_s) - MIN_TURNBACK_S
+    hold = buffer + 60.0
+    station = 1 if first.origin == CODES[0] else 2  # an intermediate call of the first trip
+    _, _, dp = _day(layouts(), extra={(blk.train, first.trip_id, station): hold})
+    res = dp.run()
+    assert res.finished and res.route_conflicts == 0 and res.atp_violations == 0
+    tb = next(x for x in res.turnbacks if x.train == blk.train and x.arr_trip_id ==
+              first.trip_id)
+    assert tb.terminal_delay_s > buffer + 30.0  # the hold made it late beyond the buffer
+    expect = propagate_delay(tb.terminal_delay_s, tb.sched_dep_s - tb.sched_arr_s,
+                             MIN_TURNBACK_S)
+    assert expect > 0.0
+    assert abs(tb.carried_delay_s - expect) <= 0.5  # one control period and rounding
+    # the undisturbed day leaves that trip on time
+    res0 = dp0.run()
+    tb0 = next(x for x in res0.turnbacks if x.train == blk.train and x.arr_trip_id ==
+               first.trip_id)
+    assert tb0.carried_delay_s <= 0.5
