@@ -71,8 +71,8 @@ def test_short_day_runs_every_trip_safely(name: str) -> None:
     # each train ran its own blocks' trips, in order (identity kept across trips)
     for b in circ.blocks:
         ran = [r.trip_id for r in res.stops if r.train == b.train and math.isnan(r.sched_arr_s)]
-        assert [t.trip_id for t in b.trips] == [x for x in ran if x in
-                                                 {t.trip_id for t in b.trips}]
+        mine = {t.trip_id for t in b.trips}
+        assert [t.trip_id for t in b.trips] == [x for x in ran if x in mine]
     for r in res.stops:  # every call happened, departures after arrivals
         assert math.isfinite(r.arr_s) or math.isnan(r.sched_arr_s)
         assert math.isfinite(r.dep_s) or math.isnan(r.sched_dep_s)

@@ -260,7 +260,8 @@ def _map(raw: Any, path: str, src: str, keys: Sequence[str]) -> Dict[str, Any]:
     if unknown:
         raise DayError(one_line(f"day {src}: {path}: unknown key {unknown[0]!r} "
                                 f"(known: {', '.join(keys)})"))
-    missing = [k for k in keys if k not in raw and k not in ("depot", "basis", "n_sidings")]
+    missing = [k for k in keys if k not in raw
+               and k not in ("depot", "basis", "n_sidings", "platform_m")]
     if missing:
         raise DayError(one_line(f"day {src}: {path}: missing key {missing[0]!r}"))
     return raw
@@ -273,10 +274,11 @@ def _layout(raw: Dict[str, Any], path: str, src: str) -> Layout:
                                 f"{', '.join(_LAYOUTS)}, got {short_repr(kind)}"))
     rev = _num(raw["reversal_s"], f"{path}.reversal_s", src, 0.0, 3600.0)
     vx = _num(raw["crossover_speed_kmh"], f"{path}.crossover_speed_kmh", src, 5.0, 80.0) * KMH
+    plat = _num(raw.get("platform_m", 140.0), f"{path}.platform_m", src, 20.0, 1000.0)
     if kind == "scissors":
-        return scissors_terminus(rev, vx)
+        return scissors_terminus(rev, vx, platform_m=plat)
     n = _int(raw.get("n_sidings", 1), f"{path}.n_sidings", src, 1, 8)
-    return tail_track_terminus(n, rev, vx)
+    return tail_track_terminus(n, rev, vx, platform_m=plat)
 
 
 def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
@@ -295,7 +297,8 @@ def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
     for i, t in enumerate(top["termini"]):
         path = f"termini[{i}]"
         m = _map(t, path, src, ("station", "layout", "reversal_s", "crossover_speed_kmh",
-                                "n_sidings", "min_turnback_s", "depot", "depot_station"))
+                                "n_sidings", "min_turnback_s", "depot", "depot_station",
+                                "platform_m"))
         if m["station"] != ends[i]:
             raise DayError(one_line(f"day {src}: {path}.station: expected terminus "
                                     f"{ends[i]}, got {short_repr(m['station'])}"))

@@ -39,10 +39,11 @@ Output: :class:`metro_atc.core.service.records.StopRecord`, ``TurnbackRecord`` a
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -53,6 +54,7 @@ from metro_atc.core.closed_loop import STOP_WINDOW_M, ato_input
 from metro_atc.core.line.scenario import Scenario
 from metro_atc.core.plant.fleet import RUN
 from metro_atc.core.plant.line import LineSim
+from metro_atc.core.plant.views import fleet_state_rows
 
 from .circulation import Block, Circulation, Trip
 from .interlocking import Interlocking, check_safe
@@ -63,6 +65,7 @@ PULL_OUT_LEAD_S = 120.0
 """A pulled-out train stands at its departure platform this long before its first trip [s]."""
 REQUEST_LEAD_S = 30.0
 """A departure / reversal route is requested this long before the train may leave [s]."""
+_ROW0 = np.zeros(1, dtype=np.intp)
 HOLD_S = 1.0e9
 """Departure command of a train held at a berth until its next route is set [s]."""
 
@@ -149,6 +152,8 @@ class _Train:
     last_arr: Optional[Tuple[Trip, float]] = None
     withdraw_at: float = math.inf
     entered_now: bool = False
+    ma: float = math.nan
+    """End of authority last given to the plant [m]."""
 
 
 class DayPlant:
@@ -265,8 +270,12 @@ class DayPlant:
 
     # ------------------------------------------------------------------ run
 
-    def run(self, end_s: Optional[float] = None, max_wall_s: float = math.inf) -> DayResult:
-        """Run the day to its last pull-in (or ``end_s``); see the module docstring."""
+    def run(self, end_s: Optional[float] = None, max_wall_s: float = math.inf,
+            progress: Optional[Callable[["DayPlant"], None]] = None) -> DayResult:
+        """Run the day to its last pull-in (or ``end_s`` [s], or ``max_wall_s`` of wall time).
+
+        ``progress(self)`` is called once per simulated hour.
+        """
         w0 = time.perf_counter()
         all_trips = [tr for b in self.circ.blocks for tr in b.trips]
         first = min(b.trips[0].departure_s for b in self.circ.blocks) - PULL_OUT_LEAD_S
@@ -281,14 +290,20 @@ class DayPlant:
         self.trains[0].sim.stations.last_dep_t[:] = t0
         self.t = t0
         dt = float(self.scn.sim.control_period_s)
+        next_report = self.t
         while self.t < stop_at - 1e-9 and time.perf_counter() - w0 < max_wall_s:
             if all(tr.b >= len(tr.blocks) and not tr.in_service for tr in self.trains):
                 break
             self._step(dt)
+            if progress is not None and self.t >= next_report:
+                progress(self)
+                next_report = self.t + 3600.0
         finished = all(tr.b >= len(tr.blocks) and not tr.in_service for tr in self.trains)
         if not finished:
-            self.notes.append(f"stopped at t={self.t:.0f} s before every train was back in "
-                              f"the depot")
+            why = ("wall-time limit" if time.perf_counter() - w0 >= max_wall_s
+                   else "end time")
+            self.notes.append(f"stopped at t={self.t:.0f} s ({why}) before every train was "
+                              f"back in the depot")
         viol = sum(int(np.sum(tr.sim.atp.violations)) for tr in self.trains)
         return DayResult(
             stops=self.stops, turnbacks=self.turnbacks, depot=self.depot,
@@ -310,9 +325,13 @@ class DayPlant:
         self._authorities()
         for tr in self.trains:
             sim = tr.sim
+            if not tr.in_service:  # in the depot: nothing moves, the clock runs on
+                sim.t = t + dt
+                continue
             u = np.full(1, math.nan)
-            if tr.in_service and tr.ato is not None and sim.fleet.status[0] == RUN:
-                u[0] = tr.ato.control(ato_input(sim.states(), 0, self.step_no, t))[0]
+            if tr.ato is not None and sim.fleet.status[0] == RUN:
+                st = fleet_state_rows(sim, _ROW0)  # the states() rows of this one train
+                u[0] = tr.ato.control(ato_input(st, 0, self.step_no, t))[0]
             res = sim.step(u)
             tr.entered_now = False
             for ev in res.events:
@@ -350,6 +369,7 @@ class DayPlant:
         tr.ato = self.wiring.onboard(self.shared)
         tr.entered_now = True
         tr.last_arr = None
+        tr.sim.sensors.next_sample_t = t  # no samples were due in the depot
         tr.sim.enter(0, tp.departure_stop)
         tr.sim.set_departure(0, tp.departure_stop, HOLD_S)
         tr.req = _Req(T, dep_route, trip.departure_s - REQUEST_LEAD_S, tp.departure_stop,
@@ -579,7 +599,6 @@ class DayPlant:
         for tr in self.trains:
             sim = tr.sim
             if not tr.in_service:
-                sim.set_authority_end(math.inf)
                 continue
             x = float(sim.fleet.x[0])
             k = bisect.bisect_right(open_s, x)
@@ -604,7 +623,10 @@ class DayPlant:
                 rn = tr.route.get(T)
                 if rn is None:
                     cap = e
-            sim.set_authority_end(min(cap, lead))
+            ma = min(cap, lead)
+            if ma != tr.ma:
+                sim.set_authority_end(ma)
+                tr.ma = ma
 
     # ------------------------------------------------------------------ occupancy
 
@@ -710,5 +732,74 @@ def day_trips(loop: LoopLine, sv: Any, codes: Tuple[str, str],
     return out
 
 
+def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = "fuzzy",
+                seed: int = 0, stable_after_s: float = 1800.0) -> DayPlant:
+    """The plant of a day: ``scn``'s line and stock, ``plan`` a :class:`DayPlan`.
+
+    The loop of the line with the plan's terminus layouts; its timetable periods are the
+    plan's (boarding per direction scaled by the period's flow factors); the circulation
+    is :func:`metro_atc.core.service.day.run_day`'s.  DayError / LoopError in one line.
+    """
+    from .day import run_day
+    from .loop import build_loop, with_periods
+    if [s.code for s in scn.line.stations][::len(scn.line.stations) - 1] != \
+            [t.station for t in plan.termini]:
+        raise ValueError(f"day {plan.name}: termini {[t.station for t in plan.termini]} are "
+                         f"not the ends of scenario {scn.name}")
+    loop = build_loop(scn, (plan.termini[0].layout, plan.termini[1].layout))
+    lscn = with_periods(scn, loop, [(p.start_s, p.headway_s, p.flow_up, p.flow_down, p.name)
+                                    for p in plan.periods])
+    end = plan.periods[-1].end_s + 7200.0
+    lscn = dataclasses.replace(lscn, sim=dataclasses.replace(lscn.sim, duration_s=end))
+    loop = dataclasses.replace(loop, scenario=lscn)
+    circ, _ = run_day(plan, stable_after_s)
+    termini = [DayTerminus(t.station, t.min_turnback_s, t.depot is not None)
+               for t in plan.termini]
+    return DayPlant(loop, circ, termini, planner, tracker, seed)
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """``python -m metro_atc.core.service.dayplant``: the Taipei Blue day on the plant.
+
+    Prints one JSON line per simulated hour (progress) and the summary; exit 0 only when
+    the whole day ran (every trip, every train back in the depot) without a violation or
+    route conflict.
+    """
+    import argparse
+    import json
+    import sys
+
+    from metro_atc.core.line.scenario import load_scenario
+
+    from .day import load_day
+    ap = argparse.ArgumentParser(prog="python -m metro_atc.core.service.dayplant")
+    ap.add_argument("--scenario", default="taipei_blue")
+    ap.add_argument("--day", default=None, help="period table (default: the Taipei Blue day)")
+    ap.add_argument("--end-h", type=float, default=None, help="stop at this hour [h]")
+    ap.add_argument("--max-wall-s", type=float, default=math.inf)
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args(argv)
+    try:
+        dp = service_day(load_scenario(a.scenario), load_day(a.day), seed=a.seed)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+    def progress(d: DayPlant) -> None:
+        print(json.dumps({"t_h": round(d.t / 3600.0, 2), "trips_run": d.trips_run,
+                          "in_service": sum(tr.in_service for tr in d.trains),
+                          "route_conflicts": d.route_conflicts}), flush=True)
+
+    res = dp.run(None if a.end_h is None else a.end_h * 3600.0, a.max_wall_s, progress)
+    print(json.dumps({**res.row(), "notes": res.notes[:5]}), flush=True)
+    ok = (res.finished and res.trips_run == res.trips_planned and res.atp_violations == 0
+          and res.route_conflicts == 0 and res.missed_stops == 0)
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
+
+
 __all__ = ["DayPlant", "DayResult", "DayTerminus", "HOLD_S", "PULL_OUT_LEAD_S",
-           "REQUEST_LEAD_S", "day_trips"]
+           "REQUEST_LEAD_S", "day_trips", "main", "service_day"]

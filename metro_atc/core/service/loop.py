@@ -295,11 +295,10 @@ def _scenario(scn: Scenario, stops: List[LoopStop], c0: float, cn: float, d0: fl
     out = dataclasses.replace(
         scn, name=name,
         trains=dataclasses.replace(scn.trains, count=1),
-        line=dataclasses.replace(ln, stations=stations, speed_limits=_steps(limits,
-                                                                              SpeedLimitSpec,
-                                                                              "limit_kmh"),
-                                 gradients=_steps(_merge(gr), GradientSpec, "grade_permille"),
-                                 curves=curves, temporary_speed_limits=[]),
+        line=dataclasses.replace(
+            ln, stations=stations, speed_limits=_steps(limits, SpeedLimitSpec, "limit_kmh"),
+            gradients=_steps(_merge(gr), GradientSpec, "grade_permille"), curves=curves,
+            temporary_speed_limits=[]),
         timetable=dataclasses.replace(scn.timetable, periods=periods, first_departure_s=0.0),
         passengers=dataclasses.replace(scn.passengers, alight_fraction=af),
         incidents=[], faults=[], sensors=dataclasses.replace(scn.sensors, trains=[]))
@@ -383,9 +382,11 @@ def _alight(scn: Scenario, x: LoopStop) -> float:
     return float(af[x.station] if x.direction == "up" else af[n - 1 - x.station])
 
 
-def with_periods(scn: Scenario, loop: LoopLine, periods: Sequence[Tuple[float, float, float,
-                                                                           float, str]]
-                 ) -> Scenario:
+Period = Tuple[float, float, float, float, str]
+"""A day period for :func:`with_periods`: start [s], headway [s], up and down flow, name."""
+
+
+def with_periods(scn: Scenario, loop: LoopLine, periods: Sequence[Period]) -> Scenario:
     """The loop scenario with day periods (start [s], headway [s], up and down flow factors).
 
     Boarding at the up / down platforms is the base scenario's first-period profile times
