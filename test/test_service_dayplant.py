@@ -103,3 +103,25 @@ def test_late_arrival_delays_the_next_trip_by_delay_minus_buffer() -> None:
     tb0 = next(x for x in res0.turnbacks if x.train == blk.train and x.arr_trip_id ==
                first.trip_id)
     assert tb0.carried_delay_s <= 0.5
+
+
+def test_a_follower_waits_behind_a_held_train() -> None:
+    """The train ahead on the track (by path position) bounds the authority: no catch-up."""
+    layouts = LAYOUTS["tail_A_scissors_B"]
+    circ, trips, _ = _day(layouts())
+    ups = sorted((t for t in trips if t.origin == CODES[0]), key=lambda t: t.departure_s)
+    lead_trip, next_trip = ups[0], ups[1]
+    owner = {t.trip_id: b.train for b in circ.blocks for t in b.trips}
+    hold = 2.0 * (next_trip.departure_s - lead_trip.departure_s)
+    _, _, dp = _day(layouts(), extra={(owner[lead_trip.trip_id], lead_trip.trip_id, 1): hold})
+    res = dp.run()
+    assert res.finished and res.trips_run == res.trips_planned
+    assert res.atp_violations == 0 and res.separation_violations == 0
+    assert res.route_conflicts == 0 and res.missed_stops == 0
+    assert max(abs(e) for e in res.stop_errors_m) <= 0.30
+    call = {(r.trip_id, r.station): r for r in res.stops}
+    left = call[(lead_trip.trip_id, 1)].dep_s
+    assert left - call[(lead_trip.trip_id, 1)].arr_s >= hold
+    # the follower reached that platform only once the held train had left it
+    assert call[(next_trip.trip_id, 1)].arr_s > left
+    assert call[(next_trip.trip_id, 1)].sched_arr_s < left  # it was due before
