@@ -162,8 +162,11 @@ class DayPlant:
     def __init__(self, loop: LoopLine, circ: Circulation, termini: Sequence[DayTerminus],
                  planner: str = "ectp", tracker: str = "fuzzy", seed: int = 0,
                  extra_dwell: Optional[Mapping[Tuple[str, str, int], float]] = None) -> None:
-        """``termini``: A (first station) then B; ``extra_dwell[(train, trip, station)]``
-        [s]: a hold added to that call's departure (a disturbance of a test or study)."""
+        """Plants, ATOs and interlockings of the day; nothing runs yet.
+
+        ``termini``: A (first station) then B; ``extra_dwell[(train, trip, station)]`` [s]:
+        a hold added to that call's departure (a disturbance of a test or study).
+        """
         self.loop = loop
         self.circ = circ
         self.termini = tuple(termini)
