@@ -125,3 +125,51 @@ def test_a_follower_waits_behind_a_held_train() -> None:
     # the follower reached that platform only once the held train had left it
     assert call[(next_trip.trip_id, 1)].arr_s > left
     assert call[(next_trip.trip_id, 1)].sched_arr_s < left  # it was due before
+
+
+def _step_at(items, x, key):  # type: ignore[no-untyped-def]
+    v = getattr(items[0], key)
+    for it in items:
+        if it.start_m <= x:
+            v = getattr(it, key)
+    return v
+
+
+@pytest.mark.parametrize("name", sorted(LAYOUTS))
+def test_loop_mirrors_the_line(name: str) -> None:
+    """Down platforms, grades (sign reversed), limits and curves mirror the chainage."""
+    scn = load_scenario("mini")
+    layouts = LAYOUTS[name]()
+    loop = build_loop(scn, layouts)
+    c = [s.position_m for s in scn.line.stations]
+    length = c[-1] - c[0]
+    b = loop.termini[1]
+    d0 = loop.stops[b.departure_stop].s_m
+    # the turnback of B is its routes end to end: platform stop to departure platform
+    assert d0 - length == pytest.approx(0.0 if b.arrival_stop == b.departure_stop else sum(
+        max(b.layout.route_length_m(r.name) for r in b.layout.routes if r.stage == st)
+        for st in (1, 2)))
+    for j, cj in enumerate(c):
+        assert loop.stops[loop.up_stop[j]].s_m == pytest.approx(cj - c[0])
+        if 0 < j < len(c) - 1:
+            assert loop.stops[loop.down_stop[j]].s_m == pytest.approx(d0 + c[-1] - cj)
+    line = loop.scenario.line
+    for cj in (800.0, 2100.0, 2400.0, 1300.0, 450.0):  # inside grades and limits
+        up, down = cj - c[0], d0 + c[-1] - cj
+        g = _step_at(scn.line.gradients, cj, "grade_permille")
+        assert _step_at(line.gradients, up, "grade_permille") == g
+        assert _step_at(line.gradients, down, "grade_permille") == -g
+        lim = _step_at(scn.line.speed_limits, cj, "limit_kmh")
+        assert _step_at(line.speed_limits, up, "limit_kmh") == lim
+        assert _step_at(line.speed_limits, down, "limit_kmh") == lim
+    assert len(line.curves) == 2 * len(scn.line.curves)
+    for tp in loop.termini:  # every route's limit holds over its points and its berth
+        pts = set(tp.layout.point_section.values())
+        for sp in tp.spans.values():
+            for s, a, z in sp.sections:
+                if s not in pts and s != sp.route.destination or s == tp.layout.exit_section:
+                    continue
+                for x in (a + 0.5, 0.5 * (a + z), z - 0.5):
+                    assert _step_at(line.speed_limits, x, "limit_kmh") <= (
+                        sp.route.speed_limit_mps * 3.6 + 1e-9)
+    assert loop.stops[-1].role == "wrap" and loop.stops[-1].station == 0

@@ -13,8 +13,9 @@ platforms of both directions and the reversal berths), so the plant, its ATP gri
 ATO run it unchanged; the last stop lies at the period ``P`` and is the first stop again
 (the plant wraps the coordinate by ``-P`` while the train stands there:
 :attr:`metro_atc.core.plant.stations.Stations.wrap_m`).  Speed limits and curves are
-those of the chainage on both tracks (limits and curves per track equal, the default of the
-brief); a route's ``speed_limit_mps`` applies over its own interval of the loop.
+those of the chainage on both tracks (limits and curves per track equal); a route's
+``speed_limit_mps`` applies from its entry over its points and into its berth, not over the
+open line a departure route leads to.
 
 The unfolded turnback puts a route's sections end to end over the route's length in the
 layout (:meth:`metro_atc.core.service.interlocking.Layout.route_length_m`); routes of one
@@ -273,8 +274,14 @@ def _scenario(scn: Scenario, stops: List[LoopStop], c0: float, cn: float, d0: fl
     # route speed limits over their spans (crossovers, turnback moves)
     caps: List[Tuple[float, float, float]] = []
     for tp in term:
+        lay = tp.layout
+        pts = set(lay.point_section.values())
         for sp in tp.spans.values():
-            caps.append((sp.entry_m, sp.exit_m, sp.route.speed_limit_mps / KMH))
+            # over the points and into a berth; not over the open line a route leads to
+            ends = [b for s, _, b in sp.sections if s in pts or (
+                s == sp.route.destination and s != lay.exit_section)]
+            if ends:
+                caps.append((sp.entry_m, max(ends), sp.route.speed_limit_mps / KMH))
     period = stops[-1].s_m
     limits = _apply_caps(lim, caps, period)
     curves = []
