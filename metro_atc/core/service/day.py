@@ -187,15 +187,17 @@ class PeriodReport:
     pull_ins: int
 
 
-def run_day(plan: DayPlan, stable_after_s: float = 1800.0
-            ) -> Tuple[Circulation, List[PeriodReport]]:
+def run_day(plan: DayPlan, stable_after_s: float = 1800.0,
+            timed: Sequence[Trip] | None = None) -> Tuple[Circulation, List[PeriodReport]]:
     """Circulation of the whole day and its per-period report; DayError when impossible.
 
     ``stable_after_s`` [s]: a train idle longer than this at a terminus with a depot is
     withdrawn (depot withdrawal after a peak); departures take the train ready last
     (``prefer="shortest_wait"``) so that surplus trains stand and are withdrawn once.
+    ``timed``: the day's trips with other trip times (e.g. those the plant can run,
+    :func:`metro_atc.core.service.dayplant.plant_timed`), default :func:`trips`.
     """
-    ts = trips(plan)
+    ts = trips(plan) if timed is None else list(timed)
     tb = {t.station: t.min_turnback_s for t in plan.termini}
     depots = {t.station for t in plan.termini if t.depot is not None}
     try:

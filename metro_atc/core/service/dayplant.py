@@ -735,15 +735,43 @@ def day_trips(loop: LoopLine, sv: Any, codes: Tuple[str, str],
     return out
 
 
+def plant_timed(loop: LoopLine, sv: Any, trips: Sequence[Trip], codes: Tuple[str, str]
+                ) -> List[Trip]:
+    """``trips`` with the trip times of the plant (same departures and ids).
+
+    Trip time: the loop's scheduled running times and the nominal dwells of the period at
+    the departure (``sv``: the loop scenario's ServicePlan), rounded up to 1 s, as
+    :func:`day_trips`.
+    """
+    n = len(loop.up_stop)
+    m = len(loop.stops)
+    raw_a = loop.down_stop[0] if loop.termini[0].arrival_stop != 0 else m - 1
+    legs = {codes[0]: [loop.up_stop[j] for j in range(n)],
+            codes[1]: [loop.down_stop[j] for j in range(n - 1, 0, -1)] + [raw_a]}
+    out = []
+    for t in trips:
+        ks = legs[t.origin]
+        row = _dwell_row(sv, t.departure_s)
+        dur = sum(float(sv.sched_running_s[q]) for q in range(ks[0], ks[-1]))
+        dur += sum(float(row[q]) for q in ks[1:-1])
+        out.append(dataclasses.replace(t, arrival_s=t.departure_s + float(math.ceil(dur))))
+    return out
+
+
 def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = "fuzzy",
-                seed: int = 0, stable_after_s: float = 1800.0) -> DayPlant:
+                seed: int = 0, stable_after_s: float = 1800.0,
+                trip_times: str = "plan") -> DayPlant:
     """The plant of a day: ``scn``'s line and stock, ``plan`` a :class:`DayPlan`.
 
     The loop of the line with the plan's terminus layouts; its timetable periods are the
     plan's (boarding per direction scaled by the period's flow factors); the circulation
-    is :func:`metro_atc.core.service.day.run_day`'s.  DayError / LoopError in one line.
+    is :func:`metro_atc.core.service.day.run_day`'s, with the plan's trip times
+    (``trip_times="plan"``: Lin 2010a, eq. 5/10 on the ATR line data) or those the plant's
+    timetable gives (``"plant"``: :func:`plant_timed`).  DayError / LoopError in one line.
     """
-    from .day import run_day
+    from .day import run_day, trips
+    if trip_times not in ("plan", "plant"):
+        raise ValueError(f"trip_times must be plan or plant, got {trip_times!r}")
     from .loop import build_loop, with_periods
     if [s.code for s in scn.line.stations][::len(scn.line.stations) - 1] != \
             [t.station for t in plan.termini]:
@@ -755,7 +783,12 @@ def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = 
     end = plan.periods[-1].end_s + 7200.0
     lscn = dataclasses.replace(lscn, sim=dataclasses.replace(lscn.sim, duration_s=end))
     loop = dataclasses.replace(loop, scenario=lscn)
-    circ, _ = run_day(plan, stable_after_s)
+    timed = None
+    if trip_times == "plant":
+        sv = LineSim(lscn, trace_period_s=0.0).service
+        codes = (plan.termini[0].station, plan.termini[1].station)
+        timed = plant_timed(loop, sv, trips(plan), codes)
+    circ, _ = run_day(plan, stable_after_s, timed)
     termini = [DayTerminus(t.station, t.min_turnback_s, t.depot is not None)
                for t in plan.termini]
     return DayPlant(loop, circ, termini, planner, tracker, seed)
@@ -781,9 +814,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--end-h", type=float, default=None, help="stop at this hour [h]")
     ap.add_argument("--max-wall-s", type=float, default=math.inf)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--trip-times", choices=("plan", "plant"), default="plan",
+                    help="the period table's trip times or the plant's timetable's")
     a = ap.parse_args(argv)
     try:
-        dp = service_day(load_scenario(a.scenario), load_day(a.day), seed=a.seed)
+        dp = service_day(load_scenario(a.scenario), load_day(a.day), seed=a.seed,
+                         trip_times=a.trip_times)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -794,7 +830,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                           "route_conflicts": d.route_conflicts}), flush=True)
 
     res = dp.run(None if a.end_h is None else a.end_h * 3600.0, a.max_wall_s, progress)
-    print(json.dumps({**res.row(), "notes": res.notes[:5]}), flush=True)
+    late = [tb.terminal_delay_s for tb in res.turnbacks]
+    print(json.dumps({**res.row(), "fleet_used": dp.circ.fleet,
+                      "terminal_delay_max_s": max(late, default=math.nan),
+                      "terminal_delay_mean_s": float(np.mean(late)) if late else math.nan,
+                      "notes": res.notes[:5]}), flush=True)
     ok = (res.finished and res.trips_run == res.trips_planned and res.atp_violations == 0
           and res.route_conflicts == 0 and res.missed_stops == 0)
     return 0 if ok else 1
@@ -805,4 +845,4 @@ if __name__ == "__main__":
 
 
 __all__ = ["DayPlant", "DayResult", "DayTerminus", "HOLD_S", "PULL_OUT_LEAD_S",
-           "REQUEST_LEAD_S", "day_trips", "main", "service_day"]
+           "REQUEST_LEAD_S", "day_trips", "main", "plant_timed", "service_day"]
