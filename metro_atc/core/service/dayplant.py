@@ -228,6 +228,11 @@ class DayPlant:
         self.m = m
         self._entry = [min(sp.entry_m for sp in tp.spans.values() if sp.route.stage == 0)
                        for tp in loop.termini]
+        self.lead_s: List[float] = []
+        top = [max(r.stage for r in tp.layout.routes) for tp in loop.termini]
+        self._area = [(self._entry[T], self.length + max(
+            sp.exit_m for sp in tp.spans.values() if sp.route.stage == top[T]))
+            for T, tp in enumerate(loop.termini)]
 
     # ------------------------------------------------------------------ helpers
 
@@ -324,6 +329,7 @@ class DayPlant:
     def _step(self, dt: float) -> None:
         t = self.t
         self._pull_outs_and_ins(t)
+        self._leaders()
         self._requests(t)
         self._authorities()
         for tr in self.trains:
@@ -427,6 +433,11 @@ class DayPlant:
             if q is None or q.at_s > t + 1e-9:
                 continue
             il = self.il[q.term]
+            if q.stop < 0:  # an arrival route: only the first train before the signal asks
+                x = float(tr.sim.fleet.x[0])
+                k = bisect.bisect_right(self.lead_s, x)
+                if k < len(self.lead_s) and self.lead_s[k] <= self._entry[q.term] + 1.0:
+                    continue
             if not any(r.train == tr.name for r in il.queue):
                 il.request(tr.name, q.route)
 
@@ -592,13 +603,29 @@ class DayPlant:
 
     # ------------------------------------------------------------------ authority
 
+    def _inside(self, x: float) -> bool:
+        """Front ``x`` [m] inside a terminus: entry signal .. the rear out of its departure.
+
+        The departure route's sections are shared with the arrival routes of the parallel
+        track (scissors), so a departing train is inside until its rear has left them.
+        """
+        for T, (lo, hi) in enumerate(self._area):
+            if (lo <= x <= hi) if lo < hi else (x >= lo or x <= hi):  # A: across the wrap
+                return True
+        return False
+
+    def _leaders(self) -> None:
+        """Sorted fronts [m] of the trains that can lead: in service, outside the termini.
+
+        Inside a terminus parallel berths share path coordinates (the interlocking
+        separates those trains); everywhere else the path order is the track order.
+        """
+        self.lead_s = sorted(float(tr.sim.fleet.x[0]) for tr in self.trains
+                             if tr.in_service and not self._inside(float(tr.sim.fleet.x[0])))
+
     def _authorities(self) -> None:
         P = self.loop.period_m
-        open_s: List[float] = []
-        for tr in self.trains:
-            if tr.in_service and tr.zone < 0:
-                open_s.append(float(tr.sim.fleet.x[0]))
-        open_s.sort()
+        open_s = self.lead_s
         for tr in self.trains:
             sim = tr.sim
             if not tr.in_service:
@@ -687,9 +714,10 @@ class DayPlant:
             if why is not None:
                 self.route_conflicts += 1
                 self.notes.append(f"t={self.t:.2f} s: {il.layout.name}: {why}")
-        # separation of the open-line trains (the plant's own monitor sees no train ahead)
+        # separation of the trains outside the termini (the plant's own monitor sees no
+        # train ahead)
         rows = sorted((float(tr.sim.fleet.x[0]), tr.name) for tr in self.trains
-                      if tr.in_service and tr.zone < 0)
+                      if tr.in_service and not self._inside(float(tr.sim.fleet.x[0])))
         for (x0, n0), (x1, _) in zip(rows[:-1], rows[1:]):
             bad = x1 - self.length - x0 < self.margin - 1e-6
             if bad and not self._in_sep.get(n0, False):
