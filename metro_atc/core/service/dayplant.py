@@ -11,9 +11,10 @@ stop).  Per control period:
 2. movement authority of each train (:meth:`LineSim.set_authority_end`): a train inside a
    terminus (from its arrival route being set until its departure route is set) runs to
    the exit signal of its set route plus the route's overlap (the ATP margin where it has
-   none) or stands at its berth; a train on the open line runs to the rear of the nearest
-   open-line train ahead on its track (sorted path positions, O(n log n)) minus the ATP
-   margin, and to the entry signal of the terminus ahead until its arrival route is set;
+   none) or stands at its berth; every train runs at most to the rear of the nearest train
+   ahead outside the termini (sorted path positions, O(n log n)) minus the ATP margin; a
+   train on the open line runs to the entry signal of the terminus ahead until its arrival
+   route is set (asked for by the first train before that signal only);
 3. the ATO of each train in service (:class:`metro_atc.core.ato.onboard.OnboardAto`, a new
    one per lap: the cab changes at the reversal) gives the effort; the plants step;
 4. track occupancy from the trains' positions (their routes' sections over the loop)
@@ -28,8 +29,8 @@ stop).  Per control period:
    (:func:`metro_atc.core.service.circulation.propagate_delay`).
 
 Independent checks every step: :func:`metro_atc.core.service.interlocking.check_safe` on
-each interlocking, no section occupied by two trains, and the separation of open-line
-trains (gap to the train ahead below the ATP margin: a violation, as the plant's own
+each interlocking, no section occupied by two trains, and the separation of the trains
+outside the termini (gap to the train ahead below the ATP margin: a violation, as the plant's own
 monitor counts it); the plants count overspeed violations.
 
 Output: :class:`metro_atc.core.service.records.StopRecord`, ``TurnbackRecord`` and
