@@ -188,20 +188,23 @@ class PeriodReport:
 
 
 def run_day(plan: DayPlan, stable_after_s: float = 1800.0,
-            timed: Sequence[Trip] | None = None) -> Tuple[Circulation, List[PeriodReport]]:
+            timed: Sequence[Trip] | None = None, prefer: str = "shortest_wait"
+            ) -> Tuple[Circulation, List[PeriodReport]]:
     """Circulation of the whole day and its per-period report; DayError when impossible.
 
     ``stable_after_s`` [s]: a train idle longer than this at a terminus with a depot is
     withdrawn (depot withdrawal after a peak); departures take the train ready last
     (``prefer="shortest_wait"``) so that surplus trains stand and are withdrawn once.
     ``timed``: the day's trips with other trip times (e.g. those the plant can run,
-    :func:`metro_atc.core.service.dayplant.plant_timed`), default :func:`trips`.
+    :func:`metro_atc.core.service.dayplant.plant_timed`), default :func:`trips`;
+    ``prefer``: :func:`build_circulation`'s choice of the ready train (``longest_wait``:
+    first in, first out, the order a single departure platform imposes on the plant).
     """
     ts = trips(plan) if timed is None else list(timed)
     tb = {t.station: t.min_turnback_s for t in plan.termini}
     depots = {t.station for t in plan.termini if t.depot is not None}
     try:
-        circ = build_circulation(ts, tb, depots, stable_after_s, "shortest_wait")
+        circ = build_circulation(ts, tb, depots, stable_after_s, prefer)
     except CirculationError as exc:
         where = (f"period {plan.periods[period_index(plan.periods, exc.instant_s)].name}: "
                  if exc.instant_s is not None else "")

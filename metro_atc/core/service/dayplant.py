@@ -817,7 +817,10 @@ def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = 
         sv = LineSim(lscn, trace_period_s=0.0).service
         codes = (plan.termini[0].station, plan.termini[1].station)
         timed = plant_timed(loop, sv, trips(plan), codes)
-    circ, _ = run_day(plan, stable_after_s, timed)
+    # first in, first out: a tail track's single departure platform sends the trains out
+    # in their arrival order (with the last-in choice a train standing at the platform
+    # waits for a later trip while the one due first is held behind it in a siding)
+    circ, _ = run_day(plan, stable_after_s, timed, "longest_wait")
     termini = [DayTerminus(t.station, t.min_turnback_s, t.depot is not None)
                for t in plan.termini]
     return DayPlant(loop, circ, termini, planner, tracker, seed)
