@@ -185,18 +185,7 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
         active = np.flatnonzero(sim.active_mask())
         t = float(sim.t)
         for i in active:
-            sup = float(st["atp_limit_mps"][i])
-            ma = float(st["movement_authority_m"][i])
-            s = {"step": step, "t_s": t, "x_m": float(st["x_m"][i]),
-                 "v_mps": float(st["v_mps"][i]), "a_mps2": float(st["a_mps2"][i]),
-                 "current_station": int(st["current_station"][i]),
-                 "next_station": int(st["next_station"][i]), "mode": int(st["mode"][i]),
-                 "departure_time_s": float(st["departure_time_s"][i]),
-                 "target_running_time_s": float(st["target_running_time_s"][i]),
-                 "supervision_speed_mps": sup if math.isfinite(sup) else math.inf,
-                 "movement_authority_m": ma if math.isfinite(ma) else math.inf,
-                 "mass_kg": float(st["mass_kg"][i])}
-            u[i] = atos[i].control(s)[0]
+            u[i] = atos[i].control(ato_input(st, int(i), step, t))[0]
         run = sim.active_mask()
         res = sim.step(u.copy())
         step += 1
@@ -241,6 +230,25 @@ def run_closed_loop(scn: Scenario, regulator: str = "none", planner: str = "ectp
         kpis=kp, arrivals=arrivals,
         brake=mon.summary() if mon is not None else {}, interventions_at_tsr_notice=at_notice,
         ato=wiring)
+
+
+def ato_input(st: dict[str, Any], i: int, step: int, t: float) -> dict[str, Any]:
+    """The state dict an ATO node gets for train ``i`` from the plant's ``states()`` ``st``.
+
+    As :func:`metro_atc.nodes.conversions.state_from_msg` builds it: a non-finite
+    supervision speed or movement authority becomes inf.
+    """
+    sup = float(st["atp_limit_mps"][i])
+    ma = float(st["movement_authority_m"][i])
+    return {"step": step, "t_s": t, "x_m": float(st["x_m"][i]),
+            "v_mps": float(st["v_mps"][i]), "a_mps2": float(st["a_mps2"][i]),
+            "current_station": int(st["current_station"][i]),
+            "next_station": int(st["next_station"][i]), "mode": int(st["mode"][i]),
+            "departure_time_s": float(st["departure_time_s"][i]),
+            "target_running_time_s": float(st["target_running_time_s"][i]),
+            "supervision_speed_mps": sup if math.isfinite(sup) else math.inf,
+            "movement_authority_m": ma if math.isfinite(ma) else math.inf,
+            "mass_kg": float(st["mass_kg"][i])}
 
 
 def _at_tsr_notice(sim: LineSim, tsrs: list[Any], trains: Any) -> int:

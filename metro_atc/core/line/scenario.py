@@ -753,6 +753,15 @@ def _from_raw(raw: Any, src: str) -> Scenario:
     return dataclasses.replace(scn, source_file=src)
 
 
+def validate_scenario(scn: Scenario, src: str) -> Scenario:
+    """Validate a scenario built in code (cross-field checks of a loaded one); ScenarioError.
+
+    Returns ``scn`` with ``source_file`` = ``src``.
+    """
+    _check(_Builder(src), scn)
+    return dataclasses.replace(scn, source_file=src)
+
+
 def load_scenario(name_or_path: str | Path) -> Scenario:
     """Load a scenario by embedded name (see :data:`SCENARIO_NAMES`) or YAML file path."""
     key = str(name_or_path)

@@ -221,6 +221,10 @@ class NumbaStepper:
             blk0[row] = arr
         return blk0
 
+    def set_constant(self, name: str, value: float) -> None:
+        """Set one scalar of the run constants (``kernel.CONSTANT_FIELDS``) from now on."""
+        self.c[self.kn.CONSTANT_FIELDS.index(name)] = float(value)
+
     def packed(self, sim: PlantParts) -> tuple[Any, ...]:
         """The kernel's packed state: (float, int, bool blocks, grids, axle coefs, blk0)."""
         fl, atp, br, en = sim.fleet, sim.atp, sim.brakes, sim.energy

@@ -176,6 +176,39 @@ class LineSim:
             self.stations.set_release(train_idx, station_idx, redraw=False)
             self._t_next = min(self._t_next, float(fl.release_t[train_idx]))
 
+    def enter(self, train_idx: int, station_idx: int) -> None:
+        """Train ``train_idx`` enters service now, standing at station ``station_idx``.
+
+        For a plant whose entries are driven from outside (a service day's pull-outs;
+        the timetabled entries are then switched off with :meth:`external_entries`).
+        """
+        self.stations.enter(int(train_idx), int(station_idx), self.t)
+        self._masks()
+
+    def withdraw(self, train_idx: int) -> None:
+        """Train ``train_idx`` leaves service now from where it stands (a pull-in)."""
+        self.stations.withdraw(int(train_idx), self.t)
+        self._masks()
+
+    def external_entries(self, wrap_m: float = 0.0) -> None:
+        """No timetabled entries (:meth:`enter` places trains); ``wrap_m`` [m]: loop period.
+
+        A loop line's last stop is its first again (see
+        :attr:`metro_atc.core.plant.stations.Stations.wrap_m`).
+        """
+        self.stations.next_entry = self.n
+        self.stations.wrap_m = float(wrap_m)
+        self._masks()
+
+    def set_authority_end(self, x_m: float) -> None:
+        """End of movement authority from outside [m] (the line's end when not set).
+
+        The compiled step takes ``min(train ahead - margin, this)``: a service day's
+        interlocking routes and the train ahead on its track
+        (:mod:`metro_atc.core.service.dayplant`).
+        """
+        self.stepper.set_constant("eoa_end", min(float(x_m), self.geometry.eoa_end))
+
     def next_stop_position(self) -> FloatArray:
         """Chainage of each train's next stop point [m] (tail stop while turning back)."""
         return self.fleet.stop_x.copy()

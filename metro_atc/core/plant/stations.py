@@ -79,6 +79,10 @@ class Stations:
         self.delay_draw = np.zeros(n)
         self.events: list[TrainEvent] = []
         self.events_out: list[TrainEvent] = []
+        self.wrap_m = 0.0
+        """Period of a loop line [m] (0: one-way): a train arriving at the last stop stands
+        at the first one again, its position shifted by ``-wrap_m``
+        (:mod:`metro_atc.core.service.loop`)."""
 
     def command(self, i: int, j: int, departure_time_s: float, target_running_time_s: float,
                 dwell_limit_s: float) -> bool:
@@ -124,12 +128,33 @@ class Stations:
             if rear_lead < g.x_first_stop + margin + 1.0:
                 return False
         self.next_entry += 1
-        fl.status[i] = RUN
-        fl.set_xv(i, g.x_first_stop, 0.0)
-        fl.a_dem[i] = -fl.p.max_service_brake_mps2
-        fl.stop_x[i] = g.x_first_stop
-        self.arrive(i, 0, t)
+        self.enter(i, 0, t)
         return True
+
+    def enter(self, i: int, j: int, t: float) -> None:
+        """Train i enters service standing at the stop of station j (doors open at ``t``)."""
+        fl, g = self.fl, self.geom
+        x = float(g.station_positions_m[j])
+        fl.status[i] = RUN
+        fl.set_xv(i, x, 0.0)
+        fl.a_dem[i] = -fl.p.max_service_brake_mps2
+        fl.stop_x[i] = x
+        self.arrive(i, j, t)
+
+    def withdraw(self, i: int, t: float) -> None:
+        """Train i leaves service from where it stands (to a depot; parked, empty).
+
+        It may :meth:`enter` again later (the same train, its state kept).
+        """
+        fl = self.fl
+        fl.status[i] = DONE
+        fl.x_done[i] = fl.x[i]
+        fl.set_xv(i, self.geom.x_park, 0.0)
+        fl.dwelling[i] = False
+        fl.release_t[i] = math.inf
+        fl.done_t[i] = math.inf
+        fl.load[i] = 0.0
+        fl.set_mass_from_load(i)
 
     def arrive(self, i: int, j: int, t: float, stop_error_m: float = math.nan) -> None:
         """Doors open at station j: alighting, boarding forecast, departure hold time.
@@ -229,7 +254,11 @@ class Stations:
                     fl.dwelling[i] = True  # in the siding: turnback time runs
                     fl.done_t[i] = t + self.scn.line.turnback_s
                 else:
-                    self.arrive(i, int(fl.next_stop[i]), t, float(d[i]))
+                    j = int(fl.next_stop[i])
+                    if self.wrap_m and j == self.n_st - 1:  # the loop's last stop is stop 0
+                        fl.set_xv(i, float(fl.x[i]) - self.wrap_m, 0.0)
+                        j = 0
+                    self.arrive(i, j, t, float(d[i]))
             elif d[i] > tol:
                 if fl.status[i] == TURNBACK:
                     continue  # the buffer-stop authority stops it; accept any standstill

@@ -199,19 +199,24 @@ class PeriodReport:
     pull_ins: int
 
 
-def run_day(plan: DayPlan, stable_after_s: float = 1800.0
+def run_day(plan: DayPlan, stable_after_s: float = 1800.0,
+            timed: Sequence[Trip] | None = None, prefer: str = "shortest_wait"
             ) -> Tuple[Circulation, List[PeriodReport]]:
     """Circulation of the whole day and its per-period report; DayError when impossible.
 
     ``stable_after_s`` [s]: a train idle longer than this at a terminus with a depot is
     withdrawn (depot withdrawal after a peak); departures take the train ready last
     (``prefer="shortest_wait"``) so that surplus trains stand and are withdrawn once.
+    ``timed``: the day's trips with other trip times (e.g. those the plant can run,
+    :func:`metro_atc.core.service.dayplant.plant_timed`), default :func:`trips`;
+    ``prefer``: :func:`build_circulation`'s choice of the ready train (``longest_wait``:
+    first in, first out, the order a single departure platform imposes on the plant).
     """
-    ts = trips(plan)
+    ts = trips(plan) if timed is None else list(timed)
     tb = {t.station: t.layover_s for t in plan.termini}
     depots = {t.station for t in plan.termini if t.depot is not None}
     try:
-        circ = build_circulation(ts, tb, depots, stable_after_s, "shortest_wait")
+        circ = build_circulation(ts, tb, depots, stable_after_s, prefer)
     except CirculationError as exc:
         where = (f"period {plan.periods[period_index(plan.periods, exc.instant_s)].name}: "
                  if exc.instant_s is not None else "")
@@ -273,7 +278,8 @@ def _map(raw: Any, path: str, src: str, keys: Sequence[str]) -> Dict[str, Any]:
         raise DayError(one_line(f"day {src}: {path}: unknown key {unknown[0]!r} "
                                 f"(known: {', '.join(keys)})"))
     missing = [k for k in keys if k not in raw
-               and k not in ("depot", "basis", "n_sidings", "turnback_buffer_s")]
+               and k not in ("depot", "basis", "n_sidings", "turnback_buffer_s",
+                             "platform_m")]
     if missing:
         raise DayError(one_line(f"day {src}: {path}: missing key {missing[0]!r}"))
     return raw
@@ -286,10 +292,11 @@ def _layout(raw: Dict[str, Any], path: str, src: str) -> Layout:
                                 f"{', '.join(_LAYOUTS)}, got {short_repr(kind)}"))
     rev = _num(raw["reversal_s"], f"{path}.reversal_s", src, 0.0, 3600.0)
     vx = _num(raw["crossover_speed_kmh"], f"{path}.crossover_speed_kmh", src, 5.0, 80.0) * KMH
+    plat = _num(raw.get("platform_m", 140.0), f"{path}.platform_m", src, 20.0, 1000.0)
     if kind == "scissors":
-        return scissors_terminus(rev, vx)
+        return scissors_terminus(rev, vx, platform_m=plat)
     n = _int(raw.get("n_sidings", 1), f"{path}.n_sidings", src, 1, 8)
-    return tail_track_terminus(n, rev, vx)
+    return tail_track_terminus(n, rev, vx, platform_m=plat)
 
 
 def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
@@ -309,7 +316,7 @@ def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
         path = f"termini[{i}]"
         m = _map(t, path, src, ("station", "layout", "reversal_s", "crossover_speed_kmh",
                                 "n_sidings", "min_turnback_s", "turnback_buffer_s", "depot",
-                                "depot_station"))
+                                "depot_station", "platform_m"))
         if m["station"] != ends[i]:
             raise DayError(one_line(f"day {src}: {path}.station: expected terminus "
                                     f"{ends[i]}, got {short_repr(m['station'])}"))

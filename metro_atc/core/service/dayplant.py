@@ -1,0 +1,880 @@
+"""A two-direction service day on the plant: ROS-free closed loop of plant, ATO, interlocking.
+
+Every train of the fleet runs the unfolded loop of :mod:`metro_atc.core.service.loop` on its
+own :class:`metro_atc.core.plant.line.LineSim` (one train each: the same plant code, its
+brakes, sensors and energy meter kept across all its trips and blocks); the plants step in
+lockstep and share the platform queues (passengers left behind and the last departure per
+stop).  Per control period:
+
+1. pull-outs due (``PULL_OUT_LEAD_S`` before a block's first trip) enter at the departure
+   berth of their terminus when it is free (a platform neither occupied nor locked);
+2. movement authority of each train (:meth:`LineSim.set_authority_end`): a train inside a
+   terminus (from its arrival route being set until its departure route is set) runs to
+   the exit signal of its set route plus the route's overlap (the ATP margin where it has
+   none) or stands at its berth; every train runs at most to the rear of the nearest train
+   ahead outside the termini (sorted path positions, O(n log n)) minus the ATP margin; a
+   train on the open line runs to the entry signal of the terminus ahead until its arrival
+   route is set (asked for by the first train before that signal only);
+3. the ATO of each train in service (:class:`metro_atc.core.ato.onboard.OnboardAto`, a new
+   one per lap: the cab changes at the reversal) gives the effort; the plants step;
+4. track occupancy from the trains' positions (their routes' sections over the loop)
+   feeds :meth:`Interlocking.occupy` / ``clear``; arrivals at a route's exit signal report
+   :meth:`Interlocking.arrived`; route requests (the next route of the train's itinerary,
+   the siding / platform chosen free first; a departure route ``REQUEST_LEAD_S`` before
+   its departure) are granted by :meth:`Interlocking.process`; a berth's departure is
+   commanded when its next route is set;
+5. the ATS of this loop: timetable departures (the ``none`` regulator) at every platform;
+   a terminus departure waits for max(scheduled departure, arrival + minimum turnback),
+   so a late arrival delays the next trip by max(0, delay - buffer)
+   (:func:`metro_atc.core.service.circulation.propagate_delay`).
+
+Independent checks every step: :func:`metro_atc.core.service.interlocking.check_safe` on
+each interlocking, no section occupied by two trains, and the separation of the trains
+outside the termini (gap to the train ahead below the ATP margin: a violation, as the plant's own
+monitor counts it); the plants count overspeed violations.
+
+Output: :class:`metro_atc.core.service.records.StopRecord`, ``TurnbackRecord`` and
+``DepotRecord`` lists and the KPIs of the run (:class:`DayResult`).
+"""
+
+from __future__ import annotations
+
+import bisect
+import dataclasses
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
+
+import numpy as np
+
+from metro_atc.core.ato.onboard import OnboardAto
+from metro_atc.core.ato.wiring import ato_wiring
+from metro_atc.core.bridge import timetable_for
+from metro_atc.core.closed_loop import STOP_WINDOW_M, ato_input
+from metro_atc.core.line.scenario import Scenario
+from metro_atc.core.plant.fleet import RUN
+from metro_atc.core.plant.line import LineSim
+from metro_atc.core.plant.views import fleet_state_rows
+
+from .circulation import Block, Circulation, Trip
+from .interlocking import Interlocking, check_safe
+from .loop import LoopLine, TerminusPath
+from .records import DepotRecord, StopRecord, TurnbackRecord
+
+PULL_OUT_LEAD_S = 120.0
+"""A pulled-out train stands at its departure platform this long before its first trip [s]."""
+REQUEST_LEAD_S = 30.0
+"""A departure / reversal route is requested this long before the train may leave [s]."""
+_ROW0 = np.zeros(1, dtype=np.intp)
+HOLD_S = 1.0e9
+"""Departure command of a train held at a berth until its next route is set [s]."""
+
+
+@dataclass(frozen=True)
+class DayTerminus:
+    """A terminus of the day: station code, minimum turnback [s], depot connection."""
+
+    code: str
+    min_turnback_s: float
+    depot: bool
+
+
+@dataclass
+class DayResult:
+    """What a day on the plant leaves (records) and its figures (SI units)."""
+
+    stops: List[StopRecord]
+    turnbacks: List[TurnbackRecord]
+    depot: List[DepotRecord]
+    trips_planned: int
+    trips_run: int
+    trains_in_depot: int
+    fleet: int
+    atp_violations: int
+    separation_violations: int
+    route_conflicts: int
+    missed_stops: int
+    stop_errors_m: List[float]
+    forced_stop_errors_m: List[float]
+    atp_interventions: int
+    sim_time_s: float
+    wall_s: float
+    finished: bool
+    notes: List[str] = field(default_factory=list)
+
+    def row(self) -> Dict[str, Any]:
+        """JSON-friendly summary."""
+        err = np.abs(np.asarray(self.stop_errors_m, dtype=float))
+        return {"trips_planned": self.trips_planned, "trips_run": self.trips_run,
+                "fleet": self.fleet, "trains_in_depot": self.trains_in_depot,
+                "atp_violations": self.atp_violations,
+                "separation_violations": self.separation_violations,
+                "route_conflicts": self.route_conflicts, "missed_stops": self.missed_stops,
+                "stops": len(self.stops),
+                "stop_error_max_m": float(err.max()) if err.size else math.nan,
+                "stops_outside_0p30_m": int(np.count_nonzero(err > STOP_WINDOW_M)),
+                "forced_stops": len(self.forced_stop_errors_m),
+                "atp_interventions": self.atp_interventions,
+                "sim_time_s": self.sim_time_s, "wall_s": self.wall_s,
+                "finished": self.finished}
+
+
+@dataclass
+class _Req:
+    term: int
+    route: str
+    at_s: float
+    stop: int = -1
+    """Berth the train stands at (-1: requested while running)."""
+    earliest_s: float = -math.inf
+    running_s: float = math.nan
+
+
+@dataclass
+class _Train:
+    name: str
+    sim: LineSim
+    blocks: List[Block]
+    b: int = 0
+    k: int = 0
+    """Next trip of block ``b`` to start."""
+    in_service: bool = False
+    ato: Optional[OnboardAto] = None
+    zone: int = -1
+    """Terminus the train is inside (arrival route set .. departure route set), else -1."""
+    itin: Dict[int, List[str]] = field(default_factory=dict)
+    route: Dict[int, str] = field(default_factory=dict)
+    """Route set for the train at a terminus and not yet arrived at its exit."""
+    req: Optional[_Req] = None
+    trip: Optional[Trip] = None
+    trip_plan: Dict[int, Tuple[float, float]] = field(default_factory=dict)
+    trip_log: Dict[int, List[float]] = field(default_factory=dict)
+    last_arr: Optional[Tuple[Trip, float]] = None
+    withdraw_at: float = math.inf
+    entered_now: bool = False
+    ma: float = math.nan
+    """End of authority last given to the plant [m]."""
+
+
+class DayPlant:
+    """The day's plants, interlockings and bookkeeping (see the module docstring)."""
+
+    def __init__(self, loop: LoopLine, circ: Circulation, termini: Sequence[DayTerminus],
+                 planner: str = "ectp", tracker: str = "fuzzy", seed: int = 0,
+                 extra_dwell: Optional[Mapping[Tuple[str, str, int], float]] = None) -> None:
+        """Plants, ATOs and interlockings of the day; nothing runs yet.
+
+        ``termini``: A (first station) then B; ``extra_dwell[(train, trip, station)]`` [s]:
+        a hold added to that call's departure (a disturbance of a test or study).
+        """
+        self.loop = loop
+        self.circ = circ
+        self.termini = tuple(termini)
+        codes = [t.code for t in self.termini]
+        for b in circ.blocks:
+            for tr in b.trips:
+                for c in (tr.origin, tr.destination):
+                    if c not in codes:
+                        raise ValueError(f"trip {tr.trip_id}: terminus {c!r} is not one of "
+                                         f"{codes}")
+        self.scn: Scenario = loop.scenario
+        self.il = [Interlocking(tp.layout) for tp in loop.termini]
+        self.extra = dict(extra_dwell or {})
+        by_train: Dict[str, List[Block]] = {}
+        for b in circ.blocks:
+            by_train.setdefault(b.train, []).append(b)
+        tt = timetable_for(self.scn)
+        self.wiring = ato_wiring(self.scn, planner, tracker, tt=tt)
+        self.shared: Dict[str, Any] = {}
+        self.trains: List[_Train] = []
+        first: Optional[LineSim] = None
+        for n, (name, blocks) in enumerate(sorted(by_train.items())):
+            sim = LineSim(self.scn, seed=seed + n, trace_period_s=0.0)
+            sim.external_entries(loop.period_m)
+            if first is None:
+                first = sim
+            else:  # one platform queue per stop for all the trains
+                sim.stations.left_behind = first.stations.left_behind
+                sim.stations.last_dep_t = first.stations.last_dep_t
+            blocks.sort(key=lambda b: b.trips[0].departure_s)
+            self.trains.append(_Train(name, sim, blocks))
+        assert first is not None, "a day needs at least one block"
+        self.sv = first.service
+        self.margin = float(first.atp.margin)
+        self.length = float(first.geometry.length_m)
+        for tp in loop.termini:  # a berth must hold the train (else it blocks its own exit)
+            lay = tp.layout
+            for r in lay.routes:
+                d = r.destination
+                if d != lay.exit_section and lay.section_length_m[d] < self.length:
+                    raise ValueError(f"terminus layout {lay.name}: berth {d} of "
+                                     f"{lay.section_length_m[d]:g} m is shorter than the "
+                                     f"{self.length:g} m train")
+        self.min_dwell = float(self.scn.passengers.min_dwell_s)
+        self.t = 0.0
+        self.step_no = 0
+        self.stops: List[StopRecord] = []
+        self.turnbacks: List[TurnbackRecord] = []
+        self.depot: List[DepotRecord] = []
+        self.route_conflicts = 0
+        self.sep_violations = 0
+        self._in_sep: Dict[str, bool] = {}
+        self._collide: set[Tuple[int, str]] = set()
+        self.stop_err: List[float] = []
+        self.forced_err: List[float] = []
+        self.trips_run = 0
+        self.notes: List[str] = []
+        m = len(loop.stops)
+        self.m = m
+        self._entry = [min(sp.entry_m for sp in tp.spans.values() if sp.route.stage == 0)
+                       for tp in loop.termini]
+        self.lead_s: List[float] = []
+        top = [max(r.stage for r in tp.layout.routes) for tp in loop.termini]
+        self._area = [(self._entry[T], self.length + max(
+            sp.exit_m for sp in tp.spans.values() if sp.route.stage == top[T]))
+            for T, tp in enumerate(loop.termini)]
+
+    # ------------------------------------------------------------------ helpers
+
+    def _norm(self, k: int) -> int:
+        return 0 if k == self.m - 1 else k
+
+    def _term_of(self, code: str) -> int:
+        return [t.code for t in self.termini].index(code)
+
+    def _trip_stops(self, trip: Trip) -> List[int]:
+        """Raw loop stops of a trip (origin departure berth .. destination arrival)."""
+        lp = self.loop
+        n = len(lp.up_stop)
+        if self._term_of(trip.origin) == 0:
+            return [lp.up_stop[j] for j in range(n)]
+        raw_arr_a = lp.down_stop[0] if lp.termini[0].arrival_stop != 0 else self.m - 1
+        return [lp.down_stop[j] for j in range(n - 1, 0, -1)] + [raw_arr_a]
+
+    def trip_plan(self, trip: Trip) -> Dict[int, Tuple[float, float]]:
+        """Scheduled (arrival, departure) [s] per normalised loop stop of a trip.
+
+        The plant's scheduled running times and nominal dwells of the loop scenario, scaled
+        so that the trip ends at ``trip.arrival_s``; nan where an instant does not exist.
+        """
+        ks = self._trip_stops(trip)
+        run = [float(self.sv.sched_running_s[k]) for k in range(ks[0], ks[-1])]
+        inner = [k for k in ks[1:-1]]
+        row = _dwell_row(self.sv, trip.departure_s)
+        dw = [float(row[k]) for k in inner]
+        total = sum(run) + sum(dw)
+        scale = (trip.arrival_s - trip.departure_s) / total
+        out: Dict[int, Tuple[float, float]] = {}
+        t = trip.departure_s
+        out[self._norm(ks[0])] = (math.nan, t)
+        for a, b in zip(ks[:-1], ks[1:]):
+            t_arr = t + scale * sum(float(self.sv.sched_running_s[k]) for k in range(a, b))
+            t = t_arr + (scale * float(row[b]) if b != ks[-1] else 0.0)
+            out[self._norm(b)] = (t_arr, t if b != ks[-1] else math.nan)
+        return out
+
+    def _running(self, j: int) -> float:
+        return float(self.sv.sched_running_s[j])
+
+    # ------------------------------------------------------------------ run
+
+    def run(self, end_s: Optional[float] = None, max_wall_s: float = math.inf,
+            progress: Optional[Callable[["DayPlant"], None]] = None) -> DayResult:
+        """Run the day to its last pull-in (or ``end_s`` [s], or ``max_wall_s`` of wall time).
+
+        ``progress(self)`` is called once per simulated hour.
+        """
+        w0 = time.perf_counter()
+        all_trips = [tr for b in self.circ.blocks for tr in b.trips]
+        first = min(b.trips[0].departure_s for b in self.circ.blocks) - PULL_OUT_LEAD_S
+        last = max(tr.arrival_s for tr in all_trips)
+        stop_at = last + 3600.0 if end_s is None else float(end_s)
+        # the plants start at 0: jump their clocks to the first pull-out (nothing runs)
+        t0 = max(0.0, math.floor(first) - 1.0)
+        for tr in self.trains:
+            tr.sim.t = t0
+            tr.sim.sensors.next_sample_t = t0
+        # passengers gather from the first pull-out on (one queue per stop, shared)
+        self.trains[0].sim.stations.last_dep_t[:] = t0
+        self.t = t0
+        dt = float(self.scn.sim.control_period_s)
+        next_report = self.t
+        while self.t < stop_at - 1e-9 and time.perf_counter() - w0 < max_wall_s:
+            if all(tr.b >= len(tr.blocks) and not tr.in_service for tr in self.trains):
+                break
+            self._step(dt)
+            if progress is not None and self.t >= next_report:
+                progress(self)
+                next_report = self.t + 3600.0
+        finished = all(tr.b >= len(tr.blocks) and not tr.in_service for tr in self.trains)
+        if not finished:
+            why = ("wall-time limit" if time.perf_counter() - w0 >= max_wall_s
+                   else "end time")
+            self.notes.append(f"stopped at t={self.t:.0f} s ({why}) before every train was "
+                              f"back in the depot")
+        viol = sum(int(np.sum(tr.sim.atp.violations)) for tr in self.trains)
+        return DayResult(
+            stops=self.stops, turnbacks=self.turnbacks, depot=self.depot,
+            trips_planned=len(all_trips), trips_run=self.trips_run,
+            trains_in_depot=sum(1 for tr in self.trains if not tr.in_service),
+            fleet=len(self.trains), atp_violations=viol + self.sep_violations,
+            separation_violations=self.sep_violations, route_conflicts=self.route_conflicts,
+            missed_stops=sum(int(tr.sim.stations.skipped_stops) for tr in self.trains),
+            stop_errors_m=self.stop_err, forced_stop_errors_m=self.forced_err,
+            atp_interventions=sum(int(np.sum(tr.sim.atp.interventions))
+                                  for tr in self.trains),
+            sim_time_s=self.t, wall_s=time.perf_counter() - w0, finished=finished,
+            notes=self.notes)
+
+    def _step(self, dt: float) -> None:
+        t = self.t
+        self._pull_outs_and_ins(t)
+        self._leaders()
+        self._requests(t)
+        self._authorities()
+        for tr in self.trains:
+            sim = tr.sim
+            if not tr.in_service:  # in the depot: nothing moves, the clock runs on
+                sim.t = t + dt
+                continue
+            u = np.full(1, math.nan)
+            if tr.ato is not None and sim.fleet.status[0] == RUN:
+                st = fleet_state_rows(sim, _ROW0)  # the states() rows of this one train
+                u[0] = tr.ato.control(ato_input(st, 0, self.step_no, t))[0]
+            res = sim.step(u)
+            tr.entered_now = False
+            for ev in res.events:
+                self._event(tr, ev)
+        self.t = t + dt
+        self.step_no += 1
+        self._occupancy()
+        self._grants()
+        self._checks()
+
+    # ------------------------------------------------------------------ depot
+
+    def _pull_outs_and_ins(self, t: float) -> None:
+        for tr in self.trains:
+            if tr.in_service and t >= tr.withdraw_at - 1e-9:
+                self._withdraw(tr, t)
+            if tr.in_service or tr.b >= len(tr.blocks):
+                continue
+            trip = tr.blocks[tr.b].trips[0]
+            sched = trip.departure_s - PULL_OUT_LEAD_S
+            if t >= sched - 1e-9:
+                self._pull_out(tr, trip, t, sched)
+
+    def _pull_out(self, tr: _Train, trip: Trip, t: float, sched: float) -> None:
+        T = self._term_of(trip.origin)
+        tp = self.loop.termini[T]
+        choice = self._departure_berth(T)
+        if choice is None:
+            return  # berth taken: try again next step
+        arr_route, dep_route = choice
+        tr.in_service = True
+        tr.zone = T
+        tr.itin = {T: [arr_route, dep_route]}
+        tr.route = {}
+        tr.ato = self.wiring.onboard(self.shared)
+        tr.entered_now = True
+        tr.last_arr = None
+        tr.sim.sensors.next_sample_t = t  # no samples were due in the depot
+        tr.sim.enter(0, tp.departure_stop)
+        tr.sim.set_departure(0, tp.departure_stop, HOLD_S)
+        tr.req = _Req(T, dep_route, trip.departure_s - REQUEST_LEAD_S, tp.departure_stop,
+                      trip.departure_s, self._running(tp.departure_stop))
+        self.depot.append(DepotRecord(tr.name, "pull_out", trip.origin, t, sched))
+        self._occupancy()
+
+    def _departure_berth(self, T: int) -> Optional[Tuple[str, str]]:
+        """(route ending at a free departure berth, departure route from it) or None."""
+        lay = self.loop.termini[T].layout
+        top = max(r.stage for r in lay.routes)
+        il = self.il[T]
+        for dep in (r for r in lay.routes if r.stage == top):
+            into = [r for r in lay.routes if r.exit_signal == dep.entry_signal]
+            if not into:
+                continue
+            berth = into[0].destination
+            if berth in il.occupied or berth in il.lock or self._claimed(T, berth):
+                continue
+            return into[0].name, dep.name
+        return None
+
+    def _claimed(self, T: int, section: str, me: Optional[_Train] = None) -> bool:
+        """A train in service (other than ``me``) has a route into ``section`` at T."""
+        lay = self.loop.termini[T].layout
+        return any(o is not me and o.in_service
+                   and any(lay.route(rn).destination == section for rn in o.itin.get(T, []))
+                   for o in self.trains)
+
+    def _withdraw(self, tr: _Train, t: float) -> None:
+        trip = tr.last_arr[0] if tr.last_arr else None
+        tr.sim.withdraw(0)
+        tr.in_service = False
+        tr.ato = None
+        tr.itin = {}
+        tr.route = {}
+        tr.zone = -1
+        tr.req = None
+        tr.withdraw_at = math.inf
+        tr.b += 1
+        tr.k = 0
+        if trip is not None:
+            self.depot.append(DepotRecord(tr.name, "pull_in", trip.destination, t,
+                                          trip.arrival_s + self.min_dwell))
+        self._occupancy()
+
+    # ------------------------------------------------------------------ routes
+
+    def _requests(self, t: float) -> None:
+        for tr in self.trains:
+            q = tr.req
+            if q is None or q.at_s > t + 1e-9:
+                continue
+            il = self.il[q.term]
+            if q.stop < 0:  # an arrival route: only the first train before the signal asks
+                x = float(tr.sim.fleet.x[0])
+                k = bisect.bisect_right(self.lead_s, x)
+                if k < len(self.lead_s) and self.lead_s[k] <= self._entry[q.term] + 1.0:
+                    continue
+            if not any(r.train == tr.name for r in il.queue):
+                il.request(tr.name, q.route)
+
+    def _grants(self) -> None:
+        for T, il in enumerate(self.il):
+            for name, route in il.process():
+                tr = next(x for x in self.trains if x.name == name)
+                q = tr.req
+                tr.req = None
+                r = il.layout.route(route)
+                top = max(x.stage for x in il.layout.routes)
+                tr.route[T] = route
+                if r.stage == top:
+                    tr.zone = -1  # the departure route leads onto the open line
+                else:
+                    tr.zone = T
+                if q is not None and q.stop >= 0:
+                    dep = max(self.t, q.earliest_s)
+                    tr.sim.set_departure(0, q.stop, dep, q.running_s)
+                    if tr.ato is not None:
+                        tr.ato.on_departure(q.stop, dep, q.running_s, self.t)
+
+    def _choose(self, T: int, tr: _Train) -> str:
+        """The next route of ``tr``'s itinerary at T (a free destination first).
+
+        The candidates continue the routes the train took so far at T
+        (``Layout.itineraries``); a destination neither occupied, locked nor claimed by
+        another train is preferred (the siding or platform chosen free first).
+        """
+        lay = self.loop.termini[T].layout
+        il = self.il[T]
+        done = tr.itin.get(T, [])
+        cands: List[str] = []
+        for it in lay.itineraries:
+            if list(it[:len(done)]) == done and len(it) > len(done) \
+                    and it[len(done)] not in cands:
+                cands.append(it[len(done)])
+        if not cands:
+            raise RuntimeError(f"{tr.name}: no route continues {done} at {lay.name}")
+        for rn in cands:
+            d = lay.route(rn).destination
+            if d not in il.occupied and d not in il.lock and not self._claimed(T, d, tr):
+                return rn
+        return cands[0]
+
+    # ------------------------------------------------------------------ events
+
+    def _event(self, tr: _Train, ev: Any) -> None:
+        j = int(ev.station_idx)
+        t = float(ev.t_s)
+        if ev.kind == "arrival":
+            if tr.entered_now:
+                return  # placed at its departure berth by a pull-out
+            err = float(ev.stop_error_m)
+            if math.isfinite(err):
+                forced = bool(tr.sim.fleet.broken[0] or tr.sim.atp.eb[0])
+                (self.forced_err if forced else self.stop_err).append(err)
+            if j == 0:  # the loop closed: a new lap, a new cab
+                tr.ato = self.wiring.onboard(self.shared)
+            self._arrival(tr, j, t)
+        else:
+            self._departure(tr, j, t)
+
+    def _terminus_at(self, j: int) -> Optional[TerminusPath]:
+        for tp in self.loop.termini:
+            if j in (tp.arrival_stop, tp.reversal_stop, tp.departure_stop):
+                return tp
+        return None
+
+    def _arrival(self, tr: _Train, j: int, t: float) -> None:
+        sim = tr.sim
+        tp = self._terminus_at(j)
+        if tp is None:  # an intermediate platform of the running trip
+            sched = tr.trip_plan.get(j, (math.nan, math.nan))
+            tr.trip_log.setdefault(j, [math.nan, math.nan])[0] = t
+            st = self.loop.stops[j].station
+            extra = self.extra.get((tr.name, tr.trip.trip_id if tr.trip else "", st), 0.0)
+            dep = sched[1] + extra
+            run = self._running(j) * self._scale(tr)
+            sim.set_departure(0, j, dep, run)
+            if tr.ato is not None:
+                tr.ato.on_departure(j, dep, run, t)
+            return
+        T = tp.index
+        lay = tp.layout
+        route = tr.route.pop(T, None)
+        if route is not None:
+            self.il[T].arrived(route)
+        sim.set_departure(0, j, HOLD_S)
+        if j == tp.arrival_stop and tr.trip is not None and \
+                self._term_of(tr.trip.destination) == T:
+            self._end_trip(tr, j, t)
+            if tr.k >= len(tr.blocks[tr.b].trips):  # end of the block: pull in
+                tr.withdraw_at = t + self.min_dwell
+                return
+        spec = self.termini[T]
+        nxt_route = self._choose(T, tr)
+        if j == tp.departure_stop:  # departure berth (also the arrival at a scissors)
+            nxt = self._next_trip(tr)
+            last = tr.last_arr[1] if tr.last_arr else t
+            earliest = max(nxt.departure_s, last + spec.min_turnback_s,
+                           t + (lay.reversal_s if j == tp.reversal_stop else 0.0))
+        elif j == tp.reversal_stop:
+            earliest = t + lay.reversal_s
+        else:
+            earliest = t
+        tr.itin.setdefault(T, []).append(nxt_route)
+        tr.req = _Req(T, nxt_route, earliest - REQUEST_LEAD_S, j, earliest, self._running(j))
+
+    def _scale(self, tr: _Train) -> float:
+        if tr.trip is None:
+            return 1.0
+        ks = self._trip_stops(tr.trip)
+        run = sum(float(self.sv.sched_running_s[k]) for k in range(ks[0], ks[-1]))
+        row = _dwell_row(self.sv, tr.trip.departure_s)
+        dw = sum(float(row[k]) for k in ks[1:-1])
+        return (tr.trip.arrival_s - tr.trip.departure_s) / (run + dw)
+
+    def _next_trip(self, tr: _Train) -> Trip:
+        return tr.blocks[tr.b].trips[tr.k]
+
+    def _end_trip(self, tr: _Train, j: int, t: float) -> None:
+        trip = tr.trip
+        assert trip is not None
+        tr.trip_log.setdefault(j, [math.nan, math.nan])[0] = t
+        direction = "up" if self._term_of(trip.origin) == 0 else "down"
+        for k, (sa, sd) in tr.trip_plan.items():
+            arr, dep = tr.trip_log.get(k, [math.nan, math.nan])
+            st = self.loop.stops[k].station
+            self.stops.append(StopRecord(tr.name, trip.trip_id, direction, st, sa, sd,
+                                         arr if math.isfinite(sa) else math.nan,
+                                         dep if math.isfinite(sd) else math.nan))
+        tr.last_arr = (trip, t)
+        tr.trip = None
+        self.trips_run += 1
+
+    def _departure(self, tr: _Train, j: int, t: float) -> None:
+        tp = self._terminus_at(j)
+        if tp is not None and j == tp.departure_stop:  # a trip starts
+            trip = self._next_trip(tr)
+            tr.k += 1
+            tr.trip = trip
+            tr.trip_plan = self.trip_plan(trip)
+            tr.trip_log = {j: [math.nan, t]}
+            if tr.last_arr is not None:
+                prev, t_arr = tr.last_arr
+                T = tp.index
+                self.turnbacks.append(TurnbackRecord(
+                    tr.name, self.termini[T].code, prev.trip_id, trip.trip_id, t_arr, t,
+                    prev.arrival_s, trip.departure_s, self.termini[T].min_turnback_s))
+            tr.last_arr = None
+        elif tp is None and tr.trip is not None:
+            tr.trip_log.setdefault(j, [math.nan, math.nan])[1] = t
+        # the next stop: the arrival route of a terminus is requested when leaving the
+        # platform before it
+        nxt = self._norm(j + 1)
+        for T, tq in enumerate(self.loop.termini):
+            if nxt == tq.arrival_stop and (tp is None or tp.index != T):
+                tr.itin[T] = []
+                route = self._choose(T, tr)
+                tr.itin[T] = [route]
+                tr.req = _Req(T, route, t)
+
+    # ------------------------------------------------------------------ authority
+
+    def _inside(self, x: float) -> bool:
+        """Front ``x`` [m] inside a terminus: entry signal .. the rear out of its departure.
+
+        The departure route's sections are shared with the arrival routes of the parallel
+        track (scissors), so a departing train is inside until its rear has left them.
+        """
+        for T, (lo, hi) in enumerate(self._area):
+            if (lo <= x <= hi) if lo < hi else (x >= lo or x <= hi):  # A: across the wrap
+                return True
+        return False
+
+    def _leaders(self) -> None:
+        """Sorted fronts [m] of the trains that can lead: in service, outside the termini.
+
+        Inside a terminus parallel berths share path coordinates (the interlocking
+        separates those trains); everywhere else the path order is the track order.
+        """
+        self.lead_s = sorted(float(tr.sim.fleet.x[0]) for tr in self.trains
+                             if tr.in_service and not self._inside(float(tr.sim.fleet.x[0])))
+
+    def _authorities(self) -> None:
+        P = self.loop.period_m
+        open_s = self.lead_s
+        for tr in self.trains:
+            sim = tr.sim
+            if not tr.in_service:
+                continue
+            x = float(sim.fleet.x[0])
+            k = bisect.bisect_right(open_s, x)
+            lead = open_s[k] - self.length - self.margin if k < len(open_s) else math.inf
+            cap = math.inf
+            if tr.zone >= 0:
+                T = tr.zone
+                rn = tr.route.get(T)
+                if rn is not None:
+                    sp = self.loop.termini[T].spans[rn]
+                    r = sp.route
+                    ext = sum(self.loop.termini[T].layout.section_length_m[s]
+                              for s in r.overlap) or self.margin
+                    cap = sp.exit_m + ext
+                else:
+                    cap = float(sim.fleet.stop_x[0]) if not sim.fleet.dwelling[0] else x
+            else:
+                # the entry signal of the terminus ahead until the arrival route is set
+                ahead = [e for e in self._entry if e >= x - 1.0]
+                e = min(ahead) if ahead else self._entry[0] + P
+                T = self._entry.index(e) if ahead else 0
+                rn = tr.route.get(T)
+                if rn is None:
+                    cap = e
+            ma = min(cap, lead)
+            if ma != tr.ma:
+                sim.set_authority_end(ma)
+                tr.ma = ma
+
+    # ------------------------------------------------------------------ occupancy
+
+    def _spans_of(self, tr: _Train, T: int) -> List[Tuple[str, float, float]]:
+        tp = self.loop.termini[T]
+        out: List[Tuple[str, float, float]] = []
+        for rn in tr.itin.get(T, []):
+            out.extend(tp.spans[rn].sections)
+        return out
+
+    def _occupancy(self) -> None:
+        P = self.loop.period_m
+        for T, il in enumerate(self.il):
+            occ: Dict[str, int] = {}
+            for tr in self.trains:
+                if not tr.in_service or not tr.itin.get(T):
+                    continue
+                fl = tr.sim.fleet
+                x = float(fl.x[0])
+                if fl.dwelling[0]:  # standing at a berth: its front is at the stop point
+                    x = min(x, self.loop.stops[int(fl.cur_station[0])].s_m)
+                hit = set()
+                for sec, a, b in self._spans_of(tr, T):
+                    for d in (0.0, P, -P):
+                        lo, hi = x - self.length + d, x + d
+                        if hi > a and lo < b:
+                            hit.add(sec)
+                for s in hit:
+                    occ[s] = occ.get(s, 0) + 1
+            for s, c in occ.items():
+                key = (T, s)
+                if c > 1 and key not in self._collide:
+                    self.route_conflicts += 1
+                    self._collide.add(key)
+                    self.notes.append(f"t={self.t:.2f} s: section {s} of {il.layout.name} "
+                                      f"occupied by {c} trains")
+                elif c <= 1:
+                    self._collide.discard(key)
+            now = set(occ)
+            for s in sorted(now - il.occupied):
+                il.occupy(s)
+            for s in sorted(il.occupied - now):
+                il.clear(s)
+            # a train whose departure route is released has left the terminus
+            for tr in self.trains:
+                rn = tr.route.get(T)
+                if rn is not None and rn not in il.set_routes:
+                    del tr.route[T]
+                    if tr.zone < 0:
+                        tr.itin.pop(T, None)
+
+    def _checks(self) -> None:
+        for il in self.il:
+            why = check_safe(il)
+            if why is not None:
+                self.route_conflicts += 1
+                self.notes.append(f"t={self.t:.2f} s: {il.layout.name}: {why}")
+        # separation of the trains outside the termini (the plant's own monitor sees no
+        # train ahead)
+        rows = sorted((float(tr.sim.fleet.x[0]), tr.name) for tr in self.trains
+                      if tr.in_service and not self._inside(float(tr.sim.fleet.x[0])))
+        for (x0, n0), (x1, _) in zip(rows[:-1], rows[1:]):
+            bad = x1 - self.length - x0 < self.margin - 1e-6
+            if bad and not self._in_sep.get(n0, False):
+                self.sep_violations += 1
+            self._in_sep[n0] = bad
+        if rows:
+            self._in_sep[rows[-1][1]] = False
+
+
+def _dwell_row(sv: Any, t_s: float) -> Any:
+    """Nominal dwells [s] per loop stop of the timetable period in force at ``t_s``."""
+    return sv.sched_dwell[sv.flow.period(t_s)]
+
+
+def day_trips(loop: LoopLine, sv: Any, codes: Tuple[str, str],
+              periods: Sequence[Tuple[float, float, float]]) -> List[Trip]:
+    """Trips of both directions from each terminus; ``periods``: (start, end, headway) [s].
+
+    Departures every headway from each period's start until its end, both termini at the
+    same instants.  Trip time: the loop scenario's scheduled running times and nominal
+    dwells (``sv``: its :class:`metro_atc.core.line.service.ServicePlan`, the dwells of the
+    period in force at the departure), rounded up to 1 s.  A simple day for tests and
+    studies; the Taipei day's trips are :func:`metro_atc.core.service.day.trips`.
+    """
+    n = len(loop.up_stop)
+    m = len(loop.stops)
+    raw_a = loop.down_stop[0] if loop.termini[0].arrival_stop != 0 else m - 1
+    legs = {"up": [loop.up_stop[j] for j in range(n)],
+            "down": [loop.down_stop[j] for j in range(n - 1, 0, -1)] + [raw_a]}
+    out: List[Trip] = []
+    for d, (o, e) in (("up", codes), ("down", codes[::-1])):
+        ks = legs[d]
+        k = 0
+        for start, end, hw in periods:
+            z = float(start)
+            while z < end - 1e-9:
+                row = _dwell_row(sv, z)
+                dur = sum(float(sv.sched_running_s[q]) for q in range(ks[0], ks[-1]))
+                dur += sum(float(row[q]) for q in ks[1:-1])
+                out.append(Trip(f"{d}{k:03d}", o, e, z, z + float(math.ceil(dur))))
+                z += float(hw)
+                k += 1
+    return out
+
+
+def plant_timed(loop: LoopLine, sv: Any, trips: Sequence[Trip], codes: Tuple[str, str]
+                ) -> List[Trip]:
+    """``trips`` with the trip times of the plant (same departures and ids).
+
+    Trip time: the loop's scheduled running times and the nominal dwells of the period at
+    the departure (``sv``: the loop scenario's ServicePlan), rounded up to 1 s, as
+    :func:`day_trips`.
+    """
+    n = len(loop.up_stop)
+    m = len(loop.stops)
+    raw_a = loop.down_stop[0] if loop.termini[0].arrival_stop != 0 else m - 1
+    legs = {codes[0]: [loop.up_stop[j] for j in range(n)],
+            codes[1]: [loop.down_stop[j] for j in range(n - 1, 0, -1)] + [raw_a]}
+    out = []
+    for t in trips:
+        ks = legs[t.origin]
+        row = _dwell_row(sv, t.departure_s)
+        dur = sum(float(sv.sched_running_s[q]) for q in range(ks[0], ks[-1]))
+        dur += sum(float(row[q]) for q in ks[1:-1])
+        out.append(dataclasses.replace(t, arrival_s=t.departure_s + float(math.ceil(dur))))
+    return out
+
+
+def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = "fuzzy",
+                seed: int = 0, stable_after_s: float = 1800.0,
+                trip_times: str = "plan") -> DayPlant:
+    """The plant of a day: ``scn``'s line and stock, ``plan`` a :class:`DayPlan`.
+
+    The loop of the line with the plan's terminus layouts; its timetable periods are the
+    plan's (boarding per direction scaled by the period's flow factors); the circulation
+    is :func:`metro_atc.core.service.day.run_day`'s, with the plan's trip times
+    (``trip_times="plan"``: Lin 2010a, eq. 5/10 on the ATR line data) or those the plant's
+    timetable gives (``"plant"``: :func:`plant_timed`).  DayError / LoopError in one line.
+    """
+    from .day import run_day, trips
+    if trip_times not in ("plan", "plant"):
+        raise ValueError(f"trip_times must be plan or plant, got {trip_times!r}")
+    from .loop import build_loop, with_periods
+    if [s.code for s in scn.line.stations][::len(scn.line.stations) - 1] != \
+            [t.station for t in plan.termini]:
+        raise ValueError(f"day {plan.name}: termini {[t.station for t in plan.termini]} are "
+                         f"not the ends of scenario {scn.name}")
+    loop = build_loop(scn, (plan.termini[0].layout, plan.termini[1].layout))
+    lscn = with_periods(scn, loop, [(p.start_s, p.headway_s, p.flow_up, p.flow_down, p.name)
+                                    for p in plan.periods])
+    end = plan.periods[-1].end_s + 7200.0
+    lscn = dataclasses.replace(lscn, sim=dataclasses.replace(lscn.sim, duration_s=end))
+    loop = dataclasses.replace(loop, scenario=lscn)
+    timed = None
+    if trip_times == "plant":
+        sv = LineSim(lscn, trace_period_s=0.0).service
+        codes = (plan.termini[0].station, plan.termini[1].station)
+        timed = plant_timed(loop, sv, trips(plan), codes)
+    # first in, first out: a tail track's single departure platform sends the trains out
+    # in their arrival order (with the last-in choice a train standing at the platform
+    # waits for a later trip while the one due first is held behind it in a siding)
+    circ, _ = run_day(plan, stable_after_s, timed, "longest_wait")
+    termini = [DayTerminus(t.station, t.min_turnback_s, t.depot is not None)
+               for t in plan.termini]
+    return DayPlant(loop, circ, termini, planner, tracker, seed)
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """``python -m metro_atc.core.service.dayplant``: the Taipei Blue day on the plant.
+
+    Prints one JSON line per simulated hour (progress) and the summary; exit 0 only when
+    the whole day ran (every trip, every train back in the depot) without a violation or
+    route conflict.
+    """
+    import argparse
+    import json
+    import sys
+
+    from metro_atc.core.line.scenario import load_scenario
+
+    from .day import load_day
+    ap = argparse.ArgumentParser(prog="python -m metro_atc.core.service.dayplant")
+    ap.add_argument("--scenario", default="taipei_blue")
+    ap.add_argument("--day", default=None, help="period table (default: the Taipei Blue day)")
+    ap.add_argument("--end-h", type=float, default=None, help="stop at this hour [h]")
+    ap.add_argument("--max-wall-s", type=float, default=math.inf)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--trip-times", choices=("plan", "plant"), default="plan",
+                    help="the period table's trip times or the plant's timetable's")
+    a = ap.parse_args(argv)
+    try:
+        dp = service_day(load_scenario(a.scenario), load_day(a.day), seed=a.seed,
+                         trip_times=a.trip_times)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+    def progress(d: DayPlant) -> None:
+        print(json.dumps({"t_h": round(d.t / 3600.0, 2), "trips_run": d.trips_run,
+                          "in_service": sum(tr.in_service for tr in d.trains),
+                          "route_conflicts": d.route_conflicts}), flush=True)
+
+    res = dp.run(None if a.end_h is None else a.end_h * 3600.0, a.max_wall_s, progress)
+    late = [tb.terminal_delay_s for tb in res.turnbacks]
+    print(json.dumps({**res.row(), "fleet_used": dp.circ.fleet,
+                      "terminal_delay_max_s": max(late, default=math.nan),
+                      "terminal_delay_mean_s": float(np.mean(late)) if late else math.nan,
+                      "notes": res.notes[:5]}), flush=True)
+    ok = (res.finished and res.trips_run == res.trips_planned and res.atp_violations == 0
+          and res.route_conflicts == 0 and res.missed_stops == 0)
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
+
+
+__all__ = ["DayPlant", "DayResult", "DayTerminus", "HOLD_S", "PULL_OUT_LEAD_S",
+           "REQUEST_LEAD_S", "day_trips", "main", "plant_timed", "service_day"]

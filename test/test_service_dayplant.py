@@ -1,0 +1,175 @@
+"""A two-direction service day on the plant (core/service/dayplant.py), ROS-free.
+
+Short days on the ``mini`` line (4 stations) with both terminus layouts: every planned
+trip runs, every train ends in the depot, no ATP violation, no route conflict (the
+interlocking's brute-force safety check every step), no missed stop, berthing within the
+platform-door window; a late arrival larger than the turnback buffer delays the next trip by
+exactly delay - buffer (:func:`propagate_delay`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+
+from metro_atc.core.line.scenario import load_scenario
+from metro_atc.core.plant.line import LineSim
+from metro_atc.core.service.circulation import build_circulation, propagate_delay
+from metro_atc.core.service.dayplant import DayPlant, DayTerminus, day_trips
+from metro_atc.core.service.interlocking import scissors_terminus, tail_track_terminus
+from metro_atc.core.service.loop import build_loop
+
+CODES = ("MN01", "MN04")
+MIN_TURNBACK_S = 240.0
+PLATFORM_M = 150.0  # the berths hold the 141 m train
+
+LAYOUTS = {
+    "scissors_A_tail_B": lambda: (scissors_terminus(platform_m=PLATFORM_M),
+                                  tail_track_terminus(2, platform_m=PLATFORM_M)),
+    "tail_A_scissors_B": lambda: (tail_track_terminus(1, platform_m=PLATFORM_M),
+                                  scissors_terminus(platform_m=PLATFORM_M)),
+}
+
+
+def _day(layouts, extra=None, depots=CODES):  # type: ignore[no-untyped-def]
+    scn = load_scenario("mini")
+    scn = dataclasses.replace(scn, disturbances=dataclasses.replace(
+        scn.disturbances, departure_delay_prob=0.0))
+    loop = build_loop(scn, layouts)
+    sv = LineSim(loop.scenario, trace_period_s=0.0).service
+    # two periods of 20 min: 300 s then 240 s headway
+    trips = day_trips(loop, sv, CODES, [(3600.0, 4800.0, 300.0), (4800.0, 6000.0, 240.0)])
+    circ = build_circulation(trips, {c: MIN_TURNBACK_S for c in CODES}, set(depots))
+    dp = DayPlant(loop, circ, [DayTerminus(c, MIN_TURNBACK_S, c in depots) for c in CODES],
+                  extra_dwell=extra)
+    return circ, trips, dp
+
+
+@pytest.mark.parametrize("name", sorted(LAYOUTS))
+def test_short_day_runs_every_trip_safely(name: str) -> None:
+    circ, trips, dp = _day(LAYOUTS[name]())
+    res = dp.run()
+    assert res.finished, res.notes
+    assert 3 <= circ.fleet <= 6
+    assert res.trips_run == res.trips_planned == len(trips)
+    assert res.trains_in_depot == res.fleet == circ.fleet
+    assert res.atp_violations == 0 and res.separation_violations == 0
+    assert res.route_conflicts == 0, res.notes
+    assert res.missed_stops == 0
+    assert max(abs(e) for e in res.stop_errors_m) <= 0.30
+    assert not res.forced_stop_errors_m
+    # the records: one per call of every trip, its turnbacks, the depot moves
+    assert len(res.stops) == len(trips) * 4
+    assert sum(1 for d in res.depot if d.kind == "pull_out") == sum(circ.pull_outs.values())
+    assert sum(1 for d in res.depot if d.kind == "pull_in") == sum(circ.pull_ins.values())
+    assert len(res.turnbacks) == sum(len(b.trips) - 1 for b in circ.blocks)
+    for tb in res.turnbacks:  # the minimum turnback holds, the timetable holds
+        assert tb.dep_s >= tb.arr_s + MIN_TURNBACK_S - 1e-6
+        assert tb.dep_s >= tb.sched_dep_s - 1e-6
+    # each train ran its own blocks' trips, in order (identity kept across trips)
+    for b in circ.blocks:
+        ran = [r.trip_id for r in res.stops if r.train == b.train and math.isnan(r.sched_arr_s)]
+        mine = {t.trip_id for t in b.trips}
+        assert [t.trip_id for t in b.trips] == [x for x in ran if x in mine]
+    for r in res.stops:  # every call happened, departures after arrivals
+        assert math.isfinite(r.arr_s) or math.isnan(r.sched_arr_s)
+        assert math.isfinite(r.dep_s) or math.isnan(r.sched_dep_s)
+        if math.isfinite(r.arr_s) and math.isfinite(r.dep_s):
+            assert r.dep_s > r.arr_s
+
+
+def test_late_arrival_delays_the_next_trip_by_delay_minus_buffer() -> None:
+    layouts = LAYOUTS["scissors_A_tail_B"]
+    circ, _, dp0 = _day(layouts())
+    blk = next(b for b in circ.blocks if len(b.trips) >= 2)
+    first, second = blk.trips[0], blk.trips[1]
+    buffer = (second.departure_s - first.arrival_s) - MIN_TURNBACK_S
+    hold = buffer + 60.0
+    station = 1 if first.origin == CODES[0] else 2  # an intermediate call of the first trip
+    _, _, dp = _day(layouts(), extra={(blk.train, first.trip_id, station): hold})
+    res = dp.run()
+    assert res.finished and res.route_conflicts == 0 and res.atp_violations == 0
+    tb = next(x for x in res.turnbacks if x.train == blk.train and x.arr_trip_id ==
+              first.trip_id)
+    assert tb.terminal_delay_s > buffer + 30.0  # the hold made it late beyond the buffer
+    expect = propagate_delay(tb.terminal_delay_s, tb.sched_dep_s - tb.sched_arr_s,
+                             MIN_TURNBACK_S)
+    assert expect > 0.0
+    assert abs(tb.carried_delay_s - expect) <= 0.5  # one control period and rounding
+    # the undisturbed day leaves that trip on time
+    res0 = dp0.run()
+    tb0 = next(x for x in res0.turnbacks if x.train == blk.train and x.arr_trip_id ==
+               first.trip_id)
+    assert tb0.carried_delay_s <= 0.5
+
+
+def test_a_follower_waits_behind_a_held_train() -> None:
+    """The train ahead on the track (by path position) bounds the authority: no catch-up."""
+    layouts = LAYOUTS["tail_A_scissors_B"]
+    circ, trips, _ = _day(layouts())
+    ups = sorted((t for t in trips if t.origin == CODES[0]), key=lambda t: t.departure_s)
+    lead_trip, next_trip = ups[0], ups[1]
+    owner = {t.trip_id: b.train for b in circ.blocks for t in b.trips}
+    hold = 2.0 * (next_trip.departure_s - lead_trip.departure_s)
+    _, _, dp = _day(layouts(), extra={(owner[lead_trip.trip_id], lead_trip.trip_id, 1): hold})
+    res = dp.run()
+    assert res.finished and res.trips_run == res.trips_planned
+    assert res.atp_violations == 0 and res.separation_violations == 0
+    assert res.route_conflicts == 0 and res.missed_stops == 0
+    assert max(abs(e) for e in res.stop_errors_m) <= 0.30
+    call = {(r.trip_id, r.station): r for r in res.stops}
+    left = call[(lead_trip.trip_id, 1)].dep_s
+    assert left - call[(lead_trip.trip_id, 1)].arr_s >= hold
+    # the follower reached that platform only once the held train had left it
+    assert call[(next_trip.trip_id, 1)].arr_s > left
+    assert call[(next_trip.trip_id, 1)].sched_arr_s < left  # it was due before
+
+
+def _step_at(items, x, key):  # type: ignore[no-untyped-def]
+    v = getattr(items[0], key)
+    for it in items:
+        if it.start_m <= x:
+            v = getattr(it, key)
+    return v
+
+
+@pytest.mark.parametrize("name", sorted(LAYOUTS))
+def test_loop_mirrors_the_line(name: str) -> None:
+    """Down platforms, grades (sign reversed), limits and curves mirror the chainage."""
+    scn = load_scenario("mini")
+    layouts = LAYOUTS[name]()
+    loop = build_loop(scn, layouts)
+    c = [s.position_m for s in scn.line.stations]
+    length = c[-1] - c[0]
+    b = loop.termini[1]
+    d0 = loop.stops[b.departure_stop].s_m
+    # the turnback of B is its routes end to end: platform stop to departure platform
+    assert d0 - length == pytest.approx(0.0 if b.arrival_stop == b.departure_stop else sum(
+        max(b.layout.route_length_m(r.name) for r in b.layout.routes if r.stage == st)
+        for st in (1, 2)))
+    for j, cj in enumerate(c):
+        assert loop.stops[loop.up_stop[j]].s_m == pytest.approx(cj - c[0])
+        if 0 < j < len(c) - 1:
+            assert loop.stops[loop.down_stop[j]].s_m == pytest.approx(d0 + c[-1] - cj)
+    line = loop.scenario.line
+    for cj in (800.0, 2100.0, 2400.0, 1300.0, 450.0):  # inside grades and limits
+        up, down = cj - c[0], d0 + c[-1] - cj
+        g = _step_at(scn.line.gradients, cj, "grade_permille")
+        assert _step_at(line.gradients, up, "grade_permille") == g
+        assert _step_at(line.gradients, down, "grade_permille") == -g
+        lim = _step_at(scn.line.speed_limits, cj, "limit_kmh")
+        assert _step_at(line.speed_limits, up, "limit_kmh") == lim
+        assert _step_at(line.speed_limits, down, "limit_kmh") == lim
+    assert len(line.curves) == 2 * len(scn.line.curves)
+    for tp in loop.termini:  # every route's limit holds over its points and its berth
+        pts = set(tp.layout.point_section.values())
+        for sp in tp.spans.values():
+            for s, a, z in sp.sections:
+                if s not in pts and s != sp.route.destination or s == tp.layout.exit_section:
+                    continue
+                for x in (a + 0.5, 0.5 * (a + z), z - 0.5):
+                    assert _step_at(line.speed_limits, x, "limit_kmh") <= (
+                        sp.route.speed_limit_mps * 3.6 + 1e-9)
+    assert loop.stops[-1].role == "wrap" and loop.stops[-1].station == 0
