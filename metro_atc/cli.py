@@ -6,6 +6,8 @@
 - ``train {aoc,dhp}``: train the ATR critic/actor networks.
 - ``import ttobench``: a TTOBench track + train (+ journey) as a scenario YAML.
 - ``show --scenario FILE``: the resolved rolling stock, line and timetable, with sources.
+- ``day``: a two-direction service day on the plant, ROS-free
+  (:mod:`metro_atc.core.service.dayplant`).
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if not args or args[0] in ("-h", "--help"):
         print(__doc__.strip())
-        print("\nusage: python -m metro_atc {run,show,bench,train,import} [options]   "
+        print("\nusage: python -m metro_atc {run,show,day,bench,train,import} [options]   "
               "(-h after each)")
         return 0 if args else 2
     cmd, rest = args[0], args[1:]
@@ -51,6 +53,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if cmd == "show":
         from metro_atc.show import main as show_main
         return show_main(rest)
+    if cmd == "day":
+        from metro_atc.core.service.dayplant import main as day_main
+        return day_main(rest)
     if cmd == "import":
         if not rest or rest[0] != "ttobench":
             print("usage: python -m metro_atc import ttobench --track T.json --train R.json "
@@ -65,7 +70,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print("metro_atc train: the ATR training module is not available", file=sys.stderr)
             return 2
         return int(mod.main(rest))
-    print(f"metro_atc: unknown command {cmd!r} (expected run, show, bench, train or import)",
+    print(f"metro_atc: unknown command {cmd!r} "
+          "(expected run, show, day, bench, train or import)",
           file=sys.stderr)
     return 2
 

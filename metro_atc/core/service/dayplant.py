@@ -840,7 +840,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     from metro_atc.core.line.scenario import load_scenario
 
     from .day import load_day
-    ap = argparse.ArgumentParser(prog="python -m metro_atc.core.service.dayplant")
+    ap = argparse.ArgumentParser(prog="python -m metro_atc day")
     ap.add_argument("--scenario", default="taipei_blue")
     ap.add_argument("--day", default=None, help="period table (default: the Taipei Blue day)")
     ap.add_argument("--end-h", type=float, default=None, help="stop at this hour [h]")
@@ -848,9 +848,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--trip-times", choices=("plan", "plant"), default="plan",
                     help="the period table's trip times or the plant's timetable's")
+    ap.add_argument("--out", default=None,
+                    help="write the day's KPIs (day_kpis.json/.txt) and pictures here")
     a = ap.parse_args(argv)
     try:
-        dp = service_day(load_scenario(a.scenario), load_day(a.day), seed=a.seed,
+        plan = load_day(a.day)
+        dp = service_day(load_scenario(a.scenario), plan, seed=a.seed,
                          trip_times=a.trip_times)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -867,6 +870,16 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                       "terminal_delay_max_s": max(late, default=math.nan),
                       "terminal_delay_mean_s": float(np.mean(late)) if late else math.nan,
                       "notes": res.notes[:5]}), flush=True)
+    if a.out is not None:
+        from pathlib import Path
+
+        from .dayplots import write_day_outputs
+        try:
+            wrote = write_day_outputs(plan, res.stops, res.turnbacks, res.depot, Path(a.out))
+        except OSError as exc:
+            print(f"error: the day's outputs could not be written: {exc}", file=sys.stderr)
+            return 4
+        print(f"wrote {', '.join(str(v) for v in wrote.values())}", file=sys.stderr)
     ok = (res.finished and res.trips_run == res.trips_planned and res.atp_violations == 0
           and res.route_conflicts == 0 and res.missed_stops == 0)
     return 0 if ok else 1
