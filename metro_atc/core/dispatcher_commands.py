@@ -8,7 +8,10 @@ lockstep step boundary (:meth:`Dispatcher.apply_due`, before the plant advances 
 k).  Applied commands go through the plant's own incident machinery, as a scripted incident
 does: a TSR becomes one more zone of :attr:`metro_atc.core.plant.incidents.Incidents.tsrs`
 (the ATP knows it ``signalling.tsr_notice_s`` before ``from_s``), a hold an infinite extra
-hold of :attr:`~metro_atc.core.plant.incidents.Incidents.extra_hold` until its release.
+hold of :attr:`~metro_atc.core.plant.incidents.Incidents.extra_hold` until its release; a
+withdrawal marks the train's next station as the end of its service
+(:meth:`metro_atc.core.plant.line.LineSim.withdraw`: its passengers alight there, as at the
+terminus, and it leaves service at its departure).
 The ATOs learn an applied TSR as the same :class:`~metro_atc.core.ato.onboard.TsrZone` a
 scripted one gives (:class:`TsrBook`).
 
@@ -36,8 +39,9 @@ KIND_TSR_IMPOSE = 1
 KIND_TSR_LIFT = 2
 KIND_HOLD = 3
 KIND_RELEASE = 4
+KIND_WITHDRAW = 5
 KIND_NAMES = {KIND_TSR_IMPOSE: "tsr_imposed", KIND_TSR_LIFT: "tsr_lifted",
-              KIND_HOLD: "hold", KIND_RELEASE: "release"}
+              KIND_HOLD: "hold", KIND_RELEASE: "release", KIND_WITHDRAW: "withdraw"}
 """Command kind (the DispatcherCommand.KIND_* values) -> its name in events.csv."""
 
 LEAD_S = 5.0
@@ -197,6 +201,8 @@ class Dispatcher:
                 return f"{n}: expected a string of at most {NAME_MAX} characters"
         if k == KIND_TSR_IMPOSE:
             return self._check_impose(cmd, pending)
+        if k == KIND_WITHDRAW:
+            return self._check_withdraw(cmd, pending)
         if k == KIND_TSR_LIFT:
             imposed = {c.tsr_id for c in pending if c.kind == KIND_TSR_IMPOSE}
             lifted = {c.tsr_id for c in pending if c.kind == KIND_TSR_LIFT}
@@ -269,6 +275,29 @@ class Dispatcher:
         if j < first:
             return (f"{cmd.train_id} has left {sim.station_names[j]} (its next departure is "
                     f"from station {first})")
+        return None
+
+    def withdraw_station(self, i: int) -> int:
+        """The station train i would be withdrawn at now: its next station."""
+        return int(self.sim.fleet.next_stop[i])
+
+    def _check_withdraw(self, cmd: Command, pending: Sequence[Command]) -> Optional[str]:
+        sim, fl = self.sim, self.sim.fleet
+        i = self.trains.get(cmd.train_id)
+        if i is None:
+            return f"train_id '{cmd.train_id}': unknown train"
+        if int(sim.stations.withdraw_at[i]) >= 0 or bool(sim.stations.withdrawn[i]) or any(
+                c.kind == KIND_WITHDRAW and c.train_id == cmd.train_id for c in pending):
+            return f"{cmd.train_id} is withdrawn already"
+        st = int(fl.status[i])
+        if st == WAIT:
+            return f"{cmd.train_id} has not entered service yet"
+        if st != RUN:
+            return f"{cmd.train_id} is out of service"
+        j = self.withdraw_station(i)
+        if j >= sim.n_st - 1:
+            return (f"{cmd.train_id}'s next station {sim.station_names[-1]} is the terminus: "
+                    "it leaves service there anyway, nothing to withdraw")
         return None
 
     # ------------------------------------------------------------------ queue
@@ -345,6 +374,11 @@ class Dispatcher:
             n = self.tsr_index[cmd.tsr_id]
             a, b, v, f, _ = inc.tsrs[n]
             inc.tsrs[n] = (a, b, v, f, t)
+        elif cmd.kind == KIND_WITHDRAW:
+            i = self.trains[cmd.train_id]
+            j = self.withdraw_station(i)
+            cmd = replace(cmd, station=sim.station_names[j])
+            sim.withdraw(i, j)
         else:
             i, j = self.trains[cmd.train_id], self.stations[cmd.station]
             if cmd.kind == KIND_HOLD:
@@ -359,9 +393,9 @@ class Dispatcher:
         return a_
 
     def station_of(self, a: Applied) -> int:
-        """Station index of an applied hold / release (-1 for a TSR)."""
+        """Station index of an applied hold / release / withdrawal (-1 for a TSR)."""
         return self.stations.get(a.command.station, -1) \
-            if a.command.kind in (KIND_HOLD, KIND_RELEASE) else -1
+            if a.command.kind in (KIND_HOLD, KIND_RELEASE, KIND_WITHDRAW) else -1
 
     @property
     def state(self) -> dict[str, Any]:

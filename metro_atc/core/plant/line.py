@@ -176,6 +176,14 @@ class LineSim:
             self.stations.set_release(train_idx, station_idx, redraw=False)
             self._t_next = min(self._t_next, float(fl.release_t[train_idx]))
 
+    def withdraw(self, train_idx: int, station_idx: int) -> None:
+        """A dispatcher withdraws train ``train_idx`` at station ``station_idx`` (ahead).
+
+        It runs there, its passengers alight (all, as at the terminus), nobody boards, and
+        it leaves service at its departure (:meth:`Stations.leave_service`).
+        """
+        self.stations.withdraw_at[train_idx] = station_idx
+
     def next_stop_position(self) -> FloatArray:
         """Chainage of each train's next stop point [m] (tail stop while turning back)."""
         return self.fleet.stop_x.copy()
@@ -200,7 +208,8 @@ class LineSim:
         return RunLog(
             scenario=self.scn.name, seed=self.seed, train_ids=list(self.train_ids),
             n_st=self.n_st, t=self.t, step_count=self.step_count,
-            completed=np.asarray(self.fleet.status == DONE),
+            completed=np.asarray((self.fleet.status == DONE) & ~self.stations.withdrawn),
+            withdrawn=self.stations.withdrawn.copy(),
             act_arr=st.act_arr.copy(), act_dep=st.act_dep.copy(), sched_arr=sv.sched_arr,
             sched_dep=sv.sched_dep, cmd_rt=st.cmd_rt.copy(),
             sched_running_s=sv.sched_running_s, energy=self.energy_breakdown(),

@@ -76,6 +76,11 @@ class Stations:
         self.pending_alight = np.zeros(n)
         self.next_entry = 0
         self.skipped_stops = 0
+        self.withdraw_at = np.full(n, -1, dtype=np.int64)
+        """Station a dispatcher withdraws each train at (-1: none; it leaves service there
+        after its passengers alighted, as at the terminus)."""
+        self.withdrawn = np.zeros(n, dtype=bool)
+        """Trains the dispatcher withdrew (out of service before the terminus)."""
         self.delay_draw = np.zeros(n)
         self.events: list[TrainEvent] = []
         self.events_out: list[TrainEvent] = []
@@ -143,10 +148,14 @@ class Stations:
         fl.next_stop[i] = j + 1
         self.act_arr[i, j] = t
         fl.arr_t[i] = t
-        alight = fl.load[i] * self.sv.alight_frac[j]
+        alight = fl.load[i] * (1.0 if self.withdraw_at[i] == j else self.sv.alight_frac[j])
         self.pending_alight[i] = alight
         self.emit(i, j, "arrival", t, stop_error_m=stop_error_m)
         self.set_release(i, j, redraw=True)
+
+    def last_stop(self, i: int, j: int) -> bool:
+        """Whether station j ends train i's service (the terminus, or its withdrawal)."""
+        return j == self.n_st - 1 or int(self.withdraw_at[i]) == j
 
     def set_release(self, i: int, j: int, redraw: bool) -> None:
         """Departure time = max(ATS/timetable, passenger dwell done) + holds + delay."""
@@ -154,7 +163,8 @@ class Stations:
         ps = self.scn.passengers
         t_arr = float(fl.arr_t[i])
         room = fl.p.capacity_pax - (fl.load[i] - self.pending_alight[i])
-        if j == self.n_st - 1:
+        last = self.last_stop(i, j)
+        if last:
             d_req = max(ps.door_overhead_s + ps.alighting_s_per_pax * self.pending_alight[i],
                         ps.min_dwell_s)
             board = 0.0
@@ -176,7 +186,7 @@ class Stations:
         if redraw:
             dis = self.scn.disturbances
             delay = 0.0
-            if j < self.n_st - 1 and self.rng.random() < dis.departure_delay_prob:
+            if not last and self.rng.random() < dis.departure_delay_prob:
                 delay = float(self.rng.exponential(dis.departure_delay_mean_s))
             self.delay_draw[i] = delay
         cand += float(self.delay_draw[i]) + float(self.extra_hold[i, j])
@@ -193,7 +203,8 @@ class Stations:
         alight = float(self.pending_alight[i])
         fl.load[i] -= alight
         board = 0.0
-        if j < self.n_st - 1:
+        last = self.last_stop(i, j)
+        if not last:
             waiting = self.left_behind[j] + sv.flow.arrivals(j, self.last_dep_t[j], t)
             room = max(fl.p.capacity_pax - fl.load[i], 0.0)
             board = min(waiting, room)
@@ -209,7 +220,10 @@ class Stations:
         fl.set_mass_from_load(i)
         self.act_dep[i, j] = t
         self.emit(i, j, "departure", t, board, alight, dwell)
-        if j == self.n_st - 1:
+        if last and j < self.n_st - 1:  # withdrawn by the dispatcher: out of service here
+            self.withdrawn[i] = True
+            self.leave_service(i, j)
+        elif j == self.n_st - 1:
             fl.status[i] = TURNBACK
             fl.next_stop[i] = self.n_st
             fl.stop_x[i] = g.x_tail_stop
@@ -236,6 +250,8 @@ class Stations:
                 j = int(fl.next_stop[i])
                 self.skipped_stops += 1
                 fl.cur_station[i] = j
+                if self.withdraw_at[i] == j:  # overran its withdrawal: the next one (if any)
+                    self.withdraw_at[i] = j + 1 if j + 1 < self.n_st - 1 else -1
                 if j >= self.n_st - 1:
                     # overran the terminus: passengers alight in the tail track
                     fl.status[i] = TURNBACK
@@ -252,9 +268,14 @@ class Stations:
         fl, g = self.fl, self.geom
         tb_done = (fl.status == TURNBACK) & (fl.done_t <= t + 1e-9)
         for i in np.flatnonzero(tb_done):
-            fl.status[i] = DONE
-            fl.x_done[i] = fl.x[i]
-            fl.set_xv(int(i), g.x_park, 0.0)
-            fl.dwelling[i] = False
-            fl.done_t[i] = math.inf
-            fl.cur_station[i] = self.n_st - 1
+            self.leave_service(int(i), self.n_st - 1)
+
+    def leave_service(self, i: int, j: int) -> None:
+        """Train i leaves service at station j (parked beyond the grid end)."""
+        fl, g = self.fl, self.geom
+        fl.status[i] = DONE
+        fl.x_done[i] = fl.x[i]
+        fl.set_xv(i, g.x_park, 0.0)
+        fl.dwelling[i] = False
+        fl.done_t[i] = math.inf
+        fl.cur_station[i] = j
