@@ -257,7 +257,7 @@ def test_withdraw_at_the_next_station() -> None:
     assert sim.done and sim.t < 2000.0  # both out of service: the run ends
     k = sim.kpis()
     assert (k["completed_trains"], k["withdrawn_trains"]) == (1, 1)
-    assert [p["withdrawn"] for p in k["per_train"]] == [True, False]
+    assert [p["completed"] for p in k["per_train"]] == [False, True]
     end = service_end(k["trains"], k["completed_trains"], sim.t, True, None, 1200.0,
                       k["withdrawn_trains"])
     assert end["finished"] and end["incomplete_trains"] == 0 and "1 withdrawn" in end["end"]

@@ -104,7 +104,6 @@ def compute_kpis(log: RunLog) -> dict[str, Any]:
         per_train.append({
             "train_id": tid,
             "completed": bool(log.completed[i]),
-            "withdrawn": bool(log.withdrawn[i]) if i < log.withdrawn.size else False,
             "departures": int(v.sum()),
             "punctuality": float(np.mean(dep_dev[i][v] <= PUNCTUAL_S)) if v.any() else None,
             "max_delay_s": float(dep_dev[i][v].max()) if v.any() else None,
