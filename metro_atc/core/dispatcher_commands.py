@@ -11,7 +11,10 @@ does: a TSR becomes one more zone of :attr:`metro_atc.core.plant.incidents.Incid
 hold of :attr:`~metro_atc.core.plant.incidents.Incidents.extra_hold` until its release; a
 withdrawal marks the train's next station as the end of its service
 (:meth:`metro_atc.core.plant.line.LineSim.withdraw`: its passengers alight there, as at the
-terminus, and it leaves service at its departure).
+terminus, and it leaves service at its departure); a skip has the train run through a
+station of its future (:meth:`~metro_atc.core.plant.line.LineSim.skip_stop`: its next stop
+is the one after, the ATO plans the run past it, the ATS sees no arrival nor departure
+there, which its regulators take as a missed event).
 The ATOs learn an applied TSR as the same :class:`~metro_atc.core.ato.onboard.TsrZone` a
 scripted one gives (:class:`TsrBook`).
 
@@ -40,8 +43,10 @@ KIND_TSR_LIFT = 2
 KIND_HOLD = 3
 KIND_RELEASE = 4
 KIND_WITHDRAW = 5
+KIND_SKIP = 6
 KIND_NAMES = {KIND_TSR_IMPOSE: "tsr_imposed", KIND_TSR_LIFT: "tsr_lifted",
-              KIND_HOLD: "hold", KIND_RELEASE: "release", KIND_WITHDRAW: "withdraw"}
+              KIND_HOLD: "hold", KIND_RELEASE: "release", KIND_WITHDRAW: "withdraw",
+              KIND_SKIP: "skip"}
 """Command kind (the DispatcherCommand.KIND_* values) -> its name in events.csv."""
 
 LEAD_S = 5.0
@@ -203,6 +208,8 @@ class Dispatcher:
             return self._check_impose(cmd, pending)
         if k == KIND_WITHDRAW:
             return self._check_withdraw(cmd, pending)
+        if k == KIND_SKIP:
+            return self._check_skip(cmd, pending)
         if k == KIND_TSR_LIFT:
             imposed = {c.tsr_id for c in pending if c.kind == KIND_TSR_IMPOSE}
             lifted = {c.tsr_id for c in pending if c.kind == KIND_TSR_LIFT}
@@ -300,6 +307,42 @@ class Dispatcher:
                     "it leaves service there anyway, nothing to withdraw")
         return None
 
+    def _check_skip(self, cmd: Command, pending: Sequence[Command]) -> Optional[str]:
+        sim, fl = self.sim, self.sim.fleet
+        i = self.trains.get(cmd.train_id)
+        if i is None:
+            return f"train_id '{cmd.train_id}': unknown train"
+        j = self.stations.get(cmd.station)
+        if j is None:
+            return f"station '{cmd.station}': unknown station"
+        name = sim.station_names[j]
+        if j == sim.n_st - 1:
+            return f"{name} is the terminus: a train cannot run through it"
+        if j == 0:
+            return f"{name} is the first station: trains enter service there"
+        if bool(sim.stations.skip[i, j]) or any(
+                c.kind == KIND_SKIP and c.train_id == cmd.train_id
+                and self.stations.get(c.station) == j for c in pending):
+            return f"{cmd.train_id} skips {name} already"
+        st = int(fl.status[i])
+        if st not in (WAIT, RUN):
+            return f"{cmd.train_id} is out of service"
+        wd = int(sim.stations.withdraw_at[i])
+        if wd >= 0 and j >= wd:
+            return f"{cmd.train_id} is withdrawn at {sim.station_names[wd]}"
+        nxt = int(fl.next_stop[i])
+        if j < nxt:
+            return f"{cmd.train_id} has passed {name} (its next stop is station {nxt})"
+        if st == RUN and j == nxt and not bool(fl.dwelling[i]):
+            v = float(fl.v[i])
+            d = float(sim.geometry.station_positions_m[j]) - float(fl.x[i])
+            b = float(fl.p.max_service_brake_mps2)
+            brake = v * v / (2.0 * b)
+            if d <= brake:
+                return (f"{cmd.train_id} is {d:.1f} m from {name}, within its braking "
+                        f"distance {brake:.1f} m at {v:.2f} m/s: too late to skip it")
+        return None
+
     # ------------------------------------------------------------------ queue
     def submit(self, cmd: Command) -> tuple[bool, str, int]:
         """Validate and queue a request: (accepted, one-line reason, ticket or 0)."""
@@ -379,6 +422,8 @@ class Dispatcher:
             j = self.withdraw_station(i)
             cmd = replace(cmd, station=sim.station_names[j])
             sim.withdraw(i, j)
+        elif cmd.kind == KIND_SKIP:
+            sim.skip_stop(self.trains[cmd.train_id], self.stations[cmd.station])
         else:
             i, j = self.trains[cmd.train_id], self.stations[cmd.station]
             if cmd.kind == KIND_HOLD:
@@ -393,9 +438,9 @@ class Dispatcher:
         return a_
 
     def station_of(self, a: Applied) -> int:
-        """Station index of an applied hold / release / withdrawal (-1 for a TSR)."""
+        """Station index of an applied hold / release / withdrawal / skip (-1: a TSR)."""
         return self.stations.get(a.command.station, -1) \
-            if a.command.kind in (KIND_HOLD, KIND_RELEASE, KIND_WITHDRAW) else -1
+            if a.command.kind in (KIND_HOLD, KIND_RELEASE, KIND_WITHDRAW, KIND_SKIP) else -1
 
     @property
     def state(self) -> dict[str, Any]:

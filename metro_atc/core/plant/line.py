@@ -184,6 +184,21 @@ class LineSim:
         """
         self.stations.withdraw_at[train_idx] = station_idx
 
+    def skip_stop(self, train_idx: int, station_idx: int) -> None:
+        """A dispatcher has train ``train_idx`` run through station ``station_idx`` (ahead).
+
+        Nobody alights or boards there; a train heading for it now heads for the stop after
+        (its ATO plans the run past it from the state's ``next_station``).
+        """
+        st, fl = self.stations, self.fleet
+        st.skip[train_idx, station_idx] = True
+        if int(fl.next_stop[train_idx]) == station_idx and fl.status[train_idx] == RUN:
+            k = st.next_served(train_idx, station_idx - 1)
+            fl.next_stop[train_idx] = k
+            if not fl.dwelling[train_idx]:
+                fl.stop_x = fl.stop_x.copy()
+                fl.stop_x[train_idx] = self.geometry.station_positions_m[k]
+
     def next_stop_position(self) -> FloatArray:
         """Chainage of each train's next stop point [m] (tail stop while turning back)."""
         return self.fleet.stop_x.copy()

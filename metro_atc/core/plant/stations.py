@@ -81,6 +81,8 @@ class Stations:
         after its passengers alighted, as at the terminus)."""
         self.withdrawn = np.zeros(n, dtype=bool)
         """Trains the dispatcher withdrew (out of service before the terminus)."""
+        self.skip = np.zeros((n, n_st), dtype=bool)
+        """Stops a dispatcher has each train run through (train, station)."""
         self.delay_draw = np.zeros(n)
         self.events: list[TrainEvent] = []
         self.events_out: list[TrainEvent] = []
@@ -145,13 +147,21 @@ class Stations:
         fl.dwelling[i] = True
         fl.set_xv(i, float(fl.x[i]), 0.0)
         fl.cur_station[i] = j
-        fl.next_stop[i] = j + 1
+        fl.next_stop[i] = self.next_served(i, j)
         self.act_arr[i, j] = t
         fl.arr_t[i] = t
         alight = fl.load[i] * (1.0 if self.withdraw_at[i] == j else self.sv.alight_frac[j])
         self.pending_alight[i] = alight
         self.emit(i, j, "arrival", t, stop_error_m=stop_error_m)
         self.set_release(i, j, redraw=True)
+
+    def next_served(self, i: int, j: int) -> int:
+        """The first stop of train i after station j it does not skip (the terminus is
+        never skipped)."""
+        k = j + 1
+        while k < self.n_st - 1 and self.skip[i, k]:
+            k += 1
+        return k
 
     def last_stop(self, i: int, j: int) -> bool:
         """Whether station j ends train i's service (the terminus, or its withdrawal)."""
@@ -228,7 +238,9 @@ class Stations:
             fl.next_stop[i] = self.n_st
             fl.stop_x[i] = g.x_tail_stop
         else:
-            fl.stop_x[i] = g.station_positions_m[j + 1]
+            k = self.next_served(i, j)
+            fl.next_stop[i] = k
+            fl.stop_x[i] = g.station_positions_m[k]
             sig = self.scn.disturbances.running_time_noise
             fl.trac_level[i] = 1.0 - abs(float(self.rng.normal(0.0, sig))) if sig > 0 else 1.0
 
@@ -258,8 +270,9 @@ class Stations:
                     fl.next_stop[i] = self.n_st
                     fl.stop_x[i] = g.x_tail_stop
                 else:
-                    fl.next_stop[i] = j + 1
-                    fl.stop_x[i] = g.station_positions_m[j + 1]
+                    k = self.next_served(i, j)
+                    fl.next_stop[i] = k
+                    fl.stop_x[i] = g.station_positions_m[k]
             # stopped short in the tail track (TURNBACK, v = 0, d < -tol): the turnback
             # driver creeps on
 
