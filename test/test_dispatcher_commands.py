@@ -393,8 +393,8 @@ def test_skip_refused_when_passed_or_too_close() -> None:
     assert d.check(Command(KIND_SKIP, train_id="train_01", station="Bravo")) is None
     sim.fleet.set_xv(0, x_now, v_now)
     _run(sim, d, 300.0)
-    assert "has passed Bravo" in (d.check(Command(KIND_SKIP, train_id="train_01",
-                                                 station="Bravo")) or "")
+    why = d.check(Command(KIND_SKIP, train_id="train_01", station="Bravo")) or ""
+    assert "has passed Bravo" in why
 
 
 def test_skip_on_the_way_to_the_station() -> None:

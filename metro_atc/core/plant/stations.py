@@ -156,8 +156,7 @@ class Stations:
         self.set_release(i, j, redraw=True)
 
     def next_served(self, i: int, j: int) -> int:
-        """The first stop of train i after station j it does not skip (the terminus is
-        never skipped)."""
+        """The first stop of train i after station j it does not skip (never the terminus)."""
         k = j + 1
         while k < self.n_st - 1 and self.skip[i, k]:
             k += 1
@@ -278,7 +277,7 @@ class Stations:
 
     def finish_turnbacks(self, t: float) -> None:
         """Trains whose turnback time is over leave service (parked beyond the grid end)."""
-        fl, g = self.fl, self.geom
+        fl = self.fl
         tb_done = (fl.status == TURNBACK) & (fl.done_t <= t + 1e-9)
         for i in np.flatnonzero(tb_done):
             self.leave_service(int(i), self.n_st - 1)
