@@ -230,6 +230,9 @@ def test_skip_and_withdraw(dispatched: dict[str, Any]) -> None:
     last = [r for r in t2 if r["kind"] in ("arrival", "departure")][-1]
     assert (last["station_name"], last["kind"]) == ("Charlie", "departure")
     assert int(last["boarded"]) == 0 and int(last["alighted"]) > 0
+    # nobody waited for the withdrawn train (nor for the skipping one) afterwards
+    k = dispatched["kpis"]
+    assert k["lockstep_misses"] == 0 and k["ats_timeouts"] == 0
 
 
 def test_commands_in_the_bag(dispatched: dict[str, Any]) -> None:
