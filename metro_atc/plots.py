@@ -109,12 +109,14 @@ def _station_labels(sim: "LineSim") -> list[str]:
 
 def _tsr_windows(sim: "LineSim",
                  t_end_s: float) -> list[tuple[float, float, float, float, float]]:
-    """TSRs of the scenario (line and incidents): (start m, end m, from s, to s, km/h)."""
-    tsrs = [(z.start_m, z.end_m, z.from_s, min(z.to_s, t_end_s), z.limit_kmh)
-            for z in sim.scn.line.temporary_speed_limits]
-    tsrs += [(z.start_m, z.end_m, z.at_s, min(z.at_s + z.duration_s, t_end_s), z.limit_kmh)
-             for z in sim.scn.incidents if z.kind == "tsr"]
-    return tsrs
+    """TSRs of the run: (start m, end m, from s, to s, km/h).
+
+    The plant's own list (:attr:`metro_atc.core.plant.incidents.Incidents.tsrs`): the
+    scenario's (line and incidents) and those a dispatcher imposed (lifted: ``to`` is the
+    lift time), so the plots draw what the ATP supervised.
+    """
+    return [(a, b, f, min(e, t_end_s), round(v * KMH, 6))
+            for (a, b, v, f, e) in sim.incidents.tsrs]
 
 
 def _shade_incidents(ax: Any, sim: "LineSim", t_end_s: float) -> None:

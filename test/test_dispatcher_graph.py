@@ -1,11 +1,13 @@
 """The dispatcher's desk through the graph: a scripted dispatcher (an rclpy client) on a run.
 
-One recorded run of ``mini`` to completion: the dispatcher imposes a TSR and holds
-train_02 at Charlie (released once it stands there), with invalid requests refused on the
-way; both take effect at their stated step and time, are in events.csv and in the bag, and
-no ATP violation happens.  Then ``--replay-commands`` of that bag gives events.csv byte for
-byte.  A second, cut run is flooded with requests: the excess is refused and counted, and
-the lockstep keeps stepping (no miss).
+One recorded run of ``mini`` to completion: the dispatcher imposes a TSR, has train_01 skip
+Charlie, switches the ATS from the timetable to the LQR, holds train_02 at Charlie (released
+once it stands there) and, once train_02 stands at Bravo, withdraws it at its next station
+(Charlie), with invalid requests refused on the way; all take effect at their stated step
+and time, are in events.csv and in the bag, no ATP violation happens, and the run completes
+(exit 0) with one train withdrawn.  Then ``--replay-commands`` of that bag gives events.csv
+byte for byte.  A second, cut run is flooded with requests: the excess is refused and
+counted, and the lockstep keeps stepping (no miss).
 """
 
 from __future__ import annotations
@@ -92,6 +94,7 @@ def dispatched(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     from metro_atc.nodes.common import QOS_CLOCK, QOS_EVENTS
     tmp = tmp_path_factory.mktemp("dispatch")
     res: dict[str, Any] = {"out": tmp / "run", "replay": tmp / "replay"}
+    procs: list[subprocess.Popen[str]] = []
     with DomainAllocator().allocate() as dom:
         env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
         probe = TopicProbe(dom, name="dispatcher")
@@ -102,6 +105,7 @@ def dispatched(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
             p = subprocess.Popen(_argv(res["out"], "--record", "--step-timeout", "120"),
                                  env=env, cwd=tmp,
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            procs.append(p)
             assert client.wait_for_service(timeout_sec=60.0)
             answers = {
                 "nan": _call(client, _request(kind=D.KIND_TSR_IMPOSE, **dict(
@@ -115,7 +119,28 @@ def dispatched(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
                 "tsr": _call(client, _request(kind=D.KIND_TSR_IMPOSE, **TSR)),
                 "hold": _call(client, _request(kind=D.KIND_HOLD, train_id="train_02",
                                                station="Charlie")),
+                "skip": _call(client, _request(kind=D.KIND_SKIP, train_id="train_01",
+                                               station="Charlie")),
+                "skip_terminus": _call(client, _request(kind=D.KIND_SKIP, train_id="train_01",
+                                                        station="Delta")),
+                "withdraw_waiting": _call(client, _request(kind=D.KIND_WITHDRAW,
+                                                           train_id="train_02")),
+                "regulator_unknown": _call(client, _request(kind=D.KIND_REGULATOR,
+                                                            regulator="pid")),
+                "regulator": _call(client, _request(kind=D.KIND_REGULATOR, regulator="lqr")),
+                # (the release of train_02 ends the run: it leaves service, train_01 is done)
+                "release_unheld": _call(client, _request(kind=D.KIND_RELEASE,
+                                                         train_id="train_01", station="MN03")),
             }
+
+            def at_bravo() -> list[Any]:
+                return [e for e in list(events) if e.train_id == "train_02"
+                        and e.station_index == 1 and e.kind == 1]
+            assert probe.wait_for(lambda: bool(at_bravo()), timeout=RUN_TIMEOUT_S)
+            answers["withdraw"] = _call(client, _request(kind=D.KIND_WITHDRAW,
+                                                         train_id="train_02"))
+            answers["withdraw_again"] = _call(client, _request(kind=D.KIND_WITHDRAW,
+                                                               train_id="train_02"))
             # release train_02 60 s after it arrived at Charlie (/line/events, /clock):
             # its passenger exchange is long over, the hold alone keeps it there
 
@@ -128,8 +153,6 @@ def dispatched(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
                                   timeout=RUN_TIMEOUT_S)
             answers["release"] = _call(client, _request(kind=D.KIND_RELEASE,
                                                         train_id="train_02", station="MN03"))
-            answers["release_again"] = _call(client, _request(
-                kind=D.KIND_RELEASE, train_id="train_02", station="MN03"))
             res["kpis"] = _finish(p)
             res["answers"] = answers
             # the replay: same scenario and options, the recorded commands at their steps
@@ -137,9 +160,14 @@ def dispatched(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
                                        "--replay-commands", str(res["out"] / "bag")),
                                  env=env, cwd=tmp,
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            procs.append(r)
             res["replay_kpis"] = _finish(r)
         finally:
             probe.close()
+            for proc in procs:
+                if proc.poll() is None:  # a failed step above: no run left behind
+                    proc.kill()
+                    print(proc.communicate()[1][-4000:], file=sys.stderr)
     return res
 
 
@@ -147,12 +175,17 @@ def test_invalid_requests_refused_with_a_reason(dispatched: dict[str, Any]) -> N
     a = dispatched["answers"]
     for key, why in (("nan", "start_m is nan"), ("off_line", "not on the line"),
                      ("too_fast", "below the line's limit"), ("unknown", "unknown train"),
-                     ("release_again", "is not held")):
+                     ("release_unheld", "is not held"), ("skip_terminus", "is the terminus"),
+                     ("withdraw_waiting", "has not entered service yet"),
+                     ("withdraw_again", "withdrawn already"),
+                     ("regulator_unknown", "expected one of")):
         assert not a[key].accepted and why in a[key].reason and a[key].ticket == 0, key
-    for key in ("tsr", "hold", "release"):
+    for key in ("tsr", "hold", "release", "skip", "withdraw", "regulator"):
         assert a[key].accepted, a[key].reason
     k = dispatched["kpis"]["dispatcher"]
-    assert k["applied"] == 3 and k["refused"] == {"invalid": 5} and k["stale"] == 0
+    assert k["applied"] == 6 and k["refused"] == {"invalid": 9} and k["stale"] == 0
+    # the ATS switched to the LQR: both regulators' departure commands ran
+    assert set(dispatched["kpis"]["regulators_seen"]) == {"none", "lqr"}
 
 
 def test_commands_take_effect_at_their_step(dispatched: dict[str, Any]) -> None:
@@ -178,15 +211,38 @@ def test_commands_take_effect_at_their_step(dispatched: dict[str, Any]) -> None:
     assert all(r[3] <= TSR["speed_mps"] and r[4] < TSR["speed_mps"] + 0.5 for r in after)
     k = dispatched["kpis"]
     assert k["atp_violations"] == 0 and k["atp_interventions"] == 0
-    assert k["completed_trains"] == 2 and k["finished"]
+    assert k["completed_trains"] == 1 and k["withdrawn_trains"] == 1 and k["finished"]
+    assert k["incomplete_trains"] == 0 and "1 withdrawn" in k["end"]
+
+
+def test_skip_and_withdraw(dispatched: dict[str, Any]) -> None:
+    """train_01 runs through Charlie (no event there, its ATO planned Bravo -> Delta);
+    train_02 leaves service at Charlie once released: every passenger alights, none boards,
+    it has no event at Delta."""
+    rows = list(csv.DictReader((dispatched["out"] / "events.csv").open()))
+    t1 = [(r["station_name"], r["kind"]) for r in rows if r["train_id"] == "train_01"]
+    assert [x for x in t1 if x[1] in ("arrival", "departure")] == [
+        ("Alpha", "arrival"), ("Alpha", "departure"), ("Bravo", "arrival"),
+        ("Bravo", "departure"), ("Delta", "arrival"), ("Delta", "departure")]
+    assert ("Charlie", "skip") in t1
+    t2 = [r for r in rows if r["train_id"] == "train_02"]
+    assert ("Charlie", "withdraw") in [(r["station_name"], r["kind"]) for r in t2]
+    last = [r for r in t2 if r["kind"] in ("arrival", "departure")][-1]
+    assert (last["station_name"], last["kind"]) == ("Charlie", "departure")
+    assert int(last["boarded"]) == 0 and int(last["alighted"]) > 0
+    # nobody waited for the withdrawn train (nor for the skipping one) afterwards
+    k = dispatched["kpis"]
+    assert k["lockstep_misses"] == 0 and k["ats_timeouts"] == 0
 
 
 def test_commands_in_the_bag(dispatched: dict[str, Any]) -> None:
     from metro_atc.nodes.dispatch_msgs import recorded_commands
     got = recorded_commands(str(dispatched["out"] / "bag"))
-    assert [(a.sequence, a.command.kind) for a in got] == [(1, 1), (2, 3), (3, 4)]
+    assert [(a.sequence, a.command.kind) for a in got] == [(1, 1), (2, 3), (3, 6), (4, 7),
+                                                           (5, 5), (6, 4)]
     assert got[0].command.tsr_id == "works" and got[0].command.from_s == 150.0
-    assert got[2].command.station == "MN03"
+    assert got[3].command.regulator == "lqr" and got[3].command.from_s == got[3].t_s + 5.0
+    assert got[4].command.station == "Charlie" and got[5].command.station == "MN03"
 
 
 def test_replay_gives_events_byte_for_byte(dispatched: dict[str, Any]) -> None:

@@ -39,7 +39,8 @@ def _close(name: str, got: np.ndarray, exp: np.ndarray) -> None:
 
 
 ADDED_KPIS = {"stops", "stop_error_m", "stops_outside_0p30_m", "missed_stops",
-              "atp_interventions_per_100_stops", "time_above_civil_limit_s"}
+              "atp_interventions_per_100_stops", "time_above_civil_limit_s",
+              "withdrawn_trains"}
 """Line KPIs that did not exist when the golden traces were recorded."""
 
 

@@ -75,3 +75,40 @@ def test_energy_breakdown_adds_up(tmp_path: Path) -> None:
     assert abs(e["net"].sum() - k["substation_net_kwh"]) < 1e-6
     plot_energy(sim, tmp_path / "energy.png")
     assert (tmp_path / "energy.png").stat().st_size > 10_000
+
+
+def test_dispatched_tsr_drawn_like_a_scripted_one(tmp_path: Path) -> None:
+    """A TSR a dispatcher imposed (and lifted) is shaded on the train graph and the speed
+    plot with its limit, from its from_s to its lift, as the scripted one is."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from metro_atc.core.dispatcher_commands import (KIND_TSR_IMPOSE, KIND_TSR_LIFT, Command,
+                                                    Dispatcher)
+    from metro_atc.plots import _tsr_windows, plot_speed_profile
+    sim = LineSim(load_scenario("mini"), seed=0)
+    d = Dispatcher(sim)
+    assert d.submit(Command(KIND_TSR_IMPOSE, start_m=300.0, end_m=700.0, speed_mps=12.5,
+                            from_s=140.0, tsr_id="works"))[0]
+    while sim.t < 200.0:
+        if abs(sim.t - 180.0) < 1e-9:
+            assert d.submit(Command(KIND_TSR_LIFT, tsr_id="works"))[0]
+        d.apply_due(sim.step_count)
+        sim.step(simple_driver(sim))
+    assert _tsr_windows(sim, 1e9) == [(300.0, 700.0, 140.0, 180.0, 45.0)]
+    texts: list[list[str]] = []
+    real_savefig = plt.Figure.savefig
+
+    def grab(fig: plt.Figure, *a: object, **k: object) -> None:
+        texts.append([t.get_text() for t in fig.axes[0].texts])
+        real_savefig(fig, *a, **k)
+
+    plt.Figure.savefig = grab  # type: ignore[method-assign]
+    try:
+        plot_train_graph(sim, tmp_path / "tg.png")
+        plot_speed_profile(sim, 0, tmp_path / "sp.png")
+    finally:
+        plt.Figure.savefig = real_savefig  # type: ignore[method-assign]
+    assert any("TSR 45 km/h" in t for t in texts[0])
+    assert any("TSR 45 km/h" in t and "2-3 min" in t for t in texts[1])

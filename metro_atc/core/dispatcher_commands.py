@@ -8,7 +8,16 @@ lockstep step boundary (:meth:`Dispatcher.apply_due`, before the plant advances 
 k).  Applied commands go through the plant's own incident machinery, as a scripted incident
 does: a TSR becomes one more zone of :attr:`metro_atc.core.plant.incidents.Incidents.tsrs`
 (the ATP knows it ``signalling.tsr_notice_s`` before ``from_s``), a hold an infinite extra
-hold of :attr:`~metro_atc.core.plant.incidents.Incidents.extra_hold` until its release.
+hold of :attr:`~metro_atc.core.plant.incidents.Incidents.extra_hold` until its release; a
+withdrawal marks the train's next station as the end of its service
+(:meth:`metro_atc.core.plant.line.LineSim.withdraw`: its passengers alight there, as at the
+terminus, and it leaves service at its departure); a skip has the train run through a
+station of its future (:meth:`~metro_atc.core.plant.line.LineSim.skip_stop`: its next stop
+is the one after, the ATO plans the run past it, the ATS sees no arrival nor departure
+there, which its regulators take as a missed event); a regulator switch is validated here by
+building the regulator as the ATS will (:func:`regulator_problem`), recorded with the time
+it takes effect, ``from_s`` = the step's time + :data:`LEAD_S`, and the ATS regulates the
+events from that time on with it (:class:`metro_atc.core.atr.switch.RegulatorSwitch`).
 The ATOs learn an applied TSR as the same :class:`~metro_atc.core.ato.onboard.TsrZone` a
 scripted one gives (:class:`TsrBook`).
 
@@ -26,7 +35,7 @@ import math
 import re
 from collections import deque
 from dataclasses import dataclass, replace
-from typing import Any, Iterable, Optional, Sequence
+from typing import Any, Callable, Iterable, Optional, Sequence
 
 from metro_atc.core.line.scenario import line_extent_m
 
@@ -36,8 +45,12 @@ KIND_TSR_IMPOSE = 1
 KIND_TSR_LIFT = 2
 KIND_HOLD = 3
 KIND_RELEASE = 4
+KIND_WITHDRAW = 5
+KIND_SKIP = 6
+KIND_REGULATOR = 7
 KIND_NAMES = {KIND_TSR_IMPOSE: "tsr_imposed", KIND_TSR_LIFT: "tsr_lifted",
-              KIND_HOLD: "hold", KIND_RELEASE: "release"}
+              KIND_HOLD: "hold", KIND_RELEASE: "release", KIND_WITHDRAW: "withdraw",
+              KIND_SKIP: "skip", KIND_REGULATOR: "regulator"}
 """Command kind (the DispatcherCommand.KIND_* values) -> its name in events.csv."""
 
 LEAD_S = 5.0
@@ -60,7 +73,9 @@ class Command:
 
     ``start_m``/``end_m`` zone chainage [m], ``speed_mps`` [m/s], ``from_s`` simulation
     time [s]; ``track`` '' (the line's one track); ``tsr_id`` the restriction's name;
-    ``train_id``/``station`` (name or code) of a hold or release.
+    ``train_id``/``station`` (name or code) of a hold or release; ``regulator`` and
+    ``weights_file`` ('' : the shipped or cached weights) of a regulator switch (applied:
+    ``from_s`` is the time it takes effect).
     """
 
     kind: int
@@ -72,6 +87,8 @@ class Command:
     tsr_id: str = ""
     train_id: str = ""
     station: str = ""
+    regulator: str = ""
+    weights_file: str = ""
 
 
 @dataclass(frozen=True)
@@ -97,6 +114,9 @@ class Applied:
                       f"from {c.from_s:.2f} s")
         elif c.kind == KIND_TSR_LIFT:
             detail = c.tsr_id
+        elif c.kind == KIND_REGULATOR:
+            detail = f"{c.regulator} from {c.from_s:.2f} s" + (
+                f" ({c.weights_file})" if c.weights_file else "")
         else:
             detail = ""
         st = ("", "") if station_index < 0 else (str(station_index),
@@ -140,6 +160,24 @@ class TsrBook:
         return tuple(self.zones.values())
 
 
+def regulator_problem(scn: Any, name: str, weights_file: str) -> Optional[str]:
+    """Why the ATS could not run regulator ``name`` (one line), or None.
+
+    Builds it as the ``ats_regulator`` node does
+    (:func:`metro_atc.core.atr.dispatch.make_dispatcher`: the name, the weights' traffic
+    model); a trained one loads its weights (seconds the first time).
+    """
+    from metro_atc.core.atr.dispatch import make_dispatcher
+    from metro_atc.core.atr.registry import REGULATORS
+    if name not in REGULATORS.names:
+        return f"regulator '{name}': expected one of {', '.join(REGULATORS.names)}"
+    try:
+        make_dispatcher(scn, name, weights_file)
+    except (ValueError, FileNotFoundError, OSError, RuntimeError) as exc:
+        return f"regulator '{name}': " + " ".join(str(exc).split())
+    return None
+
+
 def _finite(cmd: Command, names: Iterable[str]) -> Optional[str]:
     """A reason when one of the fields ``names`` of ``cmd`` is not a finite number."""
     for n in names:
@@ -179,6 +217,10 @@ class Dispatcher:
         self.stations.update({code: j for j, code in enumerate(sim.station_codes)})
         self.trains = {tid: i for i, tid in enumerate(sim.train_ids)}
         self.lo_m, self.hi_m = line_extent_m(sim.scn, float(sim.p.length_m))
+        self.regulator_check: Callable[[str, str], Optional[str]] = \
+            lambda name, w: regulator_problem(sim.scn, name, w)
+        """(regulator, weights_file) -> why it cannot run, or None."""
+        self._regulator_ok: dict[tuple[str, str], Optional[str]] = {}
 
     # ------------------------------------------------------------------ validation
     def check(self, cmd: Command, pending: Sequence[Command] = ()) -> Optional[str]:
@@ -191,12 +233,21 @@ class Dispatcher:
         if k not in KIND_NAMES:
             return (f"kind {k}: expected one of {sorted(KIND_NAMES)} "
                     f"({', '.join(KIND_NAMES.values())})")
-        for n in ("track", "tsr_id", "train_id", "station"):
+        for n in ("track", "tsr_id", "train_id", "station", "regulator", "weights_file"):
             v = getattr(cmd, n)
             if not isinstance(v, str) or len(v) > NAME_MAX:
                 return f"{n}: expected a string of at most {NAME_MAX} characters"
         if k == KIND_TSR_IMPOSE:
             return self._check_impose(cmd, pending)
+        if k == KIND_WITHDRAW:
+            return self._check_withdraw(cmd, pending)
+        if k == KIND_SKIP:
+            return self._check_skip(cmd, pending)
+        if k == KIND_REGULATOR:
+            key = (cmd.regulator, cmd.weights_file)
+            if key not in self._regulator_ok:  # built once per choice
+                self._regulator_ok[key] = self.regulator_check(*key)
+            return self._regulator_ok[key]
         if k == KIND_TSR_LIFT:
             imposed = {c.tsr_id for c in pending if c.kind == KIND_TSR_IMPOSE}
             lifted = {c.tsr_id for c in pending if c.kind == KIND_TSR_LIFT}
@@ -269,6 +320,65 @@ class Dispatcher:
         if j < first:
             return (f"{cmd.train_id} has left {sim.station_names[j]} (its next departure is "
                     f"from station {first})")
+        return None
+
+    def withdraw_station(self, i: int) -> int:
+        """The station train i would be withdrawn at now: its next station."""
+        return int(self.sim.fleet.next_stop[i])
+
+    def _check_withdraw(self, cmd: Command, pending: Sequence[Command]) -> Optional[str]:
+        sim, fl = self.sim, self.sim.fleet
+        i = self.trains.get(cmd.train_id)
+        if i is None:
+            return f"train_id '{cmd.train_id}': unknown train"
+        if int(sim.stations.withdraw_at[i]) >= 0 or bool(sim.stations.withdrawn[i]) or any(
+                c.kind == KIND_WITHDRAW and c.train_id == cmd.train_id for c in pending):
+            return f"{cmd.train_id} is withdrawn already"
+        st = int(fl.status[i])
+        if st == WAIT:
+            return f"{cmd.train_id} has not entered service yet"
+        if st != RUN:
+            return f"{cmd.train_id} is out of service"
+        j = self.withdraw_station(i)
+        if j >= sim.n_st - 1:
+            return (f"{cmd.train_id}'s next station {sim.station_names[-1]} is the terminus: "
+                    "it leaves service there anyway, nothing to withdraw")
+        return None
+
+    def _check_skip(self, cmd: Command, pending: Sequence[Command]) -> Optional[str]:
+        sim, fl = self.sim, self.sim.fleet
+        i = self.trains.get(cmd.train_id)
+        if i is None:
+            return f"train_id '{cmd.train_id}': unknown train"
+        j = self.stations.get(cmd.station)
+        if j is None:
+            return f"station '{cmd.station}': unknown station"
+        name = sim.station_names[j]
+        if j == sim.n_st - 1:
+            return f"{name} is the terminus: a train cannot run through it"
+        if j == 0:
+            return f"{name} is the first station: trains enter service there"
+        if bool(sim.stations.skip[i, j]) or any(
+                c.kind == KIND_SKIP and c.train_id == cmd.train_id
+                and self.stations.get(c.station) == j for c in pending):
+            return f"{cmd.train_id} skips {name} already"
+        st = int(fl.status[i])
+        if st not in (WAIT, RUN):
+            return f"{cmd.train_id} is out of service"
+        wd = int(sim.stations.withdraw_at[i])
+        if wd >= 0 and j >= wd:
+            return f"{cmd.train_id} is withdrawn at {sim.station_names[wd]}"
+        nxt = int(fl.next_stop[i])
+        if j < nxt:
+            return f"{cmd.train_id} has passed {name} (its next stop is station {nxt})"
+        if st == RUN and j == nxt and not bool(fl.dwelling[i]):
+            v = float(fl.v[i])
+            d = float(sim.geometry.station_positions_m[j]) - float(fl.x[i])
+            b = float(fl.p.max_service_brake_mps2)
+            brake = v * v / (2.0 * b)
+            if d <= brake:
+                return (f"{cmd.train_id} is {d:.1f} m from {name}, within its braking "
+                        f"distance {brake:.1f} m at {v:.2f} m/s: too late to skip it")
         return None
 
     # ------------------------------------------------------------------ queue
@@ -345,6 +455,15 @@ class Dispatcher:
             n = self.tsr_index[cmd.tsr_id]
             a, b, v, f, _ = inc.tsrs[n]
             inc.tsrs[n] = (a, b, v, f, t)
+        elif cmd.kind == KIND_WITHDRAW:
+            i = self.trains[cmd.train_id]
+            j = self.withdraw_station(i)
+            cmd = replace(cmd, station=sim.station_names[j])
+            sim.withdraw(i, j)
+        elif cmd.kind == KIND_SKIP:
+            sim.skip_stop(self.trains[cmd.train_id], self.stations[cmd.station])
+        elif cmd.kind == KIND_REGULATOR:
+            cmd = replace(cmd, from_s=t + LEAD_S)  # the ATS switches for events from then
         else:
             i, j = self.trains[cmd.train_id], self.stations[cmd.station]
             if cmd.kind == KIND_HOLD:
@@ -359,16 +478,16 @@ class Dispatcher:
         return a_
 
     def station_of(self, a: Applied) -> int:
-        """Station index of an applied hold / release (-1 for a TSR)."""
+        """Station index of an applied hold / release / withdrawal / skip (-1: a TSR)."""
         return self.stations.get(a.command.station, -1) \
-            if a.command.kind in (KIND_HOLD, KIND_RELEASE) else -1
+            if a.command.kind in (KIND_HOLD, KIND_RELEASE, KIND_WITHDRAW, KIND_SKIP) else -1
 
     @property
     def state(self) -> dict[str, Any]:
         """What a checkpoint keeps of it, as plain values (see :meth:`restore`)."""
         def cmd(c: Command) -> list[Any]:
             return [c.kind, c.track, c.start_m, c.end_m, c.speed_mps, c.from_s, c.tsr_id,
-                    c.train_id, c.station]
+                    c.train_id, c.station, c.regulator, c.weights_file]
         return {"log": [[a.step, a.t_s, a.sequence, a.event_index, *cmd(a.command)]
                         for a in self.log],
                 "queue": [[n, *cmd(c)] for n, c in self.queue],
@@ -382,7 +501,8 @@ class Dispatcher:
         """Take a :attr:`state` back (a resumed simulator)."""
         def cmd(v: Sequence[Any]) -> Command:
             return Command(int(v[0]), str(v[1]), float(v[2]), float(v[3]), float(v[4]),
-                           float(v[5]), str(v[6]), str(v[7]), str(v[8]))
+                           float(v[5]), str(v[6]), str(v[7]), str(v[8]),
+                           *(str(x) for x in v[9:11]))
         self.log = [Applied(int(r[0]), float(r[1]), int(r[2]), cmd(r[4:]), int(r[3]))
                     for r in st["log"]]
         self.queue = deque((int(r[0]), cmd(r[1:])) for r in st["queue"])

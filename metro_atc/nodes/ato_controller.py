@@ -322,17 +322,17 @@ class AtoController(Node):
         self.plans += 1
         self.infeasible += int(not ev.profile.feasible)
         if not ev.profile.feasible and not ev.late:
-            self._warn("plan", f"run {ev.station}->{ev.station + 1}: {ev.profile.message}")
+            self._warn("plan", f"run {ev.station}->{ev.to_station}: {ev.profile.message}")
         self.profile_pub.publish(self._profile_msg(ev.station, ev.target_s, ev.profile,
-                                                   ev.stamp_s))
+                                                   ev.stamp_s, ev.to_station))
 
     def _profile_msg(self, st: int, target_s: float, prof: Profile,
-                     stamp_s: float) -> SpeedProfile:
+                     stamp_s: float, to: int = -1) -> SpeedProfile:
         p = SpeedProfile()
         p.header.stamp = conv.to_time(stamp_s)
         p.header.frame_id = "line"
         p.train_id = self.train_id
-        p.from_station, p.to_station = st, st + 1
+        p.from_station, p.to_station = st, (to if to > st else st + 1)
         p.section_boundaries_m = [float(x) for x in prof.section_bounds_m]
         # core modes 0 accelerate, 1 cruise, 2 coast, 3 brake -> SpeedProfile.MODE_* (2..5)
         p.section_modes = [int(m) + SpeedProfile.MODE_ACCELERATE for m in prof.modes]

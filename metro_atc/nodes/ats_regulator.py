@@ -11,6 +11,10 @@ keeps the timetable (Lin 2010a, eq. 10); ``lqr``, ``dhp`` and ``aoc`` run
 :class:`metro_atc.core.atr.node_core.AtsRegulatorCore` (Lin 2010a, eq. 17-48) on the
 scenario's traffic model (:func:`metro_atc.core.bridge.atr_line_for`); ``elqr`` is the
 energy-aware LQR of the Sheu 2011 option (:mod:`metro_atc.core.atr.energy`).
+
+A dispatcher's regulator switch (``/line/dispatch``, applied by line_simulator and published
+on ``/line/dispatcher_commands``) takes effect for the events from its ``from_s`` on
+(:class:`metro_atc.core.atr.switch.RegulatorSwitch`).
 """
 
 from __future__ import annotations
@@ -20,13 +24,15 @@ from typing import Any, Sequence
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
-from metro_atc_msgs.msg import DepartureCommand, TrainEvent
+from metro_atc_msgs.msg import DepartureCommand, DispatcherCommand, TrainEvent
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from metro_atc.core.atr.cost import CostWeights
 from metro_atc.core.atr.dispatch import Dispatch, make_dispatcher
 from metro_atc.core.atr.registry import REGULATORS
+from metro_atc.core.atr.switch import RegulatorSwitch
+from metro_atc.core.dispatcher_commands import KIND_REGULATOR
 from metro_atc.core.line.scenario import ScenarioError, load_scenario
 from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.nodes import conversions as conv
@@ -68,9 +74,12 @@ class AtsRegulator(Node):
         try:
             scn = load_scenario(self.scenario_name)
             self.bounds = bounds_for(scn)
-            self.dispatcher = make_dispatcher(
-                scn, self.regulator, weights_file, CostWeights(q=q, r=r, horizon=horizon),
-                w_energy, hold_max, tolerance)
+            cost = CostWeights(q=q, r=r, horizon=horizon)
+
+            def build(name: str, weights: str) -> Any:
+                return make_dispatcher(scn, name, weights, cost, w_energy, hold_max, tolerance)
+            self.dispatcher = RegulatorSwitch(build(self.regulator, weights_file),
+                                              self.regulator, build)
         except ScenarioError as exc:
             raise NodeConfigError(str(exc)) from None
         except (ValueError, FileNotFoundError) as exc:
@@ -94,6 +103,10 @@ class AtsRegulator(Node):
         # would rebuild its wait set from every entity of the node on each /clock tick
         self.event_sub = self.create_subscription(TrainEvent, "/line/events", self._on_event,
                                                   QOS_EVENTS)
+        from metro_atc.nodes.dispatch_msgs import APPLIED_TOPIC
+        self.switch_sub = self.create_subscription(DispatcherCommand, APPLIED_TOPIC,
+                                                   self._on_dispatcher, QOS_EVENTS)
+        self._switch_logged = (0, 0)
         for d in self.dispatcher.initial():  # idempotent if replayed after a restart
             self._publish(d)
         self.get_logger().info(f"regulator '{self.regulator}' on '{self.scenario_name}': "
@@ -111,6 +124,9 @@ class AtsRegulator(Node):
             "decision_time_median_ms": float(np.median(t)) if t.size else float("nan"),
             "decision_time_max_ms": float(t.max()) if t.size else float("nan"),
             "rejected_events": self.rejected,
+            "regulator_switches": len(self.dispatcher.switched),
+            "regulator_switches_late": self.dispatcher.late,
+            "regulator_switches_failed": len(self.dispatcher.failed),
             "rejected_by_kind": self.rejections.summary(), "trains": len(self.ids)})]
 
     def _on_event(self, msg: TrainEvent) -> None:
@@ -128,9 +144,36 @@ class AtsRegulator(Node):
                 self.get_logger().warning(f"rejected event ({exc.kind}): {exc} [rejected so "
                                           f"far: {self.rejections.summary()}]")
             return
+        if len(self.dispatcher.switched) + len(self.dispatcher.failed) \
+                != sum(self._switch_logged):
+            self._log_switches()
         if d is not None:
             self.decision_time_s.append(time.perf_counter() - t0)
             self._publish(d)
+
+    def _on_dispatcher(self, msg: Any) -> None:
+        """A dispatcher's applied command: a regulator switch is announced (never raises)."""
+        try:
+            if int(msg.kind) != KIND_REGULATOR:
+                return
+            if self.dispatcher.announce(int(msg.sequence), float(msg.from_s),
+                                        str(msg.regulator), str(msg.weights_file)):
+                self.get_logger().info(f"regulator switch to '{msg.regulator}' from "
+                                       f"t={float(msg.from_s):.2f} s")
+        except (TypeError, ValueError, AttributeError) as exc:
+            self.rejected += 1
+            self.get_logger().warning(f"unreadable dispatcher command: {exc}")
+
+    def _log_switches(self) -> None:
+        """Log the switches made, failed or late since the last call."""
+        sw = self.dispatcher
+        done, failed = self._switch_logged
+        for t, name in sw.switched[done:]:
+            self.get_logger().info(f"regulating with '{name}' from t={t:.2f} s")
+        for why in sw.failed[failed:]:
+            self.get_logger().error(f"regulator switch failed, the previous one kept: {why}")
+        self._switch_logged = (len(sw.switched), len(sw.failed))
+        self.regulator = sw.regulator
 
     def close(self) -> None:
         """Log the decision count and time (called once at shutdown)."""
@@ -152,7 +195,8 @@ class AtsRegulator(Node):
 def main(args: Sequence[str] | None = None) -> int:
     """Entry point of the ``ats_regulator`` executable."""
     def loop(executor: SingleThreadedExecutor, nodes: Sequence[Node]) -> None:
-        subs = [n.event_sub for n in nodes if isinstance(n, AtsRegulator)]
+        subs = [s for n in nodes if isinstance(n, AtsRegulator)
+                for s in (n.event_sub, n.switch_sub)]
         # events wake the poller at once; the executor (parameter services, the
         # diagnostics timer, /clock) is served 5 times a second: at 20 (the default) the
         # idle ATS spent ~1 s of CPU per 1 800 s simulated rebuilding its wait set

@@ -23,7 +23,7 @@ SERVICE = "/line/dispatch"
 APPLIED_TOPIC = "/line/dispatcher_commands"
 """The applied commands (DispatcherCommand, QOS_EVENTS: reliable, transient-local)."""
 _FLOATS = ("start_m", "end_m", "speed_mps", "from_s")
-_STRINGS = ("track", "tsr_id", "train_id", "station")
+_STRINGS = ("track", "tsr_id", "train_id", "station", "regulator", "weights_file")
 
 
 def _float(v: Any) -> float:
@@ -40,7 +40,8 @@ def command_from_msg(msg: Any) -> Command:
     t = {n: str(getattr(msg, n)) for n in _STRINGS}
     return Command(kind=int(msg.kind), track=t["track"], start_m=f["start_m"],
                    end_m=f["end_m"], speed_mps=f["speed_mps"], from_s=f["from_s"],
-                   tsr_id=t["tsr_id"], train_id=t["train_id"], station=t["station"])
+                   tsr_id=t["tsr_id"], train_id=t["train_id"], station=t["station"],
+                   regulator=t["regulator"], weights_file=t["weights_file"])
 
 
 def applied_msg(a: Applied) -> DispatcherCommand:

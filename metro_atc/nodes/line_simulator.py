@@ -754,7 +754,8 @@ class LineSimulator(Node):
         """:meth:`kpis` with whether the whole service ran (:func:`service_end`)."""
         k = self.kpis()
         k.update(service_end(int(k["trains"]), int(k["completed_trains"]), float(self.sim.t),
-                             self.finished, self._cut_at_s(), float(self.sim.duration_s)))
+                             self.finished, self._cut_at_s(), float(self.sim.duration_s),
+                             int(k.get("withdrawn_trains", 0))))
         return k
 
     def exit_code(self) -> int:

@@ -100,6 +100,9 @@ class PlanEvent:
     profile: Profile
     stamp_s: float
     late: bool
+    to_station: int = -1
+    """The stop the run ends at (-1: ``station + 1``; further when a dispatcher has the
+    train skip the stops between)."""
 
 
 class OnboardAto:
@@ -147,6 +150,7 @@ class OnboardAto:
         self._b_list: list[float] = [0.0]
         self._b_n = 1
         self.planned_from = -1
+        self.planned_to = -1
         self.cur_station = -1
         self.last_mode = -1
         self._ma_prev: Optional[tuple[float, float]] = None
@@ -205,14 +209,16 @@ class OnboardAto:
         if m is not None and m == m:
             self.set_load_mass(m)
 
-    def plan(self, st: int, target_s: float, stamp_s: float, late: bool = False) -> PlanEvent:
-        """Plan the run from station ``st`` to ``st + 1``."""
-        x0, x1 = float(self.stations[st]), float(self.stations[st + 1])
+    def plan(self, st: int, target_s: float, stamp_s: float, late: bool = False,
+             to: int = -1) -> PlanEvent:
+        """Plan the run from station ``st`` to ``to`` (-1: ``st + 1``; a skipped stop)."""
+        to = to if to > st else st + 1
+        x0, x1 = float(self.stations[st]), float(self.stations[to])
         # the TSRs known now are limits of the run (no motoring into their curve)
         prof = self.core.plan(x0, x1, target_s, tsrs_for_run(self.tsrs, x0, x1,
                                                              self.train.length_m, stamp_s))
-        self.planned_from = st
-        return PlanEvent(st, float(target_s), prof, float(stamp_s), late)
+        self.planned_from, self.planned_to = st, to
+        return PlanEvent(st, float(target_s), prof, float(stamp_s), late, to)
 
     # ------------------------------------------------------------------ control
     def control(self, s: dict[str, Any]) -> tuple[float, int, Optional[PlanEvent]]:
@@ -224,7 +230,7 @@ class OnboardAto:
             return -0.5, MODE_DWELL, None
         cur, nxt = int(s["current_station"]), int(s["next_station"])
         planned: Optional[PlanEvent] = None
-        if departing and 0 <= cur == nxt - 1:
+        if departing and 0 <= cur < nxt:
             # plan the run definitively at departure from the state (deterministic in the
             # lockstep): the ATS target fixes the arrival (departure + running time), so a
             # late departure shortens the target (down to flat-out); rounded to 1 s when
@@ -234,11 +240,13 @@ class OnboardAto:
             if math.isfinite(late) and late > 1.0:
                 target = float(max(round(target - late), 1.0))
             self._load_weigh(s)
-            planned = self.plan(cur, target, float(s["t_s"]), late=late > 1.0)
-        elif self.planned_from != cur and 0 <= cur == nxt - 1:
-            # started mid-run (e.g. the node was restarted): plan from here
+            planned = self.plan(cur, target, float(s["t_s"]), late=late > 1.0, to=nxt)
+        elif (self.planned_from != cur or self.planned_to != nxt) and 0 <= cur < nxt:
+            # started mid-run (e.g. the node was restarted) or the next stop changed (a
+            # dispatcher's skip): plan from here
             self._load_weigh(s)
-            planned = self.plan(cur, float(s["target_running_time_s"]), float(s["t_s"]))
+            planned = self.plan(cur, float(s["target_running_time_s"]), float(s["t_s"]),
+                                to=nxt)
         if self._kstep is not None:
             out = self._kernel_control(s)
             if out is not None:

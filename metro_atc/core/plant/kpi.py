@@ -78,6 +78,8 @@ class RunLog:
     """Train-steps run above the civil speed limit."""
     control_period_s: float = 0.0
     """Length of one step [s]."""
+    withdrawn: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    """Trains the dispatcher withdrew from service before the terminus (per train)."""
 
 
 def compute_kpis(log: RunLog) -> dict[str, Any]:
@@ -120,6 +122,7 @@ def compute_kpis(log: RunLog) -> dict[str, Any]:
         "seed": log.seed,
         "trains": len(log.train_ids),
         "completed_trains": int(np.sum(log.completed)),
+        "withdrawn_trains": int(np.sum(log.withdrawn)),
         "stations": int(log.n_st),
         "sim_time_s": float(log.t),
         "steps": int(log.step_count),
@@ -184,20 +187,26 @@ def berthing_kpis(log: RunLog) -> dict[str, Any]:
 
 
 def service_end(trains: int, completed_trains: int, sim_time_s: float, reached_end: bool,
-                cut_at_s: float | None, duration_s: float) -> dict[str, Any]:
+                cut_at_s: float | None, duration_s: float,
+                withdrawn_trains: int = 0) -> dict[str, Any]:
     """The ``finished`` / ``cut_at_s`` fields of a run's KPIs: did the whole service run.
 
     ``reached_end``: the run stepped to its end (the scenario's ``duration_s`` [s], every
     train out of service, or the cut); False when it was stopped before (a signal).
     ``cut_at_s``: the user's cut (``--duration`` / ``max_sim_time_s`` [s]) when it ended the
-    run, else None.  ``finished`` is True only when every train completed its trips;
+    run, else None.  ``withdrawn_trains``: trains the dispatcher withdrew from service
+    (neither completed nor missing).  ``finished`` is True only when every train completed
+    its trips or was withdrawn;
     ``cut_at_s`` is kept only for a run the cut left unfinished; ``end`` says in one line
     why the run ended.
     """
-    missing = int(trains) - int(completed_trains)
+    wd = int(withdrawn_trains)
+    missing = int(trains) - int(completed_trains) - wd
     finished = bool(reached_end) and missing == 0
     if finished:
-        end = f"service completed: {trains} of {trains} trains"
+        end = f"service completed: {trains} of {trains} trains" if wd == 0 else \
+            f"service completed: {trains - wd} of {trains} trains, {wd} withdrawn by the " \
+            "dispatcher"
     elif not reached_end:
         end = f"stopped at t={sim_time_s:.1f} s before the end: {missing} of {trains} " \
             "trains did not complete"

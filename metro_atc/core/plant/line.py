@@ -185,9 +185,9 @@ class LineSim:
         self.stations.enter(int(train_idx), int(station_idx), self.t)
         self._masks()
 
-    def withdraw(self, train_idx: int) -> None:
-        """Train ``train_idx`` leaves service now from where it stands (a pull-in)."""
-        self.stations.withdraw(int(train_idx), self.t)
+    def pull_in(self, train_idx: int) -> None:
+        """Train ``train_idx`` leaves service now from where it stands (to the depot)."""
+        self.stations.pull_in(int(train_idx), self.t)
         self._masks()
 
     def external_entries(self, wrap_m: float = 0.0) -> None:
@@ -208,6 +208,29 @@ class LineSim:
         (:mod:`metro_atc.core.service.dayplant`).
         """
         self.stepper.set_constant("eoa_end", min(float(x_m), self.geometry.eoa_end))
+
+    def withdraw(self, train_idx: int, station_idx: int) -> None:
+        """A dispatcher withdraws train ``train_idx`` at station ``station_idx`` (ahead).
+
+        It runs there, its passengers alight (all, as at the terminus), nobody boards, and
+        it leaves service at its departure (:meth:`Stations.leave_service`).
+        """
+        self.stations.withdraw_at[train_idx] = station_idx
+
+    def skip_stop(self, train_idx: int, station_idx: int) -> None:
+        """A dispatcher has train ``train_idx`` run through station ``station_idx`` (ahead).
+
+        Nobody alights or boards there; a train heading for it now heads for the stop after
+        (its ATO plans the run past it from the state's ``next_station``).
+        """
+        st, fl = self.stations, self.fleet
+        st.skip[train_idx, station_idx] = True
+        if int(fl.next_stop[train_idx]) == station_idx and fl.status[train_idx] == RUN:
+            k = st.next_served(train_idx, station_idx - 1)
+            fl.next_stop[train_idx] = k
+            if not fl.dwelling[train_idx]:
+                fl.stop_x = fl.stop_x.copy()
+                fl.stop_x[train_idx] = self.geometry.station_positions_m[k]
 
     def next_stop_position(self) -> FloatArray:
         """Chainage of each train's next stop point [m] (tail stop while turning back)."""
@@ -233,7 +256,8 @@ class LineSim:
         return RunLog(
             scenario=self.scn.name, seed=self.seed, train_ids=list(self.train_ids),
             n_st=self.n_st, t=self.t, step_count=self.step_count,
-            completed=np.asarray(self.fleet.status == DONE),
+            completed=np.asarray((self.fleet.status == DONE) & ~self.stations.withdrawn),
+            withdrawn=self.stations.withdrawn.copy(),
             act_arr=st.act_arr.copy(), act_dep=st.act_dep.copy(), sched_arr=sv.sched_arr,
             sched_dep=sv.sched_dep, cmd_rt=st.cmd_rt.copy(),
             sched_running_s=sv.sched_running_s, energy=self.energy_breakdown(),

@@ -76,6 +76,13 @@ class Stations:
         self.pending_alight = np.zeros(n)
         self.next_entry = 0
         self.skipped_stops = 0
+        self.withdraw_at = np.full(n, -1, dtype=np.int64)
+        """Station a dispatcher withdraws each train at (-1: none; it leaves service there
+        after its passengers alighted, as at the terminus)."""
+        self.withdrawn = np.zeros(n, dtype=bool)
+        """Trains the dispatcher withdrew (out of service before the terminus)."""
+        self.skip = np.zeros((n, n_st), dtype=bool)
+        """Stops a dispatcher has each train run through (train, station)."""
         self.delay_draw = np.zeros(n)
         self.events: list[TrainEvent] = []
         self.events_out: list[TrainEvent] = []
@@ -141,7 +148,7 @@ class Stations:
         fl.stop_x[i] = x
         self.arrive(i, j, t)
 
-    def withdraw(self, i: int, t: float) -> None:
+    def pull_in(self, i: int, t: float) -> None:
         """Train i leaves service from where it stands (to a depot; parked, empty).
 
         It may :meth:`enter` again later (the same train, its state kept).
@@ -165,13 +172,24 @@ class Stations:
         fl.dwelling[i] = True
         fl.set_xv(i, float(fl.x[i]), 0.0)
         fl.cur_station[i] = j
-        fl.next_stop[i] = j + 1
+        fl.next_stop[i] = self.next_served(i, j)
         self.act_arr[i, j] = t
         fl.arr_t[i] = t
-        alight = fl.load[i] * self.sv.alight_frac[j]
+        alight = fl.load[i] * (1.0 if self.withdraw_at[i] == j else self.sv.alight_frac[j])
         self.pending_alight[i] = alight
         self.emit(i, j, "arrival", t, stop_error_m=stop_error_m)
         self.set_release(i, j, redraw=True)
+
+    def next_served(self, i: int, j: int) -> int:
+        """The first stop of train i after station j it does not skip (never the terminus)."""
+        k = j + 1
+        while k < self.n_st - 1 and self.skip[i, k]:
+            k += 1
+        return k
+
+    def last_stop(self, i: int, j: int) -> bool:
+        """Whether station j ends train i's service (the terminus, or its withdrawal)."""
+        return j == self.n_st - 1 or int(self.withdraw_at[i]) == j
 
     def set_release(self, i: int, j: int, redraw: bool) -> None:
         """Departure time = max(ATS/timetable, passenger dwell done) + holds + delay."""
@@ -179,7 +197,8 @@ class Stations:
         ps = self.scn.passengers
         t_arr = float(fl.arr_t[i])
         room = fl.p.capacity_pax - (fl.load[i] - self.pending_alight[i])
-        if j == self.n_st - 1:
+        last = self.last_stop(i, j)
+        if last:
             d_req = max(ps.door_overhead_s + ps.alighting_s_per_pax * self.pending_alight[i],
                         ps.min_dwell_s)
             board = 0.0
@@ -201,7 +220,7 @@ class Stations:
         if redraw:
             dis = self.scn.disturbances
             delay = 0.0
-            if j < self.n_st - 1 and self.rng.random() < dis.departure_delay_prob:
+            if not last and self.rng.random() < dis.departure_delay_prob:
                 delay = float(self.rng.exponential(dis.departure_delay_mean_s))
             self.delay_draw[i] = delay
         cand += float(self.delay_draw[i]) + float(self.extra_hold[i, j])
@@ -218,7 +237,8 @@ class Stations:
         alight = float(self.pending_alight[i])
         fl.load[i] -= alight
         board = 0.0
-        if j < self.n_st - 1:
+        last = self.last_stop(i, j)
+        if not last:
             waiting = self.left_behind[j] + sv.flow.arrivals(j, self.last_dep_t[j], t)
             room = max(fl.p.capacity_pax - fl.load[i], 0.0)
             board = min(waiting, room)
@@ -234,12 +254,17 @@ class Stations:
         fl.set_mass_from_load(i)
         self.act_dep[i, j] = t
         self.emit(i, j, "departure", t, board, alight, dwell)
-        if j == self.n_st - 1:
+        if last and j < self.n_st - 1:  # withdrawn by the dispatcher: out of service here
+            self.withdrawn[i] = True
+            self.leave_service(i, j)
+        elif j == self.n_st - 1:
             fl.status[i] = TURNBACK
             fl.next_stop[i] = self.n_st
             fl.stop_x[i] = g.x_tail_stop
         else:
-            fl.stop_x[i] = g.station_positions_m[j + 1]
+            k = self.next_served(i, j)
+            fl.next_stop[i] = k
+            fl.stop_x[i] = g.station_positions_m[k]
             sig = self.scn.disturbances.running_time_noise
             fl.trac_level[i] = 1.0 - abs(float(self.rng.normal(0.0, sig))) if sig > 0 else 1.0
 
@@ -265,25 +290,33 @@ class Stations:
                 j = int(fl.next_stop[i])
                 self.skipped_stops += 1
                 fl.cur_station[i] = j
+                if self.withdraw_at[i] == j:  # overran its withdrawal: the next one (if any)
+                    self.withdraw_at[i] = j + 1 if j + 1 < self.n_st - 1 else -1
                 if j >= self.n_st - 1:
                     # overran the terminus: passengers alight in the tail track
                     fl.status[i] = TURNBACK
                     fl.next_stop[i] = self.n_st
                     fl.stop_x[i] = g.x_tail_stop
                 else:
-                    fl.next_stop[i] = j + 1
-                    fl.stop_x[i] = g.station_positions_m[j + 1]
+                    k = self.next_served(i, j)
+                    fl.next_stop[i] = k
+                    fl.stop_x[i] = g.station_positions_m[k]
             # stopped short in the tail track (TURNBACK, v = 0, d < -tol): the turnback
             # driver creeps on
 
     def finish_turnbacks(self, t: float) -> None:
         """Trains whose turnback time is over leave service (parked beyond the grid end)."""
-        fl, g = self.fl, self.geom
+        fl = self.fl
         tb_done = (fl.status == TURNBACK) & (fl.done_t <= t + 1e-9)
         for i in np.flatnonzero(tb_done):
-            fl.status[i] = DONE
-            fl.x_done[i] = fl.x[i]
-            fl.set_xv(int(i), g.x_park, 0.0)
-            fl.dwelling[i] = False
-            fl.done_t[i] = math.inf
-            fl.cur_station[i] = self.n_st - 1
+            self.leave_service(int(i), self.n_st - 1)
+
+    def leave_service(self, i: int, j: int) -> None:
+        """Train i leaves service at station j (parked beyond the grid end)."""
+        fl, g = self.fl, self.geom
+        fl.status[i] = DONE
+        fl.x_done[i] = fl.x[i]
+        fl.set_xv(i, g.x_park, 0.0)
+        fl.dwelling[i] = False
+        fl.done_t[i] = math.inf
+        fl.cur_station[i] = j

@@ -34,10 +34,20 @@ def target_departure(sim: Any, rows: NDArray[np.intp]) -> NDArray[np.float64]:
 
 
 def target_running_time(sim: Any, rows: NDArray[np.intp]) -> NDArray[np.float64]:
-    """Commanded (else scheduled) running time to the next station of trains ``rows`` [s]."""
+    """Commanded (else scheduled) running time to the next station of trains ``rows`` [s].
+
+    A run past stops a dispatcher has the train skip: plus the scheduled running times of
+    the runs after the skipped stops (their dwell is not added).
+    """
     j = np.minimum(np.maximum(sim.fleet.cur_station[rows], 0), sim.n_st - 2)
     rt = sim.stations.cmd_rt[rows, j]
-    return np.where(np.isfinite(rt), rt, sim.service.sched_running_s[j])
+    out = np.where(np.isfinite(rt), rt, sim.service.sched_running_s[j])
+    nxt = sim.fleet.next_stop[rows]
+    far = (nxt > j + 1) & (nxt < sim.n_st)
+    if far.any():
+        cs = np.concatenate(([0.0], np.cumsum(sim.service.sched_running_s)))
+        out = np.where(far, out + cs[np.minimum(nxt, sim.n_st - 1)] - cs[j + 1], out)
+    return out
 
 
 def plant_states(sim: Any) -> dict[str, Any]:

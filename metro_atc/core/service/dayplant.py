@@ -411,7 +411,7 @@ class DayPlant:
 
     def _withdraw(self, tr: _Train, t: float) -> None:
         trip = tr.last_arr[0] if tr.last_arr else None
-        tr.sim.withdraw(0)
+        tr.sim.pull_in(0)
         tr.in_service = False
         tr.ato = None
         tr.itin = {}
