@@ -43,20 +43,17 @@ from typing import Any, Sequence
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from metro_atc_msgs.msg import (BrakeDiagnosis, BrakeSensorData, DepartureCommand,
-                                DispatcherCommand, FleetBrakeSensorData, FleetCommand,
-                                FleetState, LineStatus, SpeedProfile, TractionCommand,
+                                FleetBrakeSensorData, FleetCommand, FleetState,
+                                LineStatus, SpeedProfile, TractionCommand,
                                 TrainEvent, TrainState)
-from metro_atc_msgs.srv import Dispatch
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 
 from metro_atc.core.ato_watchdog import AtoWatchdog
 from metro_atc.core.checkpoint import content_hash
-from metro_atc.core.dispatcher_commands import KIND_NAMES, Applied, Dispatcher
 from metro_atc.core.plant.kpi import service_end
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.plant.snapshot import scenario_hash
@@ -71,7 +68,7 @@ from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_EVENTS,
                                     run_nodes, spin_until_stopped)
 from metro_atc.nodes.sim_checkpoints import Checkpoints, journal_key
 from metro_atc.nodes.sim_departures import DepartureBook
-from metro_atc.nodes import dispatch_msgs
+from metro_atc.nodes.sim_dispatch import DispatchDesk
 from metro_atc.nodes.sim_domain import (LINGER_S, RECORDER_GATE_TOPIC, linger, subscribed_by,
                                         wait_acked)
 from metro_atc.nodes.sim_fleet import FleetStatePublisher
@@ -82,11 +79,6 @@ from metro_atc.nodes.sim_params import SimParams
 from metro_atc.nodes.sim_sensors import SensorOutbox
 from metro_atc.nodes.wire import fleet_command
 
-
-DISPATCH_DEPTH = 1000
-"""Requests of /line/dispatch the service's reader holds before answering [requests]."""
-DISPATCH_PER_STEP = 256
-"""Requests of /line/dispatch answered per lockstep step at most."""
 
 _REGULATOR_NAMES = {code: name for name, code in conv.REGULATOR_CODES.items()}
 """DepartureCommand.regulator codes -> regulator names (what ran, for the KPIs)."""
@@ -102,7 +94,7 @@ _STATE_ELSEWHERE = {"sensor_last_t": ("sensors", "last_t"),
                     "ats_misses": ("departures", "ats_misses"),
                     "regulators": ("departures", "regulators"),
                     "brake_assessed": ("sensors", "assessed"),
-                    "dispatch_state": ("dispatcher", "state")}
+                    "dispatch_state": ("desk", "state")}
 """The :data:`NODE_STATE` values a collaborator holds: name -> (node attribute, its
 attribute)."""
 
@@ -122,17 +114,12 @@ class LineSimulator(Node):
         except ScenarioError as exc:
             raise NodeConfigError(str(exc)) from None
         self.sim = LineSim(scn, seed=int(self.params.seed))
-        self.dispatcher = Dispatcher(self.sim, int(self.params.dispatch_queue_max))
-        """The dispatcher's commands (:mod:`metro_atc.core.dispatcher_commands`)."""
-        if self.params.replay_commands:
-            try:
-                recorded = dispatch_msgs.recorded_commands(self.params.replay_commands)
-            except ValueError as exc:
-                raise NodeConfigError(f"replay_commands: {exc}") from None
-            self.dispatcher.load_replay((a.step, a.command) for a in recorded)
         self.bounds = bounds_for(scn)
         self.rejections = Rejections()
         """Rejected input messages per kind (:mod:`metro_atc.core.validate`)."""
+        self.desk = DispatchDesk(self, self.sim, int(self.params.dispatch_queue_max),
+                                 self.params.replay_commands, self.rejections)
+        """The dispatcher's desk: /line/dispatch and the applied commands."""
         self.watchdog = AtoWatchdog(len(self.sim.train_ids), int(self.params.ato_lost_steps))
         """Lost-ATO decision (:mod:`metro_atc.core.ato_watchdog`)."""
         self.ids: list[str] = list(self.sim.train_ids)
@@ -163,10 +150,10 @@ class LineSimulator(Node):
         self._health_last = (time.monotonic(), 0.0, 0, 0)
         self.fleet_driven = np.zeros(n, dtype=bool)
         """Trains whose ATO answered a fleet state (their per-train state is decimated)."""
-        self._id_bytes = {tid.encode("utf-8"): i for i, tid in enumerate(self.ids)}
-        """Train id (UTF-8) -> index, for the serialized fleet commands."""
-        self._ix_cache: dict[tuple[bytes, ...], np.ndarray] = {}
-        """Train indices of each fleet command train list seen (bounded)."""
+        self._cmd_ids: tuple[dict[bytes, int], dict[tuple[bytes, ...], np.ndarray]] = (
+            {tid.encode("utf-8"): i for i, tid in enumerate(self.ids)}, {})
+        """For the serialized fleet commands: train id (UTF-8) -> index, and the train
+        indices of each train list seen (bounded)."""
         p = self.params
         dt = float(self.sim.control_period_s)
         clock_period = float(p.train_state_period_s if p.clock_period_s < 0
@@ -174,14 +161,6 @@ class LineSimulator(Node):
         clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK)
         self.event_pub = self.create_publisher(TrainEvent, "/line/events", QOS_EVENTS)
         self.status_pub = self.create_publisher(LineStatus, "/line/status", QOS_LATCHED)
-        self.dispatch_pub = self.create_publisher(DispatcherCommand,
-                                                  dispatch_msgs.APPLIED_TOPIC, QOS_EVENTS)
-        # a deep request queue: a flood waits in it and is answered (refused, counted) a
-        # bounded number per step (:meth:`take_dispatch_requests`)
-        self.dispatch_srv = self.create_service(
-            Dispatch, dispatch_msgs.SERVICE, self._on_dispatch,
-            qos_profile=QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DISPATCH_DEPTH,
-                                   reliability=ReliabilityPolicy.RELIABLE))
         # (nothing is published here: a recorder subscribes once it matched every publisher)
         self.gate_pub = self.create_publisher(DiagnosticStatus, RECORDER_GATE_TOPIC,
                                               QOS_LATCHED) \
@@ -274,9 +253,10 @@ class LineSimulator(Node):
         """
         topic = "/line/fleet_command"
         if isinstance(msg, bytes):
-            if len(self._ix_cache) > 256:
-                self._ix_cache.clear()  # a writer cycling through train lists
-            fast = fleet_command.efforts_cdr(msg, topic, self._id_bytes, self._ix_cache,
+            id_bytes, ix_cache = self._cmd_ids
+            if len(ix_cache) > 256:
+                ix_cache.clear()  # a writer cycling through train lists
+            fast = fleet_command.efforts_cdr(msg, topic, id_bytes, ix_cache,
                                              self.k, float(self.sim.t))
             if fast is not None:
                 self._take_fleet(*fast)
@@ -384,8 +364,7 @@ class LineSimulator(Node):
             seq[ev.train_idx] += 1
             self.event_pub.publish(conv.event_msg(ev, self.ids, self.sim.station_names,
                                                   int(seq[ev.train_idx])))
-        for a in self.dispatcher.log:
-            self.dispatch_pub.publish(dispatch_msgs.applied_msg(a))
+        self.desk.republish()
 
     def _on_profile(self, msg: SpeedProfile) -> None:
         name = str(msg.planner)[:32] or "unknown"
@@ -407,50 +386,6 @@ class LineSimulator(Node):
             self._reject(f"/{self.ids[i]}/brake_diagnosis", exc)
             return
         self.sensors.acknowledge(i, t, bool(msg.assessed))
-
-    def _on_dispatch(self, request: Any, response: Any) -> Any:
-        """/line/dispatch: validate one command and queue it (never raises)."""
-        try:
-            cmd = dispatch_msgs.command_from_msg(request.command)
-            ok, reason, ticket = self.dispatcher.submit(cmd)
-        except Exception as exc:  # noqa: BLE001 - a request never ends the node
-            ok, reason, ticket = False, f"request not readable ({type(exc).__name__})", 0
-            self.dispatcher.refused["unreadable"] = \
-                self.dispatcher.refused.get("unreadable", 0) + 1
-        response.accepted, response.reason, response.ticket = bool(ok), reason, int(ticket)
-        if not ok and self.rejections.add("dispatch", time.monotonic()):
-            self.get_logger().warning(f"dispatcher command refused: {reason}")
-        elif ok:
-            self.get_logger().info(f"dispatcher command {ticket} accepted: {reason}")
-        return response
-
-    def take_dispatch_requests(self) -> int:
-        """Answer at most :data:`DISPATCH_PER_STEP` waiting requests; how many were taken.
-
-        Called once per step: a flood of requests costs each step a bounded time, and its
-        excess is answered (refused: queue full) a few steps later, never waited on.
-        """
-        srv = self.dispatch_srv
-        n = 0
-        while n < DISPATCH_PER_STEP:
-            with srv.handle:
-                request, header = srv.handle.service_take_request(Dispatch.Request)
-            if header is None:
-                break
-            n += 1
-            srv.send_response(self._on_dispatch(request, Dispatch.Response()), header)
-        return n
-
-    def apply_dispatch(self) -> list[Applied]:
-        """Apply the dispatcher's commands due at step k (before the plant advances)."""
-        applied = self.dispatcher.apply_due(self.k)
-        for a in applied:
-            self.dispatch_pub.publish(dispatch_msgs.applied_msg(a))
-            c = a.command
-            self.get_logger().info(
-                f"dispatcher command applied at step {a.step} (t={a.t_s:.2f} s): "
-                f"{KIND_NAMES[c.kind]} {c.tsr_id or ''}{c.train_id} {c.station}".rstrip())
-        return applied
 
     def _set_progress_period(self, value: float) -> None:
         self.params.progress_period_s = float(value)
@@ -495,7 +430,8 @@ class LineSimulator(Node):
             "ato_losses": self.watchdog.losses,
             "ato_stop_steps": int(self.watchdog.stop_steps),
             **{f"dispatch_{k}": (", ".join(f"{a} {b}" for a, b in v.items()) or "none")
-               if isinstance(v, dict) else v for k, v in self.dispatcher.counters().items()},
+               if isinstance(v, dict) else v
+               for k, v in self.desk.dispatcher.counters().items()},
             "trains_in_service": int(np.count_nonzero(self.sim.active_mask()))})]
 
     # ------------------------------------------------------------------ stepping
@@ -533,7 +469,7 @@ class LineSimulator(Node):
         """The publishers a recorder (``wait_for_subscribers``) must read."""
         gate = [self.gate_pub] if self.gate_pub is not None else []
         return [self.fleet.clock_pub, self.event_pub, self.status_pub, *self.fleet.state_pubs,
-                self.sensors.fleet_pub, self.dispatch_pub, *gate]
+                self.sensors.fleet_pub, self.desk.pub, *gate]
 
     def wait_acked(self, timeout_s: float = 5.0) -> None:
         """Wait until every reliable reader acknowledged what was published (a recorder).
@@ -638,8 +574,8 @@ class LineSimulator(Node):
                 f"{' ...' if len(missing) > 5 else ''}; applying the last command")
         else:
             self.silence.answered()
-        self.take_dispatch_requests()
-        self.apply_dispatch()
+        self.desk.take_requests()
+        self.desk.apply(self.k)
         effort, wd_events = self.watchdog.apply(self.k, active, self.cmd_step >= self.k,
                                                 self.cmd_effort)
         for e in wd_events:
@@ -735,7 +671,8 @@ class LineSimulator(Node):
         k["planners_seen"] = sorted(self.planners)  # names only: latched, depth-1 reader
         k["regulator"] = regulator_label(k["regulators_seen"])
         k["planner"] = ",".join(k["planners_seen"]) or "none"
-        k["dispatcher"] = dict(self.dispatcher.counters(), replay=self.dispatcher.replay
+        k["dispatcher"] = dict(self.desk.dispatcher.counters(),
+                               replay=self.desk.dispatcher.replay
                                is not None)
         k["brake_assessed"] = dict(zip(self.ids, self.sensors.assessed))
         k["brake_trains_not_assessed"] = [t for t, a in zip(self.ids, self.sensors.assessed)
@@ -790,7 +727,8 @@ class LineSimulator(Node):
         k = self.final_kpis()
         write_outputs(self.params.out_dir, self.sim, k, self.params.plots, self.planned,
                       self.get_logger(), dispatched=[
-                          (a, self.dispatcher.station_of(a)) for a in self.dispatcher.log])
+                          (a, self.desk.dispatcher.station_of(a))
+                          for a in self.desk.dispatcher.log])
 
 
 def main(args: Sequence[str] | None = None) -> int:
