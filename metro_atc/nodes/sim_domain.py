@@ -28,9 +28,17 @@ ALONE_CHECK_S = 10.0
 ``line_simulator`` publishing ``/line/fleet_state`` on its ROS domain (two graphs on one
 domain answer each other's lockstep: refused, not run).  A respawn skips the look: the killed
 process's endpoints stay in the discovery data until their lease expires."""
-ALONE_LINGER_S = 15.0
+ALONE_PERSIST_S = 20.0
+"""After :data:`ALONE_CHECK_S`: another ``line_simulator`` publishing the fleet state seen
+without a break for this many wall seconds is a second graph too (refused as by
+:func:`check_alone`).  Longer than the DDS lease (10 s), which a killed predecessor's
+endpoints outlive it by at most; discovery across hosts under load can take longer than the
+first look (seen: two split graphs on one domain both ran, one to exit 0)."""
+ALONE_LINGER_S = 45.0
 """Wall seconds at most that a simulator which found another one stays on the domain before
-it exits: it leaves as soon as every other simulator it sees has refused too (or left)."""
+it exits: it leaves as soon as every other simulator it sees has refused too (or left).
+Discovery is not symmetric in time: across hosts on a loaded machine the other simulator
+saw this one's refusal only after more than 15 s (it then ran to the end, exit 0)."""
 REFUSED_TOPIC = "/line/simulator_refused"
 """A refusing simulator publishes one DiagnosticStatus (ERROR, the refusal) here, latched: the
 other simulator of the domain sees that it was seen (the refusal handshake of

@@ -10,6 +10,7 @@ the finished run.  Wall times are ``time.monotonic`` seconds.
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Protocol
 
@@ -24,7 +25,8 @@ from rclpy.subscription import Subscription
 from metro_atc.core.plant.line import LineSim
 from metro_atc.nodes.common import SubscriptionPoller, stop_requested
 from metro_atc.nodes.sim_checkpoints import Checkpoints
-from metro_atc.nodes.sim_domain import ALONE_CHECK_S, check_alone, check_not_refused
+from metro_atc.nodes.sim_domain import (ALONE_CHECK_S, ALONE_PERSIST_S, check_alone,
+                                        check_not_refused, other_simulators)
 from metro_atc.nodes.sim_fleet import FleetStatePublisher
 from metro_atc.nodes.sim_params import SimParams
 from metro_atc.nodes.sim_sensors import SensorOutbox
@@ -206,6 +208,7 @@ def lockstep_loop(executor: SingleThreadedExecutor, node: LockstepNode,
 
     t0 = time.monotonic()
     alone_until = t0 + ALONE_CHECK_S if node.checkpoints.first_start else t0
+    other_since = math.inf  # since when another simulator is seen (wall) [s]
     next_alone = t0  # the graph query costs: once a second, as in the stepping loop
     while not node.graph_ready() and time.monotonic() - t0 < params.startup_timeout_s:
         if stop_requested():
@@ -252,10 +255,18 @@ def lockstep_loop(executor: SingleThreadedExecutor, node: LockstepNode,
         if time.monotonic() >= next_sensor_check:
             next_sensor_check = time.monotonic() + 1.0
             node.sensors.resend_new_readers(float(node.sim.t), node.started)
-            if time.monotonic() < alone_until:
-                check_alone(node, node.fleet.fleet_pub.topic_name)
+            now = time.monotonic()
+            topic = node.fleet.fleet_pub.topic_name
+            if now < alone_until:
+                check_alone(node, topic)
             else:
-                check_not_refused(node, node.fleet.fleet_pub.topic_name)
+                check_not_refused(node, topic)
+                if other_simulators(node, topic) == 0:
+                    other_since = math.inf
+                else:
+                    other_since = min(other_since, now)
+                    if now - other_since >= ALONE_PERSIST_S:
+                        check_alone(node, topic)
         if active is None:  # else published with the step before (step_and_publish)
             if params.wait_for_subscribers and node.k > 0 and node.k % RECORDER_SYNC_STEPS == 0:
                 node.wait_acked(timeout_s=30.0)
