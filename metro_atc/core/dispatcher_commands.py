@@ -291,14 +291,22 @@ class Dispatcher:
                 return f"tsr_id '{cmd.tsr_id}': already imposed"
         return None
 
-    def _check_hold(self, cmd: Command, pending: Sequence[Command]) -> Optional[str]:
-        sim, fl = self.sim, self.sim.fleet
+    def _train_station(self, cmd: Command) -> tuple[int, int] | str:
+        """(train index, station index) a command names, or why it names none."""
         i = self.trains.get(cmd.train_id)
         if i is None:
             return f"train_id '{cmd.train_id}': unknown train"
         j = self.stations.get(cmd.station)
         if j is None:
             return f"station '{cmd.station}': unknown station"
+        return i, j
+
+    def _check_hold(self, cmd: Command, pending: Sequence[Command]) -> Optional[str]:
+        sim, fl = self.sim, self.sim.fleet
+        ij = self._train_station(cmd)
+        if isinstance(ij, str):
+            return ij
+        i, j = ij
         key = (i, j)
         held = set(self.holds)
         for c in pending:
@@ -347,12 +355,10 @@ class Dispatcher:
 
     def _check_skip(self, cmd: Command, pending: Sequence[Command]) -> Optional[str]:
         sim, fl = self.sim, self.sim.fleet
-        i = self.trains.get(cmd.train_id)
-        if i is None:
-            return f"train_id '{cmd.train_id}': unknown train"
-        j = self.stations.get(cmd.station)
-        if j is None:
-            return f"station '{cmd.station}': unknown station"
+        ij = self._train_station(cmd)
+        if isinstance(ij, str):
+            return ij
+        i, j = ij
         name = sim.station_names[j]
         if j == sim.n_st - 1:
             return f"{name} is the terminus: a train cannot run through it"
