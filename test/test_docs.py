@@ -20,6 +20,7 @@ import re
 import runpy
 import shlex
 import sys
+import warnings
 from pathlib import Path
 from types import ModuleType
 from typing import Iterator
@@ -95,7 +96,9 @@ def _help(words: list[str]) -> int:
                 from metro_atc.cli import main
                 return int(main(args))
             sys.argv = [module, *args]
-            runpy.run_module(module, run_name="__main__", alter_sys=False)
+            with warnings.catch_warnings():  # the module may already be imported by a test
+                warnings.filterwarnings("ignore", r".*found in sys\.modules", RuntimeWarning)
+                runpy.run_module(module, run_name="__main__", alter_sys=False)
             return 0
     except SystemExit as exc:
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
