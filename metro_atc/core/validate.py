@@ -71,6 +71,15 @@ class Rejections:
             return True
         return False
 
+    def note(self, what: str, exc: Rejected, now_s: float) -> str | None:
+        """Count ``exc`` (its kind); the one-line log text, or None inside the rate limit.
+
+        ``what``: the input rejected (e.g. ``state``); ``now_s``: a monotonic time [s].
+        """
+        if not self.add(exc.kind, now_s):
+            return None
+        return f"rejected {what} ({exc.kind}): {exc} [rejected so far: {self.summary()}]"
+
     @property
     def total(self) -> int:
         """All rejections."""

@@ -68,7 +68,7 @@ from metro_atc.nodes import dispatch_msgs
 from metro_atc.nodes.wire import fleet_command, fleet_state, traction_command
 from metro_atc.nodes.wire.cdr import stamp_parts
 from metro_atc.nodes.common import (OK, QOS_EVENTS, QOS_LATCHED, QOS_LATCHED_IN, QOS_RELIABLE,
-                                    WARN,
+                                    WARN, WarnLimiter,
                                     NodeConfigError, RuntimeParams, bulk_publisher,
                                     bulk_subscription, declare, diag_status, run_nodes,
                                     spin_fast, static)
@@ -186,7 +186,7 @@ class AtoController(Node):
         self._last_cmd: Cmd | None = None
         self.echoed_step = -1
         """Step of the last command echoed on ``/<train>/command`` (fleet lockstep)."""
-        self._last_warn: dict[str, float] = {}
+        self._warn = WarnLimiter(self)
         self.cmd_pub = bulk_publisher(self, TractionCommand, "command", QOS_RELIABLE)
         self.profile_pub = bulk_publisher(self, SpeedProfile, "speed_profile", QOS_LATCHED)
         self.fast_subs = [
@@ -284,19 +284,13 @@ class AtoController(Node):
         """Simulated time [s] of the last state acted on (0 before the first)."""
         return float(self.history[-1]["t_s"]) if self.history else 0.0
 
-    def _warn(self, key: str, text: str) -> None:
-        now = time.monotonic()
-        if now - self._last_warn.get(key, -math.inf) > 1.0:
-            self._last_warn[key] = now
-            self.get_logger().warning(text)
-
     # ------------------------------------------------------------------ planning
     def _reject(self, what: str, exc: conv.MessageRejected) -> None:
         """Count a rejected message per kind; log it (at most 1/s per kind, all counts)."""
         self.rejected += 1
-        if self.rejections.add(exc.kind, time.monotonic()):  # per-kind rate limit
-            self.get_logger().warning(f"rejected {what} ({exc.kind}): {exc} [rejected so far: "
-                                      f"{self.rejections.summary()}]")
+        line = self.rejections.note(what, exc, time.monotonic())  # per-kind rate limit
+        if line is not None:
+            self.get_logger().warning(line)
 
     def _on_departure(self, msg: DepartureCommand) -> None:
         topic = f"/{self.train_id}/departure_command"

@@ -140,9 +140,9 @@ class AtsRegulator(Node):
                              ev["station"], ev["kind"], ev["t_s"])
         except conv.MessageRejected as exc:
             self.rejected += 1
-            if self.rejections.add(exc.kind, time.monotonic()):  # per-kind rate limit
-                self.get_logger().warning(f"rejected event ({exc.kind}): {exc} [rejected so "
-                                          f"far: {self.rejections.summary()}]")
+            line = self.rejections.note("event", exc, time.monotonic())  # per-kind rate limit
+            if line is not None:
+                self.get_logger().warning(line)
             return
         if len(self.dispatcher.switched) + len(self.dispatcher.failed) \
                 != sum(self._switch_logged):

@@ -11,6 +11,7 @@ QoS per topic (see README topic map):
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import sys
@@ -218,6 +219,23 @@ def spin_fast(executor: SingleThreadedExecutor, nodes: Sequence[Node],
         if now - last_slow >= slow_period_s:
             last_slow = now
             executor.spin_once(timeout_sec=0.0)
+
+
+class WarnLimiter:
+    """A node's warnings at most once per ``period_s`` [s] of wall time per key."""
+
+    def __init__(self, node: Node, period_s: float = 1.0) -> None:
+        """Nothing logged yet."""
+        self._node = node
+        self._period_s = float(period_s)
+        self._last: dict[str, float] = {}
+
+    def __call__(self, key: str, text: str) -> None:
+        """Log ``text`` unless ``key`` was logged less than ``period_s`` ago."""
+        now = time.monotonic()
+        if now - self._last.get(key, -math.inf) > self._period_s:
+            self._last[key] = now
+            self._node.get_logger().warning(text)
 
 
 def declare(node: Node, name: str, default: Any, description: str,

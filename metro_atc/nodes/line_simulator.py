@@ -35,7 +35,6 @@ collaborators: the plant (``LineSim``), the fleet-state carrier
 
 from __future__ import annotations
 
-import math
 import time
 from functools import partial
 from typing import Any, Sequence
@@ -63,7 +62,7 @@ from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_EVENTS,
                                     QOS_FLEET_SENSOR, QOS_LATCHED, QOS_LATCHED_IN,
                                     QOS_RELIABLE, QOS_SENSOR, OK, WARN, GraphNotReady,
-                                    NodeConfigError,
+                                    NodeConfigError, WarnLimiter,
                                     bulk_publisher, bulk_subscription, diag_status,
                                     run_nodes, spin_until_stopped)
 from metro_atc.nodes.sim_checkpoints import Checkpoints, journal_key
@@ -133,7 +132,7 @@ class LineSimulator(Node):
         self.event_seq = np.zeros(n, dtype=np.int64)
         self.departures = DepartureBook(n, len(self.sim.station_names))
         """Departure commands received or given up (:mod:`metro_atc.nodes.sim_departures`)."""
-        self._last_warn: dict[str, float] = {}
+        self._warn_rate_limited = WarnLimiter(self)
         self._next_status_t = 0.0
         self.finished = False
         self.started = False
@@ -215,19 +214,12 @@ class LineSimulator(Node):
             f"{'lockstep' if self.params.lockstep else f'free-run x{self.params.rtf}'}")
 
     # ------------------------------------------------------------------ inputs
-    def _warn_rate_limited(self, key: str, text: str) -> None:
-        """Log a warning at most once per second per ``key``."""
-        now = time.monotonic()
-        if now - self._last_warn.get(key, -math.inf) > 1.0:
-            self._last_warn[key] = now
-            self.get_logger().warning(text)
-
     def _reject(self, what: str, exc: conv.MessageRejected) -> None:
         """Count a rejected message per kind; log it (at most 1/s per kind, all counts)."""
         self.rejected += 1
-        if self.rejections.add(exc.kind, time.monotonic()):  # per-kind rate limit
-            self.get_logger().warning(f"rejected {what} ({exc.kind}): {exc} [rejected so far: "
-                                      f"{self.rejections.summary()}]")
+        line = self.rejections.note(what, exc, time.monotonic())  # per-kind rate limit
+        if line is not None:
+            self.get_logger().warning(line)
 
     def _on_command(self, i: int, msg: TractionCommand) -> None:
         """Take train i's command for the current step k only (see conv.traction_from_msg)."""
