@@ -1,26 +1,26 @@
-"""The per-train ATO control step compiled with numba: the same floats as the Python path.
+"""The per-train ATO control step compiled with numba: the one source of the control law.
 
-:func:`control_step` is :meth:`metro_atc.core.ato.onboard.OnboardAto.control` after its
-planning part (the caps of ``_cap_at`` at the preview position, ``_speed_dip``,
-``_authority_speed``, :meth:`AtoCore.command_ex` with its tracker, feedforward and bounds,
-and ``guard``) for the common case: a plan, the incremental fuzzy or the PI tracker on a
-scalar state, the TSRs known (their caps and holds), the static SBI table, a fresh state
-with a later time stamp,
-the train not past its stopping point (graph speed).  Every operation is written in the
-Python path's order with its builtins' semantics (``min``/``max`` as CPython picks, :func:`pmin` /
-:func:`pmax`; ``x ** 2`` and ``x ** 3`` as the C ``pow`` CPython calls, the exponent read from
-the constants so that LLVM cannot fold it into products; ``int()`` truncation of finite
-values only).  Compiled with ``cache=True`` and numba's numpy error model (IEEE results
-instead of exceptions: the Python path's divisions never divide by zero on the states the
-kernel takes).
+:func:`metro_atc.core.ato.control_kernel_step.control_step` is everything
+:meth:`metro_atc.core.ato.onboard.OnboardAto.control` does after its planning: the caps at
+the preview position (supervision speed, static SBI table, end of movement authority, the
+TSRs known), the speed dip and the TSR hold, the authority speed, the tracker command (the
+incremental or the absolute fuzzy controller, or the PI controller) with its feedforward,
+approach, brake-onset and stop bounds, the envelope and overshoot brakes, the jerk limit and
+the guard.  There is no other copy: ``NUMBA_DISABLE_JIT=1`` runs this same source as Python
+(debugging).  The caller validates the state first (finite, bounded time, position and
+speed; time strictly after the last step's) and answers a train with no plan itself.
+
+Every operation keeps the float semantics of CPython builtins (``min``/``max`` as CPython
+picks, :func:`pmin` / :func:`pmax`; ``x ** 2`` and ``x ** 3`` as the C ``pow`` CPython calls,
+the exponent read from the constants so that LLVM cannot fold it into products; ``int()``
+truncation of finite values only), so that NUMBA_DISABLE_JIT=1 gives the compiled floats.
+Compiled with ``cache=True`` and numba's numpy error model (IEEE results instead of
+exceptions).
 
 The kernel reads the per-train state as a record (:data:`STATE`), works on local copies and
-writes them back only when it finished: a state it cannot take (``FALLBACK``) leaves
-everything untouched and the caller runs the Python path, so the hand-over in both
-directions is the Python objects' own state.  Plan tables travel as one vector (``P_*``
-header, :mod:`metro_atc.core.ato.control_kernel_pack`), line tables as another, the train,
-ATP and controller constants as a record (:data:`CONSTANTS`).  Proven equal (``==``) to the
-Python path on generated lines in ``test/test_ato_control_kernel.py``.
+writes them back when it finished.  Plan tables travel as one vector (``PLAN`` header,
+:mod:`metro_atc.core.ato.control_kernel_pack`), line tables as another, the train, ATP and
+controller constants as a record (:data:`CONSTANTS`).
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ CONSTANT_FIELDS = (
     "g_down", "sbi_offset", "c0a", "bt", "btt", "t_r", "two_b", "t_sbi", "grid_x0",
     "grid_dx", "tol", "resp_dist", "sbi_dist", "b_g",
     "period", "swing", "du_max", "brake_share", "approach_jerk", "feedforward", "e_scale",
-    "d_scale", "gain", "pi", "kp", "ki", "lead", "margin", "accel_max")
+    "d_scale", "gain", "tracker", "kp", "ki", "lead", "margin", "accel_max")
 """Constants record (:data:`CONSTANTS`), every field float64.
 
 Train: mass, effective mass [kg], Davis a [N], b [N s/m], c [N s^2/m^2], the traction
@@ -90,8 +90,9 @@ ATP's train (worst-case response); ATP: g_down [m/s^2], SBI offset [m/s], (b_g t
 b_g t_r, b_g t_r t_r, t_r [s], 2 b_g, t_sbi [s], grid x0 [m], grid dx [m], the ceiling
 tolerance [m/s], the response and SBI look-ahead distances [m], b_g [m/s^2]; controller:
 period [s], swing [s], effort rate [1/s], brake share [-], approach jerk [m/s^3],
-feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-], the tracker (0: the
-incremental fuzzy controller, 1: the PI controller), the PI gains kp [1/(m/s)], ki [1/m],
+feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-], the tracker
+(:data:`TRACKER_FUZZY`, :data:`TRACKER_PI`, :data:`TRACKER_FUZZY_ABS`), the PI gains kp
+[1/(m/s)], ki [1/m],
 the restriction lead [m], the speed margin below a TSR [m/s] and the planning
 acceleration limit [m/s^2].
 """
@@ -131,28 +132,53 @@ record in compiled code; numpy's record fields are slow from Python, ~1 us each)
 STATE_INDEX = {f: i for i, f in enumerate(STATE_FIELDS)}
 """Position of each state field in the float vector (the Python side's hand-over)."""
 
-FALLBACK = -1
-"""Reason code: the kernel did not take the state (nothing changed; run the Python path)."""
-R_TRACKING, R_PSS, R_ENVELOPE, R_STOPPED = 0, 1, 2, 3
+TRACKER_FUZZY, TRACKER_PI, TRACKER_FUZZY_ABS = 0.0, 1.0, 2.0
+"""The ``tracker`` constant: the incremental fuzzy controller (Li n.d. as a fuzzy PI), the
+PI controller, the fuzzy controller's absolute form (Li n.d., Sec. 2.3)."""
+R_TRACKING, R_PSS, R_ENVELOPE, R_STOPPED, R_OVERSHOOT, R_FAULT = 0, 1, 2, 3, 4, 5
 """Reason codes of :attr:`AtoCore.last_reason` (``REASONS``)."""
 REASONS = ("tracking", "programmed station stopping", "above the speed envelope",
-           "stopped at platform")
+           "stopped at platform", "overshot the stopping point: full service brake",
+           "tracker input not finite: full service brake")
 
 HOLD_BRAKE = -0.5
+"""Holding-brake command at the platform (and of a train with no plan at rest) [-]."""
 SAFE_BRAKE = -1.0
+"""Full service brake: past the stopping point, above the envelope, on a tracker input that
+is not a number, a moving train with no plan [-]."""
 JOIN_BAND = 0.3
+"""Below the reference by more than this [m/s], the tracker aims at the reference where a
+swing from full traction to the planned braking would end (no overshoot of a braking
+curve joined from below); also the band of the speed dip and of the TSR hold."""
 JOIN_MIN = 3.0
+"""The join rule applies above this speed only (in the final creep to the stopping point the
+reference ahead is zero) [m/s]."""
 PREVIEW = 1.0
+"""The tracker follows the reference this many control periods ahead of the train (the
+effort is held over the next period and the plant limits its rate) [-]."""
 APPROACH_MIN = 1.0
+"""The approach bound applies above this speed (not in the creep to the stop point) [m/s]."""
 RESTART_MAX = 3.0
+"""Below this speed the stop bound (:func:`stop_bound`) limits the traction [m/s]."""
 BERTH = 0.3
+"""A standstill this close to the stopping point is the arrival (+-0.30 m, the
+platform-screen-door tolerance); stopped further short, the train creeps on [m]."""
 STOP_FF = 0.5
+"""Below this desired speed [m/s] the feedforward never commands traction."""
 LOOKAHEAD = 2.0
+"""The speed cap takes the lowest static SBI speed over the distance run in this time [s]."""
 SPEED_MARGIN = 0.5
+"""Margin kept below the ATP supervision (intervention) speeds [m/s]."""
 AUTH_MARGIN = 10.0
+"""Distance the ATO aims to stop short of the end of movement authority [m]."""
 STOP_GUARD = 0.85
+"""Deceleration needed to stop at the platform, as a share of the achievable service brake,
+above which the stopping guard brakes [-]."""
 GUARD_GAIN = 0.8
+"""Effort per m/s of speed above a guard curve [1/(m/s)]."""
 GUARD_SLACK = 0.3
+"""The hard guard brakes only when the speed is this far above a cap [m/s] (below it the
+tracker follows the cap)."""
 
 
 def _rules() -> tuple[float, ...]:
@@ -281,13 +307,24 @@ def speed_at(ph, p, s):  # type: ignore[no-untyped-def]
 
 @jit
 def grade_force(c, ph, p, s):  # type: ignore[no-untyped-def]
-    """``RunModel.mean_grade_force_at(s - train length, s)`` (non-degenerate) [N]."""
+    """Mean grade force [N] over the train, its front at run coordinate s [m].
+
+    ``RunModel.mean_grade_force(s - train length, s)``: the grade-force integral's rise over
+    the train length; over a vanishing length (a train shorter than the floats resolve at
+    s) the grade force of the piece at s (the integral's slope there).
+    """
     s0 = s - c.length
     nr = int(ph.n_ref)
     n = int(ph.n_grade)
     xo = N_PH + 2 * nr
     length = ph.length
     a = clip1(s, 0.0, length)
+    if not abs(s - s0) > 1e-12:
+        j = bisect_right(p, xo, n, a) - 1
+        j = 0 if j < 0 else (j if j < n - 2 else n - 2)
+        if n < 2 or not p[xo + j + 1] > p[xo + j]:
+            return 0.0
+        return (p[xo + n + j + 1] - p[xo + n + j]) / (p[xo + j + 1] - p[xo + j])
     b = clip1(s0, 0.0, length)
     i1 = interp1(a, p, xo, xo + n, n)
     i0 = interp1(b, p, xo, xo + n, n)
