@@ -204,7 +204,7 @@ def pmax(a, b):  # type: ignore[no-untyped-def]
 
 @jit
 def clip1(x, lo, hi):  # type: ignore[no-untyped-def]
-    """:func:`metro_atc.core.scalar_math.clip1`."""
+    """``np.clip`` of one float (x below lo: lo; above hi: hi)."""
     if x < lo:
         x = lo
     if x > hi:
@@ -227,7 +227,7 @@ def bisect_right(a, lo, n, x):  # type: ignore[no-untyped-def]
 
 @jit
 def interp1(x, a, xo, fo, n):  # type: ignore[no-untyped-def]
-    """:func:`metro_atc.core.scalar_math.interp1` over ``a[xo:xo+n]``, ``a[fo:fo+n]``."""
+    """``np.interp(x, a[xo:xo+n], a[fo:fo+n])`` of one float x (numpy's algorithm)."""
     if x != x:
         return x
     j = bisect_right(a, xo, n, x) - 1
@@ -262,13 +262,19 @@ def atp_traction(c, v):  # type: ignore[no-untyped-def]
 
 @jit
 def resistance(c, v):  # type: ignore[no-untyped-def]
-    """``resistance_force_at`` [N]: :func:`metro_atc.core.laws.davis_resistance`."""
+    """Running resistance at v [N]: :func:`metro_atc.core.laws.davis_resistance`."""
     return davis_resistance(v, c.davis_a, c.davis_b, c.davis_c)
 
 
 @jit
 def speed_at(ph, p, s):  # type: ignore[no-untyped-def]
-    """``ProfileReference.speed_at`` (finite s) [m/s]."""
+    """The planned reference r [m/s] at run coordinate s [m] (finite s).
+
+    :meth:`metro_atc.core.ato.reference_curve.ProfileReference.speed` at one point: the
+    profile's v^2 interpolated (exact for constant-acceleration pieces), at least the
+    departure speed in the first half, capped by the stop tail (Li n.d. regions 3-5), 0 at
+    and beyond the stop point.
+    """
     n = int(ph.n_ref)
     xo = N_PH
     fo = xo + n
@@ -333,7 +339,7 @@ def grade_force(c, ph, p, s):  # type: ignore[no-untyped-def]
 
 @jit
 def ceiling_e(ph, p, s):  # type: ignore[no-untyped-def]
-    """``RunModel.ceiling_e_at`` [m^2/s^2]."""
+    """The run's ceiling energy at run coordinate s [m^2/s^2] (``RunModel.ceiling_e``)."""
     nr, ng, ne = int(ph.n_ref), int(ph.n_grade), int(ph.n_env)
     xo = N_PH + 2 * nr + 2 * ng
     return interp1(s, p, xo, xo + ne, ne)
@@ -349,7 +355,14 @@ def as_effort(c, f, v):  # type: ignore[no-untyped-def]
 
 @jit
 def feedforward(c, ph, p, s, v, r, has_cap, a_cap):  # type: ignore[no-untyped-def]
-    """``AtoCore._feedforward`` (``has_cap``: a_cap given, not None)."""
+    """Effort [-1, 1] that holds the reference r on the grade (Li n.d. Newton's law).
+
+    ``F = M_eff a_ref + F_r(v) + F_g`` with the grade force averaged over the train length
+    behind the front at s and ``a_ref = d(r^2/2)/ds`` of the planned reference (``a_cap``,
+    the cap's slope, when an outer cap sets r: ``has_cap``); normalised by the maximum
+    tractive force (F > 0) or the service brake ``M_eff b_s`` (F < 0), as the plant applies
+    the effort.  Below ``STOP_FF`` no traction (the final stop).
+    """
     a_ref = a_cap if has_cap and math.isfinite(a_cap) else 0.0
     if (not has_cap) and r > 0.0:
         h = pmax(v * c.period, 0.5)
@@ -363,7 +376,15 @@ def feedforward(c, ph, p, s, v, r, has_cap, a_cap):  # type: ignore[no-untyped-d
 
 @jit
 def approach_bound(c, ph, p, s, v, r_end):  # type: ignore[no-untyped-def]
-    """``AtoCore.approach_bound``."""
+    """Highest effort [-1, 1] that still reaches ``r_end`` [m/s] from below without overshoot.
+
+    Accelerating toward a speed the train must then hold (a cap or a cruise level), the
+    surplus acceleration ``a`` over the holding effort (resistance and grade at s) can only
+    be taken off at the approach jerk ``J``, one control period ``T`` after the decision;
+    the speed still gained is ``a T + a^2 / (2 J)``.  It must fit in the gap ``r_end - v``:
+    ``a = J (-T + sqrt(T^2 + 2 gap / J))``.  The bound is the force ``F_hold + M_eff a`` as
+    an effort (traction or service brake scale).
+    """
     j, t = c.approach_jerk, c.period
     gap = pmax(r_end - v, 0.0)
     a_ex = j * (-t + math.sqrt(t * t + 2.0 * gap / j))
@@ -373,7 +394,17 @@ def approach_bound(c, ph, p, s, v, r_end):  # type: ignore[no-untyped-def]
 
 @jit
 def brake_onset_bound(c, ph, p, s, s_p, v, r, dt, u0):  # type: ignore[no-untyped-def]
-    """``AtoCore.brake_onset_bound`` (u0: the last effort)."""
+    """Highest effort [-1, 1] that still joins the plan's braking curve ahead on time.
+
+    The brake builds up at the ATO's effort rate rho (the jerk limit): from the last effort
+    u0 to the curve's effort u_c (:func:`feedforward` with the curve's deceleration) a
+    linear ramp of tau = (u0 - u_c) / rho, which loses the speed of braking at the curve's
+    deceleration for tau / 2 only.  Started when the train reaches the curve's speed
+    v tau / 2 ahead of the preview point ``s_p`` [m run coordinate], the ramp ends on the
+    curve.  Once the onset is reached the bound keeps ramping, ``rho dt`` per step, down to
+    u_c; 1 (no bound) before it, when the curve ahead is not a braking curve (no steeper
+    than coasting: resistance and grade at s) or when the effort is already at the curve's.
+    """
     rho = c.du_max
     h = pmax(v * c.period, 0.5)
     tau = (c.brake_share + u0) / rho
@@ -399,7 +430,12 @@ def brake_onset_bound(c, ph, p, s, s_p, v, r, dt, u0):  # type: ignore[no-untype
 
 @jit
 def stop_distance(c, ph, p, v, a):  # type: ignore[no-untyped-def]
-    """``AtoCore.stop_distance`` [m]."""
+    """Distance [m] to rest from speed v [m/s] with the surplus acceleration a [m/s^2].
+
+    The effort is held one control period ``T``, then taken off at the approach jerk ``J``
+    down to the gentlest braking of the stop tail ``b``, which then holds to rest:
+    ``v T + a T^2/2`` + the jerk-limited ramp + ``v_1^2 / (2 b)``.
+    """
     j, t, b = c.approach_jerk, c.period, pmax(ph.tail_brake, 0.05)
     v0 = v + a * t
     x0 = v * t + 0.5 * a * t * t
@@ -414,7 +450,15 @@ def stop_distance(c, ph, p, v, a):  # type: ignore[no-untyped-def]
 
 @jit
 def stop_bound(c, ph, p, s, v, u_last):  # type: ignore[no-untyped-def]
-    """``AtoCore.stop_bound``."""
+    """Highest effort [-1, 1] from which the train can still stop at the stopping point.
+
+    Restarting close to the platform the tracker sees the stop tail ahead as a speed to
+    reach; full traction there overruns the stop.  The bound is the largest surplus
+    acceleration whose :func:`stop_distance` fits in the distance left (bisection), as an
+    effort; 0 (no traction) when even coasting does not fit.  The surplus of the last
+    command (``u_last``) counts as well (the plant takes it off at the jerk limit whatever
+    is commanded now).
+    """
     d = ph.length - s
     meff = c.meff
     f_hold = resistance(c, v) + grade_force(c, ph, p, s)
@@ -437,13 +481,18 @@ def stop_bound(c, ph, p, s, v, u_last):  # type: ignore[no-untyped-def]
 
 @jit
 def clip01(m):  # type: ignore[no-untyped-def]
-    """The membership clip of ``flc_output_at``."""
+    """A membership degree clipped to [0, 1] (``np.clip`` of :func:`.fuzzy.triangle`)."""
     return 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
 
 
 @jit
 def flc(e_n, d_n):  # type: ignore[no-untyped-def]
-    """:func:`metro_atc.core.ato.fuzzy.flc_output_at` (finite inputs)."""
+    """:func:`metro_atc.core.ato.fuzzy.flc_output` for one finite (e, d) pair (Li n.d.).
+
+    The memberships of e (PB, P, Z, N, NB) and d (P, Z, N), the 15 product firing
+    strengths and the weighted average of the rule singletons (Table 1), summed in numpy's
+    pairwise order for 15 contiguous doubles (8 in pairs, then the rest one by one).
+    """
     e0 = clip01((e_n - 0.5) / 0.5)
     up, dn = (e_n - 0.0) / 0.5, (1.0 - e_n) / 0.5
     e1 = clip01(up if up <= dn else dn)

@@ -29,7 +29,11 @@ N_TSR = 5
 
 @jit
 def plan_decel(ph, p, x):  # type: ignore[no-untyped-def]
-    """``OnboardAto._plan_decel`` (the run's table) at chainage x [m/s^2]."""
+    """Planned braking deceleration at chainage x [m/s^2].
+
+    The lowest planned deceleration over [s - 50, s + 400] m of the run (the table packed
+    by ``OnboardAto``, 10 m grid), clamped at both ends.
+    """
     nb = int(ph.n_brake)
     bo = N_PH + 2 * int(ph.n_ref) + 2 * int(ph.n_grade) + 2 * int(ph.n_env)
     i = int((ph.direction * (x - ph.x0) + 50.0) / 10.0)
@@ -50,7 +54,12 @@ def tsr_known(ln, o, t):  # type: ignore[no-untyped-def]
 
 @jit
 def sbi_speed_to(c, dist, target):  # type: ignore[no-untyped-def]
-    """``AtpModel.sbi_speed_to``: static SBI speed [m/s] ``dist`` before a limit ``target``."""
+    """Static SBI speed [m/s] ``dist`` [m] before a point where the limit is ``target``.
+
+    The plant's static construction (:mod:`metro_atc.core.line.track`): braking envelope
+    ``E^2 = (target + tol)^2 + 2 b_g D`` evaluated past the response and SBI look-ahead
+    distances, ``v + a_w(v) t_r = E`` (one fixed-point step), less the SBI offset.
+    """
     d = pmax(dist - c.resp_dist - c.sbi_dist, 0.0)
     e = math.sqrt(cpow(target + c.tol, 2.0) + 2.0 * c.b_g * d)
     vv = e - (atp_traction(c, e) + c.g_down) * c.t_r
@@ -66,7 +75,17 @@ def sbi_speed_of(cr, dist, target):  # type: ignore[no-untyped-def]
 
 @jit
 def cap_at(c, ph, p, ln, x, v, cap, ma, c0, c2, authority, t):  # type: ignore[no-untyped-def]
-    """``OnboardAto._cap_at`` (cap: the supervision cap; t: the state's time [s]) [m/s]."""
+    """Ceiling on the desired speed at chainage x [m] from the ATP data and known TSRs [m/s].
+
+    ``cap``: the supervision cap (the ATP's EBI speed of the state less the SBI offset and
+    ``SPEED_MARGIN``; inf when unknown); the lowest static SBI speed over the distance run
+    in ``LOOKAHEAD`` less ``SPEED_MARGIN``; with ``authority``, the end of movement
+    authority ``ma``: a braking curve at the planned deceleration to a stop
+    ``AUTH_MARGIN`` short of it and the speed whose SBI distance fits in it (``c0``, ``c2``:
+    the ATP curve's terms at v); every TSR known at t [s] and not yet cleared by the rear:
+    a braking curve at the planned deceleration reaching ``limit - margin`` ``lead`` metres
+    before the zone and the zone's SBI curve.  Never below 0.
+    """
     n = int(ln[0])
     x0, dx = c.grid_x0, c.grid_dx
     k0 = int((x - x0) / dx)
@@ -105,7 +124,11 @@ def cap_at(c, ph, p, ln, x, v, cap, ma, c0, c2, authority, t):  # type: ignore[n
 
 @jit
 def net_accel(c, ph, p, x, v):  # type: ignore[no-untyped-def]
-    """``AtoCore.net_accel``: full traction's net acceleration at chainage x [m/s^2]."""
+    """Net acceleration [m/s^2] of full traction at chainage x [m] and speed v [m/s].
+
+    Traction less resistance and the grade over the train (Li n.d. Newton's law), at most
+    the planning limit ``accel_max``.
+    """
     s = ph.direction * (x - ph.x0)
     f = c.mass * train_traction(c, v) - resistance(c, v) - grade_force(c, ph, p, s)
     return pmin(pmax(f / c.meff, 0.0), c.accel_max)
@@ -114,7 +137,16 @@ def net_accel(c, ph, p, x, v):  # type: ignore[no-untyped-def]
 @jit
 def tsr_hold(c, ph, p, ln, xp, v, r, dip, x_stop, cap0, ma, c0, c2,
              t):  # type: ignore[no-untyped-def]
-    """``OnboardAto._tsr_hold`` (with ``_tsr_dip_hold``): no traction toward r [m/s]."""
+    """No traction toward r [m/s] when a known TSR's curve takes the gain back.
+
+    Accelerating from v to r and braking back to v takes ``H = (r^2 - v^2) / (2 a) +
+    v swing + (r^2 - v^2) / (2 b)`` metres at the net acceleration a of full traction
+    (:func:`net_accel`) and the planned deceleration b.  When the braking curve of a TSR
+    ahead falls below v within H of the preview position ``xp`` [m], the gain would be
+    braked away before the zone (hunting); the train holds its speed instead.  ``dip``: the
+    speed has fallen since its peak; then any TSR ahead before the next stop ``x_stop``
+    whose target is below v holds it, whatever the distance.
+    """
     if r <= v + JOIN_BAND:
         return False
     zo = tsr_offset(ln)
@@ -196,7 +228,7 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
     u_last = st.u
     last_ff = st.ff
     trk_u = st.tu
-    # ---- OnboardAto.control: caps at the preview position
+    # ---- the caps at the preview position
     xp = x + PREVIEW * v * period
     h = pmax(v * period, 0.5)
     a_w = atp_traction(c, v) + c.g_down
@@ -209,7 +241,7 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
     if cap_p - v > JOIN_BAND and v > JOIN_MIN and u_last > 0.0:
         xp += v * c.swing
         cap_p = pmin(cap_p, cap_at(c, ph, p, ln, xp, v, cap0, ma, c0, c2, True, t))
-    # _speed_dip (its state; no TSR known: no hold)
+    # the speed dip: the peak follows the speed up, and restarts on the envelope
     ns, ng = int(ln[0]), int(ln[1])
     n_st = int(ln[2])
     x_stop = ln[N_LH + ns + 2 * ng + nxt] if 0 <= nxt < n_st else math.inf
@@ -235,7 +267,8 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
     cap_h = cap_p if hold else cap_at(c, ph, p, ln, xp + h, v, cap0, ma, c0, c2, True, t)
     slope = (cap_h * cap_h - cap_p * cap_p) / (2.0 * h) \
         if math.isfinite(cap_p) and math.isfinite(cap_h) else 0.0
-    # _authority_speed
+    # the speed of the end of authority (the train ahead) from the last two states; a
+    # moving end scales the cap's slope by (1 - v_ma / v)
     v_ma = st.v_ma
     if st.has_ma == 0.0 or not (math.isfinite(ma) and math.isfinite(st.ma)):
         v_ma = 0.0
@@ -244,7 +277,7 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
     if slope < 0.0 and v_ma > 0.0 and v > 0.0 \
             and cap_p < cap_at(c, ph, p, ln, xp, v, cap0, ma, c0, c2, False, t) - 1e-9:
         slope *= pmin(pmax(1.0 - v_ma / v, 0.0), 1.0)
-    # ---- AtoCore.command_ex
+    # ---- the tracker, its feedforward and bounds, the jerk limit
     vc = pmax(v, 0.0)
     dt = pmin(dt, 5.0 * period)
     has_e = st.has_e != 0.0
