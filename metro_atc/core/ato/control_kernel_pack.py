@@ -2,10 +2,10 @@
 
 :class:`metro_atc.core.ato.onboard.OnboardAto` takes every control step there (no switch,
 no other path: numba is a pinned dependency; ``NUMBA_DISABLE_JIT=1`` runs the same source
-as Python).  The
-vectors the kernel reads are packed here from plain floats and arrays the objects hand over
-through their public methods (``AtoCore.kernel_constants`` / ``kernel_plan``,
-``OnboardAto``'s own tables).
+as Python).  The vectors the kernel reads are packed here from plain floats and arrays the
+objects hand over through their public methods (``AtoCore.kernel_constants`` /
+``kernel_plan``, ``AtpModel.kernel_fields`` / ``sbi_table``, ``OnboardAto``'s own
+tables).
 """
 
 from __future__ import annotations
