@@ -373,3 +373,20 @@ def test_the_same_source_runs_as_python() -> None:
     moving = [o for o in got["0"] if o[1] != MODE_DWELL]
     assert len(moving) > 100 and {o[2] for o in moving} >= {"tracking"}
     assert pack.control_step_fn() is cks.control_step
+
+
+def test_grade_force_of_a_train_too_short_to_resolve() -> None:
+    """A train whose length vanishes at its position: the grade force of the piece under
+    its front (the mean over any interval inside that piece), not 0/0."""
+    short = dataclasses.replace(P, length_m=1e-13)
+    ato = OnboardAto(short, TRACK, np.array([100.0, 1400.0]), control_period_s=DT)
+    _depart(ato, 100.0)
+    ato.control(_state(0.1, 100.0, 0.0))
+    c = np.asarray(ato._kconst).view(ck.CONSTANTS)[0]
+    p = ato._kplan[2]
+    ph = p[:ck.N_PH].view(ck.PLAN)[0]
+    run = ato.core.run
+    for s in (200.0, 700.0):  # level, then the 0.4 % piece from x = 500 m
+        want = float(run.mean_grade_force(s - 10.0, s))
+        assert ck.grade_force(c, ph, p, s) == pytest.approx(want, rel=1e-9, abs=1e-6)
+    assert ck.grade_force(c, ph, p, 700.0) > 0.0

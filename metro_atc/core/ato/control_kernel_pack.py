@@ -104,7 +104,6 @@ def control_step_fn():  # type: ignore[no-untyped-def]
 
 
 def sbi_speed_to_fn():  # type: ignore[no-untyped-def]
-    """The compiled :func:`.control_kernel_step.sbi_speed_of` (constants vector, distance,
-    target)."""
+    """The compiled :func:`.control_kernel_step.sbi_speed_of` (constants, distance, target)."""
     from metro_atc.core.ato.control_kernel_step import sbi_speed_of
     return sbi_speed_of

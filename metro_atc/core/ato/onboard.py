@@ -154,8 +154,10 @@ class OnboardAto:
 
     @property
     def tsrs(self) -> tuple[TsrZone, ...]:
-        """The TSRs the ATO knows (scripted and a dispatcher's); setting them repacks the line
-        tables of the compiled step."""
+        """The TSRs the ATO knows (scripted and a dispatcher's).
+
+        Setting them repacks the line tables of the compiled step.
+        """
         return self._tsrs
 
     @tsrs.setter
@@ -358,8 +360,10 @@ class AtpModel:
         return [float(f) for f in out]
 
     def sbi_table(self) -> np.ndarray:
-        """The static SBI table [m/s] the compiled step reads: [+inf] (no limit known) when
-        the model has none."""
+        """The static SBI table [m/s] the compiled step reads.
+
+        [+inf] (no limit known) when the model has none.
+        """
         if self.sbi_static_mps is None:
             return np.full(1, np.inf)
         return np.asarray(self.sbi_static_mps, dtype=float)
