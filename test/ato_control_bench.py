@@ -1,13 +1,13 @@
-"""Micro-bench of ``OnboardAto.control`` per train-step: the Python path against the kernel.
+"""Micro-bench of ``OnboardAto.control`` per train-step (the compiled step, its one path).
 
 Records every ATO input of a ROS-free closed loop (``taipei_blue`` by default), then replays
-them into fresh ATOs (one process's shared cache) with the compiled step taken away
-(``python``: the Python path for every step) and as they run (``numba``) alternately,
-``--pairs`` times, and prints the CPU time (``time.thread_time``) per train-step of the
-steps in motion (not dwelling) and per step overall, with the medians, and checks that
-both replays gave the same efforts and modes::
+them into fresh ATOs (one process's shared cache) ``--repeat`` times and prints the CPU time
+(``time.thread_time``) per train-step of the steps in motion (not dwelling) and per step
+overall, with the median, and checks that every replay gave the same efforts and modes.
+Two code versions compare by running it once each (``PYTHONPATH`` choosing the version),
+alternately::
 
-    python test/ato_control_bench.py [--scenario taipei_blue] [--duration 1800] [--pairs 3]
+    python test/ato_control_bench.py [--scenario taipei_blue] [--duration 1800] [--repeat 3]
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ def record(scn: Any, duration_s: float) -> list[list[Any]]:
     return list(logs.values())
 
 
-def replay(scn: Any, logs: list[list[Any]], kernel: str) -> tuple[float, float, int, int, list]:
+def replay(scn: Any, logs: list[list[Any]]) -> tuple[float, float, int, int, list]:
     """(CPU s of moving steps, CPU s of all steps, moving steps, steps, outputs)."""
     from metro_atc.core.ato.onboard import (OnboardAto, atp_model_for, envelope_limits,
                                             tsr_zones)
@@ -59,8 +59,6 @@ def replay(scn: Any, logs: list[list[Any]], kernel: str) -> tuple[float, float, 
         ato = OnboardAto(train, track, tt.station_positions_m,
                          control_period_s=float(scn.sim.control_period_s), limits=limits,
                          shared=shared, tsrs=tsr_zones(scn), atp=atp)
-        if kernel == "python":
-            ato._kstep = None
         for kind, a in lg:
             if kind == "d":
                 ato.on_departure(*a)
@@ -84,23 +82,21 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--scenario", default="taipei_blue")
     ap.add_argument("--duration", type=float, default=1800.0)
-    ap.add_argument("--pairs", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=3)
     a = ap.parse_args()
     scn = load_scenario(a.scenario)
     logs = record(scn, a.duration)
-    replay(scn, logs, "numba")  # load the kernel (cache) outside the timing
-    per: dict[str, list[float]] = {"python": [], "numba": []}
-    outs: dict[str, list] = {}
-    for _ in range(a.pairs):
-        for k in ("python", "numba"):
-            t_mov, t_all, n_mov, n_all, out = replay(scn, logs, k)
-            per[k].append(1e6 * t_mov / max(n_mov, 1))
-            outs[k] = out
-            print(f"{k:6s} moving {1e6 * t_mov / max(n_mov, 1):7.2f} us/train-step "
-                  f"({n_mov} steps), all {1e6 * t_all / max(n_all, 1):7.2f} us ({n_all})")
-    mp, mn = statistics.median(per["python"]), statistics.median(per["numba"])
-    print(f"median moving: python {mp:.2f} us, numba {mn:.2f} us, ratio {mp / mn:.2f}; "
-          f"identical outputs: {outs['python'] == outs['numba']}")
+    replay(scn, logs)  # load the kernel (cache) outside the timing
+    per: list[float] = []
+    outs: list[list] = []
+    for _ in range(a.repeat):
+        t_mov, t_all, n_mov, n_all, out = replay(scn, logs)
+        per.append(1e6 * t_mov / max(n_mov, 1))
+        outs.append(out)
+        print(f"moving {1e6 * t_mov / max(n_mov, 1):7.2f} us/train-step ({n_mov} steps), "
+              f"all {1e6 * t_all / max(n_all, 1):7.2f} us ({n_all})")
+    print(f"median moving: {statistics.median(per):.2f} us/train-step; "
+          f"identical outputs: {all(o == outs[0] for o in outs)}")
 
 
 if __name__ == "__main__":

@@ -101,7 +101,8 @@ def test_atp_model_matches_the_plant_supervision_with_a_tsr() -> None:
     xs = np.arange(tsr.start_m - 400.0, tsr.start_m, 10.0)
     k = ((xs - sim.geometry.x0) * sim.geometry.inv_dx).astype(int)
     plant = sim.atp.sbi_static[k] - 0.3
-    static = np.array([atp.static_sbi(x, x) for x in xs])
+    tab = atp.sbi_table()  # the static SBI speed at each front position, less the offset
+    static = tab[((xs - atp.grid_x0_m) / atp.grid_dx_m).astype(int)] - atp.sbi_offset_mps
     ours = np.minimum([atp.sbi_speed_to(tsr.start_m - x, tsr.limit_kmh / 3.6) for x in xs],
                       static)
     assert np.max(np.abs(ours - plant)) < 0.1

@@ -29,7 +29,7 @@ USES = {
     "tour_kernel.py": {"traction_accel", "davis_resistance", "step_force"},
     "control_kernel.py": {"davis_resistance", "traction_accel"},
     "control_kernel_step.py": {"braking_speed", "ebi_speed_from", "guaranteed_decel_on_grade"},
-    "onboard.py": {"braking_speed", "ebi_speed_from", "ebi_coef"},
+    "onboard.py": {"ebi_coef"},
     "oracle.py": {"traction_accel_array", "on_array"},
     "planner.py": {"G_MPS2"},
     "sections.py": {"G_MPS2"},

@@ -3,7 +3,8 @@
 Planning (Ke 2010 MAX-MIN ant system, ACTP n.d. coasting control, a dynamic-programming
 reference optimum) and tracking (Li n.d. fuzzy logic speed controller on a 5-region reference
 motion curve, and a PI tracker for comparison).  The ROS node ``ato_controller`` wraps
-:class:`metro_atc.core.ato.controller.AtoCore`.
+:class:`metro_atc.core.ato.onboard.OnboardAto`, whose every control step is the compiled
+step of :mod:`.control_kernel_step` (the one source of the control law).
 
 Modules
 -------
@@ -16,4 +17,6 @@ Modules
 - :mod:`.dp`: dynamic-programming minimum-energy reference for a given running time.
 - :mod:`.reference_curve`, :mod:`.fuzzy`, :mod:`.pi`, :mod:`.tracking`: Li n.d. tracking.
 - :mod:`.planner`, :mod:`.controller`: one planning interface and the stateful node core.
+- :mod:`.onboard`, :mod:`.control_kernel`, :mod:`.control_kernel_step`,
+  :mod:`.control_kernel_pack`: the on-board ATO and its compiled control step.
 """

@@ -1,26 +1,26 @@
-"""The per-train ATO control step compiled with numba: the same floats as the Python path.
+"""The per-train ATO control step compiled with numba: the one source of the control law.
 
-:func:`control_step` is :meth:`metro_atc.core.ato.onboard.OnboardAto.control` after its
-planning part (the caps of ``_cap_at`` at the preview position, ``_speed_dip``,
-``_authority_speed``, :meth:`AtoCore.command_ex` with its tracker, feedforward and bounds,
-and ``guard``) for the common case: a plan, the incremental fuzzy or the PI tracker on a
-scalar state, the TSRs known (their caps and holds), the static SBI table, a fresh state
-with a later time stamp,
-the train not past its stopping point (graph speed).  Every operation is written in the
-Python path's order with its builtins' semantics (``min``/``max`` as CPython picks, :func:`pmin` /
-:func:`pmax`; ``x ** 2`` and ``x ** 3`` as the C ``pow`` CPython calls, the exponent read from
-the constants so that LLVM cannot fold it into products; ``int()`` truncation of finite
-values only).  Compiled with ``cache=True`` and numba's numpy error model (IEEE results
-instead of exceptions: the Python path's divisions never divide by zero on the states the
-kernel takes).
+:func:`metro_atc.core.ato.control_kernel_step.control_step` is everything
+:meth:`metro_atc.core.ato.onboard.OnboardAto.control` does after its planning: the caps at
+the preview position (supervision speed, static SBI table, end of movement authority, the
+TSRs known), the speed dip and the TSR hold, the authority speed, the tracker command (the
+incremental or the absolute fuzzy controller, or the PI controller) with its feedforward,
+approach, brake-onset and stop bounds, the envelope and overshoot brakes, the jerk limit and
+the guard.  There is no other copy: ``NUMBA_DISABLE_JIT=1`` runs this same source as Python
+(debugging).  The caller validates the state first (finite, bounded time, position and
+speed; time strictly after the last step's) and answers a train with no plan itself.
+
+Every operation keeps the float semantics of CPython builtins (``min``/``max`` as CPython
+picks, :func:`pmin` / :func:`pmax`; ``x ** 2`` and ``x ** 3`` as the C ``pow`` CPython calls,
+the exponent read from the constants so that LLVM cannot fold it into products; ``int()``
+truncation of finite values only), so that NUMBA_DISABLE_JIT=1 gives the compiled floats.
+Compiled with ``cache=True`` and numba's numpy error model (IEEE results instead of
+exceptions).
 
 The kernel reads the per-train state as a record (:data:`STATE`), works on local copies and
-writes them back only when it finished: a state it cannot take (``FALLBACK``) leaves
-everything untouched and the caller runs the Python path, so the hand-over in both
-directions is the Python objects' own state.  Plan tables travel as one vector (``P_*``
-header, :mod:`metro_atc.core.ato.control_kernel_pack`), line tables as another, the train,
-ATP and controller constants as a record (:data:`CONSTANTS`).  Proven equal (``==``) to the
-Python path on generated lines in ``test/test_ato_control_kernel.py``.
+writes them back when it finished.  Plan tables travel as one vector (``PLAN`` header,
+:mod:`metro_atc.core.ato.control_kernel_pack`), line tables as another, the train, ATP and
+controller constants as a record (:data:`CONSTANTS`).
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ CONSTANT_FIELDS = (
     "g_down", "sbi_offset", "c0a", "bt", "btt", "t_r", "two_b", "t_sbi", "grid_x0",
     "grid_dx", "tol", "resp_dist", "sbi_dist", "b_g",
     "period", "swing", "du_max", "brake_share", "approach_jerk", "feedforward", "e_scale",
-    "d_scale", "gain", "pi", "kp", "ki", "lead", "margin", "accel_max")
+    "d_scale", "gain", "tracker", "kp", "ki", "lead", "margin", "accel_max")
 """Constants record (:data:`CONSTANTS`), every field float64.
 
 Train: mass, effective mass [kg], Davis a [N], b [N s/m], c [N s^2/m^2], the traction
@@ -90,8 +90,9 @@ ATP's train (worst-case response); ATP: g_down [m/s^2], SBI offset [m/s], (b_g t
 b_g t_r, b_g t_r t_r, t_r [s], 2 b_g, t_sbi [s], grid x0 [m], grid dx [m], the ceiling
 tolerance [m/s], the response and SBI look-ahead distances [m], b_g [m/s^2]; controller:
 period [s], swing [s], effort rate [1/s], brake share [-], approach jerk [m/s^3],
-feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-], the tracker (0: the
-incremental fuzzy controller, 1: the PI controller), the PI gains kp [1/(m/s)], ki [1/m],
+feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-], the tracker
+(:data:`TRACKER_FUZZY`, :data:`TRACKER_PI`, :data:`TRACKER_FUZZY_ABS`), the PI gains kp
+[1/(m/s)], ki [1/m],
 the restriction lead [m], the speed margin below a TSR [m/s] and the planning
 acceleration limit [m/s^2].
 """
@@ -131,28 +132,53 @@ record in compiled code; numpy's record fields are slow from Python, ~1 us each)
 STATE_INDEX = {f: i for i, f in enumerate(STATE_FIELDS)}
 """Position of each state field in the float vector (the Python side's hand-over)."""
 
-FALLBACK = -1
-"""Reason code: the kernel did not take the state (nothing changed; run the Python path)."""
-R_TRACKING, R_PSS, R_ENVELOPE, R_STOPPED = 0, 1, 2, 3
+TRACKER_FUZZY, TRACKER_PI, TRACKER_FUZZY_ABS = 0.0, 1.0, 2.0
+"""The ``tracker`` constant: the incremental fuzzy controller (Li n.d. as a fuzzy PI), the
+PI controller, the fuzzy controller's absolute form (Li n.d., Sec. 2.3)."""
+R_TRACKING, R_PSS, R_ENVELOPE, R_STOPPED, R_OVERSHOOT, R_FAULT = 0, 1, 2, 3, 4, 5
 """Reason codes of :attr:`AtoCore.last_reason` (``REASONS``)."""
 REASONS = ("tracking", "programmed station stopping", "above the speed envelope",
-           "stopped at platform")
+           "stopped at platform", "overshot the stopping point: full service brake",
+           "tracker input not finite: full service brake")
 
 HOLD_BRAKE = -0.5
+"""Holding-brake command at the platform (and of a train with no plan at rest) [-]."""
 SAFE_BRAKE = -1.0
+"""Full service brake: past the stopping point, above the envelope, on a tracker input that
+is not a number, a moving train with no plan [-]."""
 JOIN_BAND = 0.3
+"""Below the reference by more than this [m/s], the tracker aims at the reference where a
+swing from full traction to the planned braking would end (no overshoot of a braking
+curve joined from below); also the band of the speed dip and of the TSR hold."""
 JOIN_MIN = 3.0
+"""The join rule applies above this speed only (in the final creep to the stopping point the
+reference ahead is zero) [m/s]."""
 PREVIEW = 1.0
+"""The tracker follows the reference this many control periods ahead of the train (the
+effort is held over the next period and the plant limits its rate) [-]."""
 APPROACH_MIN = 1.0
+"""The approach bound applies above this speed (not in the creep to the stop point) [m/s]."""
 RESTART_MAX = 3.0
+"""Below this speed the stop bound (:func:`stop_bound`) limits the traction [m/s]."""
 BERTH = 0.3
+"""A standstill this close to the stopping point is the arrival (+-0.30 m, the
+platform-screen-door tolerance); stopped further short, the train creeps on [m]."""
 STOP_FF = 0.5
+"""Below this desired speed [m/s] the feedforward never commands traction."""
 LOOKAHEAD = 2.0
+"""The speed cap takes the lowest static SBI speed over the distance run in this time [s]."""
 SPEED_MARGIN = 0.5
+"""Margin kept below the ATP supervision (intervention) speeds [m/s]."""
 AUTH_MARGIN = 10.0
+"""Distance the ATO aims to stop short of the end of movement authority [m]."""
 STOP_GUARD = 0.85
+"""Deceleration needed to stop at the platform, as a share of the achievable service brake,
+above which the stopping guard brakes [-]."""
 GUARD_GAIN = 0.8
+"""Effort per m/s of speed above a guard curve [1/(m/s)]."""
 GUARD_SLACK = 0.3
+"""The hard guard brakes only when the speed is this far above a cap [m/s] (below it the
+tracker follows the cap)."""
 
 
 def _rules() -> tuple[float, ...]:
@@ -178,7 +204,7 @@ def pmax(a, b):  # type: ignore[no-untyped-def]
 
 @jit
 def clip1(x, lo, hi):  # type: ignore[no-untyped-def]
-    """:func:`metro_atc.core.scalar_math.clip1`."""
+    """``np.clip`` of one float (x below lo: lo; above hi: hi)."""
     if x < lo:
         x = lo
     if x > hi:
@@ -201,7 +227,7 @@ def bisect_right(a, lo, n, x):  # type: ignore[no-untyped-def]
 
 @jit
 def interp1(x, a, xo, fo, n):  # type: ignore[no-untyped-def]
-    """:func:`metro_atc.core.scalar_math.interp1` over ``a[xo:xo+n]``, ``a[fo:fo+n]``."""
+    """``np.interp(x, a[xo:xo+n], a[fo:fo+n])`` of one float x (numpy's algorithm)."""
     if x != x:
         return x
     j = bisect_right(a, xo, n, x) - 1
@@ -236,13 +262,19 @@ def atp_traction(c, v):  # type: ignore[no-untyped-def]
 
 @jit
 def resistance(c, v):  # type: ignore[no-untyped-def]
-    """``resistance_force_at`` [N]: :func:`metro_atc.core.laws.davis_resistance`."""
+    """Running resistance at v [N]: :func:`metro_atc.core.laws.davis_resistance`."""
     return davis_resistance(v, c.davis_a, c.davis_b, c.davis_c)
 
 
 @jit
 def speed_at(ph, p, s):  # type: ignore[no-untyped-def]
-    """``ProfileReference.speed_at`` (finite s) [m/s]."""
+    """The planned reference r [m/s] at run coordinate s [m] (finite s).
+
+    :meth:`metro_atc.core.ato.reference_curve.ProfileReference.speed` at one point: the
+    profile's v^2 interpolated (exact for constant-acceleration pieces), at least the
+    departure speed in the first half, capped by the stop tail (Li n.d. regions 3-5), 0 at
+    and beyond the stop point.
+    """
     n = int(ph.n_ref)
     xo = N_PH
     fo = xo + n
@@ -281,13 +313,24 @@ def speed_at(ph, p, s):  # type: ignore[no-untyped-def]
 
 @jit
 def grade_force(c, ph, p, s):  # type: ignore[no-untyped-def]
-    """``RunModel.mean_grade_force_at(s - train length, s)`` (non-degenerate) [N]."""
+    """Mean grade force [N] over the train, its front at run coordinate s [m].
+
+    ``RunModel.mean_grade_force(s - train length, s)``: the grade-force integral's rise over
+    the train length; over a vanishing length (a train shorter than the floats resolve at
+    s) the grade force of the piece at s (the integral's slope there).
+    """
     s0 = s - c.length
     nr = int(ph.n_ref)
     n = int(ph.n_grade)
     xo = N_PH + 2 * nr
     length = ph.length
     a = clip1(s, 0.0, length)
+    if not abs(s - s0) > 1e-12:
+        j = bisect_right(p, xo, n, a) - 1
+        j = 0 if j < 0 else (j if j < n - 2 else n - 2)
+        if n < 2 or not p[xo + j + 1] > p[xo + j]:
+            return 0.0
+        return (p[xo + n + j + 1] - p[xo + n + j]) / (p[xo + j + 1] - p[xo + j])
     b = clip1(s0, 0.0, length)
     i1 = interp1(a, p, xo, xo + n, n)
     i0 = interp1(b, p, xo, xo + n, n)
@@ -296,7 +339,7 @@ def grade_force(c, ph, p, s):  # type: ignore[no-untyped-def]
 
 @jit
 def ceiling_e(ph, p, s):  # type: ignore[no-untyped-def]
-    """``RunModel.ceiling_e_at`` [m^2/s^2]."""
+    """The run's ceiling energy at run coordinate s [m^2/s^2] (``RunModel.ceiling_e``)."""
     nr, ng, ne = int(ph.n_ref), int(ph.n_grade), int(ph.n_env)
     xo = N_PH + 2 * nr + 2 * ng
     return interp1(s, p, xo, xo + ne, ne)
@@ -312,7 +355,14 @@ def as_effort(c, f, v):  # type: ignore[no-untyped-def]
 
 @jit
 def feedforward(c, ph, p, s, v, r, has_cap, a_cap):  # type: ignore[no-untyped-def]
-    """``AtoCore._feedforward`` (``has_cap``: a_cap given, not None)."""
+    """Effort [-1, 1] that holds the reference r on the grade (Li n.d. Newton's law).
+
+    ``F = M_eff a_ref + F_r(v) + F_g`` with the grade force averaged over the train length
+    behind the front at s and ``a_ref = d(r^2/2)/ds`` of the planned reference (``a_cap``,
+    the cap's slope, when an outer cap sets r: ``has_cap``); normalised by the maximum
+    tractive force (F > 0) or the service brake ``M_eff b_s`` (F < 0), as the plant applies
+    the effort.  Below ``STOP_FF`` no traction (the final stop).
+    """
     a_ref = a_cap if has_cap and math.isfinite(a_cap) else 0.0
     if (not has_cap) and r > 0.0:
         h = pmax(v * c.period, 0.5)
@@ -326,7 +376,15 @@ def feedforward(c, ph, p, s, v, r, has_cap, a_cap):  # type: ignore[no-untyped-d
 
 @jit
 def approach_bound(c, ph, p, s, v, r_end):  # type: ignore[no-untyped-def]
-    """``AtoCore.approach_bound``."""
+    """Highest effort [-1, 1] that still reaches ``r_end`` [m/s] from below without overshoot.
+
+    Accelerating toward a speed the train must then hold (a cap or a cruise level), the
+    surplus acceleration ``a`` over the holding effort (resistance and grade at s) can only
+    be taken off at the approach jerk ``J``, one control period ``T`` after the decision;
+    the speed still gained is ``a T + a^2 / (2 J)``.  It must fit in the gap ``r_end - v``:
+    ``a = J (-T + sqrt(T^2 + 2 gap / J))``.  The bound is the force ``F_hold + M_eff a`` as
+    an effort (traction or service brake scale).
+    """
     j, t = c.approach_jerk, c.period
     gap = pmax(r_end - v, 0.0)
     a_ex = j * (-t + math.sqrt(t * t + 2.0 * gap / j))
@@ -336,7 +394,17 @@ def approach_bound(c, ph, p, s, v, r_end):  # type: ignore[no-untyped-def]
 
 @jit
 def brake_onset_bound(c, ph, p, s, s_p, v, r, dt, u0):  # type: ignore[no-untyped-def]
-    """``AtoCore.brake_onset_bound`` (u0: the last effort)."""
+    """Highest effort [-1, 1] that still joins the plan's braking curve ahead on time.
+
+    The brake builds up at the ATO's effort rate rho (the jerk limit): from the last effort
+    u0 to the curve's effort u_c (:func:`feedforward` with the curve's deceleration) a
+    linear ramp of tau = (u0 - u_c) / rho, which loses the speed of braking at the curve's
+    deceleration for tau / 2 only.  Started when the train reaches the curve's speed
+    v tau / 2 ahead of the preview point ``s_p`` [m run coordinate], the ramp ends on the
+    curve.  Once the onset is reached the bound keeps ramping, ``rho dt`` per step, down to
+    u_c; 1 (no bound) before it, when the curve ahead is not a braking curve (no steeper
+    than coasting: resistance and grade at s) or when the effort is already at the curve's.
+    """
     rho = c.du_max
     h = pmax(v * c.period, 0.5)
     tau = (c.brake_share + u0) / rho
@@ -362,7 +430,12 @@ def brake_onset_bound(c, ph, p, s, s_p, v, r, dt, u0):  # type: ignore[no-untype
 
 @jit
 def stop_distance(c, ph, p, v, a):  # type: ignore[no-untyped-def]
-    """``AtoCore.stop_distance`` [m]."""
+    """Distance [m] to rest from speed v [m/s] with the surplus acceleration a [m/s^2].
+
+    The effort is held one control period ``T``, then taken off at the approach jerk ``J``
+    down to the gentlest braking of the stop tail ``b``, which then holds to rest:
+    ``v T + a T^2/2`` + the jerk-limited ramp + ``v_1^2 / (2 b)``.
+    """
     j, t, b = c.approach_jerk, c.period, pmax(ph.tail_brake, 0.05)
     v0 = v + a * t
     x0 = v * t + 0.5 * a * t * t
@@ -377,7 +450,15 @@ def stop_distance(c, ph, p, v, a):  # type: ignore[no-untyped-def]
 
 @jit
 def stop_bound(c, ph, p, s, v, u_last):  # type: ignore[no-untyped-def]
-    """``AtoCore.stop_bound``."""
+    """Highest effort [-1, 1] from which the train can still stop at the stopping point.
+
+    Restarting close to the platform the tracker sees the stop tail ahead as a speed to
+    reach; full traction there overruns the stop.  The bound is the largest surplus
+    acceleration whose :func:`stop_distance` fits in the distance left (bisection), as an
+    effort; 0 (no traction) when even coasting does not fit.  The surplus of the last
+    command (``u_last``) counts as well (the plant takes it off at the jerk limit whatever
+    is commanded now).
+    """
     d = ph.length - s
     meff = c.meff
     f_hold = resistance(c, v) + grade_force(c, ph, p, s)
@@ -400,13 +481,18 @@ def stop_bound(c, ph, p, s, v, u_last):  # type: ignore[no-untyped-def]
 
 @jit
 def clip01(m):  # type: ignore[no-untyped-def]
-    """The membership clip of ``flc_output_at``."""
+    """A membership degree clipped to [0, 1] (``np.clip`` of :func:`.fuzzy.triangle`)."""
     return 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
 
 
 @jit
 def flc(e_n, d_n):  # type: ignore[no-untyped-def]
-    """:func:`metro_atc.core.ato.fuzzy.flc_output_at` (finite inputs)."""
+    """:func:`metro_atc.core.ato.fuzzy.flc_output` for one finite (e, d) pair (Li n.d.).
+
+    The memberships of e (PB, P, Z, N, NB) and d (P, Z, N), the 15 product firing
+    strengths and the weighted average of the rule singletons (Table 1), summed in numpy's
+    pairwise order for 15 contiguous doubles (8 in pairs, then the rest one by one).
+    """
     e0 = clip01((e_n - 0.5) / 0.5)
     up, dn = (e_n - 0.0) / 0.5, (1.0 - e_n) / 0.5
     e1 = clip01(up if up <= dn else dn)

@@ -1,10 +1,11 @@
 """Loading and packing of the compiled ATO control step (:mod:`.control_kernel_step`).
 
-:class:`metro_atc.core.ato.onboard.OnboardAto` takes every step the kernel takes (no switch:
-numba is a pinned dependency; ``NUMBA_DISABLE_JIT=1`` runs the same source as Python).  The
-vectors the kernel reads are packed here from plain floats and arrays the objects hand over
-through their public methods (``AtoCore.kernel_constants`` / ``kernel_plan``,
-``OnboardAto``'s own tables).
+:class:`metro_atc.core.ato.onboard.OnboardAto` takes every control step there (no switch,
+no other path: numba is a pinned dependency; ``NUMBA_DISABLE_JIT=1`` runs the same source
+as Python).  The vectors the kernel reads are packed here from plain floats and arrays the
+objects hand over through their public methods (``AtoCore.kernel_constants`` /
+``kernel_plan``, ``AtpModel.kernel_fields`` / ``sbi_table``, ``OnboardAto``'s own
+tables).
 """
 
 from __future__ import annotations
@@ -20,11 +21,10 @@ from metro_atc.core.line.vehicle import TrainParams
 
 FloatArray = NDArray[np.float64]
 
-ATP_FIELDS = ("g_down", "sbi_offset", "c0a", "bt", "btt", "t_r", "two_b", "t_sbi", "grid_x0",
-              "grid_dx", "tol", "resp_dist", "sbi_dist", "b_g")
+ATP_FIELDS = ck.CONSTANT_FIELDS[ck.CONSTANT_FIELDS.index("g_down"):
+                                ck.CONSTANT_FIELDS.index("b_g") + 1]
 """The ATP's fields of :data:`.control_kernel.CONSTANTS`, in :func:`pack_constants`' order."""
-CORE_FIELDS = ("period", "swing", "du_max", "brake_share", "approach_jerk", "feedforward",
-               "e_scale", "d_scale", "gain", "pi", "kp", "ki", "lead", "margin", "accel_max")
+CORE_FIELDS = ck.CONSTANT_FIELDS[ck.CONSTANT_FIELDS.index("period"):]
 """The controller's fields of :data:`.control_kernel.CONSTANTS` (``AtoCore.kernel_constants``)."""
 
 
@@ -33,7 +33,7 @@ def pack_constants(train: TrainParams, atp_train: TrainParams, core: Sequence[fl
     """The constants vector (float64, read as :data:`.control_kernel.CONSTANTS` by the kernel).
 
     ``core``: (period [s], swing [s], effort rate [1/s], brake share [-], approach jerk
-    [m/s^3], feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-], PI 0/1, kp
+    [m/s^3], feedforward 0/1, fuzzy e scale [m/s], d scale [m/s], gain [-], tracker, kp
     [1/(m/s)], ki [1/m], restriction lead [m], TSR speed margin [m/s], accel limit [m/s^2]);
     ``atp``: (g_down [m/s^2], SBI offset [m/s], (b_g t_r)^2, b_g t_r, b_g t_r t_r, t_r [s],
     2 b_g, t_sbi [s], grid x0 [m], grid dx [m], ceiling tolerance [m/s], response and SBI
@@ -101,3 +101,9 @@ def control_step_fn():  # type: ignore[no-untyped-def]
         control_step.compile((arr, arr, arr, arr) + (types.float64,) * 5 + (types.int64,))
         _LOADED.append(True)
     return control_step
+
+
+def sbi_speed_to_fn():  # type: ignore[no-untyped-def]
+    """The compiled :func:`.control_kernel_step.sbi_speed_of` (constants, distance, target)."""
+    from metro_atc.core.ato.control_kernel_step import sbi_speed_of
+    return sbi_speed_of

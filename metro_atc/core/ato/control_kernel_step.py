@@ -1,8 +1,8 @@
 """The compiled per-train control step: caps, speed dip, tracker command and guard.
 
 :func:`control_step` over the vectors of :mod:`metro_atc.core.ato.control_kernel` (the
-module docstring there: what it covers, when it hands the state back, how it keeps the
-Python path's floats).  Line vector: ``[n_sbi, n_grades, n_stations, n_tsrs]``, then the
+module docstring there: what it covers, what the caller validates, how it keeps its
+floats).  Line vector: ``[n_sbi, n_grades, n_stations, n_tsrs]``, then the
 static SBI table, the grade starts [m], the grades [-], the stop points [m] and the TSRs as
 the ATO knows them (start [m], end [m], limit [m/s], known from [s], until [s] each).
 """
@@ -12,11 +12,12 @@ from __future__ import annotations
 import math
 
 from metro_atc.core.ato.control_kernel import (
-    APPROACH_MIN, AUTH_MARGIN, BERTH, CONSTANTS, FALLBACK, GUARD_GAIN, GUARD_SLACK, HOLD_BRAKE,
-    JOIN_BAND, JOIN_MIN, LOOKAHEAD, N_PH, PLAN, PREVIEW, R_ENVELOPE, R_PSS, R_STOPPED, R_TRACKING,
-    RESTART_MAX, SAFE_BRAKE, SPEED_MARGIN, STATE, STOP_GUARD, approach_bound, atp_traction,
-    bisect_right, brake_onset_bound, ceiling_e, cpow, feedforward, flc, grade_force, pmax, pmin,
-    resistance, speed_at, stop_bound, train_traction)
+    APPROACH_MIN, AUTH_MARGIN, BERTH, CONSTANTS, GUARD_GAIN, GUARD_SLACK, HOLD_BRAKE, JOIN_BAND,
+    JOIN_MIN, LOOKAHEAD, N_PH, PLAN, PREVIEW, R_ENVELOPE, R_FAULT, R_OVERSHOOT, R_PSS,
+    R_STOPPED, R_TRACKING, RESTART_MAX, SAFE_BRAKE, SPEED_MARGIN, STATE, STOP_GUARD,
+    TRACKER_FUZZY, TRACKER_PI, approach_bound, atp_traction, bisect_right, brake_onset_bound,
+    ceiling_e, cpow, feedforward, flc, grade_force, pmax, pmin, resistance, speed_at,
+    stop_bound, train_traction)
 from metro_atc.core.ato.step_kernel import jit
 from metro_atc.core.laws import braking_speed, ebi_speed_from, guaranteed_decel_on_grade
 
@@ -28,7 +29,11 @@ N_TSR = 5
 
 @jit
 def plan_decel(ph, p, x):  # type: ignore[no-untyped-def]
-    """``OnboardAto._plan_decel`` (the run's table) at chainage x [m/s^2]."""
+    """Planned braking deceleration at chainage x [m/s^2].
+
+    The lowest planned deceleration over [s - 50, s + 400] m of the run (the table packed
+    by ``OnboardAto``, 10 m grid), clamped at both ends.
+    """
     nb = int(ph.n_brake)
     bo = N_PH + 2 * int(ph.n_ref) + 2 * int(ph.n_grade) + 2 * int(ph.n_env)
     i = int((ph.direction * (x - ph.x0) + 50.0) / 10.0)
@@ -49,7 +54,12 @@ def tsr_known(ln, o, t):  # type: ignore[no-untyped-def]
 
 @jit
 def sbi_speed_to(c, dist, target):  # type: ignore[no-untyped-def]
-    """``AtpModel.sbi_speed_to``: static SBI speed [m/s] ``dist`` before a limit ``target``."""
+    """Static SBI speed [m/s] ``dist`` [m] before a point where the limit is ``target``.
+
+    The plant's static construction (:mod:`metro_atc.core.line.track`): braking envelope
+    ``E^2 = (target + tol)^2 + 2 b_g D`` evaluated past the response and SBI look-ahead
+    distances, ``v + a_w(v) t_r = E`` (one fixed-point step), less the SBI offset.
+    """
     d = pmax(dist - c.resp_dist - c.sbi_dist, 0.0)
     e = math.sqrt(cpow(target + c.tol, 2.0) + 2.0 * c.b_g * d)
     vv = e - (atp_traction(c, e) + c.g_down) * c.t_r
@@ -58,8 +68,24 @@ def sbi_speed_to(c, dist, target):  # type: ignore[no-untyped-def]
 
 
 @jit
+def sbi_speed_of(cr, dist, target):  # type: ignore[no-untyped-def]
+    """:func:`sbi_speed_to` over a constants vector (``AtpModel.sbi_speed_to``) [m/s]."""
+    return sbi_speed_to(cr.view(CONSTANTS)[0], dist, target)
+
+
+@jit
 def cap_at(c, ph, p, ln, x, v, cap, ma, c0, c2, authority, t):  # type: ignore[no-untyped-def]
-    """``OnboardAto._cap_at`` (cap: the supervision cap; t: the state's time [s]) [m/s]."""
+    """Ceiling on the desired speed at chainage x [m] from the ATP data and known TSRs [m/s].
+
+    ``cap``: the supervision cap (the ATP's EBI speed of the state less the SBI offset and
+    ``SPEED_MARGIN``; inf when unknown); the lowest static SBI speed over the distance run
+    in ``LOOKAHEAD`` less ``SPEED_MARGIN``; with ``authority``, the end of movement
+    authority ``ma``: a braking curve at the planned deceleration to a stop
+    ``AUTH_MARGIN`` short of it and the speed whose SBI distance fits in it (``c0``, ``c2``:
+    the ATP curve's terms at v); every TSR known at t [s] and not yet cleared by the rear:
+    a braking curve at the planned deceleration reaching ``limit - margin`` ``lead`` metres
+    before the zone and the zone's SBI curve.  Never below 0.
+    """
     n = int(ln[0])
     x0, dx = c.grid_x0, c.grid_dx
     k0 = int((x - x0) / dx)
@@ -98,7 +124,11 @@ def cap_at(c, ph, p, ln, x, v, cap, ma, c0, c2, authority, t):  # type: ignore[n
 
 @jit
 def net_accel(c, ph, p, x, v):  # type: ignore[no-untyped-def]
-    """``AtoCore.net_accel``: full traction's net acceleration at chainage x [m/s^2]."""
+    """Net acceleration [m/s^2] of full traction at chainage x [m] and speed v [m/s].
+
+    Traction less resistance and the grade over the train (Li n.d. Newton's law), at most
+    the planning limit ``accel_max``.
+    """
     s = ph.direction * (x - ph.x0)
     f = c.mass * train_traction(c, v) - resistance(c, v) - grade_force(c, ph, p, s)
     return pmin(pmax(f / c.meff, 0.0), c.accel_max)
@@ -107,7 +137,16 @@ def net_accel(c, ph, p, x, v):  # type: ignore[no-untyped-def]
 @jit
 def tsr_hold(c, ph, p, ln, xp, v, r, dip, x_stop, cap0, ma, c0, c2,
              t):  # type: ignore[no-untyped-def]
-    """``OnboardAto._tsr_hold`` (with ``_tsr_dip_hold``): no traction toward r [m/s]."""
+    """No traction toward r [m/s] when a known TSR's curve takes the gain back.
+
+    Accelerating from v to r and braking back to v takes ``H = (r^2 - v^2) / (2 a) +
+    v swing + (r^2 - v^2) / (2 b)`` metres at the net acceleration a of full traction
+    (:func:`net_accel`) and the planned deceleration b.  When the braking curve of a TSR
+    ahead falls below v within H of the preview position ``xp`` [m], the gain would be
+    braked away before the zone (hunting); the train holds its speed instead.  ``dip``: the
+    speed has fallen since its peak; then any TSR ahead before the next stop ``x_stop``
+    whose target is below v holds it, whatever the distance.
+    """
     if r <= v + JOIN_BAND:
         return False
     zo = tsr_offset(ln)
@@ -138,18 +177,19 @@ def tsr_hold(c, ph, p, ln, xp, v, r, dip, x_stop, cap0, ma, c0, c2,
 
 @jit
 def brake_capability(c, ln, x):  # type: ignore[no-untyped-def]
-    """The service deceleration OnboardAto's brake capability gives at x alone [m/s^2].
+    """Service deceleration [m/s^2] achievable with the front at x: the steepest downhill.
 
-    nan when the Python path would sample the grades (more than two pieces under the train).
+    Full service brake less the pull of the steepest downhill grade piece under the train
+    or within 1 m ahead (every piece from x - length to x + 1 m; resistance neglected:
+    conservative), at least 0.05 m/s^2.
     """
     ns, ng = int(ln[0]), int(ln[1])
     so = N_LH + ns
-    lo, hi = x - c.length, pmax(x, x) + 1.0
-    i0 = min(max(bisect_right(ln, so, ng, lo) - 1, 0), ng - 1)
-    i1 = min(max(bisect_right(ln, so, ng, hi) - 1, 0), ng - 1)
-    if not (math.isfinite(lo) and math.isfinite(hi) and i1 - i0 <= 1):
-        return math.nan
-    g = pmin(ln[so + ng + i0], ln[so + ng + i1])
+    i0 = min(max(bisect_right(ln, so, ng, x - c.length) - 1, 0), ng - 1)
+    i1 = min(max(bisect_right(ln, so, ng, x + 1.0) - 1, 0), ng - 1)
+    g = ln[so + ng + i0]
+    for i in range(i0 + 1, i1 + 1):
+        g = pmin(g, ln[so + ng + i])
     return pmax(guaranteed_decel_on_grade(c.brake_service, -pmin(g, 0.0)), 0.05)
 
 
@@ -160,47 +200,35 @@ def set_output(c, u, u_ff, e):  # type: ignore[no-untyped-def]
     The fuzzy controller keeps the feedback part ``u - u_ff``; the PI controller the
     integral that gives u with its last error e [m/s].
     """
-    if c.pi != 0.0:
+    if c.tracker == TRACKER_PI:
         return (u - u_ff - c.kp * e) / pmax(c.ki, 1e-12)
     return u - u_ff
 
 
 @jit
 def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyped-def]
-    """One control step: (effort u, reason code) or (nan, FALLBACK) with ``sr`` untouched.
+    """One control step: (effort u [-1, 1], reason code); ``sr`` updated.
 
-    cr: the constants (float vector of ``control_kernel.CONSTANTS``); t [s], x [m], v [m/s],
-    sup: supervision speed [m/s], ma: end of authority [m], nxt: the next station index of
-    the state; sr: the per-train state (float vector of ``control_kernel.STATE``), updated.
+    cr: the constants (float vector of ``control_kernel.CONSTANTS``); p: the plan vector;
+    ln: the line vector; t [s], x [m], v [m/s]: the state, validated by the caller (finite,
+    |t| <= 1e15 s, |x| <= 1e12 m, |v| <= 1e6 m/s, t later than the last step's); sup:
+    supervision speed [m/s] (inf: unknown), ma: end of authority [m], nxt: the next station
+    index of the state; sr: the per-train state (float vector of ``control_kernel.STATE``).
     """
     c = cr.view(CONSTANTS)[0]
     st = sr.view(STATE)[0]
     ph = p[:N_PH].view(PLAN)[0]
     period = c.period
-    if not (math.isfinite(t) and math.isfinite(x) and math.isfinite(v)):
-        return math.nan, FALLBACK
-    if abs(x) > 1e12 or abs(v) > 1e6 or abs(t) > 1e15:
-        return math.nan, FALLBACK
     has_t = st.has_t != 0.0
-    if has_t and t < st.t - 1e-9:
-        return math.nan, FALLBACK
     dt = period if not has_t else t - st.t
-    if dt <= 0.0:
-        return math.nan, FALLBACK
     length = ph.length
     s = ph.direction * (x - ph.x0)
     arrived = st.arrived != 0.0
-    if (not arrived) and s > length + 2.0:
-        return math.nan, FALLBACK
-    if not abs(s - (s - c.length)) > 1e-12:
-        return math.nan, FALLBACK
     b_ach = brake_capability(c, ln, x)
-    if b_ach != b_ach:
-        return math.nan, FALLBACK
     u_last = st.u
     last_ff = st.ff
     trk_u = st.tu
-    # ---- OnboardAto.control: caps at the preview position
+    # ---- the caps at the preview position
     xp = x + PREVIEW * v * period
     h = pmax(v * period, 0.5)
     a_w = atp_traction(c, v) + c.g_down
@@ -213,7 +241,7 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
     if cap_p - v > JOIN_BAND and v > JOIN_MIN and u_last > 0.0:
         xp += v * c.swing
         cap_p = pmin(cap_p, cap_at(c, ph, p, ln, xp, v, cap0, ma, c0, c2, True, t))
-    # _speed_dip (its state; no TSR known: no hold)
+    # the speed dip: the peak follows the speed up, and restarts on the envelope
     ns, ng = int(ln[0]), int(ln[1])
     n_st = int(ln[2])
     x_stop = ln[N_LH + ns + 2 * ng + nxt] if 0 <= nxt < n_st else math.inf
@@ -239,7 +267,8 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
     cap_h = cap_p if hold else cap_at(c, ph, p, ln, xp + h, v, cap0, ma, c0, c2, True, t)
     slope = (cap_h * cap_h - cap_p * cap_p) / (2.0 * h) \
         if math.isfinite(cap_p) and math.isfinite(cap_h) else 0.0
-    # _authority_speed
+    # the speed of the end of authority (the train ahead) from the last two states; a
+    # moving end scales the cap's slope by (1 - v_ma / v)
     v_ma = st.v_ma
     if st.has_ma == 0.0 or not (math.isfinite(ma) and math.isfinite(st.ma)):
         v_ma = 0.0
@@ -248,7 +277,7 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
     if slope < 0.0 and v_ma > 0.0 and v > 0.0 \
             and cap_p < cap_at(c, ph, p, ln, xp, v, cap0, ma, c0, c2, False, t) - 1e-9:
         slope *= pmin(pmax(1.0 - v_ma / v, 0.0), 1.0)
-    # ---- AtoCore.command_ex
+    # ---- the tracker, its feedforward and bounds, the jerk limit
     vc = pmax(v, 0.0)
     dt = pmin(dt, 5.0 * period)
     has_e = st.has_e != 0.0
@@ -258,6 +287,11 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
         u_trk = HOLD_BRAKE
         reason = R_STOPPED
         u_new_last = HOLD_BRAKE
+    elif s > length + 2.0:
+        # past the stopping point (more than the 2 m the stop tail may run over): brake
+        u_trk = SAFE_BRAKE
+        reason = R_OVERSHOOT
+        u_new_last = SAFE_BRAKE
     else:
         s_p = s + PREVIEW * vc * period
         r = speed_at(ph, p, s_p)
@@ -270,73 +304,81 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
         if capped:
             r = pmax(cap_p, 0.0)
         u_ff = feedforward(c, ph, p, s, vc, r, capped, slope) if c.feedforward != 0.0 else 0.0
-        last_ff = u_ff
         e = r - vc
-        if c.pi != 0.0:
-            # PIController.step (trk_u: the integral [m])
-            if not (math.isfinite(e) and math.isfinite(u_ff)):
-                return math.nan, FALLBACK
-            has_e, e_prev = True, e
-            i_new = trk_u + e * dt
-            raw = c.kp * e + c.ki * i_new + u_ff
-            if not ((raw > 1.0 and e > 0.0) or (raw < -1.0 and e < 0.0)):
-                trk_u = i_new
-            out = c.kp * e + c.ki * trk_u + u_ff
+        d = 0.0 if not has_e else e - e_prev
+        e_n, d_n = e / c.e_scale, d / c.d_scale
+        if not (math.isfinite(e) and math.isfinite(u_ff)
+                and (c.tracker == TRACKER_PI or (math.isfinite(e_n) and math.isfinite(d_n)))):
+            # a tracker input that is not a number: full service brake, the tracker's state
+            # kept (no NaN enters it)
+            u_trk = SAFE_BRAKE
+            reason = R_FAULT
+            u_new_last = SAFE_BRAKE
         else:
-            # FuzzyController._step_at (trk_u: the integrated effort)
-            d = 0.0 if not has_e else e - e_prev
-            e_n, d_n = e / c.e_scale, d / c.d_scale
-            if not (math.isfinite(e_n) and math.isfinite(d_n) and math.isfinite(u_ff)):
-                return math.nan, FALLBACK
+            last_ff = u_ff
             has_e, e_prev = True, e
-            uu = trk_u + c.gain * flc(e_n, d_n)
-            lo, hi = -1.0 - u_ff, 1.0 - u_ff
-            uu = uu if not uu < lo else lo
-            uu = uu if not uu > hi else hi
-            trk_u = uu
-            out = uu + u_ff
-        u = -1.0 if out < -1.0 else (1.0 if out > 1.0 else out)
-        bounded = False
-        if u > 0.0 and vc > APPROACH_MIN:
-            if not capped and r_swing != r_swing:
-                r_swing = speed_at(ph, p, s_p + vc * c.swing)
-            r_end = r if capped else pmin(pmax(r, r_swing), cap_p)
-            u_b = approach_bound(c, ph, p, s, vc, r_end)
-            if u_b < u:
-                u, bounded = u_b, True
-        if not capped and vc > JOIN_MIN and u_last > -c.brake_share:
-            u_b = brake_onset_bound(c, ph, p, s, s_p, vc, r, dt, u_last)
-            if u_b < u:
-                u, bounded = u_b, True
-        if u > 0.0 and vc < RESTART_MAX and s > 0.5 * length:
-            u_b = stop_bound(c, ph, p, s, vc, u_last)
-            if u_b < u:
-                u, bounded = u_b, True
-        if r_plan <= 0.0 and s >= length - BERTH:
-            u = pmin(u, HOLD_BRAKE)
-        q = 2.0 * ceiling_e(ph, p, pmin(pmax(s, 0.0), length))
-        ceiling = math.sqrt(q) if q >= 0.0 else math.nan
-        reason = R_TRACKING
-        if s >= ph.pss_start:
-            reason = R_PSS
-        if vc > ceiling + 1.0 and s < length:
-            u = SAFE_BRAKE
-            reason = R_ENVELOPE
-        du = c.du_max * dt
-        u_lim = pmin(pmax(u, u_last - du), u_last + du)
-        if (u_lim != u or bounded) and reason != R_ENVELOPE:
-            trk_u = set_output(c, u_lim, u_ff, e_prev)
-        u = u_lim
-        if vc <= 1e-6 and s > length - BERTH:
-            still += dt
-            if still >= 1.0:
-                arrived = True
-                u = HOLD_BRAKE
-                reason = R_STOPPED
-        else:
-            still = 0.0
-        u_trk = u
-        u_new_last = u
+            if c.tracker == TRACKER_PI:
+                # PIController: conditional integration (trk_u: the integral [m])
+                i_new = trk_u + e * dt
+                raw = c.kp * e + c.ki * i_new + u_ff
+                if not ((raw > 1.0 and e > 0.0) or (raw < -1.0 and e < 0.0)):
+                    trk_u = i_new
+                out = c.kp * e + c.ki * trk_u + u_ff
+            elif c.tracker == TRACKER_FUZZY:
+                # FuzzyController, incremental (trk_u: the integrated effort, its feedback
+                # part kept so that the total stays in [-1, 1])
+                uu = trk_u + c.gain * flc(e_n, d_n)
+                lo, hi = -1.0 - u_ff, 1.0 - u_ff
+                uu = uu if not uu < lo else lo
+                uu = uu if not uu > hi else hi
+                trk_u = uu
+                out = uu + u_ff
+            else:
+                # FuzzyController, absolute form: the effort itself (Li n.d., Sec. 2.3)
+                out = c.gain * flc(e_n, d_n) + u_ff
+                trk_u = -1.0 if out < -1.0 else (1.0 if out > 1.0 else out)
+            u = -1.0 if out < -1.0 else (1.0 if out > 1.0 else out)
+            bounded = False
+            if u > 0.0 and vc > APPROACH_MIN:
+                if not capped and r_swing != r_swing:
+                    r_swing = speed_at(ph, p, s_p + vc * c.swing)
+                r_end = r if capped else pmin(pmax(r, r_swing), cap_p)
+                u_b = approach_bound(c, ph, p, s, vc, r_end)
+                if u_b < u:
+                    u, bounded = u_b, True
+            if not capped and vc > JOIN_MIN and u_last > -c.brake_share:
+                u_b = brake_onset_bound(c, ph, p, s, s_p, vc, r, dt, u_last)
+                if u_b < u:
+                    u, bounded = u_b, True
+            if u > 0.0 and vc < RESTART_MAX and s > 0.5 * length:
+                u_b = stop_bound(c, ph, p, s, vc, u_last)
+                if u_b < u:
+                    u, bounded = u_b, True
+            if r_plan <= 0.0 and s >= length - BERTH:
+                u = pmin(u, HOLD_BRAKE)
+            q = 2.0 * ceiling_e(ph, p, pmin(pmax(s, 0.0), length))
+            ceiling = math.sqrt(q) if q >= 0.0 else math.nan
+            reason = R_TRACKING
+            if s >= ph.pss_start:
+                reason = R_PSS
+            if vc > ceiling + 1.0 and s < length:
+                u = SAFE_BRAKE
+                reason = R_ENVELOPE
+            du = c.du_max * dt
+            u_lim = pmin(pmax(u, u_last - du), u_last + du)
+            if (u_lim != u or bounded) and reason != R_ENVELOPE:
+                trk_u = set_output(c, u_lim, u_ff, e_prev)
+            u = u_lim
+            if vc <= 1e-6 and s > length - BERTH:
+                still += dt
+                if still >= 1.0:
+                    arrived = True
+                    u = HOLD_BRAKE
+                    reason = R_STOPPED
+            else:
+                still = 0.0
+            u_trk = u
+            u_new_last = u
     # ---- guard
     bound = 1.0
     bs = c.brake_service

@@ -23,7 +23,6 @@ full jerk-limited transition takes 1 s; it is enforced as a command-rate limit b
 
 from __future__ import annotations
 
-from bisect import bisect_right
 from dataclasses import dataclass
 from typing import Optional
 
@@ -31,7 +30,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from metro_atc.core.line.vehicle import G_MPS2, Track, TrainParams, grade_force
-from metro_atc.core.scalar_math import clip1, interp1
 
 FloatArray = NDArray[np.float64]
 
@@ -154,10 +152,6 @@ class RunModel:
         return np.where(np.abs(b - a) > 1e-12, mean,
                         grade_force(self.train, self.grade(a)))
 
-    # ----------------------------------------------------------------- one point
-    # Plain-float twins of run_coordinate / grade / mean_grade_force / ceiling_e for the
-    # per-step tracking of one train: the same IEEE results without numpy's 0-d overhead
-    # (graph speed; test/test_scalar_math.py).
     def _tables(self) -> tuple[list[float], list[float], list[float], list[float], list[float]]:
         tab = self.__dict__.get("_scalar_tables")
         if tab is None:
@@ -173,31 +167,6 @@ class RunModel:
         ceiling energy [m^2/s^2]).
         """
         return self._tables()
-
-    def run_coordinate_at(self, x: float) -> float:
-        """:meth:`run_coordinate` of one chainage x [m] (a float) [m]."""
-        return self.direction * (x - self.x_start_m)
-
-    def grade_at(self, s: float) -> float:
-        """:meth:`grade` at one run coordinate s [m] [-]."""
-        bp, val = self._tables()[:2]
-        i = bisect_right(bp, s) - 1
-        return val[min(max(i, 0), len(val) - 1)]
-
-    def mean_grade_force_at(self, s0: float, s1: float) -> float:
-        """:meth:`mean_grade_force` over one interval [s0, s1] [m] [N]."""
-        if not abs(s1 - s0) > 1e-12:
-            return float(self.mean_grade_force(s0, s1))  # degenerate interval: grade force
-        bp, _, cum = self._tables()[:3]
-        length = self.length_m
-        i1 = interp1(clip1(s1, 0.0, length), bp, cum)
-        i0 = interp1(clip1(s0, 0.0, length), bp, cum)
-        return (i1 - i0) / (s1 - s0)
-
-    def ceiling_e_at(self, s: float) -> float:
-        """:meth:`ceiling_e` at one run coordinate s [m] [m^2/s^2]."""
-        tab = self._tables()
-        return interp1(s, tab[3], tab[4])
 
     # ----------------------------------------------------------------- limits
     def track_limit(self, s: ArrayLike) -> FloatArray:

@@ -19,12 +19,14 @@ drives the normalised effort u in [-1, 1] (traction for u > 0, service brake for
 output is an effort *increment* per step (a fuzzy PI controller: zero error needs no
 steady-state offset while cruising against resistance); with ``incremental=False`` it is the
 effort itself, as in the crane controller of Li n.d., Sec. 2.3.  The seed gives no universe
-scales; ours are documented defaults of :class:`FuzzyParams`.  Vectorised over trains.
+scales; ours are documented defaults of :class:`FuzzyParams`.  Vectorised over trains
+(:mod:`metro_atc.core.ato.tracking`); the on-board ATO's per-train step runs the compiled
+controller (``control_kernel.flc`` and the tracker of ``control_kernel_step``) with the
+gains of :class:`FuzzyParams`.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Optional
 
@@ -92,53 +94,6 @@ def flc_output(e_n: ArrayLike, d_n: ArrayLike) -> FloatArray:
     return np.asarray(num / np.maximum(den, 1e-12), dtype=float)
 
 
-_RULES_FLAT = tuple(float(x) for x in RULE_MATRIX.ravel())
-
-
-def flc_output_at(e_n: float, d_n: float) -> float:
-    """:func:`flc_output` for one finite (e, d) pair (plain floats, the same IEEE result).
-
-    The per-train tracker runs it once per control step (graph speed): the
-    memberships (:func:`triangle` / :func:`trapezoid` of the sets of :func:`e_memberships`
-    and :func:`d_memberships`, clipped), the 15 products and the two sums (numpy's pairwise
-    order for 15 contiguous doubles: 8 in pairs, then the rest one by one) are written
-    out, every operation as numpy does it (``test/test_scalar_math.py`` against numpy).
-    """
-    # e: PB (ramp), P, Z, N (triangles: min of the two sides, clipped), NB (ramp)
-    m = (e_n - 0.5) / 0.5
-    e0 = 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
-    up, dn = (e_n - 0.0) / 0.5, (1.0 - e_n) / 0.5
-    m = up if up <= dn else dn
-    e1 = 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
-    up, dn = (e_n - -0.5) / 0.5, (0.5 - e_n) / 0.5
-    m = up if up <= dn else dn
-    e2 = 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
-    up, dn = (e_n - -1.0) / 0.5, (0.0 - e_n) / 0.5
-    m = up if up <= dn else dn
-    e3 = 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
-    m = (-0.5 - e_n) / 0.5
-    e4 = 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
-    # d: P (ramp), Z (triangle), N (ramp)
-    m = (d_n - 0.0) / 1.0
-    d0 = 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
-    up, dn = (d_n - -1.0) / 1.0, (1.0 - d_n) / 1.0
-    m = up if up <= dn else dn
-    d1 = 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
-    m = (0.0 - d_n) / 1.0
-    d2 = 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
-    w0, w1, w2, w3, w4 = d0 * e0, d0 * e1, d0 * e2, d0 * e3, d0 * e4
-    w5, w6, w7, w8, w9 = d1 * e0, d1 * e1, d1 * e2, d1 * e3, d1 * e4
-    w10, w11, w12, w13, w14 = d2 * e0, d2 * e1, d2 * e2, d2 * e3, d2 * e4
-    den = ((w0 + w1) + (w2 + w3)) + ((w4 + w5) + (w6 + w7))
-    den = den + w8 + w9 + w10 + w11 + w12 + w13 + w14
-    r = _RULES_FLAT
-    num = ((w0 * r[0] + w1 * r[1]) + (w2 * r[2] + w3 * r[3])) \
-        + ((w4 * r[4] + w5 * r[5]) + (w6 * r[6] + w7 * r[7]))
-    num = num + w8 * r[8] + w9 * r[9] + w10 * r[10] + w11 * r[11] + w12 * r[12] \
-        + w13 * r[13] + w14 * r[14]
-    return num / (den if den >= 1e-12 else 1e-12)
-
-
 @dataclass(frozen=True)
 class FuzzyParams:
     """Universe scales and output gain of the fuzzy controller.
@@ -166,38 +121,15 @@ class FuzzyController:
 
     def reset(self, u0: ArrayLike = 0.0) -> None:
         """Forget the previous error and set the effort state."""
-        # plain floats while the controller runs one train (the scalar step reads them
-        # without numpy; the vector step takes either)
-        self._e_prev: "FloatArray | float | None" = None
-        self._u: "FloatArray | float" = u0 if type(u0) is float \
-            else np.asarray(u0, dtype=float)
-
-    def scalar_state(self) -> Optional[tuple[bool, float, float]]:
-        """The state of a one-train incremental controller with plain floats, else None.
-
-        (has a previous error, previous error [m/s], effort state [-]): what the compiled
-        ATO step reads.
-        """
-        e_prev, u = self._e_prev, self._u
-        if not self.p.incremental or type(u) is not float \
-                or (e_prev is not None and type(e_prev) is not float):
-            return None
-        return e_prev is not None, (e_prev if e_prev is not None else 0.0), u
-
-    def set_scalar_state(self, has_e: bool, e_prev: float, u: float) -> None:
-        """Set the state :meth:`scalar_state` returns (after a compiled step)."""
-        self._e_prev = e_prev if has_e else None
-        self._u = u
+        self._e_prev: "FloatArray | None" = None
+        self._u: FloatArray = np.asarray(u0, dtype=float)
 
     def set_output(self, u: ArrayLike, u_ff: ArrayLike = 0.0) -> None:
         """Align the effort state with the effort u actually applied (after rate limits).
 
         ``u_ff``: the feedforward part of that effort (the state keeps the feedback part).
         """
-        if type(u) is float and type(u_ff) is float:
-            self._u = u - u_ff  # the same double as the numpy difference
-        else:
-            self._u = np.asarray(u, dtype=float) - np.asarray(u_ff, dtype=float)
+        self._u = np.asarray(u, dtype=float) - np.asarray(u_ff, dtype=float)
 
     def step(self, r_mps: ArrayLike, v_mps: ArrayLike, dt_s: float = 0.1,
              u_ff: ArrayLike = 0.0) -> FloatArray:
@@ -207,9 +139,6 @@ class FuzzyController:
         and kept for the common tracker interface; ``u_ff`` is an optional feedforward
         effort added to the absolute form / to the increments' base (0: pure Li n.d.).
         """
-        if type(r_mps) is float and type(v_mps) is float and type(u_ff) is float \
-                and self.p.incremental:
-            return np.asarray(self._step_at(r_mps, v_mps, u_ff))
         e = np.asarray(r_mps, dtype=float) - np.asarray(v_mps, dtype=float)
         d = np.zeros_like(e) if self._e_prev is None else e - self._e_prev
         self._e_prev = e
@@ -223,34 +152,3 @@ class FuzzyController:
             out = np.clip(self.p.gain * y + np.asarray(u_ff, dtype=float), -1.0, 1.0)
             self._u = out
         return np.asarray(out, dtype=float)
-
-    def step_float(self, r_mps: float, v_mps: float, dt_s: float = 0.1,
-                   u_ff: float = 0.0) -> float:
-        """``float(step(...))`` (the same double) without the 0-d array for one train."""
-        if type(r_mps) is float and type(v_mps) is float and type(u_ff) is float \
-                and self.p.incremental:
-            return self._step_at(r_mps, v_mps, u_ff)
-        return float(self.step(r_mps, v_mps, dt_s, u_ff))
-
-    def _step_at(self, r: float, v: float, ff: float) -> float:
-        """:meth:`step` (incremental form) for one train given plain floats; the same result."""
-        u_prev = self._u
-        e_prev = self._e_prev
-        if (type(u_prev) is not float and np.ndim(u_prev) != 0) \
-                or (e_prev is not None and type(e_prev) is not float and np.ndim(e_prev) != 0):
-            raise ValueError("fuzzy tracker: scalar step on a vector state")
-        e = r - v
-        d = 0.0 if e_prev is None else e - float(e_prev)
-        self._e_prev = e
-        e_n, d_n = e / self.p.e_scale_mps, d / self.p.d_scale_mps
-        if not (math.isfinite(e_n) and math.isfinite(d_n) and math.isfinite(ff)):
-            y = float(flc_output(e_n, d_n))
-        else:
-            y = flc_output_at(e_n, d_n)
-        u = float(u_prev) + self.p.gain * y
-        lo, hi = -1.0 - ff, 1.0 - ff
-        u = u if not u < lo else lo
-        u = u if not u > hi else hi
-        self._u = u
-        out = u + ff
-        return -1.0 if out < -1.0 else (1.0 if out > 1.0 else out)

@@ -3,7 +3,9 @@
 ``u = kp e + ki * integral(e dt)`` with e = r - v [m/s], output clipped to [-1, 1]
 (normalised effort, :func:`metro_atc.core.line.vehicle.effort_force`); the integrator is
 frozen while the output saturates in the direction of the error (conditional integration).
-Vectorised over trains.
+Vectorised over trains (:mod:`metro_atc.core.ato.tracking`); the on-board ATO's per-train
+step runs the compiled controller (``control_kernel_step``) with the gains of
+:class:`PIParams`.
 """
 
 from __future__ import annotations
@@ -40,20 +42,6 @@ class PIController:
         self._i = np.asarray(u0, dtype=float) / max(self.p.ki, 1e-12)
         self._e = np.zeros_like(self._i)
 
-    def scalar_state(self) -> Optional[tuple[bool, float, float]]:
-        """(True, last error [m/s], integral [m]) of a one-train controller, else None.
-
-        What the compiled ATO step reads (the fuzzy controller's interface).
-        """
-        if np.ndim(self._e) != 0 or np.ndim(self._i) != 0:
-            return None
-        return True, float(self._e), float(self._i)
-
-    def set_scalar_state(self, has_e: bool, e: float, i: float) -> None:
-        """Set the state :meth:`scalar_state` returns (after a compiled step)."""
-        self._e = np.asarray(e if has_e else 0.0, dtype=float)
-        self._i = np.asarray(i, dtype=float)
-
     def set_output(self, u: ArrayLike, u_ff: ArrayLike = 0.0) -> None:
         """Back-calculate the integrator so that the last output equals the applied u.
 
@@ -74,8 +62,3 @@ class PIController:
         self._i = np.where(sat_hi | sat_lo, self._i, i_new)
         out = self.p.kp * e + self.p.ki * self._i + np.asarray(u_ff, dtype=float)
         return np.asarray(np.clip(out, -1.0, 1.0), dtype=float)
-
-    def step_float(self, r_mps: float, v_mps: float, dt_s: float = 0.1,
-                   u_ff: float = 0.0) -> float:
-        """``float(step(...))`` for one train (the fuzzy controller's interface)."""
-        return float(self.step(r_mps, v_mps, dt_s, u_ff))

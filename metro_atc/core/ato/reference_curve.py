@@ -17,8 +17,6 @@ reference of the same interface, with the Li n.d. creep/brake tail for platform 
 
 from __future__ import annotations
 
-import math
-from bisect import bisect_right
 from dataclasses import dataclass
 from typing import Optional
 
@@ -27,7 +25,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from metro_atc.core.ato.envelope import RunModel
 from metro_atc.core.line.vehicle import max_traction_force, resistance_force
-from metro_atc.core.scalar_math import interp1, maximum1
 
 FloatArray = NDArray[np.float64]
 
@@ -83,19 +80,6 @@ def stop_tail(s: ArrayLike, length_m: float, decel: float, creep_v: float, creep
     dec = np.sqrt(creep_v * creep_v + 2.0 * decel * np.maximum(s_c - sa, 0.0))
     brk = np.sqrt(2.0 * brake_decel * np.maximum(length_m - sa, 0.0))
     return np.where(sa < s_c, dec, np.where(sa < s_b, creep_v, brk))
-
-
-def stop_tail_at(s: float, length_m: float, decel: float, creep_v: float, creep_len: float,
-                 brake_decel: float) -> float:
-    """:func:`stop_tail` at one run coordinate s [m] (plain floats, the same result) [m/s]."""
-    d_brake = creep_v * creep_v / (2.0 * brake_decel)
-    s_b = length_m - d_brake
-    s_c = s_b - creep_len
-    if s < s_c:
-        return math.sqrt(creep_v * creep_v + 2.0 * decel * maximum1(s_c - s, 0.0))
-    if s < s_b:
-        return creep_v
-    return math.sqrt(2.0 * brake_decel * maximum1(length_m - s, 0.0))
 
 
 class ReferenceCurve:
@@ -183,13 +167,13 @@ class ProfileReference:
         self._s_list: list[float] = self.s_grid.tolist()
         self._e_list: list[float] = (self.v * self.v).tolist()
         self._n = len(self._s_list)
-        # the stop tail's region bounds as stop_tail_at computes them (the same floats, once)
+        # the stop tail's region bounds for the compiled step (kernel_tables)
         d, cv, _, bb = self.tail
         s_b = self.length_m - cv * cv / (2.0 * bb)
         self._tail_at = (s_b - creep_len, s_b, cv * cv, 2.0 * d, 2.0 * bb)
 
     def kernel_tables(self) -> tuple[list[float], list[float], list[float]]:
-        """What :meth:`speed_at` reads, for the compiled ATO step (the same floats).
+        """What the compiled ATO step's ``speed_at`` reads (:meth:`speed` at one point).
 
         ([length [m], departure speed [m/s], creep start [m], brake start [m], cv^2,
         2 decel, 2 brake, creep speed [m/s]], the s grid [m], v^2 [m^2/s^2]).
@@ -197,54 +181,8 @@ class ProfileReference:
         return ([self.length_m, self.departure_speed, *self._tail_at, self.tail[1]],
                 self._s_list, self._e_list)
 
-    def speed_at(self, s: float) -> float:
-        """:meth:`speed` at one run coordinate s [m] (a float; the same IEEE result) [m/s].
-
-        The tracker asks for a few points per control step: plain floats, no 0-d arrays
-        (graph speed).
-        """
-        if not s == s:
-            return float(self.speed(np.asarray(s)))
-        # scalar_math.interp1(s, s_grid, v^2) written out (its operations, in order)
-        xp, fp, n = self._s_list, self._e_list, self._n
-        j = bisect_right(xp, s) - 1
-        if j < 0:
-            e = fp[0]
-        elif j >= n - 1:
-            e = fp[n - 1]
-        else:
-            x0 = xp[j]
-            if x0 == s:
-                e = fp[j]
-            else:
-                y0, y1 = fp[j], fp[j + 1]
-                e = (y1 - y0) / (xp[j + 1] - x0) * (s - x0) + y0
-                if e != e:
-                    e = interp1(s, xp, fp)  # its NaN fall-backs
-        plan = math.sqrt(e) if e >= 0.0 else math.nan  # np.sqrt: NaN below 0
-        # maximum1 / minimum1 / stop_tail_at written out (their operations, in order)
-        length = self.length_m
-        if s < 0.5 * length:
-            dep = self.departure_speed
-            if not (plan != plan or plan >= dep):
-                plan = dep
-        s_c, s_b, cv2, d2, b2 = self._tail_at
-        if s < s_c:
-            m = s_c - s
-            tail = math.sqrt(cv2 + d2 * (m if m != m or m >= 0.0 else 0.0))
-        elif s < s_b:
-            tail = self.tail[1]
-        else:
-            m = length - s
-            tail = math.sqrt(b2 * (m if m != m or m >= 0.0 else 0.0))
-        if s >= length:
-            return 0.0
-        return plan if plan != plan or plan <= tail else tail
-
     def speed(self, s: ArrayLike) -> FloatArray:
         """Desired speed [m/s] at s [m]."""
-        if type(s) is float:
-            return np.asarray(self.speed_at(s))
         sa = np.asarray(s, dtype=float)
         # interpolate kinetic energy v^2/2 (exact for constant-acceleration pieces; linear
         # interpolation of v would make the final approach exponential, never arriving)
