@@ -117,7 +117,8 @@ def main(argv: Optional[List[str]] = None) -> int:
             print(json.dumps(json_safe(row)), file=sys.stderr, flush=True)
         else:
             print(f"{row['day']:>18s} {row['stations']:2d} st {row['line_km']:5.1f} km "
-                  f"{row['termini']:>25s} depots {row['depots']} hw {row['peak_headway_s']:4.0f} s "
+                  f"{row['termini']:>25s} depots {row['depots']} "
+                  f"hw {row['peak_headway_s']:4.0f} s "
                   f"trips {row['trips_run']}/{row['trips_planned']} "
                   f"depot {row['trains_in_depot']}/{row['fleet']} "
                   f"viol {row['atp_violations']} sep {row['separation_violations']} "

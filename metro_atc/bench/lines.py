@@ -147,7 +147,7 @@ def run_job(job: Job, a: argparse.Namespace) -> Outcome:
 
 
 def _run_job_star(args: Tuple[Callable[[Any, argparse.Namespace], Any], Any,
-                                argparse.Namespace]) -> Any:
+                              argparse.Namespace]) -> Any:
     """``fn(job, a)`` of one (fn, job, arguments) triple (a picklable pool task)."""
     fn, job, a = args
     return fn(job, a)

@@ -165,8 +165,8 @@ def generate_day(seed: int, incidents: bool = False, n_stations: Optional[int] =
     if period_min is not None:
         mins = [float(m) for m in period_min]
     bounds = np.cumsum([START_H * 60.0] + mins) / 60.0
-    off = (float(rng.uniform(0.4, 0.6)), float(rng.uniform(0.4, 0.6)))
-    periods = [
+    off = (round(float(rng.uniform(0.4, 0.6)), 2), round(float(rng.uniform(0.4, 0.6)), 2))
+    periods: List[Dict[str, Any]] = [
         {"name": "early", "headway_s": h_off, "flow_up": off[0], "flow_down": off[1]},
         {"name": "peak", "headway_s": h, "flow_up": 1.0,
          "flow_down": round(float(rng.uniform(0.6, 1.0)), 2)},
@@ -174,8 +174,6 @@ def generate_day(seed: int, incidents: bool = False, n_stations: Optional[int] =
     for p, a, b in zip(periods, bounds[:-1], bounds[1:]):
         p.update(start_h=round(float(a), 6), end_h=round(float(b), 6), estimate=True,
                  basis="generated (metro_atc.core.service.daygen)")
-        p["flow_up"] = round(float(p["flow_up"]), 2)
-        p["flow_down"] = round(float(p["flow_down"]), 2)
     trans = min(float(rng.integers(0, 7) * 50), 60.0 * min(mins))
     # one depot: the down direction starts once the first up train has turned at B
     down_off = 0.0 if both_depots else _ceil_to(trip_time_s(line, h_off, off[0]) * 1.1
