@@ -135,7 +135,8 @@ def main(argv: Optional[List[str]] = None) -> int:
         print(json.dumps(json_safe(result)))
     else:
         print("totals: " + ", ".join(f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}"
-                                     for k, v in tot.items()))
+                                     for k, v in tot.items())
+              + f", elapsed {result['seconds']:.1f} s ({a.jobs} jobs)")
         for f in failed:
             print(f"failed: {f}")
     return 1 if failed else 0
