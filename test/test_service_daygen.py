@@ -149,3 +149,15 @@ def test_crossover_on_a_platform_is_refused() -> None:
     build_loop(_mini_with_first_gap(331.0), lays)  # clear of the platform
     # a tail track turns beyond the platform: nothing of it lies before station 2
     build_loop(_mini_with_first_gap(320.0), lays[::-1])
+
+
+def test_bench_line_days_arguments(capsys: pytest.CaptureFixture[str]) -> None:
+    """No days: totals and exit 0; bad arguments: exit 2 before anything runs."""
+    from metro_atc.bench.line_days import main
+    assert main(["--count", "0"]) == 0
+    assert "totals: days 0" in capsys.readouterr().out
+    for bad in (["--jobs", "0"], ["--count", "-1"], ["--stations", "2"],
+                ["--max-wall-s", "0"]):
+        with pytest.raises(SystemExit) as ei:
+            main(bad)
+        assert ei.value.code == 2
