@@ -161,3 +161,19 @@ def test_bench_line_days_arguments(capsys: pytest.CaptureFixture[str]) -> None:
         with pytest.raises(SystemExit) as ei:
             main(bad)
         assert ei.value.code == 2
+
+
+def test_bad_holds_and_breakdowns_are_refused() -> None:
+    """A hold of an unknown trip, at a terminus or negative; a breakdown off the day."""
+    from metro_atc.core.service.dayplant import Breakdown
+    gd = _gen(1)
+    for holds, words in (({("up999", 1): 60.0}, "no such trip"),
+                         ({("up000", 0): 60.0}, "intermediate station"),
+                         ({("up000", 1): -5.0}, "finite hold")):
+        with pytest.raises(ValueError, match=words):
+            service_day(gd.scenario, gd.plan, trip_times="plant", holds=holds)
+    for bd, words in ((Breakdown("train_99", 0.0, 60.0), "not a train"),
+                      (Breakdown("train_01", 0.0, 0.0), "duration_s"),
+                      (Breakdown("train_01", 0.0, 60.0, 1, "nowhere"), "no section")):
+        with pytest.raises(ValueError, match=words):
+            service_day(gd.scenario, gd.plan, trip_times="plant", breakdowns=[bd])

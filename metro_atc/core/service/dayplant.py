@@ -886,6 +886,11 @@ def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = 
     for (trip_id, station), d in (holds or {}).items():
         if trip_id not in owner:
             raise ValueError(f"day {plan.name}: hold of trip {trip_id!r}: no such trip")
+        if not (math.isfinite(d) and d >= 0.0) or not 0 < int(station) < len(
+                scn.line.stations) - 1:
+            raise ValueError(f"day {plan.name}: hold of trip {trip_id} at station "
+                             f"{station}: needs an intermediate station and a finite hold "
+                             f">= 0 s, got {d!r} s")
         extra[(owner[trip_id], trip_id, int(station))] = float(d)
     return DayPlant(loop, circ, termini, planner, tracker, seed, extra, breakdowns)
 
