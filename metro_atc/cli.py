@@ -26,6 +26,7 @@ BENCHES = {
     "regulation": "metro_atc.bench.regulation",
     "closed-loop": "metro_atc.bench.closed_loop",
     "lines": "metro_atc.bench.lines",
+    "line-days": "metro_atc.bench.line_days",
     "energy-regulation": "metro_atc.bench.energy_regulation",
     "mmas": "metro_atc.bench.mmas",
     "profiles": "metro_atc.bench.profiles",

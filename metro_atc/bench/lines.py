@@ -39,7 +39,7 @@ import math
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
-from typing import Any, Iterator, List, Optional, Tuple
+from typing import Any, Callable, Iterator, List, Optional, Tuple
 
 import numpy as np
 
@@ -146,19 +146,25 @@ def run_job(job: Job, a: argparse.Namespace) -> Outcome:
     return row, list(res.stop_errors_m), ""
 
 
-def _run_job_star(args: Tuple[Job, argparse.Namespace]) -> Outcome:
-    """:func:`run_job` of one (job, arguments) pair (a picklable pool task)."""
-    return run_job(*args)
+def _run_job_star(args: Tuple[Callable[[Any, argparse.Namespace], Any], Any,
+                              argparse.Namespace]) -> Any:
+    """``fn(job, a)`` of one (fn, job, arguments) triple (a picklable pool task)."""
+    fn, job, a = args
+    return fn(job, a)
 
 
-def run_jobs(jobs: List[Job], a: argparse.Namespace, n_workers: int) -> Iterator[Outcome]:
-    """Outcomes of ``jobs`` in their order, computed in ``n_workers`` processes (1: here)."""
+def run_jobs(jobs: List[Any], a: argparse.Namespace, n_workers: int,
+             fn: Callable[[Any, argparse.Namespace], Any] = run_job) -> Iterator[Any]:
+    """Outcomes ``fn(job, a)`` of ``jobs`` in their order, in ``n_workers`` processes (1: here).
+
+    ``fn`` must be a module-level function (picklable); default :func:`run_job`.
+    """
     if n_workers <= 1 or len(jobs) <= 1:
         for job in jobs:
-            yield run_job(job, a)
+            yield fn(job, a)
         return
     with ProcessPoolExecutor(max_workers=min(n_workers, len(jobs))) as ex:
-        yield from ex.map(_run_job_star, [(job, a) for job in jobs])
+        yield from ex.map(_run_job_star, [(fn, job, a) for job in jobs])
 
 
 def main(argv: Optional[List[str]] = None) -> int:

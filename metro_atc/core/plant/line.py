@@ -176,6 +176,19 @@ class LineSim:
             self.stations.set_release(train_idx, station_idx, redraw=False)
             self._t_next = min(self._t_next, float(fl.release_t[train_idx]))
 
+    def breakdown(self, train_idx: int, duration_s: float) -> None:
+        """Train ``train_idx`` breaks down now for ``duration_s`` [s] (then recovers).
+
+        As a scenario's ``breakdown`` incident (:mod:`.incidents`): it brakes to a stop and
+        stays there (or at its platform) for the duration.
+        """
+        if not 0 <= train_idx < self.n:
+            raise IndexError(f"train {train_idx} out of range")
+        if not (math.isfinite(duration_s) and duration_s > 0.0):
+            raise ValueError("breakdown duration must be finite and > 0 s")
+        self.incidents.push(self.t, "breakdown", train=int(train_idx), dur=float(duration_s))
+        self._t_next = min(self._t_next, self.t)
+
     def enter(self, train_idx: int, station_idx: int) -> None:
         """Train ``train_idx`` enters service now, standing at station ``station_idx``.
 

@@ -25,6 +25,7 @@ direction.  From a period table (:func:`load_day`, YAML) and the line's traffic 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from importlib import resources
@@ -173,14 +174,22 @@ def cycle_time_s(plan: DayPlan, n: int) -> float:
 
 
 def trips(plan: DayPlan) -> List[Trip]:
-    """Both directions' trips of the day (up from termini[0], down from termini[1])."""
+    """Both directions' trips of the day (up from termini[0], down from termini[1]).
+
+    The down direction runs the period table shifted by ``down_offset_s`` [s] (its first
+    departure, its period boundaries and its last departure), so both directions run the
+    same trips: a terminus without a depot is fed by the up trips' arrivals and its last
+    trains go back to the other terminus.
+    """
     a, b = plan.termini[0].station, plan.termini[1].station
     out: List[Trip] = []
     first = plan.periods[0].start_s
-    for direction, origin, dest, t0 in (("up", a, b, first),
-                                        ("down", b, a, first + plan.down_offset_s)):
-        for k, z in enumerate(departures(plan.periods, t0, plan.transition_s)):
-            p = plan.periods[period_index(plan.periods, float(z))]
+    for direction, origin, dest, shift in (("up", a, b, 0.0),
+                                           ("down", b, a, plan.down_offset_s)):
+        per = [dataclasses.replace(p, start_s=p.start_s + shift, end_s=p.end_s + shift)
+               for p in plan.periods] if shift else list(plan.periods)
+        for k, z in enumerate(departures(per, first + shift, plan.transition_s)):
+            p = per[period_index(per, float(z))]
             ff = p.flow_up if direction == "up" else p.flow_down
             run = trip_time_s(plan.line, p.headway_s, ff)
             out.append(Trip(f"{direction}{k:03d}", origin, dest, float(z), float(z) + run))
@@ -279,7 +288,7 @@ def _map(raw: Any, path: str, src: str, keys: Sequence[str]) -> Dict[str, Any]:
                                 f"(known: {', '.join(keys)})"))
     missing = [k for k in keys if k not in raw
                and k not in ("depot", "basis", "n_sidings", "turnback_buffer_s",
-                             "platform_m")]
+                             "platform_m", "siding_m")]
     if missing:
         raise DayError(one_line(f"day {src}: {path}: missing key {missing[0]!r}"))
     return raw
@@ -296,7 +305,8 @@ def _layout(raw: Dict[str, Any], path: str, src: str) -> Layout:
     if kind == "scissors":
         return scissors_terminus(rev, vx, platform_m=plat)
     n = _int(raw.get("n_sidings", 1), f"{path}.n_sidings", src, 1, 8)
-    return tail_track_terminus(n, rev, vx, platform_m=plat)
+    sid = _num(raw.get("siding_m", 160.0), f"{path}.siding_m", src, 20.0, 1000.0)
+    return tail_track_terminus(n, rev, vx, platform_m=plat, siding_m=sid)
 
 
 def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
@@ -316,7 +326,7 @@ def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
         path = f"termini[{i}]"
         m = _map(t, path, src, ("station", "layout", "reversal_s", "crossover_speed_kmh",
                                 "n_sidings", "min_turnback_s", "turnback_buffer_s", "depot",
-                                "depot_station", "platform_m"))
+                                "depot_station", "platform_m", "siding_m"))
         if m["station"] != ends[i]:
             raise DayError(one_line(f"day {src}: {path}.station: expected terminus "
                                     f"{ends[i]}, got {short_repr(m['station'])}"))
@@ -377,6 +387,15 @@ def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
     if trans > shortest:
         raise DayError(one_line(f"day {src}: transition_s {trans:.0f} s exceeds the shortest "
                                 f"period ({shortest:.0f} s)"))
+    for p in periods:  # a terminus cannot turn trains faster than its berths allow
+        for t in termini:
+            need = t.layout.min_headway_s(t.min_turnback_s)
+            if p.headway_s < need - 1e-9:
+                raise DayError(one_line(
+                    f"day {src}: period {p.name}: terminus {t.station} ({t.layout.name}, "
+                    f"{len(t.layout.berths)} berths) turns a train in {t.min_turnback_s:.0f} s "
+                    f"and needs a headway >= {need:.0f} s, the headway is "
+                    f"{p.headway_s:.0f} s"))
     fleet = _int(top["fleet"], "fleet", src, 1, 500)
     off = _num(top["down_offset_s"], "down_offset_s", src, 0.0, 7200.0)
     return DayPlan(_str(top["name"], "name", src), ln, tuple(periods),

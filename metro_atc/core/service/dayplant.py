@@ -80,6 +80,23 @@ class DayTerminus:
     depot: bool
 
 
+@dataclass(frozen=True)
+class Breakdown:
+    """Train ``train`` stands still for ``duration_s`` [s], then recovers (a disturbance).
+
+    It breaks down at ``at_s`` [s] wherever it is, or, with ``section``, the first time at
+    or after ``at_s`` that its front is inside that section of terminus ``terminus``'s
+    layout (0: A, 1: B; e.g. on the points of a crossover).  Plant side:
+    :meth:`metro_atc.core.plant.line.LineSim.breakdown`.
+    """
+
+    train: str
+    at_s: float
+    duration_s: float
+    terminus: int = 0
+    section: str = ""
+
+
 @dataclass
 class DayResult:
     """What a day on the plant leaves (records) and its figures (SI units)."""
@@ -162,11 +179,14 @@ class DayPlant:
 
     def __init__(self, loop: LoopLine, circ: Circulation, termini: Sequence[DayTerminus],
                  planner: str = "ectp", tracker: str = "fuzzy", seed: int = 0,
-                 extra_dwell: Optional[Mapping[Tuple[str, str, int], float]] = None) -> None:
+                 extra_dwell: Optional[Mapping[Tuple[str, str, int], float]] = None,
+                 breakdowns: Sequence[Breakdown] = ()) -> None:
         """Plants, ATOs and interlockings of the day; nothing runs yet.
 
         ``termini``: A (first station) then B; ``extra_dwell[(train, trip, station)]`` [s]:
-        a hold added to that call's departure (a disturbance of a test or study).
+        a hold added to that call's departure (a disturbance of a test or study);
+        ``breakdowns``: trains that stand still a while (:class:`Breakdown`).  ValueError
+        (one line) for a breakdown of an unknown train or section.
         """
         self.loop = loop
         self.circ = circ
@@ -212,6 +232,19 @@ class DayPlant:
                                      f"{lay.section_length_m[d]:g} m is shorter than the "
                                      f"{self.length:g} m train")
         self.min_dwell = float(self.scn.passengers.min_dwell_s)
+        names = {tr.name for tr in self.trains}
+        for bd in breakdowns:
+            if bd.train not in names:
+                raise ValueError(f"breakdown of {bd.train!r}: not a train of the day")
+            if not (math.isfinite(bd.duration_s) and bd.duration_s > 0.0
+                    and math.isfinite(bd.at_s)):
+                raise ValueError(f"breakdown of {bd.train}: at_s must be finite and "
+                                 f"duration_s finite and > 0 s")
+            if bd.section and (bd.terminus not in (0, 1) or bd.section not in
+                               loop.termini[bd.terminus].layout.section_length_m):
+                raise ValueError(f"breakdown of {bd.train}: no section {bd.section!r} at "
+                                 f"terminus {bd.terminus}")
+        self.breakdowns: List[Breakdown] = sorted(breakdowns, key=lambda b: b.at_s)
         self.t = 0.0
         self.step_no = 0
         self.stops: List[StopRecord] = []
@@ -351,6 +384,8 @@ class DayPlant:
         self._occupancy()
         self._grants()
         self._checks()
+        if self.breakdowns:
+            self._breakdowns_due()
 
     # ------------------------------------------------------------------ depot
 
@@ -709,6 +744,25 @@ class DayPlant:
                     if tr.zone < 0:
                         tr.itin.pop(T, None)
 
+    def _breakdowns_due(self) -> None:
+        """Break down the trains whose :class:`Breakdown` is due now (once each)."""
+        P = self.loop.period_m
+        for bd in list(self.breakdowns):
+            if bd.at_s > self.t + 1e-9:
+                break
+            tr = next(x for x in self.trains if x.name == bd.train)
+            if not tr.in_service:
+                continue
+            x = float(tr.sim.fleet.x[0])
+            if bd.section and not any(a <= x + d <= b for s, a, b in
+                                      self._spans_of(tr, bd.terminus) if s == bd.section
+                                      for d in (0.0, P, -P)):
+                continue
+            tr.sim.breakdown(0, bd.duration_s)
+            self.breakdowns.remove(bd)
+            self.notes.append(f"t={self.t:.2f} s: {tr.name} broke down at s={x:.0f} m for "
+                              f"{bd.duration_s:.0f} s")
+
     def _checks(self) -> None:
         for il in self.il:
             why = check_safe(il)
@@ -789,14 +843,18 @@ def plant_timed(loop: LoopLine, sv: Any, trips: Sequence[Trip], codes: Tuple[str
 
 def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = "fuzzy",
                 seed: int = 0, stable_after_s: float = 1800.0,
-                trip_times: str = "plan") -> DayPlant:
+                trip_times: str = "plan",
+                holds: Optional[Mapping[Tuple[str, int], float]] = None,
+                breakdowns: Sequence[Breakdown] = ()) -> DayPlant:
     """The plant of a day: ``scn``'s line and stock, ``plan`` a :class:`DayPlan`.
 
     The loop of the line with the plan's terminus layouts; its timetable periods are the
     plan's (boarding per direction scaled by the period's flow factors); the circulation
     is :func:`metro_atc.core.service.day.run_day`'s, with the plan's trip times
     (``trip_times="plan"``: Lin 2010a, eq. 5/10 on the ATR line data) or those the plant's
-    timetable gives (``"plant"``: :func:`plant_timed`).  DayError / LoopError in one line.
+    timetable gives (``"plant"``: :func:`plant_timed`).  ``holds[(trip id, station
+    index)]`` [s]: extra dwell of that trip's call (whichever train runs it);
+    ``breakdowns``: see :class:`DayPlant`.  DayError / LoopError in one line.
     """
     from .day import run_day, trips
     if trip_times not in ("plan", "plant"):
@@ -823,7 +881,18 @@ def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = 
     circ, _ = run_day(plan, stable_after_s, timed, "longest_wait")
     termini = [DayTerminus(t.station, t.min_turnback_s, t.depot is not None)
                for t in plan.termini]
-    return DayPlant(loop, circ, termini, planner, tracker, seed)
+    owner = {tr.trip_id: b.train for b in circ.blocks for tr in b.trips}
+    extra = {}
+    for (trip_id, station), d in (holds or {}).items():
+        if trip_id not in owner:
+            raise ValueError(f"day {plan.name}: hold of trip {trip_id!r}: no such trip")
+        if not (math.isfinite(d) and d >= 0.0) or not 0 < int(station) < len(
+                scn.line.stations) - 1:
+            raise ValueError(f"day {plan.name}: hold of trip {trip_id} at station "
+                             f"{station}: needs an intermediate station and a finite hold "
+                             f">= 0 s, got {d!r} s")
+        extra[(owner[trip_id], trip_id, int(station))] = float(d)
+    return DayPlant(loop, circ, termini, planner, tracker, seed, extra, breakdowns)
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
@@ -889,5 +958,5 @@ if __name__ == "__main__":
     raise SystemExit(main())
 
 
-__all__ = ["DayPlant", "DayResult", "DayTerminus", "HOLD_S", "PULL_OUT_LEAD_S",
+__all__ = ["Breakdown", "DayPlant", "DayResult", "DayTerminus", "HOLD_S", "PULL_OUT_LEAD_S",
            "REQUEST_LEAD_S", "day_trips", "main", "plant_timed", "service_day"]

@@ -145,6 +145,18 @@ class Layout:
         run = sum(self.route_length_m(n) / self.route(n).speed_limit_mps for n in names[:-1])
         return run + self.reversal_s
 
+    def min_headway_s(self, turnback_s: float) -> float:
+        """Shortest headway [s] at which the layout can turn trains taking ``turnback_s``.
+
+        Every train in the turnback holds a berth (the one it stands in or the one its set
+        route leads to) from its arrival to its departure, at least ``turnback_s`` [s], so
+        at most ``len(berths)`` trains turn at once: H >= turnback_s / berths (Little's
+        law).  A reversal berth holds its train for ``reversal_s`` at least: H >=
+        reversal_s / reversal berths.  A lower bound: route runs are not counted.
+        """
+        return max(turnback_s / len(self.berths),
+                   self.reversal_s / len(self.reversal_sections))
+
     def validate(self) -> None:
         """Raise InterlockingError (one line) unless the layout is consistent."""
         names = [r.name for r in self.routes]

@@ -32,7 +32,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence, Tuple
 
-from metro_atc.core.line.rolling_stock import KMH
+from metro_atc.core.line.rolling_stock import KMH, train_params_for
 from metro_atc.core.line.scenario import (CurveSpec, GradientSpec, PeriodSpec, Scenario,
                                           ScenarioError, SpeedLimitSpec, StationSpec,
                                           validate_scenario)
@@ -199,8 +199,54 @@ def build_loop(scn: Scenario, layouts: Tuple[Layout, Layout], name: str = "") ->
         if stops[k].s_m <= stops[k - 1].s_m + 10.0:
             raise LoopError(f"loop stops {stops[k - 1].name!r} and {stops[k].name!r} are "
                             f"{stops[k].s_m - stops[k - 1].s_m:.0f} m apart (need > 10 m)")
+    check_crossovers(scn, stops, term, period)
     loop_scn = _scenario(scn, stops, c0, cn, d0, length, term, name or f"{scn.name}_loop")
     return LoopLine(loop_scn, tuple(stops), period, term, tuple(up_stop), tuple(down_stop))
+
+
+def crossover_sections(lay: Layout) -> Tuple[str, ...]:
+    """Sections of ``lay`` with points or crossings: on a route, not a berth, entry or exit.
+
+    Scissors: ``x1``, ``xd``, ``x2``; tail track: ``ta``, ``td``.
+    """
+    on_routes = [s for r in lay.routes for s in r.sections]
+    skip = lay.berths | {lay.entry_section, lay.exit_section}
+    return tuple(dict.fromkeys(s for s in on_routes if s not in skip))
+
+
+def check_crossovers(scn: Scenario, stops: Sequence[LoopStop],
+                     term: Sequence[TerminusPath], period_m: float) -> None:
+    """LoopError (one line) when a terminus's crossover lies on another station's platform.
+
+    A platform is where a train stands at its stop: from the stop point back over the train
+    length [m].  Every crossover section of a terminus (:func:`crossover_sections`) as the
+    loop places it must lie clear of every platform of the other stations (a scissors in
+    front of a terminus needs an interstation longer than the crossover plus the train).
+    """
+    length = float(train_params_for(scn).length_m)
+    st = scn.line.stations
+    for tp in term:
+        xs = set(crossover_sections(tp.layout))
+        code = st[tp.station].code or st[tp.station].name
+        for sp in tp.spans.values():
+            for sec, a, b in sp.sections:
+                if sec not in xs:
+                    continue
+                for stop in stops:
+                    if stop.station < 0 or stop.station == tp.station:
+                        continue
+                    for d in (0.0, period_m, -period_m):
+                        lo, hi = stop.s_m - length + d, stop.s_m + d
+                        if not (b > lo and a < hi):
+                            continue
+                        gap = abs(st[stop.station].position_m - st[tp.station].position_m)
+                        need = gap + min(b - lo, hi - a)
+                        raise LoopError(
+                            f"terminus {code} ({tp.layout.name}): crossover section {sec} "
+                            f"({a:.0f}-{b:.0f} m on the loop) overlaps the platform of "
+                            f"{stop.name} ({lo:.0f}-{hi:.0f} m, a {length:.0f} m train); the "
+                            f"interstation {st[stop.station].code or stop.name}-{code} must be "
+                            f">= {need:.0f} m, it is {gap:.0f} m")
 
 
 def _shift(sp: RouteSpan, d: float) -> RouteSpan:
@@ -412,4 +458,4 @@ def with_periods(scn: Scenario, loop: LoopLine, periods: Sequence[Period]) -> Sc
 
 
 __all__ = ["ENTRY_M", "LoopError", "LoopLine", "LoopStop", "RouteSpan", "TerminusPath",
-           "build_loop", "with_periods"]
+           "build_loop", "check_crossovers", "crossover_sections", "with_periods"]
