@@ -30,6 +30,7 @@ from metro_atc.core import laws
 from metro_atc.core.ato import control_kernel as ck
 from metro_atc.core.ato import control_kernel_pack as pack
 from metro_atc.core.ato import control_kernel_step as cks
+from metro_atc.core.ato import tracker_laws
 from metro_atc.core.ato.controller import AtoCore
 from metro_atc.core.ato.envelope import MODE_ACCEL, MODE_COAST, RunModel
 from metro_atc.core.ato.fuzzy import RULE_MATRIX, FuzzyController, FuzzyParams
@@ -145,9 +146,9 @@ def test_fuzzy_rules_at_their_centres() -> None:
     controller's output is that rule's singleton (Li n.d., Table 1)."""
     for i, d_n in enumerate((1.0, 0.0, -1.0)):
         for j, e_n in enumerate((1.0, 0.5, 0.0, -0.5, -1.0)):
-            assert ck.flc(e_n, d_n) == RULE_MATRIX[i, j], (e_n, d_n)
+            assert tracker_laws.flc(e_n, d_n) == RULE_MATRIX[i, j], (e_n, d_n)
     # between P and Z of e (e = 0.25, d zero): half of each, 0.25
-    assert ck.flc(0.25, 0.0) == 0.25
+    assert tracker_laws.flc(0.25, 0.0) == 0.25
 
 
 def _hostile(s: dict[str, Any], kind: str, last_t: float) -> dict[str, Any]:

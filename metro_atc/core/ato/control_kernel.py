@@ -4,7 +4,8 @@
 :meth:`metro_atc.core.ato.onboard.OnboardAto.control` does after its planning: the caps at
 the preview position (supervision speed, static SBI table, end of movement authority, the
 TSRs known), the speed dip and the TSR hold, the authority speed, the tracker command (the
-incremental or the absolute fuzzy controller, or the PI controller) with its feedforward,
+incremental or the absolute fuzzy controller, or the PI controller, whose laws are
+:mod:`metro_atc.core.ato.tracker_laws`) with its feedforward,
 approach, brake-onset and stop bounds, the envelope and overshoot brakes, the jerk limit and
 the guard.  There is no other copy: ``NUMBA_DISABLE_JIT=1`` runs this same source as Python
 (debugging).  The caller validates the state first (finite, bounded time, position and
@@ -179,15 +180,6 @@ GUARD_GAIN = 0.8
 GUARD_SLACK = 0.3
 """The hard guard brakes only when the speed is this far above a cap [m/s] (below it the
 tracker follows the cap)."""
-
-
-def _rules() -> tuple[float, ...]:
-    from metro_atc.core.ato.fuzzy import RULE_MATRIX
-    return tuple(float(x) for x in RULE_MATRIX.ravel())
-
-
-RULES = _rules()
-R0, R1, R2, R3, R4, R5, R6, R7, R8, R9, R10, R11, R12, R13, R14 = RULES
 
 
 @jit
@@ -477,41 +469,3 @@ def stop_bound(c, ph, p, s, v, u_last):  # type: ignore[no-untyped-def]
         else:
             hi = mid
     return pmin(pmax((f_hold + meff * lo) / f_max, 0.0), 1.0)
-
-
-@jit
-def clip01(m):  # type: ignore[no-untyped-def]
-    """A membership degree clipped to [0, 1] (``np.clip`` of :func:`.fuzzy.triangle`)."""
-    return 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
-
-
-@jit
-def flc(e_n, d_n):  # type: ignore[no-untyped-def]
-    """:func:`metro_atc.core.ato.fuzzy.flc_output` for one finite (e, d) pair (Li n.d.).
-
-    The memberships of e (PB, P, Z, N, NB) and d (P, Z, N), the 15 product firing
-    strengths and the weighted average of the rule singletons (Table 1), summed in numpy's
-    pairwise order for 15 contiguous doubles (8 in pairs, then the rest one by one).
-    """
-    e0 = clip01((e_n - 0.5) / 0.5)
-    up, dn = (e_n - 0.0) / 0.5, (1.0 - e_n) / 0.5
-    e1 = clip01(up if up <= dn else dn)
-    up, dn = (e_n - -0.5) / 0.5, (0.5 - e_n) / 0.5
-    e2 = clip01(up if up <= dn else dn)
-    up, dn = (e_n - -1.0) / 0.5, (0.0 - e_n) / 0.5
-    e3 = clip01(up if up <= dn else dn)
-    e4 = clip01((-0.5 - e_n) / 0.5)
-    d0 = clip01((d_n - 0.0) / 1.0)
-    up, dn = (d_n - -1.0) / 1.0, (1.0 - d_n) / 1.0
-    d1 = clip01(up if up <= dn else dn)
-    d2 = clip01((0.0 - d_n) / 1.0)
-    w0, w1, w2, w3, w4 = d0 * e0, d0 * e1, d0 * e2, d0 * e3, d0 * e4
-    w5, w6, w7, w8, w9 = d1 * e0, d1 * e1, d1 * e2, d1 * e3, d1 * e4
-    w10, w11, w12, w13, w14 = d2 * e0, d2 * e1, d2 * e2, d2 * e3, d2 * e4
-    den = ((w0 + w1) + (w2 + w3)) + ((w4 + w5) + (w6 + w7))
-    den = den + w8 + w9 + w10 + w11 + w12 + w13 + w14
-    num = ((w0 * R0 + w1 * R1) + (w2 * R2 + w3 * R3)) \
-        + ((w4 * R4 + w5 * R5) + (w6 * R6 + w7 * R7))
-    num = num + w8 * R8 + w9 * R9 + w10 * R10 + w11 * R11 + w12 * R12 \
-        + w13 * R13 + w14 * R14
-    return num / (den if den >= 1e-12 else 1e-12)

@@ -16,9 +16,10 @@ from metro_atc.core.ato.control_kernel import (
     JOIN_MIN, LOOKAHEAD, N_PH, PLAN, PREVIEW, R_ENVELOPE, R_FAULT, R_OVERSHOOT, R_PSS,
     R_STOPPED, R_TRACKING, RESTART_MAX, SAFE_BRAKE, SPEED_MARGIN, STATE, STOP_GUARD,
     TRACKER_FUZZY, TRACKER_PI, approach_bound, atp_traction, bisect_right, brake_onset_bound,
-    ceiling_e, cpow, feedforward, flc, grade_force, pmax, pmin, resistance, speed_at,
+    ceiling_e, cpow, feedforward, grade_force, pmax, pmin, resistance, speed_at,
     stop_bound, train_traction)
 from metro_atc.core.ato.step_kernel import jit
+from metro_atc.core.ato.tracker_laws import fuzzy_inputs, fuzzy_law, pi_law, tracker_state
 from metro_atc.core.laws import braking_speed, ebi_speed_from, guaranteed_decel_on_grade
 
 N_LH = 4
@@ -200,9 +201,7 @@ def set_output(c, u, u_ff, e):  # type: ignore[no-untyped-def]
     The fuzzy controller keeps the feedback part ``u - u_ff``; the PI controller the
     integral that gives u with its last error e [m/s].
     """
-    if c.tracker == TRACKER_PI:
-        return (u - u_ff - c.kp * e) / pmax(c.ki, 1e-12)
-    return u - u_ff
+    return tracker_state(c.tracker == TRACKER_PI, u, u_ff, e, c.kp, c.ki)
 
 
 @jit
@@ -305,8 +304,7 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
             r = pmax(cap_p, 0.0)
         u_ff = feedforward(c, ph, p, s, vc, r, capped, slope) if c.feedforward != 0.0 else 0.0
         e = r - vc
-        d = 0.0 if not has_e else e - e_prev
-        e_n, d_n = e / c.e_scale, d / c.d_scale
+        e_n, d_n = fuzzy_inputs(e, has_e, e_prev, c.e_scale, c.d_scale)
         if not (math.isfinite(e) and math.isfinite(u_ff)
                 and (c.tracker == TRACKER_PI or (math.isfinite(e_n) and math.isfinite(d_n)))):
             # a tracker input that is not a number: full service brake, the tracker's state
@@ -317,27 +315,11 @@ def control_step(cr, p, ln, sr, t, x, v, sup, ma, nxt):  # type: ignore[no-untyp
         else:
             last_ff = u_ff
             has_e, e_prev = True, e
+            # the tracker (tracker_laws; trk_u: the PI integral [m] or the fuzzy state)
             if c.tracker == TRACKER_PI:
-                # PIController: conditional integration (trk_u: the integral [m])
-                i_new = trk_u + e * dt
-                raw = c.kp * e + c.ki * i_new + u_ff
-                if not ((raw > 1.0 and e > 0.0) or (raw < -1.0 and e < 0.0)):
-                    trk_u = i_new
-                out = c.kp * e + c.ki * trk_u + u_ff
-            elif c.tracker == TRACKER_FUZZY:
-                # FuzzyController, incremental (trk_u: the integrated effort, its feedback
-                # part kept so that the total stays in [-1, 1])
-                uu = trk_u + c.gain * flc(e_n, d_n)
-                lo, hi = -1.0 - u_ff, 1.0 - u_ff
-                uu = uu if not uu < lo else lo
-                uu = uu if not uu > hi else hi
-                trk_u = uu
-                out = uu + u_ff
+                u, trk_u = pi_law(trk_u, e, dt, u_ff, c.kp, c.ki)
             else:
-                # FuzzyController, absolute form: the effort itself (Li n.d., Sec. 2.3)
-                out = c.gain * flc(e_n, d_n) + u_ff
-                trk_u = -1.0 if out < -1.0 else (1.0 if out > 1.0 else out)
-            u = -1.0 if out < -1.0 else (1.0 if out > 1.0 else out)
+                u, trk_u = fuzzy_law(trk_u, e_n, d_n, u_ff, c.gain, c.tracker == TRACKER_FUZZY)
             bounded = False
             if u > 0.0 and vc > APPROACH_MIN:
                 if not capped and r_swing != r_swing:

@@ -19,10 +19,12 @@ drives the normalised effort u in [-1, 1] (traction for u > 0, service brake for
 output is an effort *increment* per step (a fuzzy PI controller: zero error needs no
 steady-state offset while cruising against resistance); with ``incremental=False`` it is the
 effort itself, as in the crane controller of Li n.d., Sec. 2.3.  The seed gives no universe
-scales; ours are documented defaults of :class:`FuzzyParams`.  Vectorised over trains
-(:mod:`metro_atc.core.ato.tracking`); the on-board ATO's per-train step runs the compiled
-controller (``control_kernel.flc`` and the tracker of ``control_kernel_step``) with the
-gains of :class:`FuzzyParams`.
+scales; ours are documented defaults of :class:`FuzzyParams`.  The law exists once, compiled
+(:mod:`metro_atc.core.ato.tracker_laws`: the memberships, the rules, both forms): the
+on-board ATO's per-train step (``control_kernel_step``) calls it with the gains of
+:class:`FuzzyParams`, and :class:`FuzzyController` calls it for each train of a vector
+(:mod:`metro_atc.core.ato.tracking`).  ``RULE_MATRIX`` (Table 1 as values) is
+:data:`metro_atc.core.ato.tracker_laws.RULE_MATRIX`.
 """
 
 from __future__ import annotations
@@ -33,65 +35,39 @@ from typing import Optional
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from metro_atc.core.ato.tracker_laws import (RULE_MATRIX, flat, flc_many, fuzzy_steps,
+                                             memberships, tracker_states)
+
 FloatArray = NDArray[np.float64]
-
-E_SETS = ("PB", "P", "Z", "N", "NB")
-"""Linguistic sets of e_k (Table 1 column order)."""
-D_SETS = ("P", "Z", "N")
-"""Linguistic sets of d_k (Table 1 row order)."""
-OUT_VALUE = {"PB": 1.0, "P": 0.5, "Z": 0.0, "N": -0.5, "NB": -1.0}
-"""Output singletons of the consequent sets."""
-RULES = (
-    ("PB", "PB", "P", "Z", "N"),
-    ("PB", "P", "Z", "N", "NB"),
-    ("P", "Z", "N", "NB", "NB"),
-)
-"""Seed 004 Table 1: RULES[d index][e index] -> output set."""
-RULE_MATRIX = np.array([[OUT_VALUE[o] for o in row] for row in RULES])
-"""Table 1 as output values, shape (3 d-sets, 5 e-sets)."""
-
-
-def triangle(h: ArrayLike, a: float, b: float, c: float) -> FloatArray:
-    """Triangular membership (Li n.d., eq. 1)."""
-    x = np.asarray(h, dtype=float)
-    up = (x - a) / (b - a)
-    down = (c - x) / (c - b)
-    return np.clip(np.minimum(up, down), 0.0, 1.0)
-
-
-def trapezoid(h: ArrayLike, a: float, b: float, c: float, d: float) -> FloatArray:
-    """Trapezoidal membership (Li n.d., eq. 2); infinite shoulders allowed."""
-    x = np.asarray(h, dtype=float)
-    up = np.ones_like(x) if not np.isfinite(a) else (x - a) / (b - a)
-    down = np.ones_like(x) if not np.isfinite(d) else (d - x) / (d - c)
-    return np.clip(np.minimum(up, down), 0.0, 1.0)
+__all__ = ["RULE_MATRIX", "FuzzyController", "FuzzyParams", "d_memberships",
+           "e_memberships", "flc_output"]
 
 
 def e_memberships(e_n: ArrayLike) -> FloatArray:
-    """Membership degrees of normalised e in (PB, P, Z, N, NB); shape (..., 5)."""
-    x = np.asarray(e_n, dtype=float)
-    inf = np.inf
-    return np.stack([trapezoid(x, 0.5, 1.0, inf, inf), triangle(x, 0.0, 0.5, 1.0),
-                     triangle(x, -0.5, 0.0, 0.5), triangle(x, -1.0, -0.5, 0.0),
-                     trapezoid(x, -inf, -inf, -1.0, -0.5)], axis=-1)
+    """Membership degrees of normalised e in (PB, P, Z, N, NB); shape (..., 5).
+
+    The compiled :func:`metro_atc.core.ato.tracker_laws.e_sets` of each element.
+    """
+    return memberships(e_n, True)
 
 
 def d_memberships(d_n: ArrayLike) -> FloatArray:
-    """Membership degrees of normalised d in (P, Z, N); shape (..., 3)."""
-    x = np.asarray(d_n, dtype=float)
-    inf = np.inf
-    return np.stack([trapezoid(x, 0.0, 1.0, inf, inf), triangle(x, -1.0, 0.0, 1.0),
-                     trapezoid(x, -inf, -inf, -1.0, 0.0)], axis=-1)
+    """Membership degrees of normalised d in (P, Z, N); shape (..., 3).
+
+    The compiled :func:`metro_atc.core.ato.tracker_laws.d_sets` of each element.
+    """
+    return memberships(d_n, False)
 
 
 def flc_output(e_n: ArrayLike, d_n: ArrayLike) -> FloatArray:
-    """Crisp output in [-1, 1] of the 15-rule controller for normalised inputs."""
-    me = e_memberships(e_n)
-    md = d_memberships(d_n)
-    w = md[..., :, None] * me[..., None, :]
-    num = np.sum(w * RULE_MATRIX, axis=(-2, -1))
-    den = np.sum(w, axis=(-2, -1))
-    return np.asarray(num / np.maximum(den, 1e-12), dtype=float)
+    """Crisp output in [-1, 1] of the 15-rule controller for normalised inputs.
+
+    The compiled :func:`metro_atc.core.ato.tracker_laws.flc` of each (e, d) pair.
+    """
+    shape, (e, d) = flat(e_n, d_n)
+    out = np.zeros(e.size)
+    flc_many(e, d, out)
+    return out.reshape(shape)
 
 
 @dataclass(frozen=True)
@@ -127,28 +103,29 @@ class FuzzyController:
     def set_output(self, u: ArrayLike, u_ff: ArrayLike = 0.0) -> None:
         """Align the effort state with the effort u actually applied (after rate limits).
 
-        ``u_ff``: the feedforward part of that effort (the state keeps the feedback part).
+        ``u_ff``: the feedforward part of that effort (the state keeps the feedback part;
+        :func:`metro_atc.core.ato.tracker_laws.tracker_state`).
         """
-        self._u = np.asarray(u, dtype=float) - np.asarray(u_ff, dtype=float)
+        shape, (uf, ff) = flat(u, u_ff)
+        out = np.zeros(uf.size)
+        tracker_states(False, uf, ff, ff, 0.0, 0.0, out)
+        self._u = out.reshape(shape)
 
     def step(self, r_mps: ArrayLike, v_mps: ArrayLike, dt_s: float = 0.1,
              u_ff: ArrayLike = 0.0) -> FloatArray:
         """Return the normalised effort u in [-1, 1] for desired r and actual v [m/s].
 
-        ``dt_s`` is unused by the fuzzy law (d_k is a per-step difference, Li n.d., eq. 3)
-        and kept for the common tracker interface; ``u_ff`` is an optional feedforward
-        effort added to the absolute form / to the increments' base (0: pure Li n.d.).
+        :func:`metro_atc.core.ato.tracker_laws.fuzzy_law` per train.  ``dt_s`` is unused
+        by the fuzzy law (d_k is a per-step difference, Li n.d., eq. 3) and kept for the
+        common tracker interface; ``u_ff`` is an optional feedforward effort added to the
+        absolute form / to the increments' base (0: pure Li n.d.).
         """
-        e = np.asarray(r_mps, dtype=float) - np.asarray(v_mps, dtype=float)
-        d = np.zeros_like(e) if self._e_prev is None else e - self._e_prev
-        self._e_prev = e
-        y = flc_output(e / self.p.e_scale_mps, d / self.p.d_scale_mps)
-        if self.p.incremental:
-            ff = np.asarray(u_ff, dtype=float)
-            # anti-windup: the state (feedback part) keeps the total effort in [-1, 1]
-            self._u = np.clip(self._u + self.p.gain * y, -1.0 - ff, 1.0 - ff)
-            out = np.clip(self._u + ff, -1.0, 1.0)
-        else:
-            out = np.clip(self.p.gain * y + np.asarray(u_ff, dtype=float), -1.0, 1.0)
-            self._u = out
-        return np.asarray(out, dtype=float)
+        has_e = self._e_prev is not None
+        e_prev = self._e_prev if self._e_prev is not None else 0.0
+        shape, (r, v, ff, tu, ep) = flat(r_mps, v_mps, u_ff, self._u, e_prev)
+        u = np.zeros(r.size)
+        p = self.p
+        e_scale, d_scale, gain = np.array([p.e_scale_mps, p.d_scale_mps, p.gain], dtype=float)
+        fuzzy_steps(r, v, ff, tu, ep, has_e, e_scale, d_scale, gain, bool(p.incremental), u)
+        self._u, self._e_prev = tu.reshape(shape), ep.reshape(shape)
+        return u.reshape(shape)
