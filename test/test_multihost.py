@@ -43,6 +43,10 @@ if WHY is not None:
     pytest.skip(f"multi-host test skipped: {WHY}", allow_module_level=True)
 
 SCENARIO = "mini"
+TWO_SIMS_SCENARIO = "taipei_blue"
+"""Two graphs on one domain: a run long enough (3 600 simulated s, ~15 s of wall time on a
+quiet machine) for the second graph to start while the first steps (its arguments come
+after :func:`_start`'s: argparse takes the last)."""
 SHARES = ("simulator,ats", "ato:1/2,brake", "ato:2/2")
 """``--only`` of hosts 1, 2, 3."""
 RUN_TIMEOUT_S = 300.0
@@ -268,17 +272,21 @@ def bad_runs(installed: Path, tmp_path_factory: pytest.TempPathFactory
         (tmp / "noroute.txt").write_text(f"{lab.address(1)}\n192.0.2.1\n")
         (tmp / "notmine.txt").write_text(f"{lab.address(2)}\n{lab.address(3)}\n")
         t = ["--peer-timeout", str(PEER_TIMEOUT_S), "--step-timeout", str(PEER_TIMEOUT_S)]
+        two_sims = ["--dds-hosts", str(peers13), "--peer-timeout", "30", "--step-timeout",
+                    "30", "--scenario", TWO_SIMS_SCENARIO, "--duration", "3600",
+                    "--ato-per-process", "15"]
         starts = {
             "no_ato_host": _start(lab, 1, doms[0], tmp / "a1", "--only", "simulator,ats,brake",
                                   "--dds-hosts", str(peers12), *t),
             "no_sim_host": _start(lab, 2, doms[1], tmp / "b2", "--only", "ato",
                                   "--dds-hosts", str(peers12), *t),
             # the duplicate is found at discovery; 30 s so that a loaded machine's slow
-            # start-up is not taken for absent ATOs first (exit 7 instead of the refusal)
-            "two_sims_1": _start(lab, 1, doms[2], tmp / "c1", "--dds-hosts", str(peers13),
-                                 "--peer-timeout", "30", "--step-timeout", "30"),
-            "two_sims_3": _start(lab, 3, doms[2], tmp / "c3", "--dds-hosts", str(peers13),
-                                 "--peer-timeout", "30", "--step-timeout", "30"),
+            # start-up is not taken for absent ATOs first (exit 7 instead of the refusal).
+            # The second graph starts once the first is stepping, and the first runs long
+            # enough to be on the domain with it: two mini runs of ~5 s each, started
+            # together, once ran one after the other on a loaded machine (both exit 0,
+            # rightly: they never shared the domain)
+            "two_sims_1": _start(lab, 1, doms[2], tmp / "c1", *two_sims),
         }
         # the simulator killed mid-run, not restarted (its host's run fails): the ATO host
         # gives up once it is gone
@@ -295,7 +303,13 @@ def bad_runs(installed: Path, tmp_path_factory: pytest.TempPathFactory
         ends: dict[str, float] = {}
         sim_log = tmp / "d2" / "logs" / "line_simulator.log"
         killed_at = math.nan
-        while len(ends) < len(starts) and time.monotonic() - t0 < RUN_TIMEOUT_S:
+        c1_log = tmp / "c1" / "logs" / "line_simulator.log"
+        while (len(ends) < len(starts) or "two_sims_3" not in starts) \
+                and time.monotonic() - t0 < RUN_TIMEOUT_S:
+            if "two_sims_3" not in starts and (
+                    "two_sims_1" in ends or (c1_log.is_file() and "graph ready" in
+                                             c1_log.read_text(errors="replace"))):
+                starts["two_sims_3"] = _start(lab, 3, doms[2], tmp / "c3", *two_sims)
             if math.isnan(killed_at) and sim_log.is_file() and \
                     "graph ready" in sim_log.read_text(errors="replace"):
                 pids = json.loads((tmp / "d2" / "logs" / "pids.json").read_text())
