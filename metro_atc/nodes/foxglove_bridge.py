@@ -225,6 +225,9 @@ class FoxgloveBridge(Node):
         if to_view and name == line_view.TRAINS_TOPIC:
             now = time.monotonic() if now is None else now
             to_view = now >= self.next_view
+            if to_view:
+                self.next_view = now + self.view_period_s
+                self.count["trains_viewed"] += 1
         if not (to_ros or to_view):
             return
         out = self.derive(topic, data)
@@ -233,10 +236,6 @@ class FoxgloveBridge(Node):
             return
         self.count[name] += 1
         if to_view:
-            if name == line_view.TRAINS_TOPIC:
-                assert now is not None
-                self.next_view = now + self.view_period_s
-                self.count["trains_viewed"] += 1
             view.log(out)
         if to_ros:
             pub.publish(out)
