@@ -126,7 +126,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--foxglove", nargs="?", type=int, const=8765, default=None,
                    metavar="PORT",
                    help="serve the topics to Foxglove / Lichtblick over WebSocket on PORT "
-                        "(default 8765), on 127.0.0.1 only (see --foxglove-host)")
+                        "(default 8765), on 127.0.0.1 only (see --foxglove-host); "
+                        "/line/trains at a viewer's rate, not every step (docs/live_view.md)")
     p.add_argument("--foxglove-host", default="127.0.0.1", metavar="HOST",
                    help="address the --foxglove server binds (default 127.0.0.1; another "
                         "address exposes the live view to that network)")
@@ -515,6 +516,10 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
         return Exit.REFUSED
     from metro_atc.show import stock_line
     print(f"metro_atc run: {stock_line(scn)}", file=sys.stderr, flush=True)
+    if a.foxglove is not None:
+        from metro_atc.nodes.wire.line_view import live_view_line
+        print(f"metro_atc run: {live_view_line(a.foxglove_host, a.foxglove)}",
+              file=sys.stderr, flush=True)
     t0 = time.monotonic()
     memory: dict[str, float | None] = {}
     cpu: dict[str, float | None] = {}

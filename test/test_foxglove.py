@@ -135,6 +135,15 @@ def test_event_log_line() -> None:
         LOG_WARN, "train_02 departs from Alpha at 175.0 s (+75.0 s vs timetable), dwell 30.0 s")
 
 
+def test_live_view_line_states_the_view_rate() -> None:
+    """The run's line about its live view names the address and the view period."""
+    from metro_atc.nodes.wire.line_view import live_view_line
+
+    line = live_view_line("127.0.0.1", 8765, 0.25)
+    assert line.startswith("live view on ws://127.0.0.1:8765;")
+    assert "/line/trains goes to viewers at most once per 0.25 s of wall time" in line
+
+
 def test_schema_text_is_the_msg_text_with_nested_types() -> None:
     """The ros2msg schema of TrainState: its .msg definitions, then Header's and Time's."""
     from metro_atc.bag import TypeDefs
@@ -264,6 +273,113 @@ def test_bridge_binds_loopback_unless_told(ros_domain: int, host: str | None,
         node.destroy_node()
         rclpy.shutdown(context=ctx)
     assert _listening(port) == set()
+
+
+def _fleet_msg(k: int, ids: list[str]) -> bytes:
+    """A FleetState of step ``k`` (t = 0.25 k s): train i at chainage 100 k + i [m]."""
+    from metro_atc.nodes.wire import cdr, fleet_state
+
+    n = len(ids)
+    arrays: list[list[Any]] = []
+    for f in fleet_state.ARRAYS:
+        if f.name == "position_m":
+            arrays.append([100.0 * k + i for i in range(n)])
+        elif f.boolean:
+            arrays.append([True] * n)
+        else:
+            arrays.append([0] * n)
+    return fleet_state.encode(0.25 * k, k, cdr.string_seq(ids), arrays)
+
+
+def _viewed_trains(path: Path) -> list[float]:
+    """The header stamps [s] of the /line/trains messages a bridge wrote to an MCAP sink."""
+    from mcap.reader import make_reader
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import JointState
+
+    out = []
+    with path.open("rb") as f:
+        for _, channel, message in make_reader(f).iter_messages():
+            assert channel.topic == "/line/trains"
+            m = deserialize_message(message.data, JointState)
+            out.append(m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec)
+    return out
+
+
+def test_trains_go_to_viewers_once_per_view_period(ros_domain: int, tmp_path: Path) -> None:
+    """A viewer of /line/trains gets one message per view period of wall time (the first
+    fleet state read once the period has passed); while only viewers want it, the fleet
+    state is read as its latest message once per period (depth 1: the older ones are
+    dropped); a ROS reader of /line/trains (a recorder) makes the bridge read every one."""
+    import foxglove
+    import rclpy
+    from metro_atc_msgs.msg import FleetState
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from rclpy.qos import ReliabilityPolicy
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import JointState
+
+    from metro_atc.nodes.common import QOS_RELIABLE
+    from metro_atc.nodes.foxglove_bridge import FLEET_TOPIC, FoxgloveBridge, take_latest
+
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=ros_domain)
+    node = FoxgloveBridge(context=ctx, parameter_overrides=[
+        Parameter("scenario", value="mini"), Parameter("port", value=_free_port()),
+        Parameter("view_period_s", value=0.1)])
+    other = Node("fleet_source", context=ctx)
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(other)
+    ids = ["train_01", "train_02"]
+    try:
+        assert node.wanted() == {}  # no viewer: nothing read
+        sink = tmp_path / "view.mcap"
+        writer = foxglove.open_mcap(sink, context=node.fg,
+                                    channel_filter=lambda ch: ch.topic == "/line/trains")
+        # only a viewer of /line/trains: the fleet state's latest, once per period
+        assert node.wanted() == {FLEET_TOPIC: False}
+        for k, now in enumerate([10.0, 10.03, 10.06, 10.1, 10.12, 10.25, 10.3]):
+            node.forward(FLEET_TOPIC, _fleet_msg(k, ids), now)
+        node.update_subscriptions()
+        assert node.sampled == {FLEET_TOPIC} and set(node.subs) == {FLEET_TOPIC}
+        qos = node.subs[FLEET_TOPIC].qos_profile
+        assert (qos.depth, qos.reliability) == (1, ReliabilityPolicy.BEST_EFFORT)
+        pub = other.create_publisher(FleetState, FLEET_TOPIC, QOS_RELIABLE)
+        got: list[Any] = []
+        seen = other.create_subscription(FleetState, FLEET_TOPIC, got.append, QOS_RELIABLE)
+        deadline = time.monotonic() + 10.0
+        while pub.get_subscription_count() < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert pub.get_subscription_count() == 2
+        for k in range(10, 20):
+            pub.publish(FleetState(step=k))
+        while len(got) < 10 and time.monotonic() < deadline:  # all delivered here
+            executor.spin_once(timeout_sec=0.05)
+        time.sleep(0.2)
+        raw = take_latest(node.subs[FLEET_TOPIC])
+        assert raw is not None and take_latest(node.subs[FLEET_TOPIC]) is None
+        assert deserialize_message(raw, FleetState).step == 19  # the latest only
+        other.destroy_subscription(seen)
+        # a ROS reader of /line/trains: every fleet state read, each published on ROS
+        reader = other.create_subscription(JointState, "/line/trains", lambda m: None,
+                                           QOS_RELIABLE)
+        while node.trains_pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert node.wanted() == {FLEET_TOPIC: True}
+        node.update_subscriptions()
+        assert node.sampled == set() and set(node.subs) == {FLEET_TOPIC}
+        other.destroy_subscription(reader)
+        writer.close()
+    finally:
+        executor.shutdown()
+        other.destroy_node()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    # 10.0, then 10.1 (>= 10.0 + 0.1), then 10.25 (10.12 < 10.2): steps 0, 3 and 5
+    assert _viewed_trains(sink) == [0.0, 0.75, 1.25]
 
 
 # ------------------------------------------------------------------ Foxglove's readers

@@ -1,6 +1,7 @@
 """The live view's two derived messages (``run --foxglove``): their one codec.
 
-* ``/line/trains`` (``sensor_msgs/JointState``, every lockstep step the bridge reads): one
+* ``/line/trains`` (``sensor_msgs/JointState``, a lockstep step the bridge reads; to viewers
+  at most one per :data:`VIEW_PERIOD_S` of wall time, on ROS every one read): one
   entry per train of the scenario, always in timetable order (:func:`train_order`), so that
   a plot panel's path ``/line/trains.position[k]`` is train k for the whole run: ``name``
   the train ids, ``position`` the chainage of the train front [m], ``velocity`` the speed
@@ -37,6 +38,9 @@ LAYOUT_TOPIC = "/line/layout"
 """The line (``metro_atc_msgs/LineLayout``), latched."""
 EVENT_LOG_TOPIC = "/line/event_log"
 """The arrivals and departures as log lines (``rcl_interfaces/Log``)."""
+VIEW_PERIOD_S = 0.1
+"""Default wall period of ``/line/trains`` to viewers [s] (10 Hz; the bridge's
+``view_period_s``): the lockstep steps far faster than a viewer draws."""
 LATE_WARN_S = 60.0
 """An event this late or later than its timetable time is logged as a warning [s]."""
 LOG_INFO, LOG_WARN = 20, 30
@@ -86,6 +90,13 @@ class TrainsBuilder:
                     out[k] = float(v)
             w.array(out, f.dtype)
         return w.bytes()
+
+
+def live_view_line(host: str, port: int, view_period_s: float = VIEW_PERIOD_S) -> str:
+    """The run's line about its live view: the address, and what a viewer gets less often."""
+    return (f"live view on ws://{host}:{port}; /line/trains goes to viewers at most once per "
+            f"{view_period_s:g} s of wall time (the latest step; every step is in "
+            "/line/fleet_state)")
 
 
 def layout_values(scenario: Any, t_s: float = 0.0) -> dict[str, Any]:
