@@ -84,6 +84,9 @@ class Stations:
         self.skip = np.zeros((n, n_st), dtype=bool)
         """Stops a dispatcher has each train run through (train, station)."""
         self.delay_draw = np.zeros(n)
+        self.train_rng: list[np.random.Generator] | None = None
+        """One stream per train for its disturbances (None: ``rng`` for all trains;
+        :meth:`metro_atc.core.plant.line.LineSim.train_streams`)."""
         self.events: list[TrainEvent] = []
         self.events_out: list[TrainEvent] = []
         self.wrap_m = 0.0
@@ -220,8 +223,9 @@ class Stations:
         if redraw:
             dis = self.scn.disturbances
             delay = 0.0
-            if not last and self.rng.random() < dis.departure_delay_prob:
-                delay = float(self.rng.exponential(dis.departure_delay_mean_s))
+            rng = self.rng if self.train_rng is None else self.train_rng[i]
+            if not last and rng.random() < dis.departure_delay_prob:
+                delay = float(rng.exponential(dis.departure_delay_mean_s))
             self.delay_draw[i] = delay
         cand += float(self.delay_draw[i]) + float(self.extra_hold[i, j])
         cand = max(cand, float(fl.broken_until[i]))
@@ -266,7 +270,8 @@ class Stations:
             fl.next_stop[i] = k
             fl.stop_x[i] = g.station_positions_m[k]
             sig = self.scn.disturbances.running_time_noise
-            fl.trac_level[i] = 1.0 - abs(float(self.rng.normal(0.0, sig))) if sig > 0 else 1.0
+            rng = self.rng if self.train_rng is None else self.train_rng[i]
+            fl.trac_level[i] = 1.0 - abs(float(rng.normal(0.0, sig))) if sig > 0 else 1.0
 
     def station_logic(self, t: float, hit: BoolArray, d: FloatArray) -> None:
         """Arrivals (standstill within tolerance of the stop point) and overruns."""
