@@ -88,6 +88,9 @@ class Stations:
         """One stream per train for its disturbances (None: ``rng`` for all trains;
         :meth:`metro_atc.core.plant.line.LineSim.train_streams`)."""
         self.events: list[TrainEvent] = []
+        self.keep_log = True
+        """Keep every event in :attr:`events` (False: only the step's ``events_out``; a
+        caller that records what it needs itself, e.g. a service day)."""
         self.events_out: list[TrainEvent] = []
         self.wrap_m = 0.0
         """Period of a loop line [m] (0: one-way): a train arriving at the last stop stands
@@ -119,7 +122,8 @@ class Stations:
         sched = self.sv.sched_arr[i, j] if kind == "arrival" else self.sv.sched_dep[i, j]
         ev = TrainEvent(i, j, kind, t, int(round(boarded)), int(round(alighted)), dwell,
                         t - sched, float(sched), float(stop_error_m))
-        self.events.append(ev)
+        if self.keep_log:
+            self.events.append(ev)
         self.events_out.append(ev)
 
     def try_entry(self, t: float, fixed_block: bool, margin: float) -> bool:
