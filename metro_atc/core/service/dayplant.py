@@ -736,10 +736,12 @@ class DayPlant:
 
     def _occupancy(self) -> None:
         P = self.loop.period_m
+        fl = self.sim.fleet
+        # the trains with an itinerary or a set route at a terminus (few: those near one)
+        near = [tr for tr in self.trains if tr.itin or tr.route]
         for T, il in enumerate(self.il):
             occ: Dict[str, int] = {}
-            fl = self.sim.fleet
-            for tr in self.trains:
+            for tr in near:
                 if not tr.in_service or not tr.itin.get(T):
                     continue
                 i = tr.i
@@ -769,7 +771,7 @@ class DayPlant:
             for s in sorted(il.occupied - now):
                 il.clear(s)
             # a train whose departure route is released has left the terminus
-            for tr in self.trains:
+            for tr in near:
                 rn = tr.route.get(T)
                 if rn is not None and rn not in il.set_routes:
                     del tr.route[T]
