@@ -48,6 +48,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import operator
+import os
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
@@ -76,6 +77,16 @@ REQUEST_LEAD_S = 30.0
 HOLD_S = 1.0e9
 """Departure command of a train held at a berth until its next route is set [s]."""
 _slot = operator.attrgetter("train_idx")
+
+
+class _Dropped(list):  # type: ignore[type-arg]
+    """A record list that keeps nothing; ``count`` records were appended."""
+
+    count_appended = 0
+
+    def append(self, item: Any) -> None:
+        """Count ``item`` and drop it."""
+        self.count_appended += 1
 
 
 @dataclass(frozen=True)
@@ -111,9 +122,32 @@ class DayResult:
     notes: List[str] = field(default_factory=list)
     sensor_samples: int = 0
     """Brake sensor samples read (train x instant; :meth:`DayPlant.run` with ``sensors``)."""
-    wall_split_s: Dict[str, float] = field(default_factory=dict)
-    """Wall time [s] of the plant step (with the sensor samples read), the ATOs (fleet
-    state and control) and the rest (interlocking, authorities, bookkeeping)."""
+    cpu_split_s: Dict[str, float] = field(default_factory=dict)
+    """CPU time of this process [s] in the plant step (with the sensor samples read), the
+    ATOs (fleet state and control) and the rest (interlocking, authorities, bookkeeping):
+    the figures to compare on a shared machine."""
+    cpu_s: float = 0.0
+    """CPU time of this process over the run [s]."""
+    start_s: float = 0.0
+    """Time the day's clock started at (just before the first pull-out) [s]."""
+    train_steps: int = 0
+    """Sum over the steps of the trains in service (the ATO calls' upper bound)."""
+
+    def speed(self) -> Dict[str, float]:
+        """Real-time factors of the run: simulated span over wall / CPU time, loop and plant.
+
+        ``rtf``: (``sim_time_s`` - ``start_s``) / ``wall_s``; ``rtf_cpu``: the same span over
+        the CPU time; ``plant_rtf_cpu``: over the plant step's CPU time alone (the ROS-free
+        core, with the sensor samples when they were read); ``cpu_us_per_train_step``: CPU
+        time per train in service and step [us].
+        """
+        span = self.sim_time_s - self.start_s
+        cs = self.cpu_split_s
+        return {"sim_span_s": span, "rtf": span / max(self.wall_s, 1e-9),
+                "rtf_cpu": span / max(self.cpu_s, 1e-9),
+                "plant_rtf_cpu": span / max(cs.get("plant", 0.0), 1e-9),
+                "cpu_us_per_train_step": 1e6 * self.cpu_s / max(self.train_steps, 1),
+                **{f"cpu_{k}_s": v for k, v in cs.items()}}
 
     def row(self) -> Dict[str, Any]:
         """JSON-friendly summary."""
@@ -173,11 +207,14 @@ class DayPlant:
 
     def __init__(self, loop: LoopLine, circ: Circulation, termini: Sequence[DayTerminus],
                  planner: str = "ectp", tracker: str = "fuzzy", seed: int = 0,
-                 extra_dwell: Optional[Mapping[Tuple[str, str, int], float]] = None) -> None:
-        """Plants, ATOs and interlockings of the day; nothing runs yet.
+                 extra_dwell: Optional[Mapping[Tuple[str, str, int], float]] = None,
+                 records: bool = True) -> None:
+        """Plant, ATOs and interlockings of the day; nothing runs yet.
 
         ``termini``: A (first station) then B; ``extra_dwell[(train, trip, station)]`` [s]:
-        a hold added to that call's departure (a disturbance of a test or study).
+        a hold added to that call's departure (a disturbance of a test or study);
+        ``records`` False: the stop, turnback and depot records are counted, not kept (a
+        run for its figures and its speed: memory that does not grow with the day).
         """
         self.loop = loop
         self.circ = circ
@@ -229,10 +266,12 @@ class DayPlant:
                                      f"{self.length:g} m train")
         self.min_dwell = float(self.scn.passengers.min_dwell_s)
         self.t = 0.0
+        self.t_start = 0.0
+        """The day's clock at its first step [s] (just before the first pull-out)."""
         self.step_no = 0
-        self.stops: List[StopRecord] = []
-        self.turnbacks: List[TurnbackRecord] = []
-        self.depot: List[DepotRecord] = []
+        self.stops: List[StopRecord] = [] if records else _Dropped()
+        self.turnbacks: List[TurnbackRecord] = [] if records else _Dropped()
+        self.depot: List[DepotRecord] = [] if records else _Dropped()
         self.route_conflicts = 0
         self.sep_violations = 0
         self._in_sep = np.zeros(nt, dtype=bool)
@@ -265,7 +304,10 @@ class DayPlant:
         self._entry_next = np.append(self._entry_sorted, self._entry[0] + loop.period_m)
         self._u = np.full(nt, math.nan)
         self.sensor_samples = 0
-        self.wall_split = {"plant": 0.0, "ato": 0.0, "rest": 0.0}
+        self.train_steps = 0
+        self.wall_total = 0.0
+        self.cpu_total = 0.0
+        self.cpu_split = {"plant": 0.0, "ato": 0.0, "rest": 0.0}
 
     # ------------------------------------------------------------------ helpers
 
@@ -316,23 +358,28 @@ class DayPlant:
             sensors: bool = False) -> DayResult:
         """Run the day to its last pull-in (or ``end_s`` [s], or ``max_wall_s`` of wall time).
 
+        A second call runs on from where the first stopped (its result covers the whole
+        run so far, wall time included).
         ``progress(self)`` is called once per simulated hour; ``sensors``: read the brake
         sensor samples of every step (noise and faults generated, counted in
         ``sensor_samples``; nothing of the day uses them).
         """
         w0 = time.perf_counter()
+        c0 = time.process_time()
         all_trips = [tr for b in self.circ.blocks for tr in b.trips]
         first = min(b.trips[0].departure_s for b in self.circ.blocks) - PULL_OUT_LEAD_S
         last = max(tr.arrival_s for tr in all_trips)
         stop_at = last + 3600.0 if end_s is None else float(end_s)
-        # the plant starts at 0: jump its clock to the first pull-out (nothing runs)
-        t0 = max(0.0, math.floor(first) - 1.0)
         sim = self.sim
-        sim.t = t0
-        sim.sensors.next_sample_t = t0
-        # passengers gather from the first pull-out on (one queue per stop, shared)
-        sim.stations.last_dep_t[:] = t0
-        self.t = t0
+        if self.step_no == 0:  # a second call runs on from where the first stopped
+            # the plant starts at 0: jump its clock to the first pull-out (nothing runs)
+            self.t_start = max(0.0, math.floor(first) - 1.0)
+            sim.t = self.t_start
+            sim.sensors.next_sample_t = self.t_start
+            # passengers gather from the first pull-out on (one queue per stop, shared)
+            sim.stations.last_dep_t[:] = self.t_start
+            self.t = self.t_start
+        t0 = self.t_start
         dt = float(self.scn.sim.control_period_s)
         next_report = self.t
         while self.t < stop_at - 1e-9 and time.perf_counter() - w0 < max_wall_s:
@@ -348,6 +395,8 @@ class DayPlant:
                    else "end time")
             self.notes.append(f"stopped at t={self.t:.0f} s ({why}) before every train was "
                               f"back in the depot")
+        self.wall_total += time.perf_counter() - w0
+        self.cpu_total += time.process_time() - c0
         viol = int(np.sum(sim.atp.violations))
         return DayResult(
             stops=self.stops, turnbacks=self.turnbacks, depot=self.depot,
@@ -358,9 +407,10 @@ class DayPlant:
             missed_stops=int(sim.stations.skipped_stops),
             stop_errors_m=self.stop_err, forced_stop_errors_m=self.forced_err,
             atp_interventions=int(np.sum(sim.atp.interventions)),
-            sim_time_s=self.t, wall_s=time.perf_counter() - w0, finished=finished,
+            sim_time_s=self.t, wall_s=self.wall_total, finished=finished,
             notes=self.notes, sensor_samples=self.sensor_samples,
-            wall_split_s=dict(self.wall_split))
+            cpu_split_s=dict(self.cpu_split), cpu_s=self.cpu_total, start_s=t0,
+            train_steps=self.train_steps)
 
     def _in_service(self) -> Tuple[List[_Train], Any]:
         """The trains in service and their slots (an int array), in slot order."""
@@ -368,17 +418,19 @@ class DayPlant:
         return svc, np.fromiter((tr.i for tr in svc), dtype=np.intp, count=len(svc))
 
     def _step(self, dt: float, sensors: bool = False) -> None:
-        w0 = time.perf_counter()
+        clock = time.process_time
+        w0 = clock()
         t = self.t
         sim = self.sim
         self._pull_outs_and_ins(t)
         svc, rows = self._in_service()
+        self.train_steps += len(svc)
         self._leaders(rows)
         self._requests(t)
         self._authorities(svc, rows)
         # the ATOs of the trains running (not those turning back in the plant): one fleet
         # state for all of them; the others keep their last command
-        w1 = time.perf_counter()
+        w1 = clock()
         u = self._u
         u.fill(math.nan)
         run = rows[sim.fleet.status[rows] == RUN]
@@ -390,11 +442,11 @@ class DayPlant:
                 ato = trains[i].ato
                 if ato is not None:
                     u[i] = ato.control(ato_input(st, k, step, t))[0]
-        w2 = time.perf_counter()
+        w2 = clock()
         res = sim.step(u)
         if sensors:
             self._read_samples(res)
-        w3 = time.perf_counter()
+        w3 = clock()
         for tr in svc:
             tr.entered_now = False
         # a train's events in the order the plant gave them, the trains in slot order
@@ -405,8 +457,8 @@ class DayPlant:
         self._occupancy()
         self._grants()
         self._checks()
-        w4 = time.perf_counter()
-        ws = self.wall_split
+        w4 = clock()
+        ws = self.cpu_split
         ws["ato"] += w2 - w1
         ws["plant"] += w3 - w2
         ws["rest"] += (w1 - w0) + (w4 - w3)
@@ -861,7 +913,7 @@ def plant_timed(loop: LoopLine, sv: Any, trips: Sequence[Trip], codes: Tuple[str
 
 def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = "fuzzy",
                 seed: int = 0, stable_after_s: float = 1800.0,
-                trip_times: str = "plan") -> DayPlant:
+                trip_times: str = "plan", records: bool = True) -> DayPlant:
     """The plant of a day: ``scn``'s line and stock, ``plan`` a :class:`DayPlan`.
 
     The loop of the line with the plan's terminus layouts; its timetable periods are the
@@ -869,6 +921,7 @@ def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = 
     is :func:`metro_atc.core.service.day.run_day`'s, with the plan's trip times
     (``trip_times="plan"``: Lin 2010a, eq. 5/10 on the ATR line data) or those the plant's
     timetable gives (``"plant"``: :func:`plant_timed`).  DayError / LoopError in one line.
+    ``records``: see :class:`DayPlant`.
     """
     from .day import run_day, trips
     if trip_times not in ("plan", "plant"):
@@ -895,7 +948,23 @@ def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = 
     circ, _ = run_day(plan, stable_after_s, timed, "longest_wait")
     termini = [DayTerminus(t.station, t.min_turnback_s, t.depot is not None)
                for t in plan.termini]
-    return DayPlant(loop, circ, termini, planner, tracker, seed)
+    return DayPlant(loop, circ, termini, planner, tracker, seed, records=records)
+
+
+def rss_mb() -> float:
+    """Resident set size of this process now [MB] (nan where /proc is not there)."""
+    try:
+        with open("/proc/self/statm", encoding="ascii") as f:
+            pages = int(f.read().split()[1])
+    except (OSError, ValueError, IndexError):
+        return math.nan
+    return pages * os.sysconf("SC_PAGE_SIZE") / 1e6
+
+
+def peak_rss_mb() -> float:
+    """Peak resident set size of this process so far [MB] (``getrusage``; Linux KiB)."""
+    import resource
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 1e6
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
@@ -922,11 +991,19 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                     help="the period table's trip times or the plant's timetable's")
     ap.add_argument("--out", default=None,
                     help="write the day's KPIs (day_kpis.json/.txt) and pictures here")
+    ap.add_argument("--sensors", action="store_true",
+                    help="read the brake sensor samples of every step (speed figures)")
+    ap.add_argument("--no-records", action="store_true",
+                    help="count the stop / turnback / depot records, keep none (memory "
+                         "figures; not with --out)")
     a = ap.parse_args(argv)
+    if a.no_records and a.out is not None:
+        print("error: --no-records leaves nothing to write to --out", file=sys.stderr)
+        return 2
     try:
         plan = load_day(a.day)
         dp = service_day(load_scenario(a.scenario), plan, seed=a.seed,
-                         trip_times=a.trip_times)
+                         trip_times=a.trip_times, records=not a.no_records)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -934,13 +1011,18 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     def progress(d: DayPlant) -> None:
         print(json.dumps({"t_h": round(d.t / 3600.0, 2), "trips_run": d.trips_run,
                           "in_service": sum(tr.in_service for tr in d.trains),
-                          "route_conflicts": d.route_conflicts}), flush=True)
+                          "route_conflicts": d.route_conflicts,
+                          "rss_mb": round(rss_mb(), 1)}), flush=True)
 
-    res = dp.run(None if a.end_h is None else a.end_h * 3600.0, a.max_wall_s, progress)
+    res = dp.run(None if a.end_h is None else a.end_h * 3600.0, a.max_wall_s, progress,
+                 sensors=a.sensors)
     late = [tb.terminal_delay_s for tb in res.turnbacks]
+    sp = {k: round(v, 1) for k, v in res.speed().items()}
     print(json.dumps({**res.row(), "fleet_used": dp.circ.fleet,
                       "terminal_delay_max_s": max(late, default=math.nan),
                       "terminal_delay_mean_s": float(np.mean(late)) if late else math.nan,
+                      **sp, "sensor_samples": res.sensor_samples,
+                      "peak_rss_mb": round(peak_rss_mb(), 1),
                       "notes": res.notes[:5]}), flush=True)
     if a.out is not None:
         from pathlib import Path
@@ -962,4 +1044,5 @@ if __name__ == "__main__":
 
 
 __all__ = ["DayPlant", "DayResult", "DayTerminus", "HOLD_S", "PULL_OUT_LEAD_S",
-           "REQUEST_LEAD_S", "day_trips", "main", "plant_timed", "service_day"]
+           "REQUEST_LEAD_S", "day_trips", "main", "peak_rss_mb", "plant_timed", "rss_mb",
+           "service_day"]
