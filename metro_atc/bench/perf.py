@@ -187,7 +187,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="metro_atc.bench.perf", description=__doc__.split("\n")[0])
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument("--out", default=None, help="directory for the run's PNGs/KPIs/events")
-    ap.add_argument("--quick", action="store_true", help="first 900 s of simulated time only")
+    ap.add_argument("--quick", action="store_true",
+                    help="first 900 s of simulated time only (the day row: to 06:15)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--scenario", default="taipei_blue")
     ap.add_argument("--graph-duration", type=float, default=1800.0,
@@ -210,7 +211,7 @@ def main(argv: list[str] | None = None) -> int:
                         label="core 3/3 (cProfile)", per_step=a.per_step)
     if progress_enabled() and not a.no_graph:
         print("bench perf: graph run (python -m metro_atc run)", file=sys.stderr, flush=True)
-    day_end = None if a.day_full else (6.5 if a.quick else a.day_end_h)
+    day_end = None if a.day_full else (6.25 if a.quick else a.day_end_h)
     if progress_enabled() and (day_end or a.day_full):
         print("bench perf: the service day (ROS-free)", file=sys.stderr, flush=True)
     day = run_day_core(day_end, a.seed) if (a.day_full or day_end) else None
