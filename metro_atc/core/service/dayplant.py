@@ -80,7 +80,7 @@ _slot = operator.attrgetter("train_idx")
 
 
 class _Dropped(list):  # type: ignore[type-arg]
-    """A record list that keeps nothing; ``count`` records were appended."""
+    """A record list that keeps nothing; ``count_appended``: how many were appended."""
 
     count_appended = 0
 
