@@ -214,3 +214,14 @@ def test_depot_slots_are_idle() -> None:
     for b, a in zip(before, after):
         assert np.array_equal(b[still], a[still])
     assert not sim.sensors.mask[[out[k] for k in still]].any()
+
+
+def test_ato_mass_caches_are_trimmed_to_the_newest() -> None:
+    """The ATOs' mass-keyed memo caches keep their newest entries; other keys are kept."""
+    from metro_atc.core.service.dayplant import ATO_CACHES, _trim_caches
+    shared = {name: {k: k for k in range(10)} for name in ATO_CACHES}
+    shared["prework"] = {k: k for k in range(10)}
+    _trim_caches(shared, 3)
+    for name in ATO_CACHES:
+        assert list(shared[name]) == [7, 8, 9]
+    assert len(shared["prework"]) == 10

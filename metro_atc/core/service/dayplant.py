@@ -76,6 +76,15 @@ REQUEST_LEAD_S = 30.0
 """A departure / reversal route is requested this long before the train may leave [s]."""
 HOLD_S = 1.0e9
 """Departure command of a train held at a berth until its next route is set [s]."""
+ATO_CACHE_KEEP = 256
+"""Newest entries kept per ATO cache keyed by the train's mass [-] (see ``ATO_CACHES``)."""
+ATO_CACHES = ("runs", "plans", "prework_mass", "prework_tsr")
+"""The ATOs' shared memo caches (:class:`metro_atc.core.ato.controller.AtoCore`)
+whose keys hold the load-weigh mass: one entry per departure with a new load, so they
+would grow with the day; the oldest are dropped every ``ATO_CACHE_TRIM_S`` (a memo: a
+dropped entry is computed again when asked for, the same value)."""
+ATO_CACHE_TRIM_S = 600.0
+"""Simulated time between two trims of the ATO caches [s]."""
 _slot = operator.attrgetter("train_idx")
 
 
@@ -308,6 +317,7 @@ class DayPlant:
         self.wall_total = 0.0
         self.cpu_total = 0.0
         self.cpu_split = {"plant": 0.0, "ato": 0.0, "rest": 0.0}
+        self._next_trim = 0.0
 
     # ------------------------------------------------------------------ helpers
 
@@ -386,6 +396,9 @@ class DayPlant:
             if all(tr.b >= len(tr.blocks) and not tr.in_service for tr in self.trains):
                 break
             self._step(dt, sensors)
+            if self.t >= self._next_trim:
+                _trim_caches(self.shared, ATO_CACHE_KEEP)
+                self._next_trim = self.t + ATO_CACHE_TRIM_S
             if progress is not None and self.t >= next_report:
                 progress(self)
                 next_report = self.t + 3600.0
@@ -850,6 +863,15 @@ class DayPlant:
         self._in_sep[behind] = bad
         if rows.size:
             self._in_sep[rows[-1]] = False
+
+
+def _trim_caches(shared: Dict[str, Any], keep: int) -> None:
+    """Keep the newest ``keep`` entries of each of the ATOs' mass-keyed caches (in place)."""
+    for name in ATO_CACHES:
+        cache = shared.get(name)
+        if isinstance(cache, dict) and len(cache) > keep:
+            for key in list(cache)[:len(cache) - keep]:  # insertion order: oldest first
+                del cache[key]
 
 
 def _dwell_row(sv: Any, t_s: float) -> Any:
