@@ -33,6 +33,7 @@ BENCHES = {
     "thsr": "metro_atc.bench.thsr",
     "ukf": "metro_atc.bench.ukf",
     "service-day": "metro_atc.bench.service_day",
+    "day-scale": "metro_atc.bench.day_scale",
     "turnback": "metro_atc.bench.turnback",
 }
 

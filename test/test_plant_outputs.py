@@ -48,6 +48,9 @@ def test_perf_bench_json_quick() -> None:
     assert out["graph_rtf"] is None and out["core_rtf"] > 0
     assert out["trains"] >= 25 and out["sim_time_s"] == 900.0
     assert out["atp_violations"] == 0 and out["energy_balance_error"] < 1e-3
+    day = out["day"]  # the service day's row: the first pull-outs, sensor samples read
+    assert day["end_h"] == 6.25 and day["sensor_samples"] > 0 and day["plant_rtf_cpu"] > 0
+    assert day["atp_violations"] == 0 and day["route_conflicts"] == 0
 
 
 def test_recovery_kpis_follow_an_incident() -> None:

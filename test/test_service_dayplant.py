@@ -12,9 +12,11 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
 import pytest
 
 from metro_atc.core.line.scenario import load_scenario
+from metro_atc.core.plant.driver import simple_driver
 from metro_atc.core.plant.line import LineSim
 from metro_atc.core.service.circulation import build_circulation, propagate_delay
 from metro_atc.core.service.dayplant import DayPlant, DayTerminus, day_trips
@@ -173,3 +175,53 @@ def test_loop_mirrors_the_line(name: str) -> None:
                     assert _step_at(line.speed_limits, x, "limit_kmh") <= (
                         sp.route.speed_limit_mps * 3.6 + 1e-9)
     assert loop.stops[-1].role == "wrap" and loop.stops[-1].station == 0
+
+
+def test_fleet_plant_reads_each_trains_authority_end() -> None:
+    """External authority ends per slot bound each train; no train ahead by slot index."""
+    scn = load_scenario("mini")
+    sim = LineSim(scn, seed=0, trace_period_s=0.0)
+    sim.external_authority()
+    x0 = float(sim.geometry.station_positions_m[0])
+    end = x0 + 300.0  # train 0 may run 300 m past its first stop; train 1 is free
+    sim.set_authority_ends([0, 1], [end, math.inf])
+    top = np.zeros(sim.n)
+    while sim.t < 600.0:
+        sim.step(simple_driver(sim))
+        top = np.maximum(top, np.where(sim.fleet.run, sim.fleet.x, -math.inf))
+    assert top[0] <= end and top[0] > end - 60.0  # held at its end, close to it
+    assert top[1] > end + 500.0  # the other ran on (its authority is not train 0's rear)
+    assert sim.atp.eoa[0] == end
+    with pytest.raises(ValueError):
+        sim.set_authority_ends([0], [math.nan])
+
+
+def test_depot_slots_are_idle() -> None:
+    """A train in the depot does not move, meters no energy and gives no sensor samples."""
+    circ, _, dp = _day(LAYOUTS["scissors_A_tail_B"]())
+    first = min(b.trips[0].departure_s for b in circ.blocks)
+    dp.run(end_s=first + 900.0)
+    out = [tr.i for tr in dp.trains if not tr.in_service]
+    assert out and any(tr.in_service for tr in dp.trains)
+    sim = dp.sim
+    before = (sim.fleet.x[out].copy(), sim.energy.e_trac[out].copy(),
+              sim.energy.e_fric[out].copy(), sim.energy.e_res[out].copy())
+    res = dp.run(end_s=first + 960.0, sensors=True)
+    still = [k for k, i in enumerate(out) if not dp.trains[i].in_service]
+    assert still and res.sensor_samples > 0
+    after = (sim.fleet.x[out], sim.energy.e_trac[out], sim.energy.e_fric[out],
+             sim.energy.e_res[out])
+    for b, a in zip(before, after):
+        assert np.array_equal(b[still], a[still])
+    assert not sim.sensors.mask[[out[k] for k in still]].any()
+
+
+def test_ato_mass_caches_are_trimmed_to_the_newest() -> None:
+    """The ATOs' mass-keyed memo caches keep their newest entries; other keys are kept."""
+    from metro_atc.core.service.dayplant import ATO_CACHES, _trim_caches
+    shared = {name: {k: k for k in range(10)} for name in ATO_CACHES}
+    shared["prework"] = {k: k for k in range(10)}
+    _trim_caches(shared, 3)
+    for name in ATO_CACHES:
+        assert list(shared[name]) == [7, 8, 9]
+    assert len(shared["prework"]) == 10

@@ -14,6 +14,15 @@ sensor samples consumed, ``core_rtf_with_sensors[_cpu]``),
 where the time goes (driver vs plant step, cProfile top functions), the cost of consuming
 the brake sensor samples, the energy-balance closure and the safety KPIs.
 
+``day``: the ROS-free two-direction service day (:mod:`metro_atc.core.service.dayplant`,
+the Taipei Blue day with the plant's trip times) from its first pull-out to
+``--day-end-h`` (default 08:00: two simulated hours, the ramp-up and the first hour of the
+morning peak; ``--day-full``: the whole day; 0: skipped), the brake sensor samples read every
+step: ``day.plant_rtf_cpu`` is the simulated span over the CPU time of its plant steps (the
+fleet in one compiled call per step, sensors included: the day's ROS-free core),
+``day.rtf`` / ``day.rtf_cpu`` over the whole loop's wall / CPU time (plant, the ATO of every
+train, interlocking and bookkeeping).
+
 ``graph_rtf`` is the multi-process ROS graph's factor: ``python -m metro_atc run`` (all
 four node kinds as separate processes, lockstep) on the same scenario for
 ``--graph-duration`` simulated seconds (default 1800 s: the ramp-up and the 105 s peak,
@@ -48,6 +57,29 @@ TARGET_GRAPH_RTF = 100.0
 """Target for the ROS graph real-time factor (whole Blue line peak, 2 cores)."""
 TARGET_CORE_RTF_SENSORS = 6000.0
 """Target: core real-time factor with the sensor samples consumed (quiet machine)."""
+TARGET_DAY_CORE_RTF = 3000.0
+"""Target: the service day's ROS-free core (plant step with sensors) real-time factor."""
+DAY_END_H = 8.0
+"""Default end of the ``day`` row [h after midnight] (from the first pull-out at ~05:58)."""
+
+
+def run_day_core(end_h: float | None, seed: int) -> dict[str, Any]:
+    """The Taipei Blue service day to ``end_h`` (None: the whole day), sensor samples read.
+
+    Returns its speed figures (:meth:`metro_atc.core.service.dayplant.DayResult.speed`),
+    trains, trips and safety counts.
+    """
+    from metro_atc.core.service.day import load_day
+    from metro_atc.core.service.dayplant import service_day
+    dp = service_day(load_scenario("taipei_blue"), load_day(None), seed=seed,
+                     trip_times="plant")
+    res = dp.run(None if end_h is None else end_h * 3600.0, sensors=True)
+    return {**{k: round(v, 3) for k, v in res.speed().items()},
+            "wall_s": round(res.wall_s, 1), "end_h": end_h,
+            "trips_run": res.trips_run,
+            "trips_planned": res.trips_planned, "fleet": res.fleet,
+            "finished": res.finished, "sensor_samples": res.sensor_samples,
+            "atp_violations": res.atp_violations, "route_conflicts": res.route_conflicts}
 
 
 def energy_balance_error(sim: LineSim) -> float:
@@ -155,7 +187,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="metro_atc.bench.perf", description=__doc__.split("\n")[0])
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument("--out", default=None, help="directory for the run's PNGs/KPIs/events")
-    ap.add_argument("--quick", action="store_true", help="first 900 s of simulated time only")
+    ap.add_argument("--quick", action="store_true",
+                    help="first 900 s of simulated time only (the day row: to 06:15)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--scenario", default="taipei_blue")
     ap.add_argument("--graph-duration", type=float, default=1800.0,
@@ -163,7 +196,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-graph", action="store_true", help="skip the ROS graph run")
     ap.add_argument("--per-step", action="store_true",
                     help="one step(simple_driver(sim)) call per step (the previous loop)")
+    ap.add_argument("--day-end-h", type=float, default=DAY_END_H,
+                    help="the day row runs the Taipei Blue day to this hour (0: skip it)")
+    ap.add_argument("--day-full", action="store_true", help="the day row: the whole day")
     a = ap.parse_args(argv)
+    if not (a.day_end_h == 0.0 or 6.0 < a.day_end_h <= 30.0):
+        ap.error("--day-end-h must be 0 or in (6, 30]")
     limit = 900.0 if a.quick else None
     main_run = run_core(a.scenario, a.seed, limit, sensors=False, label="core 1/3",
                         per_step=a.per_step)
@@ -173,6 +211,10 @@ def main(argv: list[str] | None = None) -> int:
                         label="core 3/3 (cProfile)", per_step=a.per_step)
     if progress_enabled() and not a.no_graph:
         print("bench perf: graph run (python -m metro_atc run)", file=sys.stderr, flush=True)
+    day_end = None if a.day_full else (6.25 if a.quick else a.day_end_h)
+    if progress_enabled() and (day_end or a.day_full):
+        print("bench perf: the service day (ROS-free)", file=sys.stderr, flush=True)
+    day = run_day_core(day_end, a.seed) if (a.day_full or day_end) else None
     k = main_run["kpis"]
     graph = None if a.no_graph else run_graph(a.scenario, a.seed,
                                               300.0 if a.quick else a.graph_duration)
@@ -191,6 +233,7 @@ def main(argv: list[str] | None = None) -> int:
         "sensor_samples_per_s": round(sens_run["sensor_samples"] / sens_run["sim_time_s"], 1),
         "graph_rtf": graph["real_time_factor"] if graph else None,
         "graph": graph,
+        "day": day,
         "trains": main_run["trains"],
         "sim_time_s": round(main_run["sim_time_s"], 2),
         "steps": main_run["steps"],
@@ -204,7 +247,8 @@ def main(argv: list[str] | None = None) -> int:
         "energy_stop_correction_share": main_run["stop_correction_share"],
         "max_delay_s": k["max_delay_s"],
         "targets": {"core_rtf": TARGET_CORE_RTF, "graph_rtf": TARGET_GRAPH_RTF,
-                    "core_rtf_with_sensors": TARGET_CORE_RTF_SENSORS},
+                    "core_rtf_with_sensors": TARGET_CORE_RTF_SENSORS,
+                    "day_plant_rtf_cpu": TARGET_DAY_CORE_RTF},
         "profile_top": prof_run["profile_top"],
         "quick": a.quick,
         "seed": a.seed,
@@ -236,6 +280,15 @@ def main(argv: list[str] | None = None) -> int:
         ("  its stepping loop alone", "",
          f"{result['graph']['loop_real_time_factor']:.1f}"
          if result["graph"] and result["graph"].get("loop_real_time_factor") else "-"),
+        ("day core RTF, sensors (CPU)", f">= {TARGET_DAY_CORE_RTF:.0f}",
+         f"{day['plant_rtf_cpu']:.0f}" if day else "skipped"),
+        ("  day to" + (" the end" if day and day["end_h"] is None
+                       else f" {day['end_h']:g} h" if day else ""), "",
+         f"{day['sim_span_s']:.0f} s sim" if day else "-"),
+        ("  whole day loop RTF (wall / CPU)", "",
+         f"{day['rtf']:.0f} / {day['rtf_cpu']:.0f}" if day else "-"),
+        ("  CPU per train in service, step [us]", "",
+         f"{day['cpu_us_per_train_step']:.1f}" if day else "-"),
         ("trains", ">= 25", f"{result['trains']}"),
         ("simulated time [s]", "", f"{result['sim_time_s']:.0f}"),
         ("completed trains", "all", f"{result['completed_trains']}"),

@@ -85,6 +85,15 @@ class AtpSupervisor:
         self.any_violation = False
         self.any_atp = False
         self.eoa = np.full(n, geom.eoa_end)
+        self.eoa_ext = np.full(n, math.inf)
+        """End of movement authority of each train given from outside [m] (inf: none; the
+        compiled step takes the smallest of it, the train ahead's rear minus the margin and
+        the line's end): a service day's interlocking routes and train ahead
+        (:meth:`metro_atc.core.plant.line.LineSim.set_authority_ends`)."""
+        self.lead_ext = False
+        """True when the trains' index order is not their order on the track (a service
+        day's fleet on a loop): no train ahead by index; the train ahead comes from outside
+        through :attr:`eoa_ext`."""
         self.atp_limit = np.full(n, p.max_speed_mps)
         self.speed_code = np.full(n, p.max_speed_mps)
         self.min_sep = math.inf
@@ -119,6 +128,8 @@ class AtpSupervisor:
         """
         g = self.geom
         x, n, ns, run = fl.x, fl.n, g.n_sid, fl.run
+        if self.lead_ext:  # the train ahead is given from outside (eoa_ext)
+            return np.full(n, math.inf)
         rear = x - g.length_m
         if not (blocks or fl.any_turnback):  # fast path: nobody near the sidings
             obst = np.empty(n)

@@ -144,7 +144,7 @@ class NumbaStepper:
                 ("fixed", bool(atp.fixed_block)), ("n_sid", g.n_sid),
                 ("substeps", sim.substeps), ("fc_per_n", br.fc_per_n), ("jw", br.jw),
                 ("m_trac", p.mass_kg), ("meff_sb", p.service_brake_meff_limit_kg),
-                ("meff_eb", p.emergency_brake_meff_limit_kg))
+                ("meff_eb", p.emergency_brake_meff_limit_kg), ("lead_ext", atp.lead_ext))
         self.noise = getattr(sim.sensors, "noise", np.zeros(4))
         self.c = _record_vector(kn.CONSTANTS, vals + (("noise", self.noise),))
         """The run constants: a float vector the kernels read as ``kernel.CONSTANTS``."""
@@ -344,9 +344,9 @@ def _blocks(n: int, n_cells: int) -> Blocks:
     """
     from . import kernel as kn
     from . import kernel_step as ks
-    own_f = ((0, "trac_level"), (0, "stop_x"), (1, "speed_code"), (2, "e_trac"),
-             (2, "e_elec"), (2, "e_fric"), (2, "e_res"), (2, "e_curve"), (2, "e_grade"),
-             (2, "e_stop_corr"))
+    own_f = ((0, "trac_level"), (0, "stop_x"), (1, "speed_code"), (1, "eoa_ext"),
+             (2, "e_trac"), (2, "e_elec"), (2, "e_fric"), (2, "e_res"), (2, "e_curve"),
+             (2, "e_grade"), (2, "e_stop_corr"))
     copy_f = ((0, "mass", False), (0, "meff", False), (0, "inv_meff", False),
               (0, "davis_b", None), (0, "davis_c", None),  # rebound with meff
               (3, "slide_ratio", False), (3, "fric_mult", False))

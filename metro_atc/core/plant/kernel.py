@@ -32,7 +32,7 @@ CONSTANT_FIELDS = (
     "t_r", "t_sbi", "sbi_offset", "ceiling_tol", "bs", "eb_decel", "jerk", "jerk_eb",
     "civil_tol", "n_ax", "trac_adh", "mu_pk", "inv_nax", "inv_nmot", "davis_a", "davis_b",
     "davis_c", "dt", "tol", "code_step", "fixed", "n_sid", "substeps", "fc_per_n", "jw",
-    "m_trac", "meff_sb", "meff_eb")
+    "m_trac", "meff_sb", "meff_eb", "lead_ext")
 """Scalar fields of :data:`CONSTANTS` (float64, in the vector's order).
 
 Grid x0 [m] and 1/dx [1/m]; train length [m]; turn-back switch position [m]; block length
@@ -46,7 +46,9 @@ tolerance [m]; speed-code step [m/s]; fixed block 0/1; turn-back sidings; RK4 su
 clamp force per brake force [-]; wheel inertia [kg m^2]; the mass the traction curve is
 specified at [kg] (:func:`metro_atc.core.laws.traction_mass`); the effective masses up to
 which the service and the emergency brake are load-weighed [kg]
-(:func:`metro_atc.core.laws.load_weighed_decel`).
+(:func:`metro_atc.core.laws.load_weighed_decel`); 1 when the train ahead is given from
+outside (the index order is not the track order: no obstacle by index,
+:attr:`.atp.AtpSupervisor.lead_ext`), else 0.
 """
 CONSTANTS = np.dtype([(f, np.float64) for f in CONSTANT_FIELDS]
                      + [("noise", np.float64, (4,))])
@@ -151,6 +153,10 @@ def _cell(x: float, x0: float, inv_dx: float, n_cells: int) -> int:
 def obstacles(cn, x, status, run, n_sid: int, blocks: bool, out) -> None:  # type: ignore
     """:meth:`.atp.AtpSupervisor.obstacle_rear` into ``out`` [m] (``cn``: run constants)."""
     n = x.shape[0]
+    if cn["lead_ext"] != 0.0:  # the train ahead comes from outside (eoa_ext)
+        for i in range(n):
+            out[i] = math.inf
+        return
     x0, blen, ln, xsw = cn["x0"], cn["block"], cn["train_length"], cn["x_switch"]
     out[0] = math.inf
     for i in range(1, n):
@@ -172,13 +178,14 @@ def obstacles(cn, x, status, run, n_sid: int, blocks: bool, out) -> None:  # typ
 @njit(cache=True)
 def front(cn, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb, sb,
           interventions, violations, in_violation, grids, tabs, speed_code, bk,
-          any_slide: bool, any_wsp: bool, blk):  # type: ignore[no-untyped-def]
+          any_slide: bool, any_wsp: bool, blk, eoa_ext):  # type: ignore[no-untyped-def]
     """ATP supervision + monitors, jerk-limited demand, blend (fast path) of one step.
 
     ``cn``: the run constants (a :data:`CONSTANTS` record); ``masks`` = fleet (run, hold,
     broken, auto, cand); ``mp`` = (mass, meff, 1/meff, Davis B/meff, C/meff); ``grids`` =
     (ebi_static, sbi_static, ceiling_phys, limit_eff, drive_env); ``tabs`` = (v, phi,
-    ebrake); ``bk`` = brakes (slide_ratio, fric_mult).
+    ebrake); ``bk`` = brakes (slide_ratio, fric_mult); ``eoa_ext``: end of authority of
+    each train given from outside [m] (:attr:`.atp.AtpSupervisor.eoa_ext`).
     Returns (new interventions, any_atp, any_violation, smallest gap [m], train-steps above
     the civil limit, rail force done) -- the rail force is left to the numpy slide model
     when an axle may reach the peak adhesion.
@@ -210,11 +217,11 @@ def front(cn, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb
     if fixed:
         obstacles(cn, x, status, run, n_sid, True, obst)
         for i in range(n):
-            eoa[i] = _mn(obst[i] - cn["margin"], cn["eoa_end"])
+            eoa[i] = _mn(_mn(obst[i] - cn["margin"], cn["eoa_end"]), eoa_ext[i])
     obstacles(cn, x, status, run, n_sid, False, obst)
     if not fixed:
         for i in range(n):
-            eoa[i] = _mn(obst[i] - cn["margin"], cn["eoa_end"])
+            eoa[i] = _mn(_mn(obst[i] - cn["margin"], cn["eoa_end"]), eoa_ext[i])
     n_over = 0
     for i in range(n):
         k = _cell(x[i], x0, inv_dx, n_cells)

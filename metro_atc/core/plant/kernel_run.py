@@ -115,7 +115,8 @@ def run_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blks, u
             fs[FS.e_trac], fs[FS.e_elec], fs[FS.e_fric], fs[FS.e_res], fs[FS.e_curve],
             fs[FS.e_grade], fs[FS.e_stop_corr], ints[INTS.n_in_service], axc, stab, ax_out, dr,
             True, sidx, r_w, sl, clock[cpos:end], t, t1, zbuf, zpos, noise,
-            o4[:, s_off:s_off + n_s], o2[:, s_off:s_off + n_s], auto, prev[OUT.eoa], dr_auto)
+            o4[:, s_off:s_off + n_s], o2[:, s_off:s_off + n_s], auto, prev[OUT.eoa], dr_auto,
+            fs[FS.eoa_ext])
         if r[5] < 0:  # the numpy slide model: undo the step's ATP updates, Python steps
             eb[:] = save_b
             sb[:] = save_s

@@ -25,11 +25,13 @@ look-ahead [s] (:func:`.driver.driver_command`)."""
 DRIVER = np.dtype([(f, np.float64) for f in DRIVER_FIELDS])
 """The reference driver's constants by name: a float vector viewed as this record in
 :func:`driver` (one row of ``dcs``: the reference driver's, the plant driver's)."""
-FS = rows("trac_level", "stop_x", "speed_code", "e_trac", "e_elec", "e_fric", "e_res",
-          "e_curve", "e_grade", "e_stop_corr", *MASS._fields, "slide_ratio", "fric_mult", "auto")
+FS = rows("trac_level", "stop_x", "speed_code", "eoa_ext", "e_trac", "e_elec", "e_fric",
+          "e_res", "e_curve", "e_grade", "e_stop_corr", *MASS._fields, "slide_ratio",
+          "fric_mult", "auto")
 """Rows of the persistent float block of :func:`step_rows` (:mod:`.fast_state`, laid out
 by ``fast._blocks`` from these names): the state the kernel owns (traction level [-],
-stop point [m], speed code [m/s], energy counters [J]), then the copied mass constants
+stop point [m], speed code [m/s], end of authority given from outside [m], energy
+counters [J]), then the copied mass constants
 (:data:`.kernel.MASS` order, from ``mass``) and brake ratios (from ``slide_ratio``), then
 the plant driver's command (scratch, ``auto``)."""
 N_F = len(FS)
@@ -207,7 +209,8 @@ def step_all(cn, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level,
              any_slide: bool, any_wsp: bool, blk, geo, stop_x, e_trac, e_elec, e_fric, e_res,
              e_curve, e_grade, e_stop_corr, n_in_service, axc, stab, ax_out, dr,
              want_drv: bool, sidx, r_w, slip0, ts, t0: float, t1: float, zbuf, zpos: int,
-             noise, o4, o2, auto: bool, eoa0, dr_auto):  # type: ignore[no-untyped-def]
+             noise, o4, o2, auto: bool, eoa0, dr_auto,
+             eoa_ext):  # type: ignore[no-untyped-def]
     """One step: :func:`.kernel.front`, then (rail force done) :func:`motion`.
 
     Also fills ``ax_out`` (instrumented axles, when it has rows), the sensor samples of the
@@ -218,7 +221,8 @@ def step_all(cn, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level,
     (-1: rail force left to numpy).  With ``auto`` the commands of the plant-driven
     trains are first computed into ``auto_u`` (:func:`driver_rec`, constants ``dr_auto``,
     movement authority ``eoa0`` of the previous step).  ``cn``: the run constants (a
-    ``kernel.CONSTANTS`` record); ``dr`` / ``dr_auto``: :data:`DRIVER` records.
+    ``kernel.CONSTANTS`` record); ``dr`` / ``dr_auto``: :data:`DRIVER` records;
+    ``eoa_ext``: the end of authority of each train given from outside [m].
     """
     fixed = cn["fixed"] != 0.0
     if auto:
@@ -226,7 +230,7 @@ def step_all(cn, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level,
                    grids[GRIDS.sbi_static], status, fixed, False, auto_u)
     r = front(cn, x, v, status, masks, u, u_last, auto_u, a_prev, mp, trac_level, eb, sb,
               interventions, violations, in_violation, grids, tabs, speed_code, bk,
-              any_slide, any_wsp, blk)
+              any_slide, any_wsp, blk, eoa_ext)
     if not r[5]:
         return r[0], r[1], r[2], r[3], r[4], -1
     n_hit = motion_rec(cn, x, v, blk[OUT.ftrac], blk[OUT.fbrk], blk[OUT.fe], blk[OUT.fbdem], mp,
@@ -271,4 +275,4 @@ def step_rows(c, tabs, geo, stab, dcs, fs, ints, bools, grids, axc, blk0, blk, u
         fs[FS.e_grade], fs[FS.e_stop_corr], ints[INTS.n_in_service], axc, stab, ax_out,
         dcs[0].view(DRIVER)[0], want_drv, sidx, r_w, slip0,
         ts, t0, t1, zbuf, zpos, cn["noise"], o4, o2, auto, blk0[OUT.eoa],
-        dcs[1].view(DRIVER)[0])
+        dcs[1].view(DRIVER)[0], fs[FS.eoa_ext])

@@ -222,6 +222,40 @@ class LineSim:
         """
         self.stepper.set_constant("eoa_end", min(float(x_m), self.geometry.eoa_end))
 
+    def external_authority(self) -> None:
+        """The train ahead and the end of authority of each train come from outside.
+
+        For a fleet whose index order is not its order on the track (a service day's trains
+        on a loop, :mod:`metro_atc.core.service.dayplant`): no train ahead by index; the
+        compiled step takes ``min(this train's end from outside, the line's end)``
+        (:meth:`set_authority_ends`; inf until set).  The plant's separation monitor then
+        sees no train ahead (the caller checks the separation).
+        """
+        self.atp.lead_ext = True
+        self.stepper.set_constant("lead_ext", 1.0)
+
+    def set_authority_ends(self, train_idx: Any, x_m: Any) -> None:
+        """End of movement authority of trains ``train_idx`` from outside [m] (array-like).
+
+        Read by the compiled step from the next step on (inf: none; the train ahead and the
+        line's end bound it as well).  ValueError on NaN or a length mismatch.
+        """
+        x = np.asarray(x_m, dtype=float)
+        if np.isnan(x).any():
+            raise ValueError("authority ends must not be NaN")
+        self.atp.eoa_ext[train_idx] = x
+
+    def train_streams(self, seeds: Any) -> None:
+        """Each train draws its disturbances from its own stream ``default_rng(seeds[i])``.
+
+        Departure delays and running-time noise (:class:`.stations.Stations`) instead of
+        the plant's one stream: a train's draws do not depend on when the other trains'
+        happen (a service day's trains, each with the stream it had on a plant of its own).
+        """
+        if len(seeds) != self.n:
+            raise ValueError(f"{len(seeds)} seeds for {self.n} trains")
+        self.stations.train_rng = [np.random.default_rng(int(s)) for s in seeds]
+
     def withdraw(self, train_idx: int, station_idx: int) -> None:
         """A dispatcher withdraws train ``train_idx`` at station ``station_idx`` (ahead).
 

@@ -84,7 +84,13 @@ class Stations:
         self.skip = np.zeros((n, n_st), dtype=bool)
         """Stops a dispatcher has each train run through (train, station)."""
         self.delay_draw = np.zeros(n)
+        self.train_rng: list[np.random.Generator] | None = None
+        """One stream per train for its disturbances (None: ``rng`` for all trains;
+        :meth:`metro_atc.core.plant.line.LineSim.train_streams`)."""
         self.events: list[TrainEvent] = []
+        self.keep_log = True
+        """Keep every event in :attr:`events` (False: only the step's ``events_out``; a
+        caller that records what it needs itself, e.g. a service day)."""
         self.events_out: list[TrainEvent] = []
         self.wrap_m = 0.0
         """Period of a loop line [m] (0: one-way): a train arriving at the last stop stands
@@ -116,7 +122,8 @@ class Stations:
         sched = self.sv.sched_arr[i, j] if kind == "arrival" else self.sv.sched_dep[i, j]
         ev = TrainEvent(i, j, kind, t, int(round(boarded)), int(round(alighted)), dwell,
                         t - sched, float(sched), float(stop_error_m))
-        self.events.append(ev)
+        if self.keep_log:
+            self.events.append(ev)
         self.events_out.append(ev)
 
     def try_entry(self, t: float, fixed_block: bool, margin: float) -> bool:
@@ -220,8 +227,9 @@ class Stations:
         if redraw:
             dis = self.scn.disturbances
             delay = 0.0
-            if not last and self.rng.random() < dis.departure_delay_prob:
-                delay = float(self.rng.exponential(dis.departure_delay_mean_s))
+            rng = self.rng if self.train_rng is None else self.train_rng[i]
+            if not last and rng.random() < dis.departure_delay_prob:
+                delay = float(rng.exponential(dis.departure_delay_mean_s))
             self.delay_draw[i] = delay
         cand += float(self.delay_draw[i]) + float(self.extra_hold[i, j])
         cand = max(cand, float(fl.broken_until[i]))
@@ -266,7 +274,8 @@ class Stations:
             fl.next_stop[i] = k
             fl.stop_x[i] = g.station_positions_m[k]
             sig = self.scn.disturbances.running_time_noise
-            fl.trac_level[i] = 1.0 - abs(float(self.rng.normal(0.0, sig))) if sig > 0 else 1.0
+            rng = self.rng if self.train_rng is None else self.train_rng[i]
+            fl.trac_level[i] = 1.0 - abs(float(rng.normal(0.0, sig))) if sig > 0 else 1.0
 
     def station_logic(self, t: float, hit: BoolArray, d: FloatArray) -> None:
         """Arrivals (standstill within tolerance of the stop point) and overruns."""

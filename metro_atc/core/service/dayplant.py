@@ -1,22 +1,28 @@
 """A two-direction service day on the plant: ROS-free closed loop of plant, ATO, interlocking.
 
-Every train of the fleet runs the unfolded loop of :mod:`metro_atc.core.service.loop` on its
-own :class:`metro_atc.core.plant.line.LineSim` (one train each: the same plant code, its
-brakes, sensors and energy meter kept across all its trips and blocks); the plants step in
-lockstep and share the platform queues (passengers left behind and the last departure per
-stop).  Per control period:
+The whole fleet runs the unfolded loop of :mod:`metro_atc.core.service.loop` on one
+:class:`metro_atc.core.plant.line.LineSim` (one slot per train: the same plant code and one
+compiled step for all the trains; a train keeps its slot, brakes, sensors, energy meter and
+disturbance stream across all its trips and blocks; a train in the depot is an idle slot:
+out of service, it does not move, meter energy nor give sensor samples); the trains share
+the platform queues (passengers left behind and the last departure per stop).  The
+index order of the slots is not the order on the loop: the plant takes the end of
+authority of every train from here (:meth:`LineSim.set_authority_ends`, one array per
+step).  Per control period:
 
 1. pull-outs due (``PULL_OUT_LEAD_S`` before a block's first trip) enter at the departure
    berth of their terminus when it is free (a platform neither occupied nor locked);
-2. movement authority of each train (:meth:`LineSim.set_authority_end`): a train inside a
+2. movement authority of each train (:meth:`LineSim.set_authority_ends`): a train inside a
    terminus (from its arrival route being set until its departure route is set) runs to
    the exit signal of its set route plus the route's overlap (the ATP margin where it has
    none) or stands at its berth; every train runs at most to the rear of the nearest train
-   ahead outside the termini (sorted path positions, O(n log n)) minus the ATP margin; a
+   ahead outside the termini (sorted path positions, O(n log n), array operations) minus
+   the ATP margin; a
    train on the open line runs to the entry signal of the terminus ahead until its arrival
    route is set (asked for by the first train before that signal only);
 3. the ATO of each train in service (:class:`metro_atc.core.ato.onboard.OnboardAto`, a new
-   one per lap: the cab changes at the reversal) gives the effort; the plants step;
+   one per lap: the cab changes at the reversal) gives the effort from the fleet state of
+   the trains running (one :func:`fleet_state_rows` call); the plant steps once;
 4. track occupancy from the trains' positions (their routes' sections over the loop)
    feeds :meth:`Interlocking.occupy` / ``clear``; arrivals at a route's exit signal report
    :meth:`Interlocking.arrived`; route requests (the next route of the train's itinerary,
@@ -31,7 +37,7 @@ stop).  Per control period:
 Independent checks every step: :func:`metro_atc.core.service.interlocking.check_safe` on
 each interlocking, no section occupied by two trains, and the separation of the trains
 outside the termini (gap to the train ahead below the ATP margin: a violation, as the plant's own
-monitor counts it); the plants count overspeed violations.
+monitor counts it); the plant counts overspeed violations.
 
 Output: :class:`metro_atc.core.service.records.StopRecord`, ``TurnbackRecord`` and
 ``DepotRecord`` lists and the KPIs of the run (:class:`DayResult`).
@@ -39,9 +45,10 @@ Output: :class:`metro_atc.core.service.records.StopRecord`, ``TurnbackRecord`` a
 
 from __future__ import annotations
 
-import bisect
 import dataclasses
 import math
+import operator
+import os
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
@@ -55,6 +62,7 @@ from metro_atc.core.closed_loop import STOP_WINDOW_M, ato_input
 from metro_atc.core.line.scenario import Scenario
 from metro_atc.core.plant.fleet import RUN
 from metro_atc.core.plant.line import LineSim
+from metro_atc.core.plant.sensors import StepResult
 from metro_atc.core.plant.views import fleet_state_rows
 
 from .circulation import Block, Circulation, Trip
@@ -66,9 +74,28 @@ PULL_OUT_LEAD_S = 120.0
 """A pulled-out train stands at its departure platform this long before its first trip [s]."""
 REQUEST_LEAD_S = 30.0
 """A departure / reversal route is requested this long before the train may leave [s]."""
-_ROW0 = np.zeros(1, dtype=np.intp)
 HOLD_S = 1.0e9
 """Departure command of a train held at a berth until its next route is set [s]."""
+ATO_CACHE_KEEP = 256
+"""Newest entries kept per ATO cache keyed by the train's mass [-] (see ``ATO_CACHES``)."""
+ATO_CACHES = ("runs", "plans", "prework_mass", "prework_tsr")
+"""The ATOs' shared memo caches (:class:`metro_atc.core.ato.controller.AtoCore`)
+whose keys hold the load-weigh mass: one entry per departure with a new load, so they
+would grow with the day; the oldest are dropped every ``ATO_CACHE_TRIM_S`` (a memo: a
+dropped entry is computed again when asked for, the same value)."""
+ATO_CACHE_TRIM_S = 600.0
+"""Simulated time between two trims of the ATO caches [s]."""
+_slot = operator.attrgetter("train_idx")
+
+
+class _Dropped(list):  # type: ignore[type-arg]
+    """A record list that keeps nothing; ``count_appended``: how many were appended."""
+
+    count_appended = 0
+
+    def append(self, item: Any) -> None:
+        """Count ``item`` and drop it."""
+        self.count_appended += 1
 
 
 @dataclass(frozen=True)
@@ -119,6 +146,34 @@ class DayResult:
     wall_s: float
     finished: bool
     notes: List[str] = field(default_factory=list)
+    sensor_samples: int = 0
+    """Brake sensor samples read (train x instant; :meth:`DayPlant.run` with ``sensors``)."""
+    cpu_split_s: Dict[str, float] = field(default_factory=dict)
+    """CPU time of this process [s] in the plant step (with the sensor samples read), the
+    ATOs (fleet state and control) and the rest (interlocking, authorities, bookkeeping):
+    the figures to compare on a shared machine."""
+    cpu_s: float = 0.0
+    """CPU time of this process over the run [s]."""
+    start_s: float = 0.0
+    """Time the day's clock started at (just before the first pull-out) [s]."""
+    train_steps: int = 0
+    """Sum over the steps of the trains in service (the ATO calls' upper bound)."""
+
+    def speed(self) -> Dict[str, float]:
+        """Real-time factors of the run: simulated span over wall / CPU time, loop and plant.
+
+        ``rtf``: (``sim_time_s`` - ``start_s``) / ``wall_s``; ``rtf_cpu``: the same span over
+        the CPU time; ``plant_rtf_cpu``: over the plant step's CPU time alone (the ROS-free
+        core, with the sensor samples when they were read); ``cpu_us_per_train_step``: CPU
+        time per train in service and step [us].
+        """
+        span = self.sim_time_s - self.start_s
+        cs = self.cpu_split_s
+        return {"sim_span_s": span, "rtf": span / max(self.wall_s, 1e-9),
+                "rtf_cpu": span / max(self.cpu_s, 1e-9),
+                "plant_rtf_cpu": span / max(cs.get("plant", 0.0), 1e-9),
+                "cpu_us_per_train_step": 1e6 * self.cpu_s / max(self.train_steps, 1),
+                **{f"cpu_{k}_s": v for k, v in cs.items()}}
 
     def row(self) -> Dict[str, Any]:
         """JSON-friendly summary."""
@@ -151,7 +206,8 @@ class _Req:
 @dataclass
 class _Train:
     name: str
-    sim: LineSim
+    i: int
+    """Slot of the train in the fleet plant."""
     blocks: List[Block]
     b: int = 0
     k: int = 0
@@ -170,8 +226,6 @@ class _Train:
     last_arr: Optional[Tuple[Trip, float]] = None
     withdraw_at: float = math.inf
     entered_now: bool = False
-    ma: float = math.nan
-    """End of authority last given to the plant [m]."""
 
 
 class DayPlant:
@@ -180,13 +234,15 @@ class DayPlant:
     def __init__(self, loop: LoopLine, circ: Circulation, termini: Sequence[DayTerminus],
                  planner: str = "ectp", tracker: str = "fuzzy", seed: int = 0,
                  extra_dwell: Optional[Mapping[Tuple[str, str, int], float]] = None,
-                 breakdowns: Sequence[Breakdown] = ()) -> None:
-        """Plants, ATOs and interlockings of the day; nothing runs yet.
+                 breakdowns: Sequence[Breakdown] = (), records: bool = True) -> None:
+        """Plant, ATOs and interlockings of the day; nothing runs yet.
 
         ``termini``: A (first station) then B; ``extra_dwell[(train, trip, station)]`` [s]:
         a hold added to that call's departure (a disturbance of a test or study);
         ``breakdowns``: trains that stand still a while (:class:`Breakdown`).  ValueError
-        (one line) for a breakdown of an unknown train or section.
+        (one line) for a breakdown of an unknown train or section.  ``records`` False:
+        the stop, turnback and depot records are counted, not kept (a run for its figures
+        and its speed: memory that does not grow with the day).
         """
         self.loop = loop
         self.circ = circ
@@ -208,21 +264,26 @@ class DayPlant:
         self.wiring = ato_wiring(self.scn, planner, tracker, tt=tt)
         self.shared: Dict[str, Any] = {}
         self.trains: List[_Train] = []
-        first: Optional[LineSim] = None
+        if not by_train:
+            raise ValueError("a day needs at least one block")
         for n, (name, blocks) in enumerate(sorted(by_train.items())):
-            sim = LineSim(self.scn, seed=seed + n, trace_period_s=0.0)
-            sim.external_entries(loop.period_m)
-            if first is None:
-                first = sim
-            else:  # one platform queue per stop for all the trains
-                sim.stations.left_behind = first.stations.left_behind
-                sim.stations.last_dep_t = first.stations.last_dep_t
             blocks.sort(key=lambda b: b.trips[0].departure_s)
-            self.trains.append(_Train(name, sim, blocks))
-        assert first is not None, "a day needs at least one block"
-        self.sv = first.service
-        self.margin = float(first.atp.margin)
-        self.length = float(first.geometry.length_m)
+            self.trains.append(_Train(name, n, blocks))
+        self._by_name = {tr.name: tr for tr in self.trains}
+        # one plant for the fleet: a slot per train, the loop's stops, no timetabled
+        # entries (pull-outs), authorities from here, each train's own disturbance stream
+        # (the stream it had on a plant of its own: seed + slot)
+        nt = len(self.trains)
+        fscn = dataclasses.replace(
+            self.scn, trains=dataclasses.replace(self.scn.trains, count=nt))
+        self.sim = sim = LineSim(fscn, seed=seed, trace_period_s=0.0)
+        sim.external_entries(loop.period_m)
+        sim.external_authority()
+        sim.train_streams([seed + n for n in range(nt)])
+        sim.stations.keep_log = False  # the day records its own calls
+        self.sv = sim.service
+        self.margin = float(sim.atp.margin)
+        self.length = float(sim.geometry.length_m)
         for tp in loop.termini:  # a berth must hold the train (else it blocks its own exit)
             lay = tp.layout
             for r in lay.routes:
@@ -246,13 +307,16 @@ class DayPlant:
                                  f"terminus {bd.terminus}")
         self.breakdowns: List[Breakdown] = sorted(breakdowns, key=lambda b: b.at_s)
         self.t = 0.0
+        self.t_start = 0.0
+        """The day's clock at its first step [s] (just before the first pull-out)."""
         self.step_no = 0
-        self.stops: List[StopRecord] = []
-        self.turnbacks: List[TurnbackRecord] = []
-        self.depot: List[DepotRecord] = []
+        self.stops: List[StopRecord] = [] if records else _Dropped()
+        self.turnbacks: List[TurnbackRecord] = [] if records else _Dropped()
+        self.depot: List[DepotRecord] = [] if records else _Dropped()
         self.route_conflicts = 0
         self.sep_violations = 0
-        self._in_sep: Dict[str, bool] = {}
+        self._in_sep = np.zeros(nt, dtype=bool)
+        """Per slot: the train was closer than the margin to the one ahead last step."""
         self._collide: set[Tuple[int, str]] = set()
         self.stop_err: List[float] = []
         self.forced_err: List[float] = []
@@ -262,11 +326,30 @@ class DayPlant:
         self.m = m
         self._entry = [min(sp.entry_m for sp in tp.spans.values() if sp.route.stage == 0)
                        for tp in loop.termini]
-        self.lead_s: List[float] = []
+        self.lead_s = np.zeros(0)
+        """Sorted fronts [m] of the trains that can lead (:meth:`_leaders`)."""
         top = [max(r.stage for r in tp.layout.routes) for tp in loop.termini]
         self._area = [(self._entry[T], self.length + max(
             sp.exit_m for sp in tp.spans.values() if sp.route.stage == top[T]))
             for T, tp in enumerate(loop.termini)]
+        # authority at the exit of a route: its exit signal plus its overlap (the ATP
+        # margin where it has none) [m], per terminus and route
+        self._route_end = [
+            {rn: sp.exit_m + (sum(tp.layout.section_length_m[q] for q in sp.route.overlap)
+                              or self.margin) for rn, sp in tp.spans.items()}
+            for tp in loop.termini]
+        order = sorted(range(len(self._entry)), key=lambda T: self._entry[T])
+        self._entry_sorted = np.array([self._entry[T] for T in order])
+        self._entry_term = np.array(order + [0], dtype=np.intp)
+        """Terminus of each sorted entry signal, then 0 (beyond the last: A's, a lap on)."""
+        self._entry_next = np.append(self._entry_sorted, self._entry[0] + loop.period_m)
+        self._u = np.full(nt, math.nan)
+        self.sensor_samples = 0
+        self.train_steps = 0
+        self.wall_total = 0.0
+        self.cpu_total = 0.0
+        self.cpu_split = {"plant": 0.0, "ato": 0.0, "rest": 0.0}
+        self._next_trim = 0.0
 
     # ------------------------------------------------------------------ helpers
 
@@ -313,30 +396,41 @@ class DayPlant:
     # ------------------------------------------------------------------ run
 
     def run(self, end_s: Optional[float] = None, max_wall_s: float = math.inf,
-            progress: Optional[Callable[["DayPlant"], None]] = None) -> DayResult:
+            progress: Optional[Callable[["DayPlant"], None]] = None,
+            sensors: bool = False) -> DayResult:
         """Run the day to its last pull-in (or ``end_s`` [s], or ``max_wall_s`` of wall time).
 
-        ``progress(self)`` is called once per simulated hour.
+        A second call runs on from where the first stopped (its result covers the whole
+        run so far, wall time included).
+        ``progress(self)`` is called once per simulated hour; ``sensors``: read the brake
+        sensor samples of every step (noise and faults generated, counted in
+        ``sensor_samples``; nothing of the day uses them).
         """
         w0 = time.perf_counter()
+        c0 = time.process_time()
         all_trips = [tr for b in self.circ.blocks for tr in b.trips]
         first = min(b.trips[0].departure_s for b in self.circ.blocks) - PULL_OUT_LEAD_S
         last = max(tr.arrival_s for tr in all_trips)
         stop_at = last + 3600.0 if end_s is None else float(end_s)
-        # the plants start at 0: jump their clocks to the first pull-out (nothing runs)
-        t0 = max(0.0, math.floor(first) - 1.0)
-        for tr in self.trains:
-            tr.sim.t = t0
-            tr.sim.sensors.next_sample_t = t0
-        # passengers gather from the first pull-out on (one queue per stop, shared)
-        self.trains[0].sim.stations.last_dep_t[:] = t0
-        self.t = t0
+        sim = self.sim
+        if self.step_no == 0:  # a second call runs on from where the first stopped
+            # the plant starts at 0: jump its clock to the first pull-out (nothing runs)
+            self.t_start = max(0.0, math.floor(first) - 1.0)
+            sim.t = self.t_start
+            sim.sensors.next_sample_t = self.t_start
+            # passengers gather from the first pull-out on (one queue per stop, shared)
+            sim.stations.last_dep_t[:] = self.t_start
+            self.t = self.t_start
+        t0 = self.t_start
         dt = float(self.scn.sim.control_period_s)
         next_report = self.t
         while self.t < stop_at - 1e-9 and time.perf_counter() - w0 < max_wall_s:
             if all(tr.b >= len(tr.blocks) and not tr.in_service for tr in self.trains):
                 break
-            self._step(dt)
+            self._step(dt, sensors)
+            if self.t >= self._next_trim:
+                _trim_caches(self.shared, ATO_CACHE_KEEP)
+                self._next_trim = self.t + ATO_CACHE_TRIM_S
             if progress is not None and self.t >= next_report:
                 progress(self)
                 next_report = self.t + 3600.0
@@ -346,39 +440,63 @@ class DayPlant:
                    else "end time")
             self.notes.append(f"stopped at t={self.t:.0f} s ({why}) before every train was "
                               f"back in the depot")
-        viol = sum(int(np.sum(tr.sim.atp.violations)) for tr in self.trains)
+        self.wall_total += time.perf_counter() - w0
+        self.cpu_total += time.process_time() - c0
+        viol = int(np.sum(sim.atp.violations))
         return DayResult(
             stops=self.stops, turnbacks=self.turnbacks, depot=self.depot,
             trips_planned=len(all_trips), trips_run=self.trips_run,
             trains_in_depot=sum(1 for tr in self.trains if not tr.in_service),
             fleet=len(self.trains), atp_violations=viol + self.sep_violations,
             separation_violations=self.sep_violations, route_conflicts=self.route_conflicts,
-            missed_stops=sum(int(tr.sim.stations.skipped_stops) for tr in self.trains),
+            missed_stops=int(sim.stations.skipped_stops),
             stop_errors_m=self.stop_err, forced_stop_errors_m=self.forced_err,
-            atp_interventions=sum(int(np.sum(tr.sim.atp.interventions))
-                                  for tr in self.trains),
-            sim_time_s=self.t, wall_s=time.perf_counter() - w0, finished=finished,
-            notes=self.notes)
+            atp_interventions=int(np.sum(sim.atp.interventions)),
+            sim_time_s=self.t, wall_s=self.wall_total, finished=finished,
+            notes=self.notes, sensor_samples=self.sensor_samples,
+            cpu_split_s=dict(self.cpu_split), cpu_s=self.cpu_total, start_s=t0,
+            train_steps=self.train_steps)
 
-    def _step(self, dt: float) -> None:
+    def _in_service(self) -> Tuple[List[_Train], Any]:
+        """The trains in service and their slots (an int array), in slot order."""
+        svc = [tr for tr in self.trains if tr.in_service]
+        return svc, np.fromiter((tr.i for tr in svc), dtype=np.intp, count=len(svc))
+
+    def _step(self, dt: float, sensors: bool = False) -> None:
+        clock = time.process_time
+        w0 = clock()
         t = self.t
+        sim = self.sim
         self._pull_outs_and_ins(t)
-        self._leaders()
+        svc, rows = self._in_service()
+        self.train_steps += len(svc)
+        self._leaders(rows)
         self._requests(t)
-        self._authorities()
-        for tr in self.trains:
-            sim = tr.sim
-            if not tr.in_service:  # in the depot: nothing moves, the clock runs on
-                sim.t = t + dt
-                continue
-            u = np.full(1, math.nan)
-            if tr.ato is not None and sim.fleet.status[0] == RUN:
-                st = fleet_state_rows(sim, _ROW0)  # the states() rows of this one train
-                u[0] = tr.ato.control(ato_input(st, 0, self.step_no, t))[0]
-            res = sim.step(u)
+        self._authorities(svc, rows)
+        # the ATOs of the trains running (not those turning back in the plant): one fleet
+        # state for all of them; the others keep their last command
+        w1 = clock()
+        u = self._u
+        u.fill(math.nan)
+        run = rows[sim.fleet.status[rows] == RUN]
+        if run.size:
+            st = fleet_state_rows(sim, run)
+            trains = self.trains
+            step = self.step_no
+            for k, i in enumerate(run.tolist()):
+                ato = trains[i].ato
+                if ato is not None:
+                    u[i] = ato.control(ato_input(st, k, step, t))[0]
+        w2 = clock()
+        res = sim.step(u)
+        if sensors:
+            self._read_samples(res)
+        w3 = clock()
+        for tr in svc:
             tr.entered_now = False
-            for ev in res.events:
-                self._event(tr, ev)
+        # a train's events in the order the plant gave them, the trains in slot order
+        for ev in sorted(res.events, key=_slot):
+            self._event(self.trains[ev.train_idx], ev)
         self.t = t + dt
         self.step_no += 1
         self._occupancy()
@@ -386,6 +504,17 @@ class DayPlant:
         self._checks()
         if self.breakdowns:
             self._breakdowns_due()
+        w4 = clock()
+        ws = self.cpu_split
+        ws["ato"] += w2 - w1
+        ws["plant"] += w3 - w2
+        ws["rest"] += (w1 - w0) + (w4 - w3)
+
+    def _read_samples(self, res: StepResult) -> None:
+        """Read the step's brake sensor samples (generated now; counted)."""
+        blk = res.sensor_arrays
+        if blk is not None:
+            self.sensor_samples += blk.t.size * blk.trains.size
 
     # ------------------------------------------------------------------ depot
 
@@ -414,9 +543,11 @@ class DayPlant:
         tr.ato = self.wiring.onboard(self.shared)
         tr.entered_now = True
         tr.last_arr = None
-        tr.sim.sensors.next_sample_t = t  # no samples were due in the depot
-        tr.sim.enter(0, tp.departure_stop)
-        tr.sim.set_departure(0, tp.departure_stop, HOLD_S)
+        sim = self.sim
+        if not sim.sensors.any_sensed:  # no samples were due while no train ran
+            sim.sensors.next_sample_t = t
+        sim.enter(tr.i, tp.departure_stop)
+        sim.set_departure(tr.i, tp.departure_stop, HOLD_S)
         tr.req = _Req(T, dep_route, trip.departure_s - REQUEST_LEAD_S, tp.departure_stop,
                       trip.departure_s, self._running(tp.departure_stop))
         self.depot.append(DepotRecord(tr.name, "pull_out", trip.origin, t, sched))
@@ -446,7 +577,7 @@ class DayPlant:
 
     def _withdraw(self, tr: _Train, t: float) -> None:
         trip = tr.last_arr[0] if tr.last_arr else None
-        tr.sim.pull_in(0)
+        self.sim.pull_in(tr.i)
         tr.in_service = False
         tr.ato = None
         tr.itin = {}
@@ -470,8 +601,8 @@ class DayPlant:
                 continue
             il = self.il[q.term]
             if q.stop < 0:  # an arrival route: only the first train before the signal asks
-                x = float(tr.sim.fleet.x[0])
-                k = bisect.bisect_right(self.lead_s, x)
+                x = float(self.sim.fleet.x[tr.i])
+                k = int(np.searchsorted(self.lead_s, x, side="right"))
                 if k < len(self.lead_s) and self.lead_s[k] <= self._entry[q.term] + 1.0:
                     continue
             if not any(r.train == tr.name for r in il.queue):
@@ -480,7 +611,7 @@ class DayPlant:
     def _grants(self) -> None:
         for T, il in enumerate(self.il):
             for name, route in il.process():
-                tr = next(x for x in self.trains if x.name == name)
+                tr = self._by_name[name]
                 q = tr.req
                 tr.req = None
                 r = il.layout.route(route)
@@ -492,7 +623,7 @@ class DayPlant:
                     tr.zone = T
                 if q is not None and q.stop >= 0:
                     dep = max(self.t, q.earliest_s)
-                    tr.sim.set_departure(0, q.stop, dep, q.running_s)
+                    self.sim.set_departure(tr.i, q.stop, dep, q.running_s)
                     if tr.ato is not None:
                         tr.ato.on_departure(q.stop, dep, q.running_s, self.t)
 
@@ -529,7 +660,7 @@ class DayPlant:
                 return  # placed at its departure berth by a pull-out
             err = float(ev.stop_error_m)
             if math.isfinite(err):
-                forced = bool(tr.sim.fleet.broken[0] or tr.sim.atp.eb[0])
+                forced = bool(self.sim.fleet.broken[tr.i] or self.sim.atp.eb[tr.i])
                 (self.forced_err if forced else self.stop_err).append(err)
             if j == 0:  # the loop closed: a new lap, a new cab
                 tr.ato = self.wiring.onboard(self.shared)
@@ -544,7 +675,7 @@ class DayPlant:
         return None
 
     def _arrival(self, tr: _Train, j: int, t: float) -> None:
-        sim = tr.sim
+        sim = self.sim
         tp = self._terminus_at(j)
         if tp is None:  # an intermediate platform of the running trip
             sched = tr.trip_plan.get(j, (math.nan, math.nan))
@@ -553,7 +684,7 @@ class DayPlant:
             extra = self.extra.get((tr.name, tr.trip.trip_id if tr.trip else "", st), 0.0)
             dep = sched[1] + extra
             run = self._running(j) * self._scale(tr)
-            sim.set_departure(0, j, dep, run)
+            sim.set_departure(tr.i, j, dep, run)
             if tr.ato is not None:
                 tr.ato.on_departure(j, dep, run, t)
             return
@@ -562,7 +693,7 @@ class DayPlant:
         route = tr.route.pop(T, None)
         if route is not None:
             self.il[T].arrived(route)
-        sim.set_departure(0, j, HOLD_S)
+        sim.set_departure(tr.i, j, HOLD_S)
         if j == tp.arrival_stop and tr.trip is not None and \
                 self._term_of(tr.trip.destination) == T:
             self._end_trip(tr, j, t)
@@ -639,60 +770,59 @@ class DayPlant:
 
     # ------------------------------------------------------------------ authority
 
-    def _inside(self, x: float) -> bool:
-        """Front ``x`` [m] inside a terminus: entry signal .. the rear out of its departure.
+    def _inside_mask(self, x: Any) -> Any:
+        """Which fronts ``x`` [m] (an array) lie inside a terminus (a bool array).
 
-        The departure route's sections are shared with the arrival routes of the parallel
+        Inside: from the entry signal until the rear is out of the departure route.  The
+        departure route's sections are shared with the arrival routes of the parallel
         track (scissors), so a departing train is inside until its rear has left them.
         """
-        for T, (lo, hi) in enumerate(self._area):
-            if (lo <= x <= hi) if lo < hi else (x >= lo or x <= hi):  # A: across the wrap
-                return True
-        return False
+        out = np.zeros(x.shape, dtype=bool)
+        for lo, hi in self._area:
+            if lo < hi:
+                out |= (x >= lo) & (x <= hi)
+            else:  # A: across the wrap
+                out |= (x >= lo) | (x <= hi)
+        return out
 
-    def _leaders(self) -> None:
+    def _leaders(self, rows: Any) -> None:
         """Sorted fronts [m] of the trains that can lead: in service, outside the termini.
 
-        Inside a terminus parallel berths share path coordinates (the interlocking
-        separates those trains); everywhere else the path order is the track order.
+        ``rows``: the slots in service.  Inside a terminus parallel berths share path
+        coordinates (the interlocking separates those trains); everywhere else the path
+        order is the track order.
         """
-        self.lead_s = sorted(float(tr.sim.fleet.x[0]) for tr in self.trains
-                             if tr.in_service and not self._inside(float(tr.sim.fleet.x[0])))
+        x = self.sim.fleet.x[rows]
+        self.lead_s = np.sort(x[~self._inside_mask(x)])
 
-    def _authorities(self) -> None:
-        P = self.loop.period_m
-        open_s = self.lead_s
-        for tr in self.trains:
-            sim = tr.sim
-            if not tr.in_service:
-                continue
-            x = float(sim.fleet.x[0])
-            k = bisect.bisect_right(open_s, x)
-            lead = open_s[k] - self.length - self.margin if k < len(open_s) else math.inf
-            cap = math.inf
-            if tr.zone >= 0:
-                T = tr.zone
-                rn = tr.route.get(T)
-                if rn is not None:
-                    sp = self.loop.termini[T].spans[rn]
-                    r = sp.route
-                    ext = sum(self.loop.termini[T].layout.section_length_m[s]
-                              for s in r.overlap) or self.margin
-                    cap = sp.exit_m + ext
-                else:
-                    cap = float(sim.fleet.stop_x[0]) if not sim.fleet.dwelling[0] else x
-            else:
-                # the entry signal of the terminus ahead until the arrival route is set
-                ahead = [e for e in self._entry if e >= x - 1.0]
-                e = min(ahead) if ahead else self._entry[0] + P
-                T = self._entry.index(e) if ahead else 0
-                rn = tr.route.get(T)
-                if rn is None:
-                    cap = e
-            ma = min(cap, lead)
-            if ma != tr.ma:
-                sim.set_authority_end(ma)
-                tr.ma = ma
+    def _authorities(self, svc: List[_Train], rows: Any) -> None:
+        """End of authority of the trains in service (slots ``rows``) into the plant.
+
+        The nearest leader ahead (:attr:`lead_s`, one sorted search) and each train's cap:
+        inside a terminus the end of its set route (else its berth), on the open line the
+        entry signal of the terminus ahead until its arrival route is set.
+        """
+        if not svc:
+            return
+        fl = self.sim.fleet
+        x = fl.x[rows]
+        ahead = np.append(self.lead_s - self.length - self.margin, math.inf)
+        lead = ahead[np.searchsorted(self.lead_s, x, side="right")]
+        # the entry signal of the terminus ahead of each front (and its terminus)
+        k = np.searchsorted(self._entry_sorted, x - 1.0, side="left")
+        entry, term = self._entry_next[k], self._entry_term[k].tolist()
+        cap = np.empty(len(svc))
+        ends = self._route_end
+        for n, tr in enumerate(svc):
+            z = tr.zone
+            if z >= 0:  # inside a terminus: its set route, else its berth (nan: below)
+                rn = tr.route.get(z)
+                cap[n] = ends[z][rn] if rn is not None else math.nan
+            else:  # the entry signal ahead until the arrival route is set
+                cap[n] = math.inf if term[n] in tr.route else entry[n]
+        berth = np.where(fl.dwelling[rows], x, fl.stop_x[rows])
+        cap = np.where(np.isnan(cap), berth, cap)
+        self.sim.set_authority_ends(rows, np.minimum(cap, lead))
 
     # ------------------------------------------------------------------ occupancy
 
@@ -705,15 +835,18 @@ class DayPlant:
 
     def _occupancy(self) -> None:
         P = self.loop.period_m
+        fl = self.sim.fleet
+        # the trains with an itinerary or a set route at a terminus (few: those near one)
+        near = [tr for tr in self.trains if tr.itin or tr.route]
         for T, il in enumerate(self.il):
             occ: Dict[str, int] = {}
-            for tr in self.trains:
+            for tr in near:
                 if not tr.in_service or not tr.itin.get(T):
                     continue
-                fl = tr.sim.fleet
-                x = float(fl.x[0])
-                if fl.dwelling[0]:  # standing at a berth: its front is at the stop point
-                    x = min(x, self.loop.stops[int(fl.cur_station[0])].s_m)
+                i = tr.i
+                x = float(fl.x[i])
+                if fl.dwelling[i]:  # standing at a berth: its front is at the stop point
+                    x = min(x, self.loop.stops[int(fl.cur_station[i])].s_m)
                 hit = set()
                 for sec, a, b in self._spans_of(tr, T):
                     for d in (0.0, P, -P):
@@ -737,7 +870,7 @@ class DayPlant:
             for s in sorted(il.occupied - now):
                 il.clear(s)
             # a train whose departure route is released has left the terminus
-            for tr in self.trains:
+            for tr in near:
                 rn = tr.route.get(T)
                 if rn is not None and rn not in il.set_routes:
                     del tr.route[T]
@@ -753,12 +886,12 @@ class DayPlant:
             tr = next(x for x in self.trains if x.name == bd.train)
             if not tr.in_service:
                 continue
-            x = float(tr.sim.fleet.x[0])
+            x = float(self.sim.fleet.x[tr.i])
             if bd.section and not any(a <= x + d <= b for s, a, b in
                                       self._spans_of(tr, bd.terminus) if s == bd.section
                                       for d in (0.0, P, -P)):
                 continue
-            tr.sim.breakdown(0, bd.duration_s)
+            self.sim.breakdown(tr.i, bd.duration_s)
             self.breakdowns.remove(bd)
             self.notes.append(f"t={self.t:.2f} s: {tr.name} broke down at s={x:.0f} m for "
                               f"{bd.duration_s:.0f} s")
@@ -771,15 +904,27 @@ class DayPlant:
                 self.notes.append(f"t={self.t:.2f} s: {il.layout.name}: {why}")
         # separation of the trains outside the termini (the plant's own monitor sees no
         # train ahead)
-        rows = sorted((float(tr.sim.fleet.x[0]), tr.name) for tr in self.trains
-                      if tr.in_service and not self._inside(float(tr.sim.fleet.x[0])))
-        for (x0, n0), (x1, _) in zip(rows[:-1], rows[1:]):
-            bad = x1 - self.length - x0 < self.margin - 1e-6
-            if bad and not self._in_sep.get(n0, False):
-                self.sep_violations += 1
-            self._in_sep[n0] = bad
-        if rows:
-            self._in_sep[rows[-1][1]] = False
+        _, rows = self._in_service()
+        x = self.sim.fleet.x[rows]
+        out = ~self._inside_mask(x)
+        rows, x = rows[out], x[out]
+        order = np.argsort(x, kind="stable")  # by front, then by slot (= by name)
+        rows, x = rows[order], x[order]
+        bad = (x[1:] - self.length) - x[:-1] < self.margin - 1e-6
+        behind = rows[:-1]  # each train behind another
+        self.sep_violations += int(np.count_nonzero(bad & ~self._in_sep[behind]))
+        self._in_sep[behind] = bad
+        if rows.size:
+            self._in_sep[rows[-1]] = False
+
+
+def _trim_caches(shared: Dict[str, Any], keep: int) -> None:
+    """Keep the newest ``keep`` entries of each of the ATOs' mass-keyed caches (in place)."""
+    for name in ATO_CACHES:
+        cache = shared.get(name)
+        if isinstance(cache, dict) and len(cache) > keep:
+            for key in list(cache)[:len(cache) - keep]:  # insertion order: oldest first
+                del cache[key]
 
 
 def _dwell_row(sv: Any, t_s: float) -> Any:
@@ -845,7 +990,7 @@ def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = 
                 seed: int = 0, stable_after_s: float = 1800.0,
                 trip_times: str = "plan",
                 holds: Optional[Mapping[Tuple[str, int], float]] = None,
-                breakdowns: Sequence[Breakdown] = ()) -> DayPlant:
+                breakdowns: Sequence[Breakdown] = (), records: bool = True) -> DayPlant:
     """The plant of a day: ``scn``'s line and stock, ``plan`` a :class:`DayPlan`.
 
     The loop of the line with the plan's terminus layouts; its timetable periods are the
@@ -854,7 +999,7 @@ def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = 
     (``trip_times="plan"``: Lin 2010a, eq. 5/10 on the ATR line data) or those the plant's
     timetable gives (``"plant"``: :func:`plant_timed`).  ``holds[(trip id, station
     index)]`` [s]: extra dwell of that trip's call (whichever train runs it);
-    ``breakdowns``: see :class:`DayPlant`.  DayError / LoopError in one line.
+    ``breakdowns``, ``records``: see :class:`DayPlant`.  DayError / LoopError in one line.
     """
     from .day import run_day, trips
     if trip_times not in ("plan", "plant"):
@@ -892,7 +1037,24 @@ def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = 
                              f"{station}: needs an intermediate station and a finite hold "
                              f">= 0 s, got {d!r} s")
         extra[(owner[trip_id], trip_id, int(station))] = float(d)
-    return DayPlant(loop, circ, termini, planner, tracker, seed, extra, breakdowns)
+    return DayPlant(loop, circ, termini, planner, tracker, seed, extra, breakdowns,
+                    records=records)
+
+
+def rss_mb() -> float:
+    """Resident set size of this process now [MB] (nan where /proc is not there)."""
+    try:
+        with open("/proc/self/statm", encoding="ascii") as f:
+            pages = int(f.read().split()[1])
+    except (OSError, ValueError, IndexError):
+        return math.nan
+    return pages * os.sysconf("SC_PAGE_SIZE") / 1e6
+
+
+def peak_rss_mb() -> float:
+    """Peak resident set size of this process so far [MB] (``getrusage``; Linux KiB)."""
+    import resource
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 1e6
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
@@ -919,11 +1081,19 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                     help="the period table's trip times or the plant's timetable's")
     ap.add_argument("--out", default=None,
                     help="write the day's KPIs (day_kpis.json/.txt) and pictures here")
+    ap.add_argument("--sensors", action="store_true",
+                    help="read the brake sensor samples of every step (speed figures)")
+    ap.add_argument("--no-records", action="store_true",
+                    help="count the stop / turnback / depot records, keep none (memory "
+                         "figures; not with --out)")
     a = ap.parse_args(argv)
+    if a.no_records and a.out is not None:
+        print("error: --no-records leaves nothing to write to --out", file=sys.stderr)
+        return 2
     try:
         plan = load_day(a.day)
         dp = service_day(load_scenario(a.scenario), plan, seed=a.seed,
-                         trip_times=a.trip_times)
+                         trip_times=a.trip_times, records=not a.no_records)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -931,13 +1101,18 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     def progress(d: DayPlant) -> None:
         print(json.dumps({"t_h": round(d.t / 3600.0, 2), "trips_run": d.trips_run,
                           "in_service": sum(tr.in_service for tr in d.trains),
-                          "route_conflicts": d.route_conflicts}), flush=True)
+                          "route_conflicts": d.route_conflicts,
+                          "rss_mb": round(rss_mb(), 1)}), flush=True)
 
-    res = dp.run(None if a.end_h is None else a.end_h * 3600.0, a.max_wall_s, progress)
+    res = dp.run(None if a.end_h is None else a.end_h * 3600.0, a.max_wall_s, progress,
+                 sensors=a.sensors)
     late = [tb.terminal_delay_s for tb in res.turnbacks]
+    sp = {k: round(v, 1) for k, v in res.speed().items()}
     print(json.dumps({**res.row(), "fleet_used": dp.circ.fleet,
                       "terminal_delay_max_s": max(late, default=math.nan),
                       "terminal_delay_mean_s": float(np.mean(late)) if late else math.nan,
+                      **sp, "sensor_samples": res.sensor_samples,
+                      "peak_rss_mb": round(peak_rss_mb(), 1),
                       "notes": res.notes[:5]}), flush=True)
     if a.out is not None:
         from pathlib import Path
@@ -959,4 +1134,5 @@ if __name__ == "__main__":
 
 
 __all__ = ["Breakdown", "DayPlant", "DayResult", "DayTerminus", "HOLD_S", "PULL_OUT_LEAD_S",
-           "REQUEST_LEAD_S", "day_trips", "main", "plant_timed", "service_day"]
+           "REQUEST_LEAD_S", "day_trips", "main", "peak_rss_mb", "plant_timed", "rss_mb",
+           "service_day"]
