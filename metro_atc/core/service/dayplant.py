@@ -66,6 +66,14 @@ PULL_OUT_LEAD_S = 120.0
 """A pulled-out train stands at its departure platform this long before its first trip [s]."""
 REQUEST_LEAD_S = 30.0
 """A departure / reversal route is requested this long before the train may leave [s]."""
+STABLE_AFTER_S = 600.0
+"""A train that would stand longer than this at a terminus with a depot goes to the depot.
+
+It is pulled out again for its next trip [s].  A tail track holds four trains (arrival
+platform, two sidings, departure platform): at the 105-120 s peak headways a train standing
+longer than ~5 headways (e.g. the surplus of the morning fleet circulating in the evening
+peak, 840 s layovers) fills it and the trains behind queue on the line.
+"""
 _ROW0 = np.zeros(1, dtype=np.intp)
 HOLD_S = 1.0e9
 """Departure command of a train held at a berth until its next route is set [s]."""
@@ -233,6 +241,11 @@ class DayPlant:
         top = [max(r.stage for r in tp.layout.routes) for tp in loop.termini]
         self._area = [(self._entry[T], self.length + max(
             sp.exit_m for sp in tp.spans.values() if sp.route.stage == top[T]))
+            for T, tp in enumerate(loop.termini)]
+        # the departure berths of each terminus (where a trip starts: a pull-out enters one)
+        self._dep_berths = [frozenset(
+            r.destination for d in tp.layout.routes if d.stage == top[T]
+            for r in tp.layout.routes if r.exit_signal == d.entry_signal)
             for T, tp in enumerate(loop.termini)]
 
     # ------------------------------------------------------------------ helpers
@@ -434,13 +447,51 @@ class DayPlant:
             if q is None or q.at_s > t + 1e-9:
                 continue
             il = self.il[q.term]
+            if any(r.train == tr.name for r in il.queue):
+                continue
             if q.stop < 0:  # an arrival route: only the first train before the signal asks
                 x = float(tr.sim.fleet.x[0])
                 k = bisect.bisect_right(self.lead_s, x)
                 if k < len(self.lead_s) and self.lead_s[k] <= self._entry[q.term] + 1.0:
                     continue
-            if not any(r.train == tr.name for r in il.queue):
-                il.request(tr.name, q.route)
+            it = tr.itin.setdefault(q.term, [])
+            if q.route not in it:
+                # chosen now (a siding or platform chosen earlier may be taken since); the
+                # route claims its destination from its request on
+                q.route = self._choose(q.term, tr)
+                if self._yields(q.term, tr, q.route):
+                    continue
+                it.append(q.route)
+            il.request(tr.name, q.route)
+
+    def _yields(self, T: int, tr: _Train, route: str) -> bool:
+        """``tr`` waits before taking a departure berth of T that a pull-out needs first.
+
+        Departure berths serve trips in timetable order: a train whose next trip from T
+        leaves at d may take one only while more of them are free than there are pull-outs
+        still to come at T for trips leaving before d (a train standing at the berth until
+        d would shut such a pull-out out, and the timetable falls behind).  A train that
+        ends its block at T (pulls in) never waits.
+        """
+        lay = self.loop.termini[T].layout
+        berth = lay.route(route).destination
+        if berth not in self._dep_berths[T]:
+            return False
+        blk = tr.blocks[tr.b].trips
+        k = tr.k  # trips started so far in this block: the next one is trips[k]
+        if k >= len(blk) or self._term_of(blk[k].origin) != T:
+            return False
+        d = blk[k].departure_s
+        code = self.termini[T].code
+        due = sum(1 for o in self.trains if not o.in_service and o.b < len(o.blocks)
+                  and o.blocks[o.b].trips[0].origin == code
+                  and o.blocks[o.b].trips[0].departure_s < d)
+        if due == 0:
+            return False
+        il = self.il[T]
+        free = sum(1 for b in self._dep_berths[T] if b not in il.occupied
+                   and b not in il.lock and not self._claimed(T, b, tr))
+        return free <= due
 
     def _grants(self) -> None:
         for T, il in enumerate(self.il):
@@ -545,7 +596,6 @@ class DayPlant:
             earliest = t + lay.reversal_s
         else:
             earliest = t
-        tr.itin.setdefault(T, []).append(nxt_route)
         tr.req = _Req(T, nxt_route, earliest - REQUEST_LEAD_S, j, earliest, self._running(j))
 
     def _scale(self, tr: _Train) -> float:
@@ -598,9 +648,7 @@ class DayPlant:
         for T, tq in enumerate(self.loop.termini):
             if nxt == tq.arrival_stop and (tp is None or tp.index != T):
                 tr.itin[T] = []
-                route = self._choose(T, tr)
-                tr.itin[T] = [route]
-                tr.req = _Req(T, route, t)
+                tr.req = _Req(T, self._choose(T, tr), t)
 
     # ------------------------------------------------------------------ authority
 
@@ -788,7 +836,7 @@ def plant_timed(loop: LoopLine, sv: Any, trips: Sequence[Trip], codes: Tuple[str
 
 
 def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = "fuzzy",
-                seed: int = 0, stable_after_s: float = 1800.0,
+                seed: int = 0, stable_after_s: float = STABLE_AFTER_S,
                 trip_times: str = "plan") -> DayPlant:
     """The plant of a day: ``scn``'s line and stock, ``plan`` a :class:`DayPlan`.
 
@@ -890,4 +938,4 @@ if __name__ == "__main__":
 
 
 __all__ = ["DayPlant", "DayResult", "DayTerminus", "HOLD_S", "PULL_OUT_LEAD_S",
-           "REQUEST_LEAD_S", "day_trips", "main", "plant_timed", "service_day"]
+           "REQUEST_LEAD_S", "STABLE_AFTER_S", "day_trips", "main", "plant_timed", "service_day"]
