@@ -204,3 +204,31 @@ def test_the_depot_feeds_a_peak_on_time_at_tail_tracks() -> None:
     late = [r.dep_s - r.sched_dep_s for r in res.stops if math.isnan(r.sched_arr_s)]
     assert len(late) == len(trips)
     assert max(late) <= 60.0, sorted(late)[-5:]
+
+
+def test_an_authority_never_rests_a_train_inside_the_stop_window_short_of_its_stop() -> None:
+    """No end of authority has the ATO rest inside the stop window short of the stop point.
+
+    The ATO comes to rest AUTHORITY_MARGIN_M short of the end of authority; inside the stop
+    window (+-tol) short of the next stop point the plant would count that standstill as the
+    arrival with the shortfall as its stop error.  A growing authority stays growing (no
+    jump back under the ATP).
+    """
+    import numpy as np
+
+    from metro_atc.core.ato.onboard import AUTHORITY_MARGIN_M
+    from metro_atc.core.service.dayplant import clear_of_stop
+    stop, tol, x = 1000.0, 1.0, 700.0
+    prev = -math.inf
+    for ma in np.arange(900.0, 1100.0, 0.05):
+        got = clear_of_stop(float(ma), x, stop, tol)
+        rest = got - AUTHORITY_MARGIN_M
+        assert not (stop - 2.0 * tol < rest < stop), (ma, got)
+        assert got <= ma and got >= prev
+        prev = got
+        if ma >= stop + AUTHORITY_MARGIN_M:
+            assert got == ma  # the authority covers the stop: unchanged
+        if ma <= stop + AUTHORITY_MARGIN_M - 2.0 * tol:
+            assert got == ma  # the train rests outside the window anyway
+    # a train past its stop point (or standing at it) keeps its authority
+    assert clear_of_stop(1005.0, 1000.5, stop, tol) == 1005.0

@@ -48,7 +48,7 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
-from metro_atc.core.ato.onboard import OnboardAto
+from metro_atc.core.ato.onboard import AUTHORITY_MARGIN_M, OnboardAto
 from metro_atc.core.ato.wiring import ato_wiring
 from metro_atc.core.bridge import timetable_for
 from metro_atc.core.closed_loop import STOP_WINDOW_M, ato_input
@@ -220,6 +220,7 @@ class DayPlant:
                                      f"{lay.section_length_m[d]:g} m is shorter than the "
                                      f"{self.length:g} m train")
         self.min_dwell = float(self.scn.passengers.min_dwell_s)
+        self.tol_stop = float(first.tol_stop)
         self.t = 0.0
         self.step_no = 0
         self.stops: List[StopRecord] = []
@@ -703,6 +704,8 @@ class DayPlant:
                 if rn is None:
                     cap = e
             ma = min(cap, lead)
+            if not sim.fleet.dwelling[0]:
+                ma = clear_of_stop(ma, x, float(sim.fleet.stop_x[0]), self.tol_stop)
             if ma != tr.ma:
                 sim.set_authority_end(ma)
                 tr.ma = ma
@@ -774,6 +777,23 @@ class DayPlant:
             self._in_sep[n0] = bad
         if rows:
             self._in_sep[rows[-1][1]] = False
+
+
+def clear_of_stop(ma_m: float, x_m: float, stop_m: float, tol_m: float) -> float:
+    """End of movement authority [m] that never rests a train just short of its stop point.
+
+    The ATO aims ``AUTHORITY_MARGIN_M`` short of the end of authority ``ma_m`` (its guard,
+    :mod:`metro_atc.core.ato.onboard`); an authority ending less than that beyond the next
+    stop point ``stop_m`` (e.g. the rear of a train leaving that platform, minus the ATP
+    margin) brings the train ``x_m`` to rest short of the stop point, and a standstill
+    inside the plant's stop window (+-``tol_m``) counts as the arrival, the shortfall as
+    its stop error.  Such an authority ends ``2 tol_m`` further back (the train rests outside
+    the window and runs on to the stop point once the authority reaches beyond it).  For a
+    growing authority the result never decreases.  Positions along the path [m].
+    """
+    if x_m < stop_m and ma_m < stop_m + AUTHORITY_MARGIN_M:
+        return min(ma_m, stop_m + AUTHORITY_MARGIN_M - 2.0 * tol_m)
+    return ma_m
 
 
 def _dwell_row(sv: Any, t_s: float) -> Any:
@@ -938,4 +958,5 @@ if __name__ == "__main__":
 
 
 __all__ = ["DayPlant", "DayResult", "DayTerminus", "HOLD_S", "PULL_OUT_LEAD_S",
-           "REQUEST_LEAD_S", "STABLE_AFTER_S", "day_trips", "main", "plant_timed", "service_day"]
+           "REQUEST_LEAD_S", "STABLE_AFTER_S", "clear_of_stop", "day_trips", "main",
+           "plant_timed", "service_day"]
