@@ -225,3 +225,62 @@ def test_ato_mass_caches_are_trimmed_to_the_newest() -> None:
     for name in ATO_CACHES:
         assert list(shared[name]) == [7, 8, 9]
     assert len(shared["prework"]) == 10
+
+
+def test_the_depot_feeds_a_peak_on_time_at_tail_tracks() -> None:
+    """Departure berths serve trips in timetable order: a peak fed by the depot keeps time.
+
+    Tail tracks at both ends, a 120 s peak after a 360 s shoulder: the first peak trips
+    are pull-outs while the trains turned from the shoulder stand in the sidings for later
+    trips.  A turned train that took the single departure platform before a pull-out due
+    earlier would hold it until its own later trip and the pull-out behind it (measured
+    before the rule: 2000+ s late); every departure from a terminus now leaves within 60 s
+    of its timetable.
+    """
+    scn = load_scenario("mini")
+    scn = dataclasses.replace(scn, disturbances=dataclasses.replace(
+        scn.disturbances, departure_delay_prob=0.0))
+    loop = build_loop(scn, (tail_track_terminus(2, platform_m=PLATFORM_M),
+                            tail_track_terminus(2, platform_m=PLATFORM_M)))
+    sv = LineSim(loop.scenario, trace_period_s=0.0).service
+    trips = day_trips(loop, sv, CODES, [(3600.0, 4800.0, 360.0), (4800.0, 7200.0, 120.0)])
+    min_tb, layover = 120.0, 350.0
+    circ = build_circulation(trips, {c: layover for c in CODES}, set(CODES), 1800.0,
+                             "longest_wait")
+    assert sum(circ.pull_outs.values()) > 4  # the peak needs the depot
+    dp = DayPlant(loop, circ, [DayTerminus(c, min_tb, True) for c in CODES])
+    res = dp.run()
+    assert res.finished and res.trips_run == res.trips_planned
+    assert res.atp_violations == 0 and res.route_conflicts == 0, res.notes
+    assert res.missed_stops == 0
+    late = [r.dep_s - r.sched_dep_s for r in res.stops if math.isnan(r.sched_arr_s)]
+    assert len(late) == len(trips)
+    assert max(late) <= 60.0, sorted(late)[-5:]
+
+
+def test_an_authority_never_rests_a_train_inside_the_stop_window_short_of_its_stop() -> None:
+    """No end of authority has the ATO rest inside the stop window short of the stop point.
+
+    The ATO comes to rest AUTHORITY_MARGIN_M short of the end of authority; inside the stop
+    window (+-tol) short of the next stop point the plant would count that standstill as the
+    arrival with the shortfall as its stop error.  A growing authority stays growing (no
+    jump back under the ATP).
+    """
+    import numpy as np
+
+    from metro_atc.core.ato.control_kernel import AUTH_MARGIN as AUTHORITY_MARGIN_M
+    from metro_atc.core.service.dayplant import clear_of_stop
+    stop, tol, x = 1000.0, 1.0, 700.0
+    prev = -math.inf
+    for ma in np.arange(900.0, 1100.0, 0.05):
+        got = clear_of_stop(float(ma), x, stop, tol)
+        rest = got - AUTHORITY_MARGIN_M
+        assert not (stop - 2.0 * tol < rest < stop), (ma, got)
+        assert got <= ma and got >= prev
+        prev = got
+        if ma >= stop + AUTHORITY_MARGIN_M:
+            assert got == ma  # the authority covers the stop: unchanged
+        if ma <= stop + AUTHORITY_MARGIN_M - 2.0 * tol:
+            assert got == ma  # the train rests outside the window anyway
+    # a train past its stop point (or standing at it) keeps its authority
+    assert clear_of_stop(1005.0, 1000.5, stop, tol) == 1005.0

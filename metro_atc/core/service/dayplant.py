@@ -55,6 +55,7 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
+from metro_atc.core.ato.control_kernel import AUTH_MARGIN as AUTHORITY_MARGIN_M
 from metro_atc.core.ato.onboard import OnboardAto
 from metro_atc.core.ato.wiring import ato_wiring
 from metro_atc.core.bridge import timetable_for
@@ -74,6 +75,14 @@ PULL_OUT_LEAD_S = 120.0
 """A pulled-out train stands at its departure platform this long before its first trip [s]."""
 REQUEST_LEAD_S = 30.0
 """A departure / reversal route is requested this long before the train may leave [s]."""
+STABLE_AFTER_S = 600.0
+"""A train that would stand longer than this at a terminus with a depot goes to the depot.
+
+It is pulled out again for its next trip [s].  A tail track holds four trains (arrival
+platform, two sidings, departure platform): at the 105-120 s peak headways a train standing
+longer than ~5 headways (e.g. the surplus of the morning fleet circulating in the evening
+peak, 840 s layovers) fills it and the trains behind queue on the line.
+"""
 HOLD_S = 1.0e9
 """Departure command of a train held at a berth until its next route is set [s]."""
 ATO_CACHE_KEEP = 256
@@ -306,6 +315,7 @@ class DayPlant:
                 raise ValueError(f"breakdown of {bd.train}: no section {bd.section!r} at "
                                  f"terminus {bd.terminus}")
         self.breakdowns: List[Breakdown] = sorted(breakdowns, key=lambda b: b.at_s)
+        self.tol_stop = float(self.sim.tol_stop)
         self.t = 0.0
         self.t_start = 0.0
         """The day's clock at its first step [s] (just before the first pull-out)."""
@@ -350,6 +360,11 @@ class DayPlant:
         self.cpu_total = 0.0
         self.cpu_split = {"plant": 0.0, "ato": 0.0, "rest": 0.0}
         self._next_trim = 0.0
+        # the departure berths of each terminus (where a trip starts: a pull-out enters one)
+        self._dep_berths = [frozenset(
+            r.destination for d in tp.layout.routes if d.stage == top[T]
+            for r in tp.layout.routes if r.exit_signal == d.entry_signal)
+            for T, tp in enumerate(loop.termini)]
 
     # ------------------------------------------------------------------ helpers
 
@@ -600,13 +615,51 @@ class DayPlant:
             if q is None or q.at_s > t + 1e-9:
                 continue
             il = self.il[q.term]
+            if any(r.train == tr.name for r in il.queue):
+                continue
             if q.stop < 0:  # an arrival route: only the first train before the signal asks
                 x = float(self.sim.fleet.x[tr.i])
                 k = int(np.searchsorted(self.lead_s, x, side="right"))
                 if k < len(self.lead_s) and self.lead_s[k] <= self._entry[q.term] + 1.0:
                     continue
-            if not any(r.train == tr.name for r in il.queue):
-                il.request(tr.name, q.route)
+            it = tr.itin.setdefault(q.term, [])
+            if q.route not in it:
+                # chosen now (a siding or platform chosen earlier may be taken since); the
+                # route claims its destination from its request on
+                q.route = self._choose(q.term, tr)
+                if self._yields(q.term, tr, q.route):
+                    continue
+                it.append(q.route)
+            il.request(tr.name, q.route)
+
+    def _yields(self, T: int, tr: _Train, route: str) -> bool:
+        """``tr`` waits before taking a departure berth of T that a pull-out needs first.
+
+        Departure berths serve trips in timetable order: a train whose next trip from T
+        leaves at d may take one only while more of them are free than there are pull-outs
+        still to come at T for trips leaving before d (a train standing at the berth until
+        d would shut such a pull-out out, and the timetable falls behind).  A train that
+        ends its block at T (pulls in) never waits.
+        """
+        lay = self.loop.termini[T].layout
+        berth = lay.route(route).destination
+        if berth not in self._dep_berths[T]:
+            return False
+        blk = tr.blocks[tr.b].trips
+        k = tr.k  # trips started so far in this block: the next one is trips[k]
+        if k >= len(blk) or self._term_of(blk[k].origin) != T:
+            return False
+        d = blk[k].departure_s
+        code = self.termini[T].code
+        due = sum(1 for o in self.trains if not o.in_service and o.b < len(o.blocks)
+                  and o.blocks[o.b].trips[0].origin == code
+                  and o.blocks[o.b].trips[0].departure_s < d)
+        if due == 0:
+            return False
+        il = self.il[T]
+        free = sum(1 for b in self._dep_berths[T] if b not in il.occupied
+                   and b not in il.lock and not self._claimed(T, b, tr))
+        return free <= due
 
     def _grants(self) -> None:
         for T, il in enumerate(self.il):
@@ -711,7 +764,6 @@ class DayPlant:
             earliest = t + lay.reversal_s
         else:
             earliest = t
-        tr.itin.setdefault(T, []).append(nxt_route)
         tr.req = _Req(T, nxt_route, earliest - REQUEST_LEAD_S, j, earliest, self._running(j))
 
     def _scale(self, tr: _Train) -> float:
@@ -764,9 +816,7 @@ class DayPlant:
         for T, tq in enumerate(self.loop.termini):
             if nxt == tq.arrival_stop and (tp is None or tp.index != T):
                 tr.itin[T] = []
-                route = self._choose(T, tr)
-                tr.itin[T] = [route]
-                tr.req = _Req(T, route, t)
+                tr.req = _Req(T, self._choose(T, tr), t)
 
     # ------------------------------------------------------------------ authority
 
@@ -820,9 +870,12 @@ class DayPlant:
                 cap[n] = ends[z][rn] if rn is not None else math.nan
             else:  # the entry signal ahead until the arrival route is set
                 cap[n] = math.inf if term[n] in tr.route else entry[n]
-        berth = np.where(fl.dwelling[rows], x, fl.stop_x[rows])
-        cap = np.where(np.isnan(cap), berth, cap)
-        self.sim.set_authority_ends(rows, np.minimum(cap, lead))
+        dwelling = fl.dwelling[rows]
+        stop = fl.stop_x[rows]
+        cap = np.where(np.isnan(cap), np.where(dwelling, x, stop), cap)
+        ma = np.minimum(cap, lead)
+        ma = np.where(dwelling, ma, clear_of_stop(ma, x, stop, self.tol_stop))
+        self.sim.set_authority_ends(rows, ma)
 
     # ------------------------------------------------------------------ occupancy
 
@@ -927,6 +980,24 @@ def _trim_caches(shared: Dict[str, Any], keep: int) -> None:
                 del cache[key]
 
 
+def clear_of_stop(ma_m: Any, x_m: Any, stop_m: Any, tol_m: float) -> Any:
+    """End of movement authority [m] that never rests a train just short of its stop point.
+
+    The ATO aims ``AUTHORITY_MARGIN_M`` short of the end of authority ``ma_m`` (its guard,
+    :mod:`metro_atc.core.ato.onboard`); an authority ending less than that beyond the next
+    stop point ``stop_m`` (e.g. the rear of a train leaving that platform, minus the ATP
+    margin) brings the train ``x_m`` to rest short of the stop point, and a standstill
+    inside the plant's stop window (+-``tol_m``) counts as the arrival, the shortfall as
+    its stop error.  Such an authority ends ``2 tol_m`` further back (the train rests outside
+    the window and runs on to the stop point once the authority reaches beyond it).  For a
+    growing authority the result never decreases.  Positions along the path [m]: floats
+    or arrays of one shape (numpy broadcasting).
+    """
+    near = stop_m + AUTHORITY_MARGIN_M
+    pull = (x_m < stop_m) & (ma_m < near)
+    return np.where(pull, np.minimum(ma_m, near - 2.0 * tol_m), ma_m)
+
+
 def _dwell_row(sv: Any, t_s: float) -> Any:
     """Nominal dwells [s] per loop stop of the timetable period in force at ``t_s``."""
     return sv.sched_dwell[sv.flow.period(t_s)]
@@ -987,7 +1058,7 @@ def plant_timed(loop: LoopLine, sv: Any, trips: Sequence[Trip], codes: Tuple[str
 
 
 def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = "fuzzy",
-                seed: int = 0, stable_after_s: float = 1800.0,
+                seed: int = 0, stable_after_s: float = STABLE_AFTER_S,
                 trip_times: str = "plan",
                 holds: Optional[Mapping[Tuple[str, int], float]] = None,
                 breakdowns: Sequence[Breakdown] = (), records: bool = True) -> DayPlant:
@@ -1134,5 +1205,5 @@ if __name__ == "__main__":
 
 
 __all__ = ["Breakdown", "DayPlant", "DayResult", "DayTerminus", "HOLD_S", "PULL_OUT_LEAD_S",
-           "REQUEST_LEAD_S", "day_trips", "main", "peak_rss_mb", "plant_timed", "rss_mb",
-           "service_day"]
+           "REQUEST_LEAD_S", "STABLE_AFTER_S", "clear_of_stop", "day_trips", "main",
+           "peak_rss_mb", "plant_timed", "rss_mb", "service_day"]
