@@ -147,3 +147,32 @@ def test_prefer_picks_the_ready_train() -> None:
     assert len(fifo) == len(lifo) == 2
     with pytest.raises(CirculationError, match="prefer"):
         build_circulation(trips, tb, prefer="random")
+
+
+def test_after_a_peak_the_turning_trains_keep_turning() -> None:
+    """The surplus of a peak goes to the depot once; the trains left keep turning.
+
+    Both directions every 120 s for an hour, then every 600 s (running 1 500 s, minimum
+    turnback 300 s, a train standing over 800 s is withdrawn: one headway more than the
+    minimum).  FIFO over every ready
+    train gave each off-peak departure to the train that had stood longest, a withdrawn
+    one, so every train of the surplus took its turn: one trip, back to the depot.  Off
+    the peak a train now comes out of the depot only when no turning train is ready: the
+    off-peak trips are run by the off-peak fleet, trip after trip.
+    """
+    trips: List[Trip] = []
+    for direction, (a, b) in enumerate((("A", "B"), ("B", "A"))):
+        t, n = 0.0, 0
+        while t < 4 * 3600.0:
+            trips.append(Trip(f"{a}{n}", a, b, t, t + 1500.0))
+            t += 120.0 if t < 3600.0 else 600.0
+            n += 1
+    circ = build_circulation(trips, {"A": 300.0, "B": 300.0}, None, 800.0, "longest_wait")
+    late = [b for b in circ.blocks if b.trips[0].departure_s > 3600.0 + 1800.0]
+    assert not late  # after the transition no block starts: nobody is pulled out again
+    off_peak = 2 * sum(1 for t in trips if t.origin == "A" and t.departure_s > 5400.0)
+    runners = {b.train for b in circ.blocks
+               if any(t.departure_s > 5400.0 for t in b.trips)}
+    # the off-peak fleet: a cycle of 2 x (1 500 + 300) s at 600 s headway
+    assert len(runners) == math.ceil(2 * 1800.0 / 600.0)
+    assert off_peak > 4 * len(runners)

@@ -80,6 +80,13 @@ def test_short_day_runs_every_trip_safely(name: str) -> None:
         assert math.isfinite(r.dep_s) or math.isnan(r.sched_dep_s)
         if math.isfinite(r.arr_s) and math.isfinite(r.dep_s):
             assert r.dep_s > r.arr_s
+    # energy per trip (departure to arrival): every trip draws from the substations, the
+    # trips' sum is the whole day's less what the layovers' auxiliaries drew
+    e = dp.trip_energy_j
+    assert sorted(e) == sorted(t.trip_id for t in trips)
+    assert min(e.values()) > 0.0
+    total = float(dp.sim.energy.e_substation.sum())
+    assert 0.5 * total < sum(e.values()) < total
 
 
 def test_late_arrival_delays_the_next_trip_by_delay_minus_buffer() -> None:

@@ -51,6 +51,12 @@ class EnergyMeter:
         """Auxiliary energy drawn while in service [J] per train."""
         return np.asarray(self.n_in_service * self.aux_dt)
 
+    @property
+    def e_substation(self) -> FloatArray:
+        """Energy drawn from the substations [J] per train: wheel traction / efficiency +
+        auxiliary - regenerated."""
+        return np.asarray(self.e_trac / self.traction_efficiency + self.e_aux - self.e_regen)
+
     def breakdown(self, kinetic: FloatArray) -> dict[str, FloatArray]:
         """Per-train energy terms [J]; ``kinetic`` the current kinetic energy [J]."""
         return {
@@ -60,5 +66,5 @@ class EnergyMeter:
             "grade": self.e_grade.copy(), "aux": self.e_aux.copy(),
             "regen_to_line": self.e_regen.copy(), "stop_correction": self.e_stop_corr.copy(),
             "kinetic": kinetic,
-            "substation": self.e_trac / self.traction_efficiency + self.e_aux - self.e_regen,
+            "substation": self.e_substation,
         }

@@ -121,9 +121,11 @@ def build_circulation(trips: Sequence[Trip], turnback_s: Mapping[str, float],
     depot connection (None: every terminus); ``stable_after_s`` [s]: a train waiting longer
     than this at a terminus with a depot is withdrawn to the depot and pulled out again for
     its next trip (the depot withdrawal after a peak); the fleet is unchanged by it.
-    ``prefer``: which ready train a departure takes, ``"longest_wait"`` (FIFO: the largest
-    turnback buffer) or ``"shortest_wait"`` (LIFO: surplus trains stand long enough to be
-    withdrawn).  The fleet does not depend on it (deficit argument).
+    ``prefer``: which ready train a departure takes, ``"longest_wait"`` (FIFO among the
+    trains standing no longer than ``stable_after_s``, the largest turnback buffer; a
+    withdrawn train only when none of those is ready) or ``"shortest_wait"`` (LIFO: surplus
+    trains stand long enough to be withdrawn).  The fleet does not depend on it (deficit
+    argument).
     """
     if prefer not in ("longest_wait", "shortest_wait"):
         raise CirculationError(f"prefer must be longest_wait or shortest_wait, got {prefer!r}")
@@ -150,7 +152,16 @@ def build_circulation(trips: Sequence[Trip], turnback_s: Mapping[str, float],
         heap = ready[trip.origin]
         i = bisect.bisect_right(heap, (trip.departure_s, math.inf, 0))
         if i > 0:
-            _, _, k = heap.pop(0 if prefer == "longest_wait" else i - 1)
+            if prefer == "longest_wait":
+                # FIFO among the trains still turning (standing no longer than
+                # stable_after_s); a train standing longer is in the depot and comes out
+                # only when no turning train is ready (else every train of a surplus
+                # after a peak would take its turn in the depot, one trip each)
+                lo = bisect.bisect_left(heap, (trip.departure_s - stable_after_s
+                                               + turnback_s[trip.origin], -1, -1), 0, i)
+                _, _, k = heap.pop(lo if lo < i else 0)
+            else:
+                _, _, k = heap.pop(i - 1)
         else:
             if trip.origin not in dep_ok:
                 need = (f"next train ready at {_fmt(heap[0][0])}" if heap

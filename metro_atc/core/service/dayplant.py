@@ -234,6 +234,8 @@ class _Train:
     trip_log: Dict[int, List[float]] = field(default_factory=dict)
     last_arr: Optional[Tuple[Trip, float]] = None
     withdraw_at: float = math.inf
+    energy0_j: float = 0.0
+    """Substation energy of the train when its current trip departed [J]."""
     entered_now: bool = False
 
 
@@ -331,6 +333,8 @@ class DayPlant:
         self.stop_err: List[float] = []
         self.forced_err: List[float] = []
         self.trips_run = 0
+        self.trip_energy_j: Dict[str, float] = {}
+        """Energy drawn from the substations per trip run, departure to arrival [J]."""
         self.notes: List[str] = []
         m = len(loop.stops)
         self.m = m
@@ -792,6 +796,8 @@ class DayPlant:
         tr.last_arr = (trip, t)
         tr.trip = None
         self.trips_run += 1
+        self.trip_energy_j[trip.trip_id] = \
+            float(self.sim.energy.e_substation[tr.i]) - tr.energy0_j
 
     def _departure(self, tr: _Train, j: int, t: float) -> None:
         tp = self._terminus_at(j)
@@ -801,6 +807,7 @@ class DayPlant:
             tr.trip = trip
             tr.trip_plan = self.trip_plan(trip)
             tr.trip_log = {j: [math.nan, t]}
+            tr.energy0_j = float(self.sim.energy.e_substation[tr.i])
             if tr.last_arr is not None:
                 prev, t_arr = tr.last_arr
                 T = tp.index
@@ -1190,7 +1197,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
         from .dayplots import write_day_outputs
         try:
-            wrote = write_day_outputs(plan, res.stops, res.turnbacks, res.depot, Path(a.out))
+            wrote = write_day_outputs(plan, res.stops, res.turnbacks, res.depot, Path(a.out),
+                                      energy_j=dp.trip_energy_j)
         except OSError as exc:
             print(f"error: the day's outputs could not be written: {exc}", file=sys.stderr)
             return 4
