@@ -23,14 +23,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 import time
 from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
 
-from metro_atc.bench.lines import run_jobs
-from metro_atc.bench.progress import progress_each
+from metro_atc.bench.lines import collect, run_jobs
 from metro_atc.core.service.daygen import (day_failures, day_row, generate_day,
                                            run_generated_day)
 from metro_atc.jsonsafe import json_safe
@@ -72,6 +70,21 @@ def totals(rows: List[Dict[str, Any]], errors: List[float]) -> Dict[str, Any]:
     return out
 
 
+def day_line(row: Dict[str, Any]) -> str:
+    """One printed line of a day's row."""
+    return (f"{row['day']:>18s} {row['stations']:2d} st {row['line_km']:5.1f} km "
+            f"{row['termini']:>25s} depots {row['depots']} "
+            f"hw {row['peak_headway_s']:4.0f} s "
+            f"trips {row['trips_run']}/{row['trips_planned']} "
+            f"depot {row['trains_in_depot']}/{row['fleet']} "
+            f"viol {row['atp_violations']} sep {row['separation_violations']} "
+            f"conflicts {row['route_conflicts']} missed {row['missed_stops']} "
+            f"err p50/p95/max {row['stop_error_p50_m']:.3f}/"
+            f"{row['stop_error_p95_m']:.3f}/{row['stop_error_max_m']:.3f} m "
+            f"{row['stock']} ({row['wall_s']:.1f} s)"
+            + (f" FAILED: {', '.join(row['failures'])}" if row["failures"] else ""))
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     """Command-line entry point (see the module docstring)."""
     ap = argparse.ArgumentParser(prog="python -m metro_atc bench line-days",
@@ -97,37 +110,10 @@ def main(argv: Optional[List[str]] = None) -> int:
     if not a.max_wall_s > 0.0:
         ap.error("--max-wall-s must be > 0")
     t0 = time.perf_counter()
-    rows: List[Dict[str, Any]] = []
-    errors: List[float] = []
-    failed: List[str] = []
     seeds = [a.seed + k for k in range(a.count)]
     outcomes = run_jobs(seeds, a, a.jobs, run_day_job)
-    for row_or_none, errs, failure in progress_each("bench line-days", outcomes, "days",
-                                                    total=len(seeds)):
-        if row_or_none is None:
-            failed.append(failure)
-            print(f"bench line-days: {failure}", file=sys.stderr)
-            continue
-        row = row_or_none
-        rows.append(row)
-        errors.extend(errs)
-        if row["failures"]:
-            failed.append(f"{row['day']}: {', '.join(row['failures'])}")
-        if a.json:
-            print(json.dumps(json_safe(row)), file=sys.stderr, flush=True)
-        else:
-            print(f"{row['day']:>18s} {row['stations']:2d} st {row['line_km']:5.1f} km "
-                  f"{row['termini']:>25s} depots {row['depots']} "
-                  f"hw {row['peak_headway_s']:4.0f} s "
-                  f"trips {row['trips_run']}/{row['trips_planned']} "
-                  f"depot {row['trains_in_depot']}/{row['fleet']} "
-                  f"viol {row['atp_violations']} sep {row['separation_violations']} "
-                  f"conflicts {row['route_conflicts']} missed {row['missed_stops']} "
-                  f"err p50/p95/max {row['stop_error_p50_m']:.3f}/"
-                  f"{row['stop_error_p95_m']:.3f}/{row['stop_error_max_m']:.3f} m "
-                  f"{row['stock']} ({row['wall_s']:.1f} s)"
-                  + (f" FAILED: {', '.join(row['failures'])}" if row["failures"] else ""),
-                  flush=True)
+    rows, errors, failed = collect("bench line-days", "days", outcomes, len(seeds), a.json,
+                                   day_line)
     tot = totals(rows, errors)
     result = {"bench": "line-days", "incidents": a.incidents, "rows": rows, "totals": tot,
               "failed": failed, "seconds": time.perf_counter() - t0, "jobs": a.jobs}

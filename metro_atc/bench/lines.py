@@ -153,6 +153,35 @@ def _run_job_star(args: Tuple[Callable[[Any, argparse.Namespace], Any], Any,
     return fn(job, a)
 
 
+def collect(name: str, unit: str, outcomes: Iterator[Any], total: int, as_json: bool,
+            line: Callable[[dict[str, Any]], str]
+            ) -> Tuple[List[dict[str, Any]], List[float], List[str]]:
+    """Rows, stop errors [m] and failures of a bench's jobs as they finish.
+
+    ``outcomes``: (row or None, stop errors, failure text) per job (:func:`run_jobs`); a
+    row's own ``failures`` (if any) count as failed.  Each row is printed as it comes:
+    ``line(row)`` on stdout, or (``as_json``) one JSON row on stderr (progress).
+    """
+    rows: List[dict[str, Any]] = []
+    errors: List[float] = []
+    failed: List[str] = []
+    for row, errs, failure in progress_each(name, outcomes, unit, total=total):
+        if row is None:
+            failed.append(failure)
+            print(f"{name}: {failure}", file=sys.stderr)
+            continue
+        rows.append(row)
+        errors.extend(errs)
+        if row.get("failures"):
+            failed.append(f"{row.get('day', row.get('scenario'))}: "
+                          f"{', '.join(row['failures'])}")
+        if as_json:
+            print(json.dumps(json_safe(row)), file=sys.stderr, flush=True)
+        else:
+            print(line(row), flush=True)
+    return rows, errors, failed
+
+
 def run_jobs(jobs: List[Any], a: argparse.Namespace, n_workers: int,
              fn: Callable[[Any, argparse.Namespace], Any] = run_job) -> Iterator[Any]:
     """Outcomes ``fn(job, a)`` of ``jobs`` in their order, in ``n_workers`` processes (1: here).
@@ -165,6 +194,20 @@ def run_jobs(jobs: List[Any], a: argparse.Namespace, n_workers: int,
         return
     with ProcessPoolExecutor(max_workers=min(n_workers, len(jobs))) as ex:
         yield from ex.map(_run_job_star, [(fn, job, a) for job in jobs])
+
+
+def line_of(row: dict[str, Any]) -> str:
+    """One printed line of a line's row."""
+    return (f"{row['scenario']:>18s} {row['stations']:3d} st {row['trains']:3d} tr "
+            f"viol {row['atp_violations']} missed {row['missed_stops']} "
+            f"int/100 {row['atp_interventions_per_100_stops']:5.1f} "
+            f"err p50/p95/max {row['stop_error_p50_m']:.3f}/{row['stop_error_p95_m']:.3f}"
+            f"/{row['stop_error_max_m']:.3f} m out {row['stops_outside_0p30_m']} "
+            f"above {row['time_above_civil_limit_s']:6.1f} s "
+            f"tsr-min {row['tsr_speed_minima_max']} "
+            f"{row['energy_kwh_per_train_km']:.2f} kWh/train-km "
+            f"brake-fa {_false_alarms(row)} {row['stock']} "
+            f"({row['wall_s']:.1f} s, {row['cpu_s']:.1f} CPU s)")
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -194,35 +237,12 @@ def main(argv: Optional[List[str]] = None) -> int:
     if a.jobs < 1:
         ap.error("--jobs must be >= 1")
     t0 = time.perf_counter()
-    rows: List[dict[str, Any]] = []
-    errors: List[float] = []
-    failed: List[str] = []
     jobs: List[Any] = [("gen", a.seed + k) for k in range(a.count)] + \
         ([] if a.no_ttobench else [("ttobench", "ttobench")]) + \
         [("file", f) for f in a.scenario]
     outcomes = run_jobs(jobs, a, a.jobs)
-    for row_or_none, errs, failure in progress_each("bench lines", outcomes, "lines",
-                                                    total=len(jobs)):
-        if row_or_none is None:
-            failed.append(failure)
-            print(f"bench lines: {failure}", file=sys.stderr)
-            continue
-        row = row_or_none
-        rows.append(row)
-        errors.extend(errs)
-        if a.json:  # progress: one JSON row per line on stderr
-            print(json.dumps(json_safe(row)), file=sys.stderr, flush=True)
-        else:
-            print(f"{row['scenario']:>18s} {row['stations']:3d} st {row['trains']:3d} tr "
-                  f"viol {row['atp_violations']} missed {row['missed_stops']} "
-                  f"int/100 {row['atp_interventions_per_100_stops']:5.1f} "
-                  f"err p50/p95/max {row['stop_error_p50_m']:.3f}/{row['stop_error_p95_m']:.3f}"
-                  f"/{row['stop_error_max_m']:.3f} m out {row['stops_outside_0p30_m']} "
-                  f"above {row['time_above_civil_limit_s']:6.1f} s "
-                  f"tsr-min {row['tsr_speed_minima_max']} "
-                  f"{row['energy_kwh_per_train_km']:.2f} kWh/train-km "
-                  f"brake-fa {_false_alarms(row)} {row['stock']} "
-                  f"({row['wall_s']:.1f} s, {row['cpu_s']:.1f} CPU s)", flush=True)
+    rows, errors, failed = collect("bench lines", "lines", outcomes, len(jobs), a.json,
+                                   line_of)
     tot = totals(rows, errors)
     result = {"bench": "lines", "incidents": a.incidents, "regulator": a.regulator,
               "planner": a.planner, "tracker": a.tracker, "rows": rows, "totals": tot,

@@ -53,8 +53,10 @@ class EnergyMeter:
 
     @property
     def e_substation(self) -> FloatArray:
-        """Energy drawn from the substations [J] per train: wheel traction / efficiency +
-        auxiliary - regenerated."""
+        """Energy drawn from the substations [J] per train (traction, auxiliary, regen).
+
+        Wheel traction / traction efficiency + auxiliary - regenerated.
+        """
         return np.asarray(self.e_trac / self.traction_efficiency + self.e_aux - self.e_regen)
 
     def breakdown(self, kinetic: FloatArray) -> dict[str, FloatArray]:
