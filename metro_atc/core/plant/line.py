@@ -41,7 +41,7 @@ from .kpi import RunLog, compute_kpis
 from .sensors import BrakeSensorSample, SensorBlock, Sensors, StepResult
 from .stations import Stations, TrainEvent
 from .tables import VehicleTables
-from .views import plant_states
+from .views import plant_run_log, plant_states
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -179,8 +179,7 @@ class LineSim:
     def breakdown(self, train_idx: int, duration_s: float) -> None:
         """Train ``train_idx`` breaks down now for ``duration_s`` [s] (then recovers).
 
-        As a scenario's ``breakdown`` incident (:mod:`.incidents`): it brakes to a stop and
-        stays there (or at its platform) for the duration.
+        As a scenario's ``breakdown`` incident (:mod:`.incidents`): it stops and stays.
         """
         if not 0 <= train_idx < self.n:
             raise IndexError(f"train {train_idx} out of range")
@@ -190,10 +189,9 @@ class LineSim:
         self._t_next = min(self._t_next, self.t)
 
     def enter(self, train_idx: int, station_idx: int) -> None:
-        """Train ``train_idx`` enters service now, standing at station ``station_idx``.
+        """Train ``train_idx`` enters service now at station ``station_idx`` (a pull-out).
 
-        For a plant whose entries are driven from outside (a service day's pull-outs;
-        the timetabled entries are then switched off with :meth:`external_entries`).
+        The timetabled entries are then switched off (:meth:`external_entries`).
         """
         self.stations.enter(int(train_idx), int(station_idx), self.t)
         self._masks()
@@ -206,30 +204,17 @@ class LineSim:
     def external_entries(self, wrap_m: float = 0.0) -> None:
         """No timetabled entries (:meth:`enter` places trains); ``wrap_m`` [m]: loop period.
 
-        A loop line's last stop is its first again (see
-        :attr:`metro_atc.core.plant.stations.Stations.wrap_m`).
+        A loop line's last stop is its first again (:attr:`.stations.Stations.wrap_m`).
         """
         self.stations.next_entry = self.n
         self.stations.wrap_m = float(wrap_m)
         self._masks()
 
-    def set_authority_end(self, x_m: float) -> None:
-        """End of movement authority from outside [m] (the line's end when not set).
-
-        The compiled step takes ``min(train ahead - margin, this)``: a service day's
-        interlocking routes and the train ahead on its track
-        (:mod:`metro_atc.core.service.dayplant`).
-        """
-        self.stepper.set_constant("eoa_end", min(float(x_m), self.geometry.eoa_end))
-
     def external_authority(self) -> None:
-        """The train ahead and the end of authority of each train come from outside.
+        """Each train's end of authority comes from outside (:meth:`set_authority_ends`).
 
-        For a fleet whose index order is not its order on the track (a service day's trains
-        on a loop, :mod:`metro_atc.core.service.dayplant`): no train ahead by index; the
-        compiled step takes ``min(this train's end from outside, the line's end)``
-        (:meth:`set_authority_ends`; inf until set).  The plant's separation monitor then
-        sees no train ahead (the caller checks the separation).
+        For a fleet whose index order is not its track order (a service day's loop): no
+        train ahead by index, so the caller also checks the separation.
         """
         self.atp.lead_ext = True
         self.stepper.set_constant("lead_ext", 1.0)
@@ -240,17 +225,14 @@ class LineSim:
         Read by the compiled step from the next step on (inf: none; the train ahead and the
         line's end bound it as well).  ValueError on NaN or a length mismatch.
         """
-        x = np.asarray(x_m, dtype=float)
-        if np.isnan(x).any():
+        if np.isnan(x := np.asarray(x_m, dtype=float)).any():
             raise ValueError("authority ends must not be NaN")
         self.atp.eoa_ext[train_idx] = x
 
     def train_streams(self, seeds: Any) -> None:
         """Each train draws its disturbances from its own stream ``default_rng(seeds[i])``.
 
-        Departure delays and running-time noise (:class:`.stations.Stations`) instead of
-        the plant's one stream: a train's draws do not depend on when the other trains'
-        happen (a service day's trains, each with the stream it had on a plant of its own).
+        Departure delays and running-time noise do not depend on the other trains' draws.
         """
         if len(seeds) != self.n:
             raise ValueError(f"{len(seeds)} seeds for {self.n} trains")
@@ -294,27 +276,11 @@ class LineSim:
     def energy_breakdown(self) -> dict[str, FloatArray]:
         """Per-train energy terms [J] (wheel traction, braking, resistance, grade, ...)."""
         fl = self.fleet
-        meff = fl.mass + fl.m_rot
-        return self.energy.breakdown(0.5 * meff * fl.v ** 2 * (fl.status != DONE))
+        return self.energy.breakdown(0.5 * (fl.mass + fl.m_rot) * fl.v ** 2 * (fl.status != DONE))
 
     def run_log(self) -> RunLog:
-        """What the KPIs need from this run (copies)."""
-        st, atp, sv = self.stations, self.atp, self.service
-        return RunLog(
-            scenario=self.scn.name, seed=self.seed, train_ids=list(self.train_ids),
-            n_st=self.n_st, t=self.t, step_count=self.step_count,
-            completed=np.asarray((self.fleet.status == DONE) & ~self.stations.withdrawn),
-            withdrawn=self.stations.withdrawn.copy(),
-            act_arr=st.act_arr.copy(), act_dep=st.act_dep.copy(), sched_arr=sv.sched_arr,
-            sched_dep=sv.sched_dep, cmd_rt=st.cmd_rt.copy(),
-            sched_running_s=sv.sched_running_s, energy=self.energy_breakdown(),
-            interventions=atp.interventions.copy(), violations=atp.violations.copy(),
-            min_sep=atp.min_sep, margin=atp.margin, boarded=st.boarded.copy(),
-            left_behind=st.left_behind.copy(), skipped_stops=st.skipped_stops,
-            stop_errors_m=np.array([e.stop_error_m for e in st.events
-                                    if e.kind == "arrival"], dtype=float),
-            steps_above_civil=int(atp.steps_above_civil),
-            control_period_s=float(self.control_period_s))
+        """What the KPIs need from this run (copies; :func:`.views.plant_run_log`)."""
+        return plant_run_log(self)
 
     def kpis(self) -> dict[str, Any]:
         """KPI dictionary (JSON-serialisable); see :func:`metro_atc.core.plant.kpi.compute_kpis`.

@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .fleet import DONE, WAIT
+from .kpi import RunLog
 
 FLEET_KEYS = ("x_m", "v_mps", "a_mps2", "current_station", "next_station", "mode",
               "departure_time_s", "target_running_time_s", "atp_limit_mps",
@@ -108,3 +109,23 @@ def dwelling_in_service(sim: Any) -> list[tuple[int, int]]:
     at = np.flatnonzero(fl.run & fl.dwelling).tolist()
     cur = fl.cur_station
     return [(i, int(cur[i])) for i in at]
+
+
+def plant_run_log(sim: Any) -> RunLog:
+    """What the KPIs need from the run of plant ``sim`` (copies)."""
+    st, atp, sv = sim.stations, sim.atp, sim.service
+    return RunLog(
+        scenario=sim.scn.name, seed=sim.seed, train_ids=list(sim.train_ids),
+        n_st=sim.n_st, t=sim.t, step_count=sim.step_count,
+        completed=np.asarray((sim.fleet.status == DONE) & ~st.withdrawn),
+        withdrawn=st.withdrawn.copy(),
+        act_arr=st.act_arr.copy(), act_dep=st.act_dep.copy(), sched_arr=sv.sched_arr,
+        sched_dep=sv.sched_dep, cmd_rt=st.cmd_rt.copy(),
+        sched_running_s=sv.sched_running_s, energy=sim.energy_breakdown(),
+        interventions=atp.interventions.copy(), violations=atp.violations.copy(),
+        min_sep=atp.min_sep, margin=atp.margin, boarded=st.boarded.copy(),
+        left_behind=st.left_behind.copy(), skipped_stops=st.skipped_stops,
+        stop_errors_m=np.array([e.stop_error_m for e in st.events
+                                if e.kind == "arrival"], dtype=float),
+        steps_above_civil=int(atp.steps_above_civil),
+        control_period_s=float(sim.control_period_s))

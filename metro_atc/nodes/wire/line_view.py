@@ -58,8 +58,7 @@ LAYOUT_FIELDS = cdr.layout(LineLayout)
 
 def train_order(scenario: Any) -> list[str]:
     """The trains of ``/line/trains`` in their order: the scenario's, in timetable order."""
-    from metro_atc.launcher import scenario_train_ids
-    return list(scenario_train_ids(scenario))
+    return list(scenario.train_ids)
 
 
 class TrainsBuilder:
