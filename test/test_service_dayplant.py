@@ -223,15 +223,24 @@ def test_depot_slots_are_idle() -> None:
     assert not sim.sensors.mask[[out[k] for k in still]].any()
 
 
-def test_ato_mass_caches_are_trimmed_to_the_newest() -> None:
-    """The ATOs' mass-keyed memo caches keep their newest entries; other keys are kept."""
-    from metro_atc.core.service.dayplant import ATO_CACHES, _trim_caches
-    shared = {name: {k: k for k in range(10)} for name in ATO_CACHES}
-    shared["prework"] = {k: k for k in range(10)}
-    _trim_caches(shared, 3)
-    for name in ATO_CACHES:
-        assert list(shared[name]) == [7, 8, 9]
-    assert len(shared["prework"]) == 10
+def test_ato_memos_keep_their_newest_entries() -> None:
+    """The ATOs' mass- and TSR-keyed memos keep their newest entries (bounded over a day)."""
+    from metro_atc.core.ato.controller import memo_put, memo_slot
+    memo: dict = {}
+    for k in range(10):
+        memo_put(memo, k, k, keep=3)
+    assert list(memo) == [7, 8, 9]
+    sub = memo_slot(memo, "m")
+    assert memo_slot(memo, "m") is sub and list(memo) == [7, 8, 9, "m"]
+
+
+def test_a_day_keeps_the_ato_memos_bounded() -> None:
+    """Over a short day the shared memos never hold more than MEMO_KEEP entries."""
+    from metro_atc.core.ato.controller import MEMO_KEEP
+    _, _, dp = _day(LAYOUTS["scissors_A_tail_B"]())
+    dp.run()
+    sizes = {k: len(v) for k, v in dp.shared.items() if isinstance(v, dict)}
+    assert sizes["plans"] > 0 and all(n <= MEMO_KEEP for n in sizes.values())
 
 
 def test_the_depot_feeds_a_peak_on_time_at_tail_tracks() -> None:

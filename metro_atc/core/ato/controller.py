@@ -36,10 +36,34 @@ from metro_atc.core.line.vehicle import Track, TrainParams
 
 TRACKERS = TRACKER_REGISTRY.names
 """Tracker names accepted by :class:`AtoCore` (:data:`metro_atc.core.ato.registry.TRACKERS`)."""
+MEMO_KEEP = 256
+"""Newest entries kept per shared memo whose keys hold the train's mass or TSRs [-].
+
+The run models, finished plans and per-mass / per-TSR pre-work tables of the trains of a
+process (:class:`AtoCore`'s ``shared``) are keyed by the load-weigh mass at departure (and
+the TSRs of the run): a new entry per departure with a new load, so over a service day they
+would grow without bound (~900 MB by 11:00 for the Taipei fleet).  A memo: an entry dropped
+(the oldest first) is computed again when asked for, the same value."""
 APPROACH_JERK_SHARE = 0.8
 """Share of the jerk limit the approach bound counts on to take the surplus acceleration
 off before the reference is reached (``control_kernel.approach_bound``) [-]."""
 
+
+
+def memo_put(memo: dict[Any, Any], key: Any, value: Any, keep: int = MEMO_KEEP) -> None:
+    """``memo[key] = value``, then drop the oldest entries beyond ``keep`` (:data:`MEMO_KEEP`)."""
+    memo[key] = value
+    while len(memo) > keep:
+        del memo[next(iter(memo))]  # insertion order: the oldest first
+
+
+def memo_slot(memo: dict[Any, Any], key: Any) -> dict[Any, Any]:
+    """The sub-memo of ``key`` in ``memo`` (a new empty one put with :func:`memo_put`)."""
+    got = memo.get(key)
+    if got is None:
+        got = {}
+        memo_put(memo, key, got)
+    return got
 
 class AtoCore:
     """ATO of one train: planner (``PLANNERS``) + tracker (``TRACKERS``).
@@ -129,7 +153,7 @@ class AtoCore:
         self._mass_key = () if train is self._train0 \
             else (("mass_kg", float(train.mass_kg)),)
         self._cache = self._shared.setdefault("prework", {}) if not self._mass_key \
-            else self._shared.setdefault("prework_mass", {}).setdefault(self._mass_key, {})
+            else memo_slot(self._shared.setdefault("prework_mass", {}), self._mass_key)
         self._derive()
 
     # ------------------------------------------------------------------ planning
@@ -145,12 +169,12 @@ class AtoCore:
         if restrictions:
             # a run of its own (envelope, pre-work tables and plans keyed by the TSRs too)
             key = key + (tuple(restrictions),)
-            cache = self._shared.setdefault("prework_tsr", {}).setdefault(key, {})
+            cache = memo_slot(self._shared.setdefault("prework_tsr", {}), key)
         run = self._runs.get(key)
         if run is None:
             track = track_with_tsrs(self.track, restrictions) if restrictions else self.track
             run = RunModel(self.train, track, x_start_m, x_stop_m, self.limits)
-            self._runs[key] = run
+            memo_put(self._runs, key, run)
         params = dict(self.planner_params)
         # the profile integration grid grows with the run (cost ~ 1/h^2): 2 m on metro runs,
         # ~10 m on a 7 km and ~130 m on a 94 km high-speed run
@@ -163,10 +187,10 @@ class AtoCore:
         if prof is None and store is not None:
             prof = store.get(memo)  # planned by another process of the run (same result)
             if prof is not None:
-                self._plans[memo] = prof
+                memo_put(self._plans, memo, prof)
         if prof is None:
             prof = plan_profile(run, target_running_time_s, self.planner, cache, **params)
-            self._plans[memo] = prof
+            memo_put(self._plans, memo, prof)
             if store is not None:
                 store.put(memo, prof)
         self.run = run

@@ -55,6 +55,7 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
+from metro_atc.core.ato.cab import CabWatch
 from metro_atc.core.ato.control_kernel import AUTH_MARGIN as AUTHORITY_MARGIN_M
 from metro_atc.core.ato.onboard import OnboardAto
 from metro_atc.core.ato.wiring import ato_wiring
@@ -85,15 +86,6 @@ peak, 840 s layovers) fills it and the trains behind queue on the line.
 """
 HOLD_S = 1.0e9
 """Departure command of a train held at a berth until its next route is set [s]."""
-ATO_CACHE_KEEP = 256
-"""Newest entries kept per ATO cache keyed by the train's mass [-] (see ``ATO_CACHES``)."""
-ATO_CACHES = ("runs", "plans", "prework_mass", "prework_tsr")
-"""The ATOs' shared memo caches (:class:`metro_atc.core.ato.controller.AtoCore`)
-whose keys hold the load-weigh mass: one entry per departure with a new load, so they
-would grow with the day; the oldest are dropped every ``ATO_CACHE_TRIM_S`` (a memo: a
-dropped entry is computed again when asked for, the same value)."""
-ATO_CACHE_TRIM_S = 600.0
-"""Simulated time between two trims of the ATO caches [s]."""
 _slot = operator.attrgetter("train_idx")
 
 
@@ -223,6 +215,8 @@ class _Train:
     """Next trip of block ``b`` to start."""
     in_service: bool = False
     ato: Optional[OnboardAto] = None
+    cab: CabWatch = field(default_factory=CabWatch)
+    """When the train's ATO starts afresh (pull-out, new lap)."""
     zone: int = -1
     """Terminus the train is inside (arrival route set .. departure route set), else -1."""
     itin: Dict[int, List[str]] = field(default_factory=dict)
@@ -363,7 +357,7 @@ class DayPlant:
         self.wall_total = 0.0
         self.cpu_total = 0.0
         self.cpu_split = {"plant": 0.0, "ato": 0.0, "rest": 0.0}
-        self._next_trim = 0.0
+        self._started = False
         # the departure berths of each terminus (where a trip starts: a pull-out enters one)
         self._dep_berths = [frozenset(
             r.destination for d in tp.layout.routes if d.stage == top[T]
@@ -428,32 +422,21 @@ class DayPlant:
         w0 = time.perf_counter()
         c0 = time.process_time()
         all_trips = [tr for b in self.circ.blocks for tr in b.trips]
-        first = min(b.trips[0].departure_s for b in self.circ.blocks) - PULL_OUT_LEAD_S
         last = max(tr.arrival_s for tr in all_trips)
         stop_at = last + 3600.0 if end_s is None else float(end_s)
         sim = self.sim
-        if self.step_no == 0:  # a second call runs on from where the first stopped
-            # the plant starts at 0: jump its clock to the first pull-out (nothing runs)
-            self.t_start = max(0.0, math.floor(first) - 1.0)
-            sim.t = self.t_start
-            sim.sensors.next_sample_t = self.t_start
-            # passengers gather from the first pull-out on (one queue per stop, shared)
-            sim.stations.last_dep_t[:] = self.t_start
-            self.t = self.t_start
+        self.start()  # a second call runs on from where the first stopped
         t0 = self.t_start
         dt = float(self.scn.sim.control_period_s)
         next_report = self.t
         while self.t < stop_at - 1e-9 and time.perf_counter() - w0 < max_wall_s:
-            if all(tr.b >= len(tr.blocks) and not tr.in_service for tr in self.trains):
+            if self.finished:
                 break
             self._step(dt, sensors)
-            if self.t >= self._next_trim:
-                _trim_caches(self.shared, ATO_CACHE_KEEP)
-                self._next_trim = self.t + ATO_CACHE_TRIM_S
             if progress is not None and self.t >= next_report:
                 progress(self)
                 next_report = self.t + 3600.0
-        finished = all(tr.b >= len(tr.blocks) and not tr.in_service for tr in self.trains)
+        finished = self.finished
         if not finished:
             why = ("wall-time limit" if time.perf_counter() - w0 >= max_wall_s
                    else "end time")
@@ -481,9 +464,37 @@ class DayPlant:
         svc = [tr for tr in self.trains if tr.in_service]
         return svc, np.fromiter((tr.i for tr in svc), dtype=np.intp, count=len(svc))
 
-    def _step(self, dt: float, sensors: bool = False) -> None:
-        clock = time.process_time
-        w0 = clock()
+    def start(self) -> None:
+        """Set the plant's clock to the day's first step (once; nothing runs yet).
+
+        The plant starts at 0: its clock jumps to just before the first pull-out, and the
+        passengers gather from then on (one queue per stop, shared).  :meth:`run` calls it;
+        a caller stepping the day itself (:meth:`begin_step`, :meth:`end_step`) first.
+        """
+        if self.step_no != 0 or self._started:
+            return
+        self._started = True
+        first = min(b.trips[0].departure_s for b in self.circ.blocks) - PULL_OUT_LEAD_S
+        sim = self.sim
+        self.t_start = max(0.0, math.floor(first) - 1.0)
+        sim.t = self.t_start
+        sim.sensors.next_sample_t = self.t_start
+        sim.stations.last_dep_t[:] = self.t_start
+        self.t = self.t_start
+
+    @property
+    def finished(self) -> bool:
+        """Every train ran its blocks and is back in the depot."""
+        return all(tr.b >= len(tr.blocks) and not tr.in_service for tr in self.trains)
+
+    def begin_step(self) -> Any:
+        """The part of a control period before the ATOs: pull-outs, routes, authorities.
+
+        Returns the slots of the trains whose ATO commands this step (in service and
+        running, in slot order: the plant's :meth:`LineSim.active_mask`).  Then the
+        caller gets their efforts from their ATOs (from :func:`fleet_state_rows` of these
+        slots at step :attr:`step_no`, time :attr:`t`) and calls :meth:`end_step`.
+        """
         t = self.t
         sim = self.sim
         self._pull_outs_and_ins(t)
@@ -492,42 +503,69 @@ class DayPlant:
         self._leaders(rows)
         self._requests(t)
         self._authorities(svc, rows)
-        # the ATOs of the trains running (not those turning back in the plant): one fleet
-        # state for all of them; the others keep their last command
-        w1 = clock()
-        u = self._u
-        u.fill(math.nan)
-        run = rows[sim.fleet.status[rows] == RUN]
-        if run.size:
-            st = fleet_state_rows(sim, run)
-            trains = self.trains
-            step = self.step_no
-            for k, i in enumerate(run.tolist()):
-                ato = trains[i].ato
-                if ato is not None:
-                    u[i] = ato.control(ato_input(st, k, step, t))[0]
-        w2 = clock()
+        return rows[sim.fleet.status[rows] == RUN]
+
+    def end_step(self, u: Any, sensors: bool = False) -> StepResult:
+        """The plant step with the efforts ``u`` (one per slot, NaN: the last command).
+
+        Then the step's events (arrivals, departures), track occupancy, route grants and
+        the safety checks; the day's clock advances by one control period.  ``sensors``:
+        count the step's brake sensor samples.  Returns the plant's step result.
+        """
+        sim = self.sim
         res = sim.step(u)
         if sensors:
             self._read_samples(res)
-        w3 = clock()
-        for tr in svc:
+        for tr in self.trains:
             tr.entered_now = False
         # a train's events in the order the plant gave them, the trains in slot order
         for ev in sorted(res.events, key=_slot):
             self._event(self.trains[ev.train_idx], ev)
-        self.t = t + dt
+        self.t = self.t + float(self.scn.sim.control_period_s)
         self.step_no += 1
         self._occupancy()
         self._grants()
         self._checks()
         if self.breakdowns:
             self._breakdowns_due()
-        w4 = clock()
+        return res
+
+    def control(self, run: Any) -> Any:
+        """The efforts of the trains ``run`` (slots) from their on-board ATOs, NaN elsewhere.
+
+        One fleet state for all of them; a train's ATO is a new one when its state starts
+        a new cab (:class:`metro_atc.core.ato.cab.CabWatch`: back in service, or a new
+        lap of the loop), as the ``ato_controller`` node decides it.
+        """
+        u = self._u
+        u.fill(math.nan)
+        if run.size:
+            sim = self.sim
+            st = fleet_state_rows(sim, run)
+            trains = self.trains
+            step = self.step_no
+            t = self.t
+            for k, i in enumerate(run.tolist()):
+                tr = trains[i]
+                s = ato_input(st, k, step, t)
+                if tr.cab.new_cab(step, s["current_station"]) or tr.ato is None:
+                    tr.ato = self.wiring.onboard(self.shared)
+                u[i] = tr.ato.control(s)[0]
+        return u
+
+    def _step(self, dt: float, sensors: bool = False) -> None:
+        clock = time.process_time
+        w0 = clock()
+        run = self.begin_step()
+        w1 = clock()
+        u = self.control(run)
+        w2 = clock()
+        self.end_step(u, sensors)
+        w3 = clock()
         ws = self.cpu_split
         ws["ato"] += w2 - w1
         ws["plant"] += w3 - w2
-        ws["rest"] += (w1 - w0) + (w4 - w3)
+        ws["rest"] += w1 - w0
 
     def _read_samples(self, res: StepResult) -> None:
         """Read the step's brake sensor samples (generated now; counted)."""
@@ -559,7 +597,6 @@ class DayPlant:
         tr.zone = T
         tr.itin = {T: [arr_route, dep_route]}
         tr.route = {}
-        tr.ato = self.wiring.onboard(self.shared)
         tr.entered_now = True
         tr.last_arr = None
         sim = self.sim
@@ -681,8 +718,6 @@ class DayPlant:
                 if q is not None and q.stop >= 0:
                     dep = max(self.t, q.earliest_s)
                     self.sim.set_departure(tr.i, q.stop, dep, q.running_s)
-                    if tr.ato is not None:
-                        tr.ato.on_departure(q.stop, dep, q.running_s, self.t)
 
     def _choose(self, T: int, tr: _Train) -> str:
         """The next route of ``tr``'s itinerary at T (a free destination first).
@@ -719,8 +754,6 @@ class DayPlant:
             if math.isfinite(err):
                 forced = bool(self.sim.fleet.broken[tr.i] or self.sim.atp.eb[tr.i])
                 (self.forced_err if forced else self.stop_err).append(err)
-            if j == 0:  # the loop closed: a new lap, a new cab
-                tr.ato = self.wiring.onboard(self.shared)
             self._arrival(tr, j, t)
         else:
             self._departure(tr, j, t)
@@ -742,8 +775,6 @@ class DayPlant:
             dep = sched[1] + extra
             run = self._running(j) * self._scale(tr)
             sim.set_departure(tr.i, j, dep, run)
-            if tr.ato is not None:
-                tr.ato.on_departure(j, dep, run, t)
             return
         T = tp.index
         lay = tp.layout
@@ -976,15 +1007,6 @@ class DayPlant:
         self._in_sep[behind] = bad
         if rows.size:
             self._in_sep[rows[-1]] = False
-
-
-def _trim_caches(shared: Dict[str, Any], keep: int) -> None:
-    """Keep the newest ``keep`` entries of each of the ATOs' mass-keyed caches (in place)."""
-    for name in ATO_CACHES:
-        cache = shared.get(name)
-        if isinstance(cache, dict) and len(cache) > keep:
-            for key in list(cache)[:len(cache) - keep]:  # insertion order: oldest first
-                del cache[key]
 
 
 def clear_of_stop(ma_m: Any, x_m: Any, stop_m: Any, tol_m: float) -> Any:
