@@ -192,7 +192,7 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
                     step_timeout_s: float = 0.0,
                     plan_store_dir: str = "", finished_file: str = "",
                     foxglove: tuple[str, int] | None = None,
-                    replay_commands: str = "") -> list[ProcessSpec]:
+                    replay_commands: str = "", day: bool = False) -> list[ProcessSpec]:
     """The processes of a run, as ``run`` starts them and the launch file declares them.
 
     ``weights_file``: the aoc/dhp weights the ATS loads ('' : it looks them up itself).
@@ -205,7 +205,11 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
     ``foxglove`` (host, port): the live view's bridge (None: none).
     ``replay_commands``: a recorded run's bag whose dispatcher commands the simulator
     applies at their steps ('' : none; live dispatcher requests are served).
+    ``day``: ``scenario`` is a service day: no ATS process (the simulator's day plant
+    decides the departures; :mod:`metro_atc.nodes.sim_day`) and no checkpoints.
     """
+    if day:
+        checkpoint_dir = ""
     cfg = cfg or config_dir()
     base: dict[str, Any] = {"use_sim_time": True, "scenario": scenario}
     waits = list(wait_for) + ([RECORDER_NODE] if record_dir is not None else [])
@@ -226,15 +230,18 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
     if record_dir is not None:
         sim["train_state_period_s"] = 0.0  # a recording has every train's state every step
     procs = [ProcessSpec("line_simulator", "line_simulator", str(cfg / "line_simulator.yaml"),
-                         sim),
-             ProcessSpec("ats_regulator", "ats_regulator", str(cfg / "ats_regulator.yaml"),
-                         dict(base, regulator=regulator,
-                              **({"weights_file": weights_file} if weights_file else {}))),
-             # the brake diagnosis takes its time from the sample stamps: no /clock reader
-             # (one delivery per step less for the simulator, none to take here)
-             ProcessSpec("brake_diagnostic", "brake_diagnostic",
-                         str(cfg / "brake_diagnostic.yaml"),
-                         dict(base, use_sim_time=False, **resume))]
+                         sim)]
+    if not day:
+        procs.append(ProcessSpec("ats_regulator", "ats_regulator",
+                                 str(cfg / "ats_regulator.yaml"),
+                                 dict(base, regulator=regulator,
+                                      **({"weights_file": weights_file} if weights_file
+                                         else {}))))
+    # the brake diagnosis takes its time from the sample stamps: no /clock reader (one
+    # delivery per step less for the simulator, none to take here)
+    procs.append(ProcessSpec("brake_diagnostic", "brake_diagnostic",
+                             str(cfg / "brake_diagnostic.yaml"),
+                             dict(base, use_sim_time=False, **resume)))
     for group in ato_groups(train_ids, ato_per_process):
         # the ATOs take their time from the lockstep states, not from /clock: without
         # use_sim_time their 2 x 15 nodes add no /clock readers (each reader costs the
@@ -290,7 +297,7 @@ def processes_for(a: argparse.Namespace, train_ids: Sequence[str],
         step_timeout_s=a.step_timeout, plan_store_dir=plan_store_dir,
         finished_file=finished_file,
         foxglove=None if a.foxglove is None else (a.foxglove_host, a.foxglove),
-        replay_commands=a.replay_commands)
+        replay_commands=a.replay_commands, day=getattr(a, "day", None) is not None)
 
 
 def replay_problem(bag: str) -> str | None:
@@ -470,13 +477,16 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
-    from metro_atc.core.line.scenario import ScenarioError, load_scenario
+    from metro_atc.core.line.scenario import ScenarioError
+    from metro_atc.core.service.dayrun import day_table, load_day_run, load_run_scenario
     try:
-        scn = load_scenario(a.scenario)
+        day = load_day_run(a.scenario) if day_table(a.scenario) is not None else None
+        scn = load_run_scenario(a.scenario)
         train_ids = list(scenario_train_ids(scn))
     except (ScenarioError, ValueError) as exc:
         print(f"metro_atc run: error: {exc}", file=sys.stderr)
         return Exit.REFUSED
+    a.day = day
     out_dir = Path(a.out) if a.out else Path(tempfile.mkdtemp(prefix="metro_atc_run_"))
     problem = check_out_dir(out_dir)
     if problem is None and a.log_dir:
@@ -497,6 +507,8 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
     if problem is None and a.foxglove is not None:
         problem = check_listen(a.foxglove_host, a.foxglove) if not a.single_process else \
             "--foxglove needs the multi-process graph"
+    if problem is None and day is not None:
+        problem = day_problem(a)
     if problem is None and a.replay_commands:
         problem = replay_problem(a.replay_commands)
     if problem is None and (a.respawn_limit < 0 or not a.checkpoint_period >= 0
@@ -509,13 +521,18 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
     training_s = time.monotonic() - t_train if getattr(a, "weights_source", "") == "trained" \
         else 0.0
     # last: a refused run leaves no checkpoints folder behind
-    if problem is None and not a.single_process:
+    if problem is None and not a.single_process and day is None:
         problem = prepare_checkpoints(checkpoint_dir(out_dir), a.resume)
     if problem:
         print(f"metro_atc run: error: {problem}", file=sys.stderr)
         return Exit.REFUSED
     from metro_atc.show import stock_line
     print(f"metro_atc run: {stock_line(scn)}", file=sys.stderr, flush=True)
+    if day is not None:
+        from metro_atc.core.service.dayrun import describe
+        from metro_atc.nodes.sim_day import NOT_IN_GRAPH
+        print(f"metro_atc run: {describe(day)}; {len(train_ids)} trains; not through the "
+              f"graph: {'; '.join(NOT_IN_GRAPH)}", file=sys.stderr, flush=True)
     if a.foxglove is not None:
         from metro_atc.nodes.wire.line_view import live_view_line
         print(f"metro_atc run: {live_view_line(a.foxglove_host, a.foxglove)}",
@@ -531,7 +548,8 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
         cpu["graph"] = round(time.process_time(), 2)
     else:
         show = a.progress == "always" or (a.progress == "auto" and sys.stderr.isatty())
-        horizon_s = progress_horizon_s(scn, a.duration) if show else None
+        horizon_s = None if not show else progress_horizon_s(scn, a.duration) \
+            if day is None else day_horizon_s(day, a.duration)
         code = _run_processes(a, train_ids, out_dir, horizon_s, memory, cpu, zygote, timing)
     # the regulator's training (if any) is part of the run's wall time
     wall = time.monotonic() - t0 + training_s
@@ -552,7 +570,8 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
     # the printed report adds the launcher's view; kpis.json stays as the simulator wrote it
     kpis["wall_time_s"] = round(wall, 3)
     kpis["regulator_training_s"] = round(training_s, 3)
-    sim_t = float(kpis.get("sim_time_s", 0.0))
+    # simulated time run (a service day starts at its first pull-out, not at 0)
+    sim_t = float(kpis.get("sim_time_s", 0.0)) - float(kpis.get("sim_start_s", 0.0))
     kpis["real_time_factor"] = round(sim_t / wall, 2) if wall > 0 else math.nan
     if timing:
         # the stepping loop alone (start-up and end left out), as a co-simulation times its
@@ -665,6 +684,29 @@ def progress_horizon_s(scn: Any, duration_s: float) -> float:
     dwell = float(np.nanmax(np.asarray(sv.sched_dwell, dtype=float)[..., -1], initial=0.0))
     end = float(arr[i]) + dwell + tail_s + float(scn.line.turnback_s)
     return min(limit, end)
+
+
+def day_horizon_s(day: Any, duration_s: float) -> float:
+    """Simulated time the progress ETA of a service day counts to [s]: its last arrival."""
+    from metro_atc.core.service.dayrun import last_arrival_s
+    end = last_arrival_s(day)
+    return min(float(duration_s), end) if duration_s > 0 else end
+
+
+def day_problem(a: argparse.Namespace) -> str | None:
+    """Why a service day cannot run with these options (one line), or None.
+
+    The day's departures are decided by the simulator's day plant (timetable regulator),
+    it takes no dispatcher commands and is not checkpointed.
+    """
+    if a.single_process:
+        return "--single-process: a service day runs in the multi-process graph"
+    if a.regulator != "none":
+        return (f"--regulator {a.regulator}: a service day through the graph runs the "
+                "timetable (none) only; regulators on the day: python -m metro_atc day")
+    if a.resume or a.replay_commands:
+        return "--resume and --replay-commands: a service day is not checkpointed"
+    return None
 
 
 def scenario_train_ids(scn: Any) -> list[str]:
@@ -949,13 +991,28 @@ def write_pids(log_dir: Path, procs: Sequence[tuple[str, Proc]]) -> None:
     os.replace(tmp, log_dir / "pids.json")
 
 
+DAY_HIDDEN = ("trains", "completed_trains", "max_delay_s", "recovery_time_s",
+              "late_departures", "incomplete_trains", "regulator")
+"""One-way figures the printed table of a service day leaves out (kpis.json has them)."""
+DAY_SHOWN = ("trips_planned", "trips_run", "fleet", "trains_in_depot", "route_conflicts",
+             "separation_violations", "stop_error_max_m", "stops_outside_0p30_m",
+             "terminal_delay_max_s", "depot_moves")
+"""The service day's figures in the printed table (``day`` in kpis.json)."""
+
+
 def _print_table(k: dict[str, Any]) -> None:
-    keys = ("trains", "completed_trains", "atp_violations", "atp_interventions",
-            "min_separation_m", "energy_kwh", "max_delay_s", "recovery_time_s",
-            "late_departures", "passengers_left_behind", "sim_time_s", "wall_time_s",
-            "real_time_factor", "loop_wall_s", "loop_real_time_factor", "lockstep_misses",
-            "regulator", "planner", "weights", "regulator_training_s", "finished",
-            "cut_at_s", "incomplete_trains", "out_dir", "bag")
+    keys: tuple[str, ...] = (
+        "trains", "completed_trains", "atp_violations", "atp_interventions",
+        "min_separation_m", "energy_kwh", "max_delay_s", "recovery_time_s",
+        "late_departures", "passengers_left_behind", "sim_time_s", "wall_time_s",
+        "real_time_factor", "loop_wall_s", "loop_real_time_factor", "lockstep_misses",
+        "regulator", "planner", "weights", "regulator_training_s", "finished",
+        "cut_at_s", "incomplete_trains", "out_dir", "bag")
+    day = k.get("day")
+    if isinstance(day, dict):  # a service day: its trips, not the one-way trains' figures
+        keys = tuple(x for x in keys if x not in DAY_HIDDEN) + tuple(
+            f"day.{x}" for x in DAY_SHOWN)
+        k = dict(k, **{f"day.{x}": day.get(x) for x in DAY_SHOWN})
     width = max(len(x) for x in keys)
     for key in keys:
         if key in k:

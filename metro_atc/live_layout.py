@@ -87,9 +87,9 @@ def layout(train_ids: Sequence[str]) -> dict[str, Any]:
 
 def layout_text(scenario: str = DEFAULT_SCENARIO) -> str:
     """The layout file's text for ``scenario`` (its trains in timetable order)."""
-    from metro_atc.core.line.scenario import load_scenario
+    from metro_atc.core.service.dayrun import load_run_scenario
     from metro_atc.launcher import scenario_train_ids
-    ids = list(scenario_train_ids(load_scenario(scenario)))
+    ids = list(scenario_train_ids(load_run_scenario(scenario)))
     return json.dumps(layout(ids), indent=2) + "\n"
 
 

@@ -119,3 +119,10 @@ def mini_graph_runs(installed: Path, background_jobs: background.Scheduler) -> d
     uninterrupted reference of its runs with killed nodes.
     """
     return dict(background_jobs.result("mini_graph_runs"))
+
+
+@pytest.fixture(scope="session")
+def day_graph_run(installed: Path, background_jobs: background.Scheduler) -> dict[str, Any]:
+    """The first part of the Taipei service day through the graph (:func:`graph_runs.
+    day_graph_run`, a background job)."""
+    return dict(background_jobs.result("day_graph_run"))

@@ -134,3 +134,38 @@ def mini_graph_runs(tmp: Path) -> dict[str, Any]:
             for probe in probes:
                 probe.close()
     return results
+
+
+DAY = "taipei_blue_day"
+"""The service day of the day run."""
+DAY_DURATION_S = 3600.0
+"""Simulated time of the day run from its first step [s]: the first pull-outs and the first
+trips of both directions to their termini (a trip takes ~40 min), cut before the day ends."""
+
+
+@job("day_graph_run")
+def day_graph_run(tmp: Path) -> dict[str, Any]:
+    """The first ``DAY_DURATION_S`` of the Taipei day through the multi-process graph.
+
+    Cut by ``--duration``: the run exits 6 (CUT). Returns its exit code, KPIs, stderr and
+    the ``--out`` directory (``day_calls.csv``, ``day_turnbacks.csv``, ``day_depot.csv``).
+    """
+    domains = DomainAllocator()
+    out = tmp / "day"
+    out.mkdir()
+    with domains.allocate() as dom:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
+        p = subprocess.Popen(
+            [sys.executable, "-m", "metro_atc", "run", "--scenario", DAY, "--json",
+             "--duration", str(DAY_DURATION_S), "--step-timeout", str(STEP_TIMEOUT_S),
+             "--out", str(out)], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+            text=True, cwd=out)
+        try:
+            stdout, stderr = p.communicate(timeout=RUN_TIMEOUT_S)
+        finally:
+            if p.poll() is None:
+                p.kill()
+                p.communicate()
+    lines = [ln for ln in stdout.splitlines() if ln.strip()]
+    return {"code": p.returncode, "kpis": json.loads(lines[-1]) if lines else {},
+            "stderr": stderr, "out": out}

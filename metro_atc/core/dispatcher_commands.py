@@ -195,10 +195,14 @@ class Dispatcher:
     ``queue_full``, ``replaying``), ``stale`` (accepted, invalid by the boundary: dropped).
     """
 
-    def __init__(self, sim: Any, queue_max: int = QUEUE_MAX) -> None:
-        """Nothing queued; ``sim`` a :class:`~metro_atc.core.plant.line.LineSim`."""
+    def __init__(self, sim: Any, queue_max: int = QUEUE_MAX, closed: str = "") -> None:
+        """Nothing queued; ``sim`` a :class:`~metro_atc.core.plant.line.LineSim`.
+
+        ``closed``: why every request is refused (kind ``closed``; '' : requests served).
+        """
         if queue_max < 1:
             raise ValueError(f"queue_max {queue_max}: expected >= 1")
+        self.closed = str(closed)
         self.sim = sim
         self.queue: deque[tuple[int, Command]] = deque()
         self.queue_max = int(queue_max)
@@ -390,6 +394,8 @@ class Dispatcher:
     # ------------------------------------------------------------------ queue
     def submit(self, cmd: Command) -> tuple[bool, str, int]:
         """Validate and queue a request: (accepted, one-line reason, ticket or 0)."""
+        if self.closed:
+            return self._refuse("closed", self.closed)
         if self.replay is not None:
             return self._refuse("replaying", "replaying recorded commands: live commands "
                                 "are refused")

@@ -52,6 +52,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 
+from metro_atc.core.ato.cab import CabWatch
 from metro_atc.core.ato.coasting import warm_up_plan_kernel
 from metro_atc.core.ato.onboard import OnboardAto, PlanEvent
 from metro_atc.core.ato.plan_store import PlanStore
@@ -61,7 +62,8 @@ from metro_atc.core.ato.wiring import MmasSettings, ato_wiring
 from metro_atc.core.bridge import timetable_for
 from metro_atc.core.dispatcher_commands import TsrBook
 from metro_atc.core.journal import read_entries
-from metro_atc.core.line.scenario import ScenarioError, load_scenario
+from metro_atc.core.line.scenario import ScenarioError
+from metro_atc.core.service.dayrun import day_table, load_run_scenario
 from metro_atc.core.validate import Rejections, StepWindow, bounds_for
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes import dispatch_msgs
@@ -127,7 +129,7 @@ class AtoController(Node):
         self.rt = RuntimeParams(self, self.health, stamp=self.last_state_t)
         if scenario is None:
             try:
-                scenario = load_scenario(self.scenario_name)
+                scenario = load_run_scenario(self.scenario_name)
             except ScenarioError as exc:
                 raise NodeConfigError(str(exc)) from None
         self.tt = timetable if timetable is not None else timetable_for(scenario)
@@ -171,8 +173,11 @@ class AtoController(Node):
         self._new_onboard = new_onboard
         self.onboard = new_onboard()
         self.core = self.onboard.core
+        self.cab = CabWatch() if day_table(self.scenario_name) is not None else None
+        """In a service day: when this train's ATO starts afresh (:mod:`core.ato.cab`)."""
         self.history: list[dict[str, Any]] = []
-        """The states acted on, in order (the journal's content)."""
+        """The states acted on, in order (the journal's content; kept with a journal only:
+        what a resumed simulator's rewind replays)."""
         ck_dir = static(self, "checkpoint_dir", "",
                         "directory of the per-train state journal ('' : none): a restarted "
                         "ATO replays it, a simulator resumed behind is followed back")
@@ -234,8 +239,9 @@ class AtoController(Node):
             self._remember(s, effort, mode)
 
     def _remember(self, s: dict[str, Any], effort: float, mode: int) -> None:
-        """Record a state acted on and its command."""
-        self.history.append(s)
+        """Record a state acted on and its command (the state itself with a journal only)."""
+        if self.journal_path is not None:
+            self.history.append(s)
         self.last_step = int(s["step"])
         self._last_cmd = Cmd(int(s["step"]), float(s["t_s"]), float(effort), int(mode))
 
@@ -282,7 +288,7 @@ class AtoController(Node):
 
     def last_state_t(self) -> float:
         """Simulated time [s] of the last state acted on (0 before the first)."""
-        return float(self.history[-1]["t_s"]) if self.history else 0.0
+        return self._last_cmd.t_s if self._last_cmd is not None else 0.0
 
     # ------------------------------------------------------------------ planning
     def _reject(self, what: str, exc: conv.MessageRejected) -> None:
@@ -351,6 +357,7 @@ class AtoController(Node):
         False: the journal line is written but not flushed; the caller must call
         :meth:`flush_journal` before the command leaves the process.
         """
+        self._back_from_depot(int(getattr(msg, "step", -1)))
         try:
             try:
                 s = conv.state_from_msg(msg, topic, self.train_id, self.bounds, self.steps)
@@ -371,8 +378,9 @@ class AtoController(Node):
         ``entry``: the TrainState-like view, used as :meth:`answer` does when the step is
         outside the window (a re-synchronisation or a resumed simulator).
         """
-        last = self.steps.last
         k = s["step"]
+        self._back_from_depot(k)
+        last = self.steps.last
         if last is not None and k != last + 1 and k != last:
             return self.answer(entry, topic, flush)
         try:
@@ -399,6 +407,17 @@ class AtoController(Node):
                 n = self._journal.write(line)
         return self._last_cmd
 
+    def _back_from_depot(self, k: int) -> None:
+        """In a service day, a state steps ahead of the last one: the train is back in service.
+
+        The simulator asks a train's ATO every step while it is in service and never while
+        it stands in the depot, so a state of a later step than the next one starts a new
+        step window (and a new cab, :meth:`control`); going back stays rejected.
+        """
+        last = self.steps.last
+        if self.cab is not None and last is not None and k > last + 1:
+            self.steps = StepWindow()
+
     def flush_journal(self) -> None:
         """Hand the journal's written lines to the OS (then they survive a SIGKILL).
 
@@ -411,6 +430,9 @@ class AtoController(Node):
 
     def control(self, s: dict[str, Any]) -> tuple[float, int]:
         """Effort in [-1, 1] and intended mode for one state (:class:`OnboardAto`)."""
+        if self.cab is not None and self.cab.new_cab(s["step"], s["current_station"]):
+            self.onboard = self._new_onboard()  # pull-out or a new lap: the other cab
+            self.core = self.onboard.core
         u, mode, planned = self.onboard.control(s)
         if planned is not None:
             self._publish_plan(planned)
@@ -667,7 +689,7 @@ def build_nodes() -> list[Node]:
         raise NodeConfigError("no train: set -p train_ids:=[train_01,...] or run in a "
                               "train namespace (-r __ns:=/train_01)")
     try:
-        scn = load_scenario(name)
+        scn = load_run_scenario(name)
     except ScenarioError as exc:
         raise NodeConfigError(str(exc)) from None
     tt = timetable_for(scn)

@@ -52,7 +52,8 @@ from rclpy.subscription import Subscription
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from metro_atc.bag import BagWriter, Qos, qos_profile
-from metro_atc.core.line.scenario import ScenarioError, load_scenario
+from metro_atc.core.line.scenario import ScenarioError
+from metro_atc.core.service.dayrun import load_run_scenario
 from metro_atc.nodes.wire import cdr
 from metro_atc.nodes.common import (OK, FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_DIAGNOSTICS,
                                     QOS_EVENTS, QOS_FLEET_SENSOR, QOS_LATCHED,
@@ -209,7 +210,7 @@ class BagRecorder(Node):
             raise NodeConfigError("parameter output (bag directory) is empty")
         try:
             from metro_atc.launcher import scenario_train_ids
-            ids = scenario_train_ids(load_scenario(scenario))
+            ids = scenario_train_ids(load_run_scenario(scenario))
         except ScenarioError as exc:
             raise NodeConfigError(str(exc)) from None
         if Path(output).exists():

@@ -101,7 +101,8 @@ from metro_atc.core.brake.train_watch import (  # noqa: F401  (re-exported for c
     RESYNC_SAMPLES, SLIDE_AXLES, V_MIN_CREEP, V_PAUSE_MPS, V_PSEUDO_MPS, ObserverSetup,
     TrainBrakeWatch, observer_setup)
 from metro_atc.core.journal import Journal
-from metro_atc.core.line.scenario import ScenarioError, load_scenario
+from metro_atc.core.line.scenario import ScenarioError
+from metro_atc.core.service.dayrun import load_run_scenario
 from metro_atc.core.validate import Rejections, bounds_for
 from metro_atc.nodes import conversions as conv
 from metro_atc.nodes.wire import fleet_sensors
@@ -147,7 +148,7 @@ class BrakeDiagnostic(Node):
         self.scenario_name = static(self, "scenario", "taipei_blue",
                                     "embedded scenario name or path to a scenario YAML")
         try:
-            scn = load_scenario(self.scenario_name)
+            scn = load_run_scenario(self.scenario_name)
         except ScenarioError as exc:
             raise NodeConfigError(str(exc)) from None
         setup = observer_setup(scn)

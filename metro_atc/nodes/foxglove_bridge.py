@@ -54,7 +54,8 @@ from rclpy.subscription import Subscription
 from sensor_msgs.msg import JointState
 
 from metro_atc.bag import TypeDefs
-from metro_atc.core.line.scenario import ScenarioError, load_scenario
+from metro_atc.core.line.scenario import ScenarioError
+from metro_atc.core.service.dayrun import load_run_scenario
 from metro_atc.nodes.bag_recorder import find_msg, graph_topics, type_name
 from metro_atc.nodes.common import (OK, QOS_EVENTS, QOS_LATCHED, QOS_RELIABLE, WARN,
                                     NodeConfigError,
@@ -143,7 +144,7 @@ class FoxgloveBridge(Node):
             "step read) per period; ROS readers of /line/trains get every step read",
             0.01, 60.0))
         try:
-            scn = load_scenario(scenario)
+            scn = load_run_scenario(scenario)
         except ScenarioError as exc:
             raise NodeConfigError(str(exc)) from None
         order = line_view.train_order(scn)

@@ -21,7 +21,7 @@ from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
 from metro_atc.core.bridge import timetable_for
-from metro_atc.core.line.scenario import load_scenario
+from metro_atc.core.service.dayrun import load_run_scenario
 from metro_atc.exit_codes import Exit
 from metro_atc.nodes.ato_controller import AtoController, FleetLink
 from metro_atc.nodes.ats_regulator import AtsRegulator
@@ -84,7 +84,7 @@ def _run_graph(a: argparse.Namespace, train_ids: Sequence[str], out_dir: Path) -
         stage = "brake_diagnostic"
         nodes.append(BrakeDiagnostic(parameter_overrides=_overrides(common)))
         stage = "ato_controller"
-        scn = load_scenario(a.scenario)
+        scn = load_run_scenario(a.scenario)
         tt = timetable_for(scn)
         shared: dict[str, Any] = {}
         atos = [AtoController(tid, scenario=scn, timetable=tt, shared=shared,

@@ -66,6 +66,7 @@ from metro_atc.nodes.common import (FLEET_SENSOR_TOPIC, QOS_CLOCK, QOS_EVENTS,
                                     bulk_publisher, bulk_subscription, diag_status,
                                     run_nodes, spin_until_stopped)
 from metro_atc.nodes.sim_checkpoints import Checkpoints, journal_key
+from metro_atc.nodes.sim_day import NOT_IN_GRAPH, DayHost, day_run_for
 from metro_atc.nodes.sim_departures import DepartureBook
 from metro_atc.nodes.sim_dispatch import DispatchDesk
 from metro_atc.nodes.sim_domain import (LINGER_S, RECORDER_GATE_TOPIC, linger, subscribed_by,
@@ -109,22 +110,38 @@ class LineSimulator(Node):
         self._next_progress_t = self.params.progress_period_s
         self.wall0 = time.monotonic()
         try:
-            scn = load_scenario(self.params.scenario_name)
-        except ScenarioError as exc:
+            run = day_run_for(self.params.scenario_name)
+            scn = load_scenario(self.params.scenario_name) if run is None else None
+        except (ScenarioError, ValueError) as exc:
             raise NodeConfigError(str(exc)) from None
-        self.sim = LineSim(scn, seed=int(self.params.seed))
+        self.day = None if run is None else DayHost(run, int(self.params.seed))
+        """The service day the plant runs (:mod:`metro_atc.nodes.sim_day`), or None."""
+        if self.day is not None:
+            if self.params.checkpoint_dir:
+                raise NodeConfigError("checkpoint_dir: a service day is not checkpointed "
+                                      "(no resume); leave it empty")
+            self.sim = self.day.sim
+            self.get_logger().info(f"{self.day.summary}; not through the graph: "
+                                   f"{'; '.join(NOT_IN_GRAPH)}")
+        else:
+            assert scn is not None
+            self.sim = LineSim(scn, seed=int(self.params.seed))
+        scn = self.sim.scn
         self.bounds = bounds_for(scn)
         self.rejections = Rejections()
         """Rejected input messages per kind (:mod:`metro_atc.core.validate`)."""
         self.desk = DispatchDesk(self, self.sim, int(self.params.dispatch_queue_max),
-                                 self.params.replay_commands, self.rejections)
+                                 self.params.replay_commands, self.rejections,
+                                 closed="a service day run takes no dispatcher commands"
+                                 if self.day is not None else "")
         """The dispatcher's desk: /line/dispatch and the applied commands."""
         self.watchdog = AtoWatchdog(len(self.sim.train_ids), int(self.params.ato_lost_steps))
         """Lost-ATO decision (:mod:`metro_atc.core.ato_watchdog`)."""
         self.ids: list[str] = list(self.sim.train_ids)
         self.index = {tid: i for i, tid in enumerate(self.ids)}
         n = len(self.ids)
-        self.k = 0
+        self.k = 0 if self.day is None else self.day.first_step
+        """Lockstep step index: its state's time is k control periods (a day starts late)."""
         self.cmd_step = np.full(n, -1, dtype=np.int64)
         self.cmd_effort = np.full(n, np.nan)
         self.lockstep_misses = 0
@@ -139,11 +156,9 @@ class LineSimulator(Node):
         self.silence = SilenceWatch()
         """Wall time (``time.monotonic``) of the first of the consecutive timed-out lockstep
         steps in which no active train's ATO answered (None: an ATO answered the last step)."""
-        """Simulated time at which ``max_sim_time_s`` ended the run [s] (None: it did not)."""
-        self.loop_wall_s: float | None = None
-        """Wall time of the stepping loop from its first step to the end [s] (None before)."""
-        self.loop_sim_s = 0.0
-        """Simulated time that loop ran [s]."""
+        self.loop_span: tuple[float, float] | None = None
+        """(wall time, simulated time) of the stepping loop from its first step to the end
+        [s] (None before its end)."""
         self.planners: dict[str, int] = {}
         self.planned: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
         self._health_last = (time.monotonic(), 0.0, 0, 0)
@@ -451,8 +466,9 @@ class LineSimulator(Node):
             missing.append("a /line/fleet_state reader (ATO)")
         missing += [f"{s.topic_name} writer (ATO)" for s in self.cmd_subs
                     if s.get_publisher_count() == 0]
-        missing += [f"{s.topic_name} writer (ATS)" for s in self.dep_subs
-                    if s.get_publisher_count() == 0]
+        if self.day is None:  # a day's departures come from its day plant (no ATS)
+            missing += [f"{s.topic_name} writer (ATS)" for s in self.dep_subs
+                        if s.get_publisher_count() == 0]
         if self.sensors.fleet_pub.get_subscription_count() == 0:
             missing.append(f"a {self.sensors.fleet_pub.topic_name} reader (brake_diagnostic)")
         return missing
@@ -497,6 +513,8 @@ class LineSimulator(Node):
         """
         if self.checkpoints.replay:
             self._replay_departures()
+        if self.day is not None:
+            self.day.begin()  # pull-outs, routes and authorities: what the states carry
         return self.fleet.publish(self.k, self.fleet_driven)
 
     def commands_complete(self, active: np.ndarray) -> bool:
@@ -508,15 +526,18 @@ class LineSimulator(Node):
         fleet = self.fleet
         idx = fleet.active_idx if fleet.active_idx_k == self.k else np.flatnonzero(active)
         return (idx.size == 0 or int(self.cmd_step[idx].min()) >= self.k) \
-            and not self.departures.pending(self.k, self.sim)
+            and not self.pending_departures()
 
     def waited_trains(self) -> np.ndarray:
         """Active trains whose per-train command the lockstep waits on (no fleet answer yet)."""
         return self.fleet.active & ~self.fleet_driven
 
     def pending_departures(self) -> list[tuple[int, int]]:
-        """(train, station) pairs dwelling without an ATS departure command yet."""
-        return self.departures.pending(self.k, self.sim)
+        """(train, station) pairs dwelling without an ATS departure command yet.
+
+        None in a service day: the day plant commands its departures.
+        """
+        return [] if self.day is not None else self.departures.pending(self.k, self.sim)
 
     def advance(self, active: np.ndarray, timed_out: bool) -> None:
         """Apply the commands, step the core and publish its outputs."""
@@ -558,8 +579,9 @@ class LineSimulator(Node):
         if timed_out:
             self._check_not_silent(active)
             missing = [self.ids[i] for i in np.flatnonzero(active & (self.cmd_step < self.k))]
-            for i, j in self.departures.give_up_pending(self.k, self.sim):
-                missing.append(f"ATS for {self.ids[i]} at station {j} (timetable used)")
+            if self.day is None:
+                for i, j in self.departures.give_up_pending(self.k, self.sim):
+                    missing.append(f"ATS for {self.ids[i]} at station {j} (timetable used)")
             self.lockstep_misses += 1
             self._warn_rate_limited(
                 "lockstep", f"lockstep step {self.k}: no command from {', '.join(missing[:5])}"
@@ -572,12 +594,12 @@ class LineSimulator(Node):
                                                 self.cmd_effort)
         for e in wd_events:
             self._log_watchdog(e)
-        res = self.sim.step(effort)
+        res = self.sim.step(effort) if self.day is None else self.day.step(effort)
         self.k += 1
         t = float(self.sim.t)
         end = self.params.max_sim_time_s
-        cut = end > 0 and t >= end
-        done = bool(self.sim.done) or cut
+        cut = end > 0 and t - self._t0 >= end
+        done = bool(self.sim.done if self.day is None else self.day.done) or cut
         return res, done
 
     def _check_not_silent(self, active: np.ndarray) -> None:
@@ -619,7 +641,7 @@ class LineSimulator(Node):
             self.get_logger().info(
                 f"t={t:.0f} s: {int(np.count_nonzero(self.sim.active_mask()))} trains in "
                 f"service, {self.lockstep_misses} lockstep misses, "
-                f"{t / wall if wall > 0 else 0.0:.1f}x real time")
+                f"{(t - self._t0) / wall if wall > 0 else 0.0:.1f}x real time")
         if t >= self._next_status_t or done:
             self._next_status_t = t + self.params.status_period_s
             self.status_pub.publish(conv.line_status_msg(self.kpis(), self.k, t, done))
@@ -644,7 +666,8 @@ class LineSimulator(Node):
 
     def announce_finished(self) -> None:
         """Write ``finished_file`` (if set): the run is over (:func:`write_finished_file`)."""
-        write_finished_file(self.params.finished_file, self.loop_wall_s, self.loop_sim_s,
+        wall, sim_s = self.loop_span if self.loop_span is not None else (None, 0.0)
+        write_finished_file(self.params.finished_file, wall, sim_s,
                             self.get_logger())
 
     def kpis(self) -> dict[str, Any]:
@@ -669,6 +692,9 @@ class LineSimulator(Node):
         k["brake_assessed"] = dict(zip(self.ids, self.sensors.assessed))
         k["brake_trains_not_assessed"] = [t for t, a in zip(self.ids, self.sensors.assessed)
                                           if not a]
+        if self.day is not None:
+            k["day"] = self.day.kpis()
+            k["sim_start_s"] = self._t0
         return k
 
     def _cut_at_s(self) -> float | None:
@@ -677,11 +703,20 @@ class LineSimulator(Node):
         None when it was not cut (the plant's own end came first, or no cut was set).
         """
         end, t = self.params.max_sim_time_s, float(self.sim.t)
-        return t if end > 0 and t >= end and not self.sim.done else None
+        done = self.sim.done if self.day is None else self.day.done
+        return t if end > 0 and t - self._t0 >= end and not done else None
+
+    @property
+    def _t0(self) -> float:
+        """Simulated time of step 0 [s]: 0, or the first step of a service day."""
+        return 0.0 if self.day is None else self.day.dp.t_start
 
     def final_kpis(self) -> dict[str, Any]:
         """:meth:`kpis` with whether the whole service ran (:func:`service_end`)."""
         k = self.kpis()
+        if self.day is not None:
+            k.update(self.day.end(self.finished, float(self.sim.t), self._cut_at_s()))
+            return k
         k.update(service_end(int(k["trains"]), int(k["completed_trains"]), float(self.sim.t),
                              self.finished, self._cut_at_s(), float(self.sim.duration_s),
                              int(k.get("withdrawn_trains", 0))))
@@ -717,6 +752,15 @@ class LineSimulator(Node):
         if not self.params.out_dir:
             return
         k = self.final_kpis()
+        if self.day is not None:
+            write_outputs(self.params.out_dir, self.sim, k, False, self.planned,
+                          self.get_logger(), events=False)  # kpis.json
+            try:
+                self.day.write_outputs(self.params.out_dir)
+            except Exception as exc:  # noqa: BLE001 - the KPIs are written: say what is not
+                raise OSError(f"outputs not written: the day's KPI tables and pictures in "
+                              f"{self.params.out_dir}: {exc}") from None
+            return
         write_outputs(self.params.out_dir, self.sim, k, self.params.plots, self.planned,
                       self.get_logger(), dispatched=[
                           (a, self.desk.dispatcher.station_of(a))

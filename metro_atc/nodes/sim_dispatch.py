@@ -36,13 +36,16 @@ class DispatchDesk:
     """
 
     def __init__(self, node: Node, sim: LineSim, queue_max: int, replay_bag: str,
-                 rejections: Rejections) -> None:
-        """Create the dispatcher, the applied-commands publisher and the service."""
+                 rejections: Rejections, closed: str = "") -> None:
+        """Create the dispatcher, the applied-commands publisher and the service.
+
+        ``closed``: why every request is refused ('' : requests are served).
+        """
         from metro_atc_msgs.msg import DispatcherCommand
         from metro_atc_msgs.srv import Dispatch
         self.node = node
         self.rejections = rejections
-        self.dispatcher = Dispatcher(sim, int(queue_max))
+        self.dispatcher = Dispatcher(sim, int(queue_max), closed)
         """The dispatcher's commands (:mod:`metro_atc.core.dispatcher_commands`)."""
         if replay_bag:
             try:

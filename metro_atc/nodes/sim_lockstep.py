@@ -99,8 +99,7 @@ class LockstepNode(Protocol):
     started: bool
     wall0: float
     """Wall time of the first step [s] (``time.monotonic``)."""
-    loop_wall_s: float | None
-    loop_sim_s: float
+    loop_span: tuple[float, float] | None
 
     @property
     def context(self) -> Context:
@@ -320,9 +319,9 @@ def lockstep_loop(executor: SingleThreadedExecutor, node: LockstepNode,
     if not node.finished:
         log.info(f"stopped by a signal at t={node.sim.t:.1f} s, step {node.k}")
         return
-    node.loop_wall_s, node.loop_sim_s = time.monotonic() - wall0, float(node.sim.t) - sim0
+    node.loop_span = (time.monotonic() - wall0, float(node.sim.t) - sim0)
     log.info(f"scenario finished at t={node.sim.t:.1f} s after {node.k} steps, "
-             f"{time.monotonic() - t0:.1f} s wall ({node.loop_wall_s:.1f} s from step {k0})")
+             f"{time.monotonic() - t0:.1f} s wall ({node.loop_span[0]:.1f} s from step {k0})")
     node.sensors.drain(float(node.sim.t),
                        lambda timeout_s: executor.spin_once(timeout_sec=timeout_s))
     executor.spin_once(timeout_sec=0.0)

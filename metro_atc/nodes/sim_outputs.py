@@ -49,7 +49,7 @@ def regulator_label(seen: dict[str, int]) -> str:
 
 def write_outputs(out_dir: str, line: Any, kpis: dict[str, Any], with_plots: bool,
                   planned: dict[int, Any], logger: Any,
-                  dispatched: Sequence[tuple[Any, int]] = ()) -> None:
+                  dispatched: Sequence[tuple[Any, int]] = (), events: bool = True) -> None:
     """Write the run's outputs into ``out_dir`` ('' : none); raise OSError if any is missing.
 
     ``line``: the plant (its event log); ``kpis``: the run's KPIs (``kpis.json``);
@@ -74,7 +74,8 @@ def write_outputs(out_dir: str, line: Any, kpis: dict[str, Any], with_plots: boo
         if with_plots:
             plots.write_outputs(line, out, kpis=kpis, planned=planned, dispatched=dispatched)
             return
-        plots.write_events_csv(line, out / "events.csv", dispatched)
+        if events:
+            plots.write_events_csv(line, out / "events.csv", dispatched)
     except Exception as exc:  # noqa: BLE001 - outputs must not hide the KPIs
         failed = f"{'plots/events.csv' if with_plots else 'events.csv'} in {out}: {exc}"
         logger.error(f"writing outputs to {out} failed: {exc}")

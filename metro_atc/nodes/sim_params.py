@@ -54,7 +54,8 @@ class SimParams:
             "node names (e.g. a recorder) that must subscribe to every topic of the "
             "simulator before step 0") if x]
         self.max_sim_time_s = static(node, "max_sim_time_s", 0.0,
-                                     "stop after this simulated time [s]; 0: scenario end",
+                                     "stop after this simulated time [s] (a service day: "
+                                     "from its first step); 0: scenario end",
                                      0.0, 1e7)
         self.out_dir = static(node, "out_dir", "",
                               "directory for kpis.json, events.csv and plots ('' : none)")

@@ -49,7 +49,6 @@ APPROACH_JERK_SHARE = 0.8
 off before the reference is reached (``control_kernel.approach_bound``) [-]."""
 
 
-
 def memo_put(memo: dict[Any, Any], key: Any, value: Any, keep: int = MEMO_KEEP) -> None:
     """``memo[key] = value``, then drop the oldest entries beyond ``keep`` (:data:`MEMO_KEEP`)."""
     memo[key] = value
@@ -64,6 +63,7 @@ def memo_slot(memo: dict[Any, Any], key: Any) -> dict[Any, Any]:
         got = {}
         memo_put(memo, key, got)
     return got
+
 
 class AtoCore:
     """ATO of one train: planner (``PLANNERS``) + tracker (``TRACKERS``).

@@ -21,6 +21,11 @@ from metro_atc.core.line.timetable import required_dwell
 
 from .fleet import DONE, RUN, TURNBACK, Fleet
 
+HELD_S = 1.0e9
+"""A commanded departure at or after this instant [s] holds the train at its platform until
+a later command (a service day's berth waiting for its route): no departure is decided yet,
+and the published state says so (departure time NaN, :mod:`.views`)."""
+
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 

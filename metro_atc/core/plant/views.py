@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from .fleet import DONE, WAIT
 from .kpi import RunLog
+from .stations import HELD_S
 
 FLEET_KEYS = ("x_m", "v_mps", "a_mps2", "current_station", "next_station", "mode",
               "departure_time_s", "target_running_time_s", "atp_limit_mps",
@@ -27,11 +28,13 @@ FLEET_KEYS = ("x_m", "v_mps", "a_mps2", "current_station", "next_station", "mode
 def target_departure(sim: Any, rows: NDArray[np.intp]) -> NDArray[np.float64]:
     """Commanded (else scheduled) departure time from the current station [s].
 
-    ``rows``: the trains (indices), in that order.
+    ``rows``: the trains (indices), in that order.  NaN for a train held until a later
+    command (:data:`.stations.HELD_S`: no departure decided yet).
     """
     j = np.minimum(np.maximum(sim.fleet.cur_station[rows], 0), sim.n_st - 1)
     dep = sim.stations.cmd_dep[rows, j]
-    return np.where(np.isfinite(dep), dep, sim.service.sched_dep[rows, j])
+    out = np.where(np.isfinite(dep), dep, sim.service.sched_dep[rows, j])
+    return np.where(out >= HELD_S, np.nan, out)
 
 
 def target_running_time(sim: Any, rows: NDArray[np.intp]) -> NDArray[np.float64]:

@@ -64,6 +64,7 @@ from metro_atc.core.closed_loop import STOP_WINDOW_M, ato_input
 from metro_atc.core.line.scenario import Scenario
 from metro_atc.core.plant.fleet import RUN
 from metro_atc.core.plant.line import LineSim
+from metro_atc.core.plant.stations import HELD_S
 from metro_atc.core.plant.sensors import StepResult
 from metro_atc.core.plant.views import fleet_state_rows
 
@@ -84,7 +85,7 @@ platform, two sidings, departure platform): at the 105-120 s peak headways a tra
 longer than ~5 headways (e.g. the surplus of the morning fleet circulating in the evening
 peak, 840 s layovers) fills it and the trains behind queue on the line.
 """
-HOLD_S = 1.0e9
+HOLD_S = HELD_S
 """Departure command of a train held at a berth until its next route is set [s]."""
 _slot = operator.attrgetter("train_idx")
 
@@ -279,9 +280,7 @@ class DayPlant:
         # entries (pull-outs), authorities from here, each train's own disturbance stream
         # (the stream it had on a plant of its own: seed + slot)
         nt = len(self.trains)
-        fscn = dataclasses.replace(
-            self.scn, trains=dataclasses.replace(self.scn.trains, count=nt))
-        self.sim = sim = LineSim(fscn, seed=seed, trace_period_s=0.0)
+        self.sim = sim = LineSim(fleet_scenario(self.scn, nt), seed=seed, trace_period_s=0.0)
         sim.external_entries(loop.period_m)
         sim.external_authority()
         sim.train_streams([seed + n for n in range(nt)])
@@ -1086,20 +1085,28 @@ def plant_timed(loop: LoopLine, sv: Any, trips: Sequence[Trip], codes: Tuple[str
     return out
 
 
-def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = "fuzzy",
-                seed: int = 0, stable_after_s: float = STABLE_AFTER_S,
-                trip_times: str = "plan",
-                holds: Optional[Mapping[Tuple[str, int], float]] = None,
-                breakdowns: Sequence[Breakdown] = (), records: bool = True) -> DayPlant:
-    """The plant of a day: ``scn``'s line and stock, ``plan`` a :class:`DayPlan`.
+def fleet_scenario(loop_scn: Scenario, n_trains: int) -> Scenario:
+    """The scenario of a day's fleet plant: the loop scenario with a slot per train.
+
+    ``loop_scn``: the loop's scenario (:attr:`LoopLine.scenario`); ``n_trains``: the trains
+    of the circulation.  The slots' train ids are this scenario's (``train_01`` ..), in
+    the order of the circulation's train names (:class:`DayPlant`); an ATO node of the
+    day builds its ATO from this scenario too.
+    """
+    return dataclasses.replace(loop_scn, trains=dataclasses.replace(loop_scn.trains,
+                                                                    count=int(n_trains)))
+
+
+def day_layout(scn: Scenario, plan: Any, stable_after_s: float = STABLE_AFTER_S,
+               trip_times: str = "plan") -> Tuple[LoopLine, Circulation]:
+    """The loop of ``scn``'s line with ``plan``'s termini and periods, and its circulation.
 
     The loop of the line with the plan's terminus layouts; its timetable periods are the
     plan's (boarding per direction scaled by the period's flow factors); the circulation
     is :func:`metro_atc.core.service.day.run_day`'s, with the plan's trip times
     (``trip_times="plan"``: Lin 2010a, eq. 5/10 on the ATR line data) or those the plant's
-    timetable gives (``"plant"``: :func:`plant_timed`).  ``holds[(trip id, station
-    index)]`` [s]: extra dwell of that trip's call (whichever train runs it);
-    ``breakdowns``, ``records``: see :class:`DayPlant`.  DayError / LoopError in one line.
+    timetable gives (``"plant"``: :func:`plant_timed`).  ValueError / DayError / LoopError
+    in one line.
     """
     from .day import run_day, trips
     if trip_times not in ("plan", "plant"):
@@ -1124,6 +1131,21 @@ def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = 
     # in their arrival order (with the last-in choice a train standing at the platform
     # waits for a later trip while the one due first is held behind it in a siding)
     circ, _ = run_day(plan, stable_after_s, timed, "longest_wait")
+    return loop, circ
+
+
+def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = "fuzzy",
+                seed: int = 0, stable_after_s: float = STABLE_AFTER_S,
+                trip_times: str = "plan",
+                holds: Optional[Mapping[Tuple[str, int], float]] = None,
+                breakdowns: Sequence[Breakdown] = (), records: bool = True) -> DayPlant:
+    """The plant of a day: ``scn``'s line and stock, ``plan`` a :class:`DayPlan`.
+
+    The loop and the circulation of :func:`day_layout`.  ``holds[(trip id, station
+    index)]`` [s]: extra dwell of that trip's call (whichever train runs it);
+    ``breakdowns``, ``records``: see :class:`DayPlant`.  DayError / LoopError in one line.
+    """
+    loop, circ = day_layout(scn, plan, stable_after_s, trip_times)
     termini = [DayTerminus(t.station, t.min_turnback_s, t.depot is not None)
                for t in plan.termini]
     owner = {tr.trip_id: b.train for b in circ.blocks for tr in b.trips}
@@ -1235,5 +1257,6 @@ if __name__ == "__main__":
 
 
 __all__ = ["Breakdown", "DayPlant", "DayResult", "DayTerminus", "HOLD_S", "PULL_OUT_LEAD_S",
-           "REQUEST_LEAD_S", "STABLE_AFTER_S", "clear_of_stop", "day_trips", "main",
+           "REQUEST_LEAD_S", "STABLE_AFTER_S", "clear_of_stop", "day_layout", "day_trips",
+           "fleet_scenario", "main",
            "peak_rss_mb", "plant_timed", "rss_mb", "service_day"]

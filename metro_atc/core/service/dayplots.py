@@ -24,7 +24,8 @@ import numpy as np
 
 from metro_atc.core.plant.kpi import PUNCTUAL_S
 from metro_atc.core.service.day import DayPlan
-from metro_atc.core.service.records import DepotRecord, StopRecord, TurnbackRecord
+from metro_atc.core.service.records import (DepotRecord, StopRecord, TurnbackRecord,
+                                            write_records_csv)
 from metro_atc.plots import _plt, _train_colours
 
 UP_COLOUR = "tab:blue"
@@ -315,7 +316,10 @@ def write_day_outputs(plan: DayPlan, stops: Sequence[StopRecord],
                       planned: Optional[Sequence[StopRecord]] = None,
                       zooms: Sequence[Tuple[float, float]] = ((7 * 3600.0, 8 * 3600.0),)
                       ) -> Dict[str, str]:
-    """Write ``day_kpis.json``, ``day_kpis.txt`` and the three PNGs into ``out_dir``.
+    """Write ``day_kpis.json``, ``day_kpis.txt``, the three PNGs and the records into ``out_dir``.
+
+    The records: ``day_calls.csv`` (every call of every trip, scheduled and actual),
+    ``day_turnbacks.csv``, ``day_depot.csv`` (:func:`records.write_records_csv`).
 
     Returns name -> path of what was written.
     """
@@ -328,8 +332,13 @@ def write_day_outputs(plan: DayPlan, stops: Sequence[StopRecord],
     paths = {"kpis_json": out_dir / "day_kpis.json", "kpis_txt": out_dir / "day_kpis.txt",
              "train_graph": out_dir / "day_train_graph.png",
              "circulation": out_dir / "day_circulation.png",
-             "kpi_table": out_dir / "day_kpi_table.png"}
+             "kpi_table": out_dir / "day_kpi_table.png",
+             "calls": out_dir / "day_calls.csv", "turnbacks": out_dir / "day_turnbacks.csv",
+             "depot": out_dir / "day_depot.csv"}
     paths["kpis_json"].write_text(json.dumps(json_safe(k), indent=1), encoding="utf-8")
+    write_records_csv(stops, paths["calls"])
+    write_records_csv(turnbacks, paths["turnbacks"])
+    write_records_csv(depot, paths["depot"])
     paths["kpis_txt"].write_text(kpi_table(k) + "\n", encoding="utf-8")
     plot_day_train_graph(plan, stops, turnbacks, depot, paths["train_graph"], zooms, planned,
                          plan.name)

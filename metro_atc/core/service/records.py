@@ -13,9 +13,11 @@ trip's origin) or did not happen (a stop not reached).
 
 from __future__ import annotations
 
+import csv
 import math
-from dataclasses import dataclass
-from typing import Tuple
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any, Sequence, Tuple
 
 DIRECTIONS: Tuple[str, str] = ("up", "down")
 """The two running directions: ``up`` = first station -> last station of the line."""
@@ -94,3 +96,19 @@ class DepotRecord:
     terminus: str
     t_s: float
     sched_t_s: float
+
+
+def write_records_csv(records: Sequence[Any], path: Path) -> None:
+    """Write records of one type as CSV: a header of their fields, one row per record.
+
+    Floats are written with ``repr`` (exact: a reader gets the same bits back); ``nan``
+    for an instant that does not exist or did not happen.
+    """
+    rows = list(records)
+    names = [f.name for f in fields(rows[0])] if rows else ["(no records)"]
+    with path.open("w", encoding="utf-8", newline="") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(names)
+        for r in rows:
+            w.writerow([repr(v) if isinstance(v, float) else v
+                        for v in (getattr(r, n) for n in names)])

@@ -1,0 +1,78 @@
+"""A service day named like a scenario (core/service/dayrun.py) and the rules the graph's day
+shares with the ROS-free one: the new cab read from the states (core/ato/cab.py) and the
+held departure (core/plant/stations.HELD_S)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from metro_atc.core.ato.cab import CabWatch
+from metro_atc.core.line.scenario import ScenarioError
+from metro_atc.core.plant.stations import HELD_S
+from metro_atc.core.plant.views import fleet_state_rows
+from metro_atc.core.service.day import day_file
+from metro_atc.core.service.dayrun import (day_names, day_plant, day_table, last_arrival_s,
+                                           load_day_run, load_run_scenario)
+
+
+def test_the_shipped_day_is_found_by_name_and_path() -> None:
+    """taipei_blue_day is a day; a one-way scenario (by name or file) is not."""
+    assert "taipei_blue_day" in day_names()
+    table = day_file()
+    assert day_table("taipei_blue_day") == table
+    assert day_table(str(table)) == Path(str(table))
+    assert day_table("taipei_blue") is None
+    scn_file = Path(__file__).resolve().parent.parent / "metro_atc" / "scenarios" / "mini.yaml"
+    assert day_table(str(scn_file)) is None
+
+
+def test_the_ato_nodes_scenario_is_the_fleet_plants() -> None:
+    """The train ids an ATO node of the day hosts are the simulator's slots, in order."""
+    run = load_day_run("taipei_blue_day")
+    dp = day_plant(run)
+    scn = load_run_scenario("taipei_blue_day")
+    assert list(scn.train_ids) == list(dp.sim.train_ids)
+    assert len(scn.train_ids) == len({b.train for b in dp.circ.blocks}) == len(dp.trains)
+    assert scn.line == dp.sim.scn.line
+    assert last_arrival_s(run) == max(t.arrival_s for b in dp.circ.blocks for t in b.trips)
+    assert load_run_scenario("mini").name == "mini"
+
+
+def test_bad_day_names_and_tables_are_refused_in_one_line(tmp_path: Path) -> None:
+    """Not a day, a broken period table, unknown trip times: one line each."""
+    with pytest.raises(ValueError, match="not a service day"):
+        load_day_run("mini")
+    with pytest.raises(ValueError, match="trip_times"):
+        load_day_run("taipei_blue_day", trip_times="fast")
+    bad = tmp_path / "day.yaml"
+    bad.write_text("name: x\nline: taipei_blue\nperiods: []\ntermini: []\n")
+    with pytest.raises(ScenarioError) as exc:
+        load_run_scenario(str(bad))
+    assert "\n" not in str(exc.value)
+
+
+def test_a_new_cab_at_pull_out_and_at_each_new_lap() -> None:
+    """First state, a gap in the steps (back from the depot), a stop index going back."""
+    cab = CabWatch()
+    seq = [(10, 0, True), (11, 0, False), (12, 3, False), (13, 3, False),  # running
+           (14, 0, True),                                                   # a new lap
+           (15, 1, False), (40, 5, True),                                   # depot, back
+           (41, 5, False), (41, 5, True)]                                   # not the next
+    assert [cab.new_cab(k, j) for k, j, _ in seq] == [want for _, _, want in seq]
+
+
+def test_a_held_train_has_no_departure_time_in_its_state() -> None:
+    """A departure at HELD_S holds the train: its state says NaN (no departure decided)."""
+    dp = day_plant(load_day_run("taipei_blue_day"))
+    dp.start()
+    while not any(tr.in_service for tr in dp.trains):
+        dp.end_step(dp.control(dp.begin_step()))
+    rows = np.array([tr.i for tr in dp.trains if tr.in_service], dtype=np.intp)
+    j = dp.sim.fleet.cur_station[rows]
+    assert np.all(dp.sim.stations.cmd_dep[rows, j] >= HELD_S)
+    dep = fleet_state_rows(dp.sim, rows)["departure_time_s"]
+    assert all(math.isnan(x) for x in dep)
