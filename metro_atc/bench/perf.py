@@ -21,7 +21,11 @@ morning peak; ``--day-full``: the whole day; 0: skipped), the brake sensor sampl
 step: ``day.plant_rtf_cpu`` is the simulated span over the CPU time of its plant steps (the
 fleet in one compiled call per step, sensors included: the day's ROS-free core),
 ``day.rtf`` / ``day.rtf_cpu`` over the whole loop's wall / CPU time (plant, the ATO of every
-train, interlocking and bookkeeping).
+train, interlocking and bookkeeping).  ``day_graph``: the same span of the
+``taipei_blue_day`` through the multi-process ROS graph (``python -m metro_atc run
+--scenario taipei_blue_day --duration <span>``, the period table's trip times; the whole
+day with ``--day-full``): its stepping loop's real-time factor, the trips run and the peak
+memory of every node process (``--no-graph`` skips it).
 
 ``graph_rtf`` is the multi-process ROS graph's factor: ``python -m metro_atc run`` (all
 four node kinds as separate processes, lockstep) on the same scenario for
@@ -54,6 +58,9 @@ PROGRESS_CHUNK_S = 100.0
 TARGET_CORE_RTF = 5000.0
 """Target for the core-only real-time factor."""
 TARGET_GRAPH_RTF = 100.0
+TARGET_DAY_GRAPH_RTF = 150.0
+"""Target: the whole service day through the ROS graph in lockstep (a day in ~7 min)."""
+DAY_SCENARIO = "taipei_blue_day"
 """Target for the ROS graph real-time factor (whole Blue line peak, 2 cores)."""
 TARGET_CORE_RTF_SENSORS = 6000.0
 """Target: core real-time factor with the sensor samples consumed (quiet machine)."""
@@ -182,6 +189,29 @@ def run_graph(scenario: str, seed: int, duration_s: float) -> dict[str, Any] | N
     return {key: k.get(key) for key in keys}
 
 
+def run_day_graph(seed: int, span_s: float | None) -> dict[str, Any] | None:
+    """The service day through the graph for ``span_s`` from its first step (None: whole).
+
+    Speed, trips and each node process's peak memory; None (reason on stderr) when the
+    graph cannot run here.
+    """
+    from metro_atc.bench.closed_loop import run_graph as run_one
+    k = run_one(DAY_SCENARIO, "none", seed, 0.0 if span_s is None else span_s,
+                domain_id=230, timeout_s=7200.0, progress=progress_enabled())
+    if k is None:
+        return None
+    day = k.get("day") or {}
+    rss = {n: v for n, v in (k.get("node_peak_rss_mb") or {}).items() if v is not None}
+    return {"loop_real_time_factor": k.get("loop_real_time_factor"),
+            "real_time_factor": k.get("real_time_factor"), "wall_time_s": k.get("wall_time_s"),
+            "sim_span_s": float(k.get("sim_time_s", 0.0)) - float(k.get("sim_start_s", 0.0)),
+            "lockstep_misses": k.get("lockstep_misses"),
+            "atp_violations": k.get("atp_violations"), "finished": k.get("finished"),
+            "trips_run": day.get("trips_run"), "trips_planned": day.get("trips_planned"),
+            "route_conflicts": day.get("route_conflicts"),
+            "node_peak_rss_mb": rss, "peak_rss_mb_max": max(rss.values(), default=None)}
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark; ``--json`` prints one JSON object."""
     ap = argparse.ArgumentParser(prog="metro_atc.bench.perf", description=__doc__.split("\n")[0])
@@ -218,6 +248,10 @@ def main(argv: list[str] | None = None) -> int:
     k = main_run["kpis"]
     graph = None if a.no_graph else run_graph(a.scenario, a.seed,
                                               300.0 if a.quick else a.graph_duration)
+    if progress_enabled() and not a.no_graph and day is not None:
+        print("bench perf: the service day through the graph", file=sys.stderr, flush=True)
+    day_graph = None if a.no_graph or day is None else run_day_graph(
+        a.seed, None if a.day_full else day["sim_span_s"])
     result: dict[str, Any] = {
         "scenario": a.scenario,
         "plant_kernel": main_run["plant_kernel"],
@@ -234,6 +268,7 @@ def main(argv: list[str] | None = None) -> int:
         "graph_rtf": graph["real_time_factor"] if graph else None,
         "graph": graph,
         "day": day,
+        "day_graph": day_graph,
         "trains": main_run["trains"],
         "sim_time_s": round(main_run["sim_time_s"], 2),
         "steps": main_run["steps"],
@@ -248,7 +283,8 @@ def main(argv: list[str] | None = None) -> int:
         "max_delay_s": k["max_delay_s"],
         "targets": {"core_rtf": TARGET_CORE_RTF, "graph_rtf": TARGET_GRAPH_RTF,
                     "core_rtf_with_sensors": TARGET_CORE_RTF_SENSORS,
-                    "day_plant_rtf_cpu": TARGET_DAY_CORE_RTF},
+                    "day_plant_rtf_cpu": TARGET_DAY_CORE_RTF,
+                    "day_graph_loop_rtf": TARGET_DAY_GRAPH_RTF},
         "profile_top": prof_run["profile_top"],
         "quick": a.quick,
         "seed": a.seed,
@@ -289,6 +325,13 @@ def main(argv: list[str] | None = None) -> int:
          f"{day['rtf']:.0f} / {day['rtf_cpu']:.0f}" if day else "-"),
         ("  CPU per train in service, step [us]", "",
          f"{day['cpu_us_per_train_step']:.1f}" if day else "-"),
+        ("day through the graph, loop RTF", f">= {TARGET_DAY_GRAPH_RTF:.0f}",
+         f"{day_graph['loop_real_time_factor']:.0f}" if day_graph else "skipped"),
+        ("  trips run / planned", "",
+         f"{day_graph['trips_run']} / {day_graph['trips_planned']}" if day_graph else "-"),
+        ("  peak memory of a node [MB]", "",
+         f"{day_graph['peak_rss_mb_max']:.0f}"
+         if day_graph and day_graph["peak_rss_mb_max"] is not None else "-"),
         ("trains", ">= 25", f"{result['trains']}"),
         ("simulated time [s]", "", f"{result['sim_time_s']:.0f}"),
         ("completed trains", "all", f"{result['completed_trains']}"),

@@ -33,7 +33,7 @@ NOT_IN_GRAPH = ("departure decisions: the day plant's timetable regulator and tu
 """What a day run of the graph does not do through its nodes (in the KPIs and the log)."""
 
 
-def day_run_for(scenario: str, trip_times: str = "plan") -> DayRun | None:
+def day_run_for(scenario: str, trip_times: str = "plant") -> DayRun | None:
     """The day a run's ``scenario`` parameter names, or None (a one-way scenario)."""
     from metro_atc.core.service.dayrun import day_table
     if day_table(scenario) is None:

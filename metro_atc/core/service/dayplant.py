@@ -1199,8 +1199,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--end-h", type=float, default=None, help="stop at this hour [h]")
     ap.add_argument("--max-wall-s", type=float, default=math.inf)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--trip-times", choices=("plan", "plant"), default="plan",
-                    help="the period table's trip times or the plant's timetable's")
+    ap.add_argument("--trip-times", choices=("plan", "plant"), default="plant",
+                    help="the plant's timetable's trip times (default) or the period "
+                         "table's (Lin 2010a, eq. 5/10: shorter than the plant can run)")
     ap.add_argument("--out", default=None,
                     help="write the day's KPIs (day_kpis.json/.txt) and pictures here")
     ap.add_argument("--sensors", action="store_true",

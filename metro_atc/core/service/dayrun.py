@@ -25,7 +25,12 @@ from .dayplant import STABLE_AFTER_S, DayPlant, day_layout, fleet_scenario, serv
 SUFFIX = "_periods"
 """A shipped day ``<name>`` is the period table ``metro_atc/data/<name>_periods.yaml``."""
 TRIP_TIMES = ("plan", "plant")
-"""Trip times of the day's circulation (:func:`metro_atc.core.service.dayplant.day_layout`)."""
+"""Trip times of the day's circulation (:func:`metro_atc.core.service.dayplant.day_layout`).
+
+A day runs with ``plant`` unless told: the plant's own timetable (its scheduled running
+times and nominal dwells).  The period table's (``plan``: Lin 2010a, eq. 5/10 on the ATR
+line data) are shorter than the plant's line can run, so every trip would end late and the
+lateness grow from turnback to turnback."""
 
 
 def _data_dir() -> Path:
@@ -65,10 +70,10 @@ class DayRun:
     name: str
     plan: DayPlan
     scenario: Scenario
-    trip_times: str = "plan"
+    trip_times: str = "plant"
 
 
-def load_day_run(name_or_path: str, trip_times: str = "plan") -> DayRun:
+def load_day_run(name_or_path: str, trip_times: str = "plant") -> DayRun:
     """The day ``name_or_path`` names (:func:`day_table`); ValueError in one line.
 
     The line and stock: the one-way scenario named by the table's ``line``.
