@@ -300,3 +300,47 @@ def test_an_authority_never_rests_a_train_inside_the_stop_window_short_of_its_st
             assert got == ma  # the train rests outside the window anyway
     # a train past its stop point (or standing at it) keeps its authority
     assert clear_of_stop(1005.0, 1000.5, stop, tol) == 1005.0
+
+
+def test_a_tsr_on_one_track_slows_that_track_only() -> None:
+    """A 30 km/h TSR on the down track between Charlie and Bravo: the trains running down
+    through it keep to 30 km/h; those running up over the same chainage do not slow."""
+    from metro_atc.core.service.day import TrackTsr
+    from metro_atc.core.service.loop import LoopError
+    scn = load_scenario("mini")
+    scn = dataclasses.replace(scn, disturbances=dataclasses.replace(
+        scn.disturbances, departure_delay_prob=0.0))
+    layouts = LAYOUTS["scissors_A_tail_B"]()
+    zone = TrackTsr("down", 1200.0, 1600.0, 30.0)
+    loop = build_loop(scn, layouts, tsrs=[zone])
+    with pytest.raises(LoopError, match="stations lie at"):
+        build_loop(scn, layouts, tsrs=[TrackTsr("down", 2500.0, 2900.0, 30.0)])
+    sv = LineSim(loop.scenario, trace_period_s=0.0).service
+    trips = day_trips(loop, sv, CODES, [(3600.0, 4200.0, 300.0)])
+    circ = build_circulation(trips, {c: MIN_TURNBACK_S for c in CODES}, set(CODES))
+    dp = DayPlant(loop, circ, [DayTerminus(c, MIN_TURNBACK_S, True) for c in CODES])
+    up = [s for s in loop.stops if s.direction == "up"]
+    down = [s for s in loop.stops if s.direction == "down"]
+    # the zone on the loop: down from s(Charlie down) + 900 - 1600 .. + 900 - 1200
+    c_down = next(s.s_m for s in down if s.station == 2)
+    lo_d, hi_d = c_down + (1900.0 - 1600.0), c_down + (1900.0 - 1200.0)
+    lo_u, hi_u = next(s.s_m for s in up if s.station == 0) + 1200.0, \
+        next(s.s_m for s in up if s.station == 0) + 1600.0
+    vmax = {"down": 0.0, "up": 0.0}
+    dp.start()
+    while not dp.finished and dp.t < 9000.0:
+        dp.end_step(dp.control(dp.begin_step()))
+        fl = dp.sim.fleet
+        for tr in dp.trains:
+            if not tr.in_service:
+                continue
+            x, v = float(fl.x[tr.i]), float(fl.v[tr.i])
+            rear = x - dp.length
+            if rear < hi_d and x > lo_d:
+                vmax["down"] = max(vmax["down"], v)
+            if rear < hi_u and x > lo_u:
+                vmax["up"] = max(vmax["up"], v)
+    assert dp.finished
+    assert 0.0 < vmax["down"] <= 30.0 / 3.6 + 0.05
+    assert vmax["up"] > 40.0 / 3.6
+    assert int(np.sum(dp.sim.atp.violations)) == 0

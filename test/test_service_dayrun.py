@@ -76,3 +76,29 @@ def test_a_held_train_has_no_departure_time_in_its_state() -> None:
     assert np.all(dp.sim.stations.cmd_dep[rows, j] >= HELD_S)
     dep = fleet_state_rows(dp.sim, rows)["departure_time_s"]
     assert all(math.isnan(x) for x in dep)
+
+
+def test_a_period_tables_tsrs_reach_the_loop(tmp_path: Path) -> None:
+    """``tsrs`` per track in a period table: on the loop where that track runs; bad ones
+    refused in one line."""
+    import yaml
+
+    from metro_atc.core.line.scenario import load_scenario
+    raw = yaml.safe_load(day_file().read_text())
+    c = [s.position_m for s in load_scenario("taipei_blue").line.stations]
+    good = {"track": "down", "start_m": c[3], "end_m": c[3] + 500.0, "limit_kmh": 40,
+            "from_h": 7, "to_h": 9}
+    raw["tsrs"] = [good]
+    f = tmp_path / "day.yaml"
+    f.write_text(yaml.safe_dump(raw))
+    scn = load_run_scenario(str(f))
+    (z,) = scn.line.temporary_speed_limits
+    assert z.limit_kmh == 40.0 and (z.from_s, z.to_s) == (7 * 3600.0, 9 * 3600.0)
+    assert z.end_m - z.start_m == pytest.approx(500.0)
+    assert z.start_m > c[-1] - c[0]  # on the down half of the loop
+    for bad, why in (({"track": "both"}, "up or down"), ({"end_m": c[3] - 1.0}, "start_m <")):
+        raw["tsrs"] = [dict(good, **bad)]
+        f.write_text(yaml.safe_dump(raw))
+        with pytest.raises(ScenarioError, match=why) as exc:
+            load_run_scenario(str(f))
+        assert "\n" not in str(exc.value)

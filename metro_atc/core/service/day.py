@@ -99,8 +99,29 @@ class TerminusSpec:
 
 
 @dataclass(frozen=True)
+class TrackTsr:
+    """A temporary speed restriction on one running track of a two-track line.
+
+    ``track``: ``up`` or ``down`` (:data:`metro_atc.core.service.records.DIRECTIONS`);
+    ``start_m`` < ``end_m`` [m]: the zone in the line's chainage (the scenario's station
+    positions), whichever way the track runs; ``limit_kmh`` [km/h]; in force for the day's
+    simulated time [``from_s``, ``to_s``) [s after midnight].
+    """
+
+    track: str
+    start_m: float
+    end_m: float
+    limit_kmh: float
+    from_s: float = 0.0
+    to_s: float = math.inf
+
+
+@dataclass(frozen=True)
 class DayPlan:
-    """A validated day: periods, termini (up origin first), fleet, transition window [s]."""
+    """A validated day: periods, termini (up origin first), fleet, transition window [s].
+
+    ``tsrs``: temporary speed restrictions per running track (:class:`TrackTsr`).
+    """
 
     name: str
     line: LineData
@@ -109,6 +130,7 @@ class DayPlan:
     fleet: int
     transition_s: float
     down_offset_s: float
+    tsrs: Tuple[TrackTsr, ...] = ()
 
 
 def _hms(t: float) -> str:
@@ -288,7 +310,7 @@ def _map(raw: Any, path: str, src: str, keys: Sequence[str]) -> Dict[str, Any]:
                                 f"(known: {', '.join(keys)})"))
     missing = [k for k in keys if k not in raw
                and k not in ("depot", "basis", "n_sidings", "turnback_buffer_s",
-                             "platform_m", "siding_m")]
+                             "platform_m", "siding_m", "tsrs", "from_h", "to_h")]
     if missing:
         raise DayError(one_line(f"day {src}: {path}: missing key {missing[0]!r}"))
     return raw
@@ -313,7 +335,7 @@ def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
     """Validate a parsed period table (see the shipped YAML); DayError (one line)."""
     ln = taipei_blue() if line is None else line
     top = _map(raw, "<top>", src, ("name", "sources", "line", "fleet", "transition_s",
-                                   "down_offset_s", "termini", "periods"))
+                                   "down_offset_s", "termini", "periods", "tsrs"))
     if top["line"] != ln.name:
         raise DayError(one_line(f"day {src}: line: the table is for {short_repr(top['line'])}, "
                                 f"the line is {ln.name}"))
@@ -399,7 +421,32 @@ def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
     fleet = _int(top["fleet"], "fleet", src, 1, 500)
     off = _num(top["down_offset_s"], "down_offset_s", src, 0.0, 7200.0)
     return DayPlan(_str(top["name"], "name", src), ln, tuple(periods),
-                   (termini[0], termini[1]), fleet, trans, off)
+                   (termini[0], termini[1]), fleet, trans, off,
+                   _tsrs(top.get("tsrs", []), src))
+
+
+def _tsrs(raw: Any, src: str) -> Tuple[TrackTsr, ...]:
+    """The ``tsrs`` list of a period table (:class:`TrackTsr`; hours for the times)."""
+    if not isinstance(raw, list):
+        raise DayError(one_line(f"day {src}: tsrs: expected a list, got {short_repr(raw)}"))
+    out = []
+    for i, t in enumerate(raw):
+        path = f"tsrs[{i}]"
+        m = _map(t, path, src, ("track", "start_m", "end_m", "limit_kmh", "from_h", "to_h"))
+        if m["track"] not in ("up", "down"):
+            raise DayError(one_line(f"day {src}: {path}.track: expected up or down, got "
+                                    f"{short_repr(m['track'])}"))
+        a = _num(m["start_m"], f"{path}.start_m", src, -1e7, 1e7)
+        b = _num(m["end_m"], f"{path}.end_m", src, -1e7, 1e7)
+        f = _num(m.get("from_h", 0.0), f"{path}.from_h", src, 0.0, 30.0) * 3600.0
+        e = math.inf if m.get("to_h") is None else \
+            _num(m["to_h"], f"{path}.to_h", src, 0.0, 30.0) * 3600.0
+        if not (a < b and f < e):
+            raise DayError(one_line(f"day {src}: {path}: needs start_m < end_m and from_h < "
+                                    f"to_h"))
+        out.append(TrackTsr(str(m["track"]), a, b,
+                            _num(m["limit_kmh"], f"{path}.limit_kmh", src, 5.0, 400.0), f, e))
+    return tuple(out)
 
 
 def day_file(name: str = "taipei_blue_day_periods") -> Path:

@@ -30,11 +30,11 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 from metro_atc.core.line.rolling_stock import KMH, train_params_for
 from metro_atc.core.line.scenario import (CurveSpec, GradientSpec, PeriodSpec, Scenario,
-                                          ScenarioError, SpeedLimitSpec, StationSpec,
+                                          ScenarioError, SpeedLimitSpec, StationSpec, TsrSpec,
                                           validate_scenario)
 
 from .interlocking import Layout, Route
@@ -145,8 +145,16 @@ def _spans(lay: Layout, start_m: float) -> Tuple[Dict[str, RouteSpan], List[floa
     return spans, exits
 
 
-def build_loop(scn: Scenario, layouts: Tuple[Layout, Layout], name: str = "") -> LoopLine:
+def build_loop(scn: Scenario, layouts: Tuple[Layout, Layout], name: str = "",
+               tsrs: Sequence[Any] = ()) -> LoopLine:
     """The loop of ``scn``'s line with ``layouts`` (terminus A = first station, B = last).
+
+    ``tsrs``: temporary speed restrictions per running track (objects with ``track`` up /
+    down, ``start_m`` < ``end_m`` in the line's chainage, ``limit_kmh``, ``from_s``,
+    ``to_s``: :class:`metro_atc.core.service.day.TrackTsr`), placed on the loop where that
+    track runs (the up track from A, the down track read backwards); a zone not inside the
+    line between its terminus stations is a LoopError.  The one-way scenario's own TSRs
+    and incidents are not carried over (they have no track).
 
     The loop scenario keeps the rolling stock, signalling, passengers' rates, disturbances
     and sensors of ``scn`` and has one train (the day's plant runs a loop per train);
@@ -200,7 +208,8 @@ def build_loop(scn: Scenario, layouts: Tuple[Layout, Layout], name: str = "") ->
             raise LoopError(f"loop stops {stops[k - 1].name!r} and {stops[k].name!r} are "
                             f"{stops[k].s_m - stops[k - 1].s_m:.0f} m apart (need > 10 m)")
     check_crossovers(scn, stops, term, period)
-    loop_scn = _scenario(scn, stops, c0, cn, d0, length, term, name or f"{scn.name}_loop")
+    loop_scn = _scenario(scn, stops, c0, cn, d0, length, term, name or f"{scn.name}_loop",
+                         [loop_tsr(z, c0, cn, d0) for z in tsrs])
     return LoopLine(loop_scn, tuple(stops), period, term, tuple(up_stop), tuple(down_stop))
 
 
@@ -292,8 +301,26 @@ def _steps_mirror(items: Sequence[Tuple[float, float]], c0: float, cn: float,
     return out
 
 
+def loop_tsr(z: Any, c0: float, cn: float, d0: float) -> TsrSpec:
+    """A track's TSR ``z`` on the loop: up at ``x - c0``, down at ``d0 + cn - x`` [m].
+
+    ``c0``, ``cn``: chainage of the first and last station [m]; ``d0``: loop position of the
+    down track's start (its departure platform at the last station) [m].  LoopError when
+    the zone is not inside [c0, cn] or the track is neither up nor down.
+    """
+    a, b = float(z.start_m), float(z.end_m)
+    if z.track not in ("up", "down") or not c0 <= a < b <= cn:
+        raise LoopError(f"TSR on track {z.track!r} at {a:g}..{b:g} m: needs track up or down "
+                        f"and c0 <= start < end <= cn, the line's stations lie at "
+                        f"{c0:g}..{cn:g} m")
+    lo, hi = (a - c0, b - c0) if z.track == "up" else (d0 + cn - b, d0 + cn - a)
+    return TsrSpec(start_m=lo, end_m=hi, limit_kmh=float(z.limit_kmh),
+                   from_s=float(z.from_s), to_s=float(z.to_s))
+
+
 def _scenario(scn: Scenario, stops: List[LoopStop], c0: float, cn: float, d0: float,
-              length: float, term: Tuple[TerminusPath, TerminusPath], name: str) -> Scenario:
+              length: float, term: Tuple[TerminusPath, TerminusPath], name: str,
+              tsrs: Sequence[TsrSpec] = ()) -> Scenario:
     """The one-way scenario of the loop (see :func:`build_loop`)."""
     ln = scn.line
     line_kmh = ln.line_speed_kmh
@@ -351,7 +378,7 @@ def _scenario(scn: Scenario, stops: List[LoopStop], c0: float, cn: float, d0: fl
         line=dataclasses.replace(
             ln, stations=stations, speed_limits=_steps(limits, SpeedLimitSpec, "limit_kmh"),
             gradients=_steps(_merge(gr), GradientSpec, "grade_permille"), curves=curves,
-            temporary_speed_limits=[]),
+            temporary_speed_limits=list(tsrs)),
         timetable=dataclasses.replace(scn.timetable, periods=periods, first_departure_s=0.0),
         passengers=dataclasses.replace(scn.passengers, alight_fraction=af),
         incidents=[], faults=[], sensors=dataclasses.replace(scn.sensors, trains=[]))
