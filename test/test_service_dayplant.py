@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -344,3 +345,22 @@ def test_a_tsr_on_one_track_slows_that_track_only() -> None:
     assert 0.0 < vmax["down"] <= 30.0 / 3.6 + 0.05
     assert vmax["up"] > 40.0 / 3.6
     assert int(np.sum(dp.sim.atp.violations)) == 0
+
+
+def test_a_track_limit_lowers_that_tracks_limit_only() -> None:
+    """A 35 km/h permanent limit of the up track over 1200..1600 m: the loop's limit there
+    on the up side is 35 km/h, on the down side over the same chainage the line's."""
+    from metro_atc.core.service.day import TrackLimit
+    scn = load_scenario("mini")
+    loop = build_loop(scn, LAYOUTS["scissors_A_tail_B"](),
+                      track_limits=[TrackLimit("up", 1200.0, 1600.0, 35.0)])
+    ref = build_loop(scn, LAYOUTS["scissors_A_tail_B"]())
+
+    def at(lp: Any, s: float) -> float:
+        return [x.limit_kmh for x in lp.scenario.line.speed_limits if x.start_m <= s][-1]
+
+    up0 = next(x.s_m for x in loop.stops if x.direction == "up" and x.station == 0)
+    c_down = next(x.s_m for x in loop.stops if x.direction == "down" and x.station == 2)
+    assert at(loop, up0 + 1400.0) == 35.0 < at(ref, up0 + 1400.0)
+    for s in (up0 + 1100.0, up0 + 1700.0, c_down + 1900.0 - 1400.0):
+        assert at(loop, s) == at(ref, s)

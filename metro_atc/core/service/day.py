@@ -117,10 +117,25 @@ class TrackTsr:
 
 
 @dataclass(frozen=True)
+class TrackLimit:
+    """A permanent speed limit of one running track lower than the line's there.
+
+    ``track`` up / down; ``start_m`` < ``end_m`` [m] in the line's chainage; ``limit_kmh``
+    [km/h].  The line scenario's limits apply to both tracks; this lowers one of them.
+    """
+
+    track: str
+    start_m: float
+    end_m: float
+    limit_kmh: float
+
+
+@dataclass(frozen=True)
 class DayPlan:
     """A validated day: periods, termini (up origin first), fleet, transition window [s].
 
-    ``tsrs``: temporary speed restrictions per running track (:class:`TrackTsr`).
+    ``tsrs``: temporary speed restrictions per running track (:class:`TrackTsr`);
+    ``track_limits``: permanent limits of one track (:class:`TrackLimit`).
     """
 
     name: str
@@ -131,6 +146,7 @@ class DayPlan:
     transition_s: float
     down_offset_s: float
     tsrs: Tuple[TrackTsr, ...] = ()
+    track_limits: Tuple[TrackLimit, ...] = ()
 
 
 def _hms(t: float) -> str:
@@ -310,7 +326,8 @@ def _map(raw: Any, path: str, src: str, keys: Sequence[str]) -> Dict[str, Any]:
                                 f"(known: {', '.join(keys)})"))
     missing = [k for k in keys if k not in raw
                and k not in ("depot", "basis", "n_sidings", "turnback_buffer_s",
-                             "platform_m", "siding_m", "tsrs", "from_h", "to_h")]
+                             "platform_m", "siding_m", "tsrs", "from_h", "to_h",
+                             "track_limits")]
     if missing:
         raise DayError(one_line(f"day {src}: {path}: missing key {missing[0]!r}"))
     return raw
@@ -335,7 +352,8 @@ def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
     """Validate a parsed period table (see the shipped YAML); DayError (one line)."""
     ln = taipei_blue() if line is None else line
     top = _map(raw, "<top>", src, ("name", "sources", "line", "fleet", "transition_s",
-                                   "down_offset_s", "termini", "periods", "tsrs"))
+                                   "down_offset_s", "termini", "periods", "tsrs",
+                                   "track_limits"))
     if top["line"] != ln.name:
         raise DayError(one_line(f"day {src}: line: the table is for {short_repr(top['line'])}, "
                                 f"the line is {ln.name}"))
@@ -422,7 +440,31 @@ def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
     off = _num(top["down_offset_s"], "down_offset_s", src, 0.0, 7200.0)
     return DayPlan(_str(top["name"], "name", src), ln, tuple(periods),
                    (termini[0], termini[1]), fleet, trans, off,
-                   _tsrs(top.get("tsrs", []), src))
+                   _tsrs(top.get("tsrs", []), src),
+                   _track_limits(top.get("track_limits", []), src))
+
+
+def _zone(m: Dict[str, Any], path: str, src: str) -> Tuple[str, float, float, float]:
+    """(track, start_m, end_m, limit_kmh) of a per-track entry, validated."""
+    if m["track"] not in ("up", "down"):
+        raise DayError(one_line(f"day {src}: {path}.track: expected up or down, got "
+                                f"{short_repr(m['track'])}"))
+    a = _num(m["start_m"], f"{path}.start_m", src, -1e7, 1e7)
+    b = _num(m["end_m"], f"{path}.end_m", src, -1e7, 1e7)
+    if not a < b:
+        raise DayError(one_line(f"day {src}: {path}: needs start_m < end_m"))
+    return str(m["track"]), a, b, _num(m["limit_kmh"], f"{path}.limit_kmh", src, 5.0, 400.0)
+
+
+def _track_limits(raw: Any, src: str) -> Tuple[TrackLimit, ...]:
+    """The ``track_limits`` list of a period table (:class:`TrackLimit`)."""
+    if not isinstance(raw, list):
+        raise DayError(one_line(f"day {src}: track_limits: expected a list, got "
+                                f"{short_repr(raw)}"))
+    return tuple(TrackLimit(*_zone(_map(t, f"track_limits[{i}]", src,
+                                        ("track", "start_m", "end_m", "limit_kmh")),
+                                   f"track_limits[{i}]", src))
+                 for i, t in enumerate(raw))
 
 
 def _tsrs(raw: Any, src: str) -> Tuple[TrackTsr, ...]:
@@ -433,19 +475,13 @@ def _tsrs(raw: Any, src: str) -> Tuple[TrackTsr, ...]:
     for i, t in enumerate(raw):
         path = f"tsrs[{i}]"
         m = _map(t, path, src, ("track", "start_m", "end_m", "limit_kmh", "from_h", "to_h"))
-        if m["track"] not in ("up", "down"):
-            raise DayError(one_line(f"day {src}: {path}.track: expected up or down, got "
-                                    f"{short_repr(m['track'])}"))
-        a = _num(m["start_m"], f"{path}.start_m", src, -1e7, 1e7)
-        b = _num(m["end_m"], f"{path}.end_m", src, -1e7, 1e7)
+        track, a, b, lim = _zone(m, path, src)
         f = _num(m.get("from_h", 0.0), f"{path}.from_h", src, 0.0, 30.0) * 3600.0
         e = math.inf if m.get("to_h") is None else \
             _num(m["to_h"], f"{path}.to_h", src, 0.0, 30.0) * 3600.0
-        if not (a < b and f < e):
-            raise DayError(one_line(f"day {src}: {path}: needs start_m < end_m and from_h < "
-                                    f"to_h"))
-        out.append(TrackTsr(str(m["track"]), a, b,
-                            _num(m["limit_kmh"], f"{path}.limit_kmh", src, 5.0, 400.0), f, e))
+        if not f < e:
+            raise DayError(one_line(f"day {src}: {path}: needs from_h < to_h"))
+        out.append(TrackTsr(track, a, b, lim, f, e))
     return tuple(out)
 
 

@@ -146,7 +146,7 @@ def _spans(lay: Layout, start_m: float) -> Tuple[Dict[str, RouteSpan], List[floa
 
 
 def build_loop(scn: Scenario, layouts: Tuple[Layout, Layout], name: str = "",
-               tsrs: Sequence[Any] = ()) -> LoopLine:
+               tsrs: Sequence[Any] = (), track_limits: Sequence[Any] = ()) -> LoopLine:
     """The loop of ``scn``'s line with ``layouts`` (terminus A = first station, B = last).
 
     ``tsrs``: temporary speed restrictions per running track (objects with ``track`` up /
@@ -154,7 +154,9 @@ def build_loop(scn: Scenario, layouts: Tuple[Layout, Layout], name: str = "",
     ``to_s``: :class:`metro_atc.core.service.day.TrackTsr`), placed on the loop where that
     track runs (the up track from A, the down track read backwards); a zone not inside the
     line between its terminus stations is a LoopError.  The one-way scenario's own TSRs
-    and incidents are not carried over (they have no track).
+    and incidents are not carried over (they have no track).  ``track_limits``: permanent
+    limits of one track lower than the line's there (``track``, ``start_m``, ``end_m``,
+    ``limit_kmh``: :class:`metro_atc.core.service.day.TrackLimit`), placed the same way.
 
     The loop scenario keeps the rolling stock, signalling, passengers' rates, disturbances
     and sensors of ``scn`` and has one train (the day's plant runs a loop per train);
@@ -209,7 +211,9 @@ def build_loop(scn: Scenario, layouts: Tuple[Layout, Layout], name: str = "",
                             f"{stops[k].s_m - stops[k - 1].s_m:.0f} m apart (need > 10 m)")
     check_crossovers(scn, stops, term, period)
     loop_scn = _scenario(scn, stops, c0, cn, d0, length, term, name or f"{scn.name}_loop",
-                         [loop_tsr(z, c0, cn, d0) for z in tsrs])
+                         [loop_tsr(z, c0, cn, d0) for z in tsrs],
+                         [track_interval(z, c0, cn, d0) + (float(z.limit_kmh),)
+                          for z in track_limits])
     return LoopLine(loop_scn, tuple(stops), period, term, tuple(up_stop), tuple(down_stop))
 
 
@@ -301,27 +305,37 @@ def _steps_mirror(items: Sequence[Tuple[float, float]], c0: float, cn: float,
     return out
 
 
-def loop_tsr(z: Any, c0: float, cn: float, d0: float) -> TsrSpec:
-    """A track's TSR ``z`` on the loop: up at ``x - c0``, down at ``d0 + cn - x`` [m].
+def track_interval(z: Any, c0: float, cn: float, d0: float) -> Tuple[float, float]:
+    """A zone of one track on the loop: up at ``x - c0``, down at ``d0 + cn - x`` [m].
 
-    ``c0``, ``cn``: chainage of the first and last station [m]; ``d0``: loop position of the
-    down track's start (its departure platform at the last station) [m].  LoopError when
-    the zone is not inside [c0, cn] or the track is neither up nor down.
+    ``z``: ``track`` (up / down), ``start_m`` < ``end_m`` in the line's chainage; ``c0``,
+    ``cn``: chainage of the first and last station [m]; ``d0``: loop position of the down
+    track's start (its departure platform at the last station) [m].  LoopError when the
+    zone is not inside [c0, cn] or the track is neither up nor down.
     """
     a, b = float(z.start_m), float(z.end_m)
     if z.track not in ("up", "down") or not c0 <= a < b <= cn:
-        raise LoopError(f"TSR on track {z.track!r} at {a:g}..{b:g} m: needs track up or down "
-                        f"and c0 <= start < end <= cn, the line's stations lie at "
+        raise LoopError(f"zone on track {z.track!r} at {a:g}..{b:g} m: needs track up or "
+                        f"down and c0 <= start < end <= cn, the line's stations lie at "
                         f"{c0:g}..{cn:g} m")
-    lo, hi = (a - c0, b - c0) if z.track == "up" else (d0 + cn - b, d0 + cn - a)
+    return (a - c0, b - c0) if z.track == "up" else (d0 + cn - b, d0 + cn - a)
+
+
+def loop_tsr(z: Any, c0: float, cn: float, d0: float) -> TsrSpec:
+    """A track's TSR ``z`` on the loop (:func:`track_interval`)."""
+    lo, hi = track_interval(z, c0, cn, d0)
     return TsrSpec(start_m=lo, end_m=hi, limit_kmh=float(z.limit_kmh),
                    from_s=float(z.from_s), to_s=float(z.to_s))
 
 
 def _scenario(scn: Scenario, stops: List[LoopStop], c0: float, cn: float, d0: float,
               length: float, term: Tuple[TerminusPath, TerminusPath], name: str,
-              tsrs: Sequence[TsrSpec] = ()) -> Scenario:
-    """The one-way scenario of the loop (see :func:`build_loop`)."""
+              tsrs: Sequence[TsrSpec] = (),
+              track_caps: Sequence[Tuple[float, float, float]] = ()) -> Scenario:
+    """The one-way scenario of the loop (see :func:`build_loop`).
+
+    ``track_caps``: (start, end [m on the loop], limit [km/h]) lowering the line's limits.
+    """
     ln = scn.line
     line_kmh = ln.line_speed_kmh
     lim_up = [(x.start_m, x.limit_kmh) for x in ln.speed_limits] or [(c0, line_kmh)]
@@ -345,7 +359,7 @@ def _scenario(scn: Scenario, stops: List[LoopStop], c0: float, cn: float, d0: fl
     gr.append((d0 + length, 0.0))
     lim.append((d0 + length, line_kmh))
     # route speed limits over their spans (crossovers, turnback moves)
-    caps: List[Tuple[float, float, float]] = []
+    caps: List[Tuple[float, float, float]] = list(track_caps)
     for tp in term:
         lay = tp.layout
         pts = set(lay.point_section.values())
