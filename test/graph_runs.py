@@ -138,9 +138,11 @@ def mini_graph_runs(tmp: Path) -> dict[str, Any]:
 
 DAY = "taipei_blue_day"
 """The service day of the day run."""
-DAY_DURATION_S = 3600.0
-"""Simulated time of the day run from its first step [s]: the first pull-outs and the first
-trips of both directions to their termini (a trip takes ~40 min), cut before the day ends."""
+DAY_DURATION_S = 4300.0
+"""Simulated time of the day run from its first step [s]: the first pull-outs, the first
+trips of both directions to their termini (a trip takes ~44 min) and the first four
+turnbacks (their next trips leave 3 954-4 201 s after the first step), cut before the day
+ends."""
 
 
 @job("day_graph_run")

@@ -51,6 +51,10 @@ class DayHost:
         self.dp.start()
         self.sim = self.dp.sim
         self.summary = describe(run, self.dp)
+        self._seen = [0, 0, math.nan, 0, math.nan]
+        """What :meth:`kpis` read of the day's lists so far: stop errors and turnbacks
+        read, the largest stop error [m], the stop errors above 0.30 m, the largest terminal
+        delay [s] (the status is published every few simulated seconds: read once)."""
 
     @property
     def first_step(self) -> int:
@@ -78,8 +82,13 @@ class DayHost:
         """The day's figures (``day`` in the KPIs): trips, depot, safety, stop errors."""
         dp = self.dp
         planned = sum(len(b.trips) for b in dp.circ.blocks)
-        errs = [abs(e) for e in dp.stop_err]
-        late = [tb.terminal_delay_s for tb in dp.turnbacks]
+        seen = self._seen
+        errs = [abs(e) for e in dp.stop_err[seen[0]:]]
+        late = [tb.terminal_delay_s for tb in dp.turnbacks[seen[1]:]]
+        seen[0], seen[1] = len(dp.stop_err), len(dp.turnbacks)
+        seen[2] = max(errs, default=seen[2]) if math.isnan(seen[2]) else max(errs + [seen[2]])
+        seen[3] += sum(1 for e in errs if e > 0.30)
+        seen[4] = max(late, default=seen[4]) if math.isnan(seen[4]) else max(late + [seen[4]])
         return {"name": self.run.name, "trip_times": self.run.trip_times,
                 "trips_planned": planned, "trips_run": dp.trips_run,
                 "fleet": len(dp.trains),
@@ -87,11 +96,9 @@ class DayHost:
                 "trains_in_service": sum(1 for tr in dp.trains if tr.in_service),
                 "route_conflicts": dp.route_conflicts,
                 "separation_violations": dp.sep_violations,
-                "stop_error_max_m": max(errs, default=math.nan),
-                "stops_outside_0p30_m": sum(1 for e in errs if e > 0.30),
+                "stop_error_max_m": seen[2], "stops_outside_0p30_m": seen[3],
                 "forced_stops": len(dp.forced_err),
-                "turnbacks": len(dp.turnbacks),
-                "terminal_delay_max_s": max(late, default=math.nan),
+                "turnbacks": len(dp.turnbacks), "terminal_delay_max_s": seen[4],
                 "depot_moves": len(dp.depot), "notes": dp.notes[:20],
                 "not_in_graph": list(NOT_IN_GRAPH)}
 
