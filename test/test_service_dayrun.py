@@ -102,3 +102,15 @@ def test_a_period_tables_tsrs_reach_the_loop(tmp_path: Path) -> None:
         with pytest.raises(ScenarioError, match=why) as exc:
             load_run_scenario(str(f))
         assert "\n" not in str(exc.value)
+
+
+def test_the_status_reads_each_record_once() -> None:
+    """The running figures of the graph's day status equal those of the whole lists."""
+    from metro_atc.nodes.sim_day import _Seen
+    seen = _Seen()
+    assert math.isnan(seen.err_max_m) and math.isnan(seen.late_max_s)
+    seen.take([0.1, 0.4], [5.0])
+    seen.take([], [])
+    seen.take([0.2, 0.31], [-3.0, 7.5])
+    assert (seen.errors, seen.turnbacks) == (4, 3)
+    assert (seen.err_max_m, seen.err_out, seen.late_max_s) == (0.4, 2, 7.5)

@@ -19,6 +19,7 @@ and resume.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +42,27 @@ def day_run_for(scenario: str, trip_times: str = "plant") -> DayRun | None:
     return load_day_run(scenario, trip_times)
 
 
+@dataclass
+class _Seen:
+    """The day's stop errors and terminal delays read so far, and their figures."""
+
+    errors: int = 0
+    turnbacks: int = 0
+    err_max_m: float = math.nan
+    err_out: int = 0
+    late_max_s: float = math.nan
+
+    def take(self, errs_m: list[float], late_s: list[float]) -> None:
+        """Read the new stop errors [m] (absolute) and terminal delays [s]."""
+        self.errors += len(errs_m)
+        self.turnbacks += len(late_s)
+        self.err_max_m = max(errs_m, default=self.err_max_m) if math.isnan(self.err_max_m) \
+            else max(errs_m + [self.err_max_m])
+        self.err_out += sum(1 for e in errs_m if e > 0.30)
+        self.late_max_s = max(late_s, default=self.late_max_s) \
+            if math.isnan(self.late_max_s) else max(late_s + [self.late_max_s])
+
+
 class DayHost:
     """A service day in the simulator node (see the module docstring)."""
 
@@ -51,10 +73,9 @@ class DayHost:
         self.dp.start()
         self.sim = self.dp.sim
         self.summary = describe(run, self.dp)
-        self._seen = [0, 0, math.nan, 0, math.nan]
-        """What :meth:`kpis` read of the day's lists so far: stop errors and turnbacks
-        read, the largest stop error [m], the stop errors above 0.30 m, the largest terminal
-        delay [s] (the status is published every few simulated seconds: read once)."""
+        self._seen = _Seen()
+        """What :meth:`kpis` read of the day's lists so far (the status is published every
+        few simulated seconds: each record is read once)."""
 
     @property
     def first_step(self) -> int:
@@ -83,12 +104,8 @@ class DayHost:
         dp = self.dp
         planned = sum(len(b.trips) for b in dp.circ.blocks)
         seen = self._seen
-        errs = [abs(e) for e in dp.stop_err[seen[0]:]]
-        late = [tb.terminal_delay_s for tb in dp.turnbacks[seen[1]:]]
-        seen[0], seen[1] = len(dp.stop_err), len(dp.turnbacks)
-        seen[2] = max(errs, default=seen[2]) if math.isnan(seen[2]) else max(errs + [seen[2]])
-        seen[3] += sum(1 for e in errs if e > 0.30)
-        seen[4] = max(late, default=seen[4]) if math.isnan(seen[4]) else max(late + [seen[4]])
+        seen.take([abs(e) for e in dp.stop_err[seen.errors:]],
+                  [tb.terminal_delay_s for tb in dp.turnbacks[seen.turnbacks:]])
         return {"name": self.run.name, "trip_times": self.run.trip_times,
                 "trips_planned": planned, "trips_run": dp.trips_run,
                 "fleet": len(dp.trains),
@@ -96,9 +113,9 @@ class DayHost:
                 "trains_in_service": sum(1 for tr in dp.trains if tr.in_service),
                 "route_conflicts": dp.route_conflicts,
                 "separation_violations": dp.sep_violations,
-                "stop_error_max_m": seen[2], "stops_outside_0p30_m": seen[3],
+                "stop_error_max_m": seen.err_max_m, "stops_outside_0p30_m": seen.err_out,
                 "forced_stops": len(dp.forced_err),
-                "turnbacks": len(dp.turnbacks), "terminal_delay_max_s": seen[4],
+                "turnbacks": len(dp.turnbacks), "terminal_delay_max_s": seen.late_max_s,
                 "depot_moves": len(dp.depot), "notes": dp.notes[:20],
                 "not_in_graph": list(NOT_IN_GRAPH)}
 
