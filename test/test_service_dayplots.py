@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +43,7 @@ def test_trip_paths_climb_up_and_descend_down() -> None:
 
 
 def test_write_day_outputs(tmp_path: Path) -> None:
-    """kpis.json/txt and three PNGs of the morning of a day with a seeded delay."""
+    """kpis.json/txt, three PNGs and the records of the morning of a day with a delay."""
     keep = {t.trip_id for b in CIRC.blocks for t in b.trips if t.departure_s < 9 * 3600}
     rec = planned_records(PLAN, CIRC, [Incident("up020", 0, 180.0)])
     stops = [r for r in rec.stops if r.trip_id in keep]
@@ -50,7 +51,17 @@ def test_write_day_outputs(tmp_path: Path) -> None:
     dep = [r for r in rec.depot if r.sched_t_s < 9.5 * 3600]
     paths = write_day_outputs(PLAN, stops, tbs, dep, tmp_path / "out",
                               zooms=((7 * 3600.0, 8 * 3600.0),))
-    assert set(paths) == {"kpis_json", "kpis_txt", "train_graph", "circulation", "kpi_table"}
+    assert set(paths) == {"kpis_json", "kpis_txt", "train_graph", "circulation", "kpi_table",
+                          "calls", "turnbacks", "depot"}
+    # the records as CSV: a header, one row per record, floats read back exactly
+    import csv
+    rows = list(csv.DictReader(Path(paths["calls"]).open()))
+    assert len(rows) == len(stops)
+    for a, b in zip(rows, stops):
+        assert float(a["arr_s"]) == b.arr_s or (a["arr_s"] == "nan" and math.isnan(b.arr_s))
+        assert (a["train"], a["trip_id"], int(a["station"])) == (b.train, b.trip_id, b.station)
+    assert len(list(csv.DictReader(Path(paths["turnbacks"]).open()))) == len(tbs)
+    assert len(list(csv.DictReader(Path(paths["depot"]).open()))) == len(dep)
     k = json.loads(Path(paths["kpis_json"]).read_text())
     assert k["periods"][1]["directions"]["up"]["punctuality"] < 1.0
     assert "morning_peak" in Path(paths["kpis_txt"]).read_text()
