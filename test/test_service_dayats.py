@@ -224,6 +224,9 @@ def test_bad_input_is_refused_in_one_line() -> None:
     with pytest.raises(ValueError) as e:
         DayAts(sch, "aoc", lines, weights={"down": up_w})
     assert "trained on another line" in one_line(e)
+    with pytest.raises(ValueError) as e:
+        DayAts(sch, "lqr", lines, weights={"down": up_w})
+    assert "not by regulator lqr" in one_line(e)
     # a line with no weights of its own: said, never a fallback
     mini = _mini_lines()
     with pytest.raises(ValueError) as e:

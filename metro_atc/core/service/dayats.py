@@ -177,6 +177,9 @@ class DayAts:
         for d in list(lines) + list(weights):
             if d not in DIRECTIONS:
                 raise ValueError(f"unknown direction {d!r} (expected {', '.join(DIRECTIONS)})")
+        if weights and regulator not in TRAINED:
+            raise ValueError(f"weights are read by {' / '.join(TRAINED)} only, not by "
+                             f"regulator {regulator}")
         self._disp: Dict[str, AtsDispatcher] = {}
         self._base: Dict[str, np.ndarray] = {}
         self._where: Dict[str, Tuple[str, int]] = {}

@@ -29,9 +29,12 @@ step).  Per control period:
    the siding / platform chosen free first; a departure route ``REQUEST_LEAD_S`` before
    its departure) are granted by :meth:`Interlocking.process`; a berth's departure is
    commanded when its next route is set;
-5. the ATS of this loop: timetable departures (the ``none`` regulator) at every platform;
-   a terminus departure waits for max(scheduled departure, arrival + minimum turnback),
-   so a late arrival delays the next trip by max(0, delay - buffer)
+5. the ATS (:class:`metro_atc.core.service.dayats.DayAts`, events in, decisions out)
+   decides every departure: at an intermediate platform on the trip's arrival (the
+   timetable with ``none``, a regulated hold, dwell cut and running-time target with
+   ``lqr`` / ``dhp`` / ``aoc`` / ``elqr``); from a terminus the trip's first departure,
+   never before max(scheduled departure, arrival + minimum turnback), so with the
+   timetable a late arrival delays the next trip by max(0, delay - buffer)
    (:func:`metro_atc.core.service.circulation.propagate_delay`).
 
 Independent checks every step: :func:`metro_atc.core.service.interlocking.check_safe` on
