@@ -305,25 +305,29 @@ def first_trip_from(trips: Sequence[Trip], origin: str, start_s: float) -> Trip:
 
 
 def _trip_ends(stops: Sequence[StopRecord], trip_id: str) -> Dict[str, float]:
-    """Departure delay at the origin, arrival delay at the destination, worst departure."""
+    """Delays [s] of a trip: origin departure, last departure, worst departure, arrival."""
     cs = [r for r in stops if r.trip_id == trip_id]
     o = [r for r in cs if math.isnan(r.sched_arr_s)]
     e = [r for r in cs if math.isnan(r.sched_dep_s)]
-    late = [r.departure_delay_s for r in cs if math.isfinite(r.departure_delay_s)]
+    dep = sorted((r for r in cs if math.isfinite(r.departure_delay_s)),
+                 key=lambda r: r.sched_dep_s)
     return {"departure_delay_s": o[0].departure_delay_s if o else math.nan,
-            "arrival_delay_s": e[0].arrival_delay_s if e else math.nan,
-            "max_departure_delay_s": max(late, default=math.nan)}
+            "last_departure_delay_s": dep[-1].departure_delay_s if dep else math.nan,
+            "max_departure_delay_s": max((r.departure_delay_s for r in dep),
+                                         default=math.nan),
+            "arrival_delay_s": e[0].arrival_delay_s if e else math.nan}
 
 
 def incident_report(stops: Sequence[StopRecord], turnbacks: Sequence[TurnbackRecord],
                     trip_id: str) -> Dict[str, Any]:
     """What a delayed trip and its train's next trip did, from the day's records [s].
 
-    Reported: the trip's departure delay at its origin, arrival delay at its destination
-    and worst departure delay; the turnback that follows (terminus, terminal delay, buffer,
-    carried delay: the next trip's departure delay, at least 0) and the next trip's
-    departure delay at its origin and arrival delay at its destination (``turnback`` and
-    ``next_trip`` None when the train pulled in after the trip).  JSON-able;
+    Reported: the trip's departure delay at its origin, at its last call before the
+    destination (what the line leaves, before any wait at the terminus) and the worst one,
+    its arrival delay at its destination; the turnback that follows (terminus, terminal
+    delay, buffer, carried delay: the next trip's departure delay, at least 0) and the
+    same delays of the next trip (``turnback`` and ``next_trip`` None when the train
+    pulled in after the trip).  JSON-able;
     ValueError (one line) for a trip without records.
     """
     if not any(r.trip_id == trip_id for r in stops):
