@@ -266,6 +266,31 @@ def test_the_first_trip_of_the_peak() -> None:
         first_trip_from(trips, "A", 400.0)
 
 
+def test_the_incident_report_reads_the_records() -> None:
+    from metro_atc.core.service.records import StopRecord, TurnbackRecord
+    nan = math.nan
+    stops = [StopRecord("t1", "u1", "up", 0, nan, 100.0, nan, 280.0),
+             StopRecord("t1", "u1", "up", 1, 200.0, 230.0, 390.0, 400.0),
+             StopRecord("t1", "u1", "up", 2, 330.0, nan, 600.0, nan),
+             StopRecord("t1", "d1", "down", 2, nan, 800.0, nan, 820.0),
+             StopRecord("t1", "d1", "down", 1, 900.0, 930.0, 915.0, 935.0),
+             StopRecord("t1", "d1", "down", 0, 1030.0, nan, 1040.0, nan)]
+    tbs = [TurnbackRecord("t1", "C", "u1", "d1", 600.0, 820.0, 330.0, 800.0, 120.0)]
+    rep = incident_report(stops, tbs, "u1")
+    assert rep["train"] == "t1" and rep["departure_delay_s"] == 180.0
+    assert rep["last_departure_delay_s"] == 170.0 and rep["max_departure_delay_s"] == 180.0
+    assert rep["arrival_delay_s"] == 270.0
+    assert rep["turnback"] == {"terminus": "C", "terminal_delay_s": 270.0, "buffer_s": 350.0,
+                               "carried_delay_s": 20.0}
+    assert rep["next_trip"]["trip_id"] == "d1"
+    assert rep["next_trip"]["departure_delay_s"] == 20.0
+    assert rep["next_trip"]["arrival_delay_s"] == 10.0
+    last = incident_report(stops, tbs, "d1")  # the train pulled in after it
+    assert last["turnback"] is None and last["next_trip"] is None
+    with pytest.raises(ValueError):
+        incident_report(stops, tbs, "x9")
+
+
 def _record(path: Optional[Path] = None) -> None:
     """Write the golden (only when the day's decisions are meant to change)."""
     res = _golden_case().run()
