@@ -164,11 +164,15 @@ def test_bench_line_days_arguments(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 def test_bad_holds_and_breakdowns_are_refused() -> None:
-    """A hold of an unknown trip, at a terminus or negative; a breakdown off the day."""
+    """A hold of an unknown trip, at its destination or negative; a breakdown off the day.
+
+    (A hold at the trip's origin is a delay of its first departure: accepted.)
+    """
     from metro_atc.core.service.dayplant import Breakdown
     gd = _gen(1)
+    last = len(gd.scenario.line.stations) - 1
     for holds, words in (({("up999", 1): 60.0}, "no such trip"),
-                         ({("up000", 0): 60.0}, "intermediate station"),
+                         ({("up000", last): 60.0}, "intermediate station"),
                          ({("up000", 1): -5.0}, "finite hold")):
         with pytest.raises(ValueError, match=words):
             service_day(gd.scenario, gd.plan, trip_times="plant", holds=holds)

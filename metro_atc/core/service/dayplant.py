@@ -29,9 +29,12 @@ step).  Per control period:
    the siding / platform chosen free first; a departure route ``REQUEST_LEAD_S`` before
    its departure) are granted by :meth:`Interlocking.process`; a berth's departure is
    commanded when its next route is set;
-5. the ATS of this loop: timetable departures (the ``none`` regulator) at every platform;
-   a terminus departure waits for max(scheduled departure, arrival + minimum turnback),
-   so a late arrival delays the next trip by max(0, delay - buffer)
+5. the ATS (:class:`metro_atc.core.service.dayats.DayAts`, events in, decisions out)
+   decides every departure: at an intermediate platform on the trip's arrival (the
+   timetable with ``none``, a regulated hold, dwell cut and running-time target with
+   ``lqr`` / ``dhp`` / ``aoc`` / ``elqr``); from a terminus the trip's first departure,
+   never before max(scheduled departure, arrival + minimum turnback), so with the
+   timetable a late arrival delays the next trip by max(0, delay - buffer)
    (:func:`metro_atc.core.service.circulation.propagate_delay`).
 
 Independent checks every step: :func:`metro_atc.core.service.interlocking.check_safe` on
@@ -69,6 +72,7 @@ from metro_atc.core.plant.sensors import StepResult
 from metro_atc.core.plant.views import fleet_state_rows
 
 from .circulation import Block, Circulation, Trip
+from .dayats import DayAts, DaySchedule, DirectionSchedule
 from .interlocking import Interlocking, check_safe
 from .loop import LoopLine, TerminusPath
 from .records import DepotRecord, StopRecord, TurnbackRecord
@@ -240,15 +244,20 @@ class DayPlant:
     def __init__(self, loop: LoopLine, circ: Circulation, termini: Sequence[DayTerminus],
                  planner: str = "ectp", tracker: str = "fuzzy", seed: int = 0,
                  extra_dwell: Optional[Mapping[Tuple[str, str, int], float]] = None,
-                 breakdowns: Sequence[Breakdown] = (), records: bool = True) -> None:
+                 breakdowns: Sequence[Breakdown] = (), records: bool = True,
+                 ats: Optional[Callable[[DaySchedule], DayAts]] = None) -> None:
         """Plant, ATOs and interlockings of the day; nothing runs yet.
 
         ``termini``: A (first station) then B; ``extra_dwell[(train, trip, station)]`` [s]:
-        a hold added to that call's departure (a disturbance of a test or study);
+        a hold added to that call's departure (a disturbance of a test or study; at the
+        trip's origin station: added to its first departure, after the turnback link);
         ``breakdowns``: trains that stand still a while (:class:`Breakdown`).  ValueError
         (one line) for a breakdown of an unknown train or section.  ``records`` False:
         the stop, turnback and depot records are counted, not kept (a run for its figures
-        and its speed: memory that does not grow with the day).
+        and its speed: memory that does not grow with the day).  ``ats``: builds the ATS
+        that decides every departure from the day's schedule (:meth:`day_schedule`), e.g.
+        ``functools.partial(DayAts, regulator="lqr", lines=...)``; None: the timetable
+        (:class:`DayAts` with ``none``).
         """
         self.loop = loop
         self.circ = circ
@@ -362,6 +371,8 @@ class DayPlant:
             r.destination for d in tp.layout.routes if d.stage == top[T]
             for r in tp.layout.routes if r.exit_signal == d.entry_signal)
             for T, tp in enumerate(loop.termini)]
+        self.ats: DayAts = (ats if ats is not None else DayAts)(self.day_schedule())
+        """The ATS deciding every departure (events in, decisions out)."""
 
     # ------------------------------------------------------------------ helpers
 
@@ -404,6 +415,45 @@ class DayPlant:
 
     def _running(self, j: int) -> float:
         return float(self.sv.sched_running_s[j])
+
+    def _direction(self, trip: Trip) -> str:
+        return "up" if self._term_of(trip.origin) == 0 else "down"
+
+    def day_schedule(self) -> DaySchedule:
+        """The day's timetable as the ATS sees it (:class:`DaySchedule`).
+
+        Per direction the trips in timetable order, their scheduled instants
+        (:meth:`trip_plan`) and the running-time targets the timetable commands: at an
+        intermediate platform the loop's scheduled run scaled to the trip's planned time,
+        from the origin the loop's scheduled run as it is (the departure berth's request).
+        """
+        fl = self.loop.stops
+        by_dir: Dict[str, List[Trip]] = {}
+        for b in self.circ.blocks:
+            for trip in b.trips:
+                by_dir.setdefault(self._direction(trip), []).append(trip)
+        out: Dict[str, DirectionSchedule] = {}
+        for d, trips in sorted(by_dir.items()):
+            trips.sort(key=lambda x: (x.departure_s, x.trip_id))
+            ks = self._trip_stops(trips[0])
+            n = len(ks)
+            dep = np.full((len(trips), n), math.nan)
+            arr = np.full((len(trips), n), math.nan)
+            run = np.full((len(trips), n - 1), math.nan)
+            for m, trip in enumerate(trips):
+                plan = self.trip_plan(trip)
+                scale = self._scale(trip)
+                for p, k in enumerate(ks):
+                    arr[m, p], dep[m, p] = plan[self._norm(k)]
+                    if p + 1 < n:
+                        run[m, p] = self._running(k) * scale if p else self._running(k)
+            out[d] = DirectionSchedule(
+                d, tuple(t.trip_id for t in trips),
+                tuple(fl[self._norm(k)].station for k in ks), trips[0].origin,
+                trips[0].destination, dep, arr, run,
+                np.array([float(self.sv.min_running_s[k]) for k in ks[:-1]]),
+                np.array([fl[k].s_m for k in ks]))
+        return DaySchedule(out, self.min_dwell)
 
     # ------------------------------------------------------------------ run
 
@@ -603,8 +653,8 @@ class DayPlant:
             sim.sensors.next_sample_t = t
         sim.enter(tr.i, tp.departure_stop)
         sim.set_departure(tr.i, tp.departure_stop, HOLD_S)
-        tr.req = _Req(T, dep_route, trip.departure_s - REQUEST_LEAD_S, tp.departure_stop,
-                      trip.departure_s, self._running(tp.departure_stop))
+        dep, run = self._first_departure(tr, trip, trip.departure_s)
+        tr.req = _Req(T, dep_route, dep - REQUEST_LEAD_S, tp.departure_stop, dep, run)
         self.depot.append(DepotRecord(tr.name, "pull_out", trip.origin, t, sched))
         self._occupancy()
 
@@ -766,14 +816,17 @@ class DayPlant:
     def _arrival(self, tr: _Train, j: int, t: float) -> None:
         sim = self.sim
         tp = self._terminus_at(j)
-        if tp is None:  # an intermediate platform of the running trip
-            sched = tr.trip_plan.get(j, (math.nan, math.nan))
+        if tp is None:  # an intermediate platform of the running trip: the ATS decides
+            trip = tr.trip
+            if trip is None:
+                raise RuntimeError(f"{tr.name} arrived at stop {j} outside a trip")
             tr.trip_log.setdefault(j, [math.nan, math.nan])[0] = t
             st = self.loop.stops[j].station
-            extra = self.extra.get((tr.name, tr.trip.trip_id if tr.trip else "", st), 0.0)
-            dep = sched[1] + extra
-            run = self._running(j) * self._scale(tr)
-            sim.set_departure(tr.i, j, dep, run)
+            d = self.ats.on_arrival(trip.trip_id, self._direction(trip), st, t)
+            assert d is not None  # an intermediate call always gets a decision
+            dep = d.departure_s + self.extra.get((tr.name, trip.trip_id, st), 0.0)
+            run = d.running_s
+            sim.set_departure(tr.i, j, dep, run, d.dwell_limit_s)
             return
         T = tp.index
         lay = tp.layout
@@ -783,31 +836,46 @@ class DayPlant:
         sim.set_departure(tr.i, j, HOLD_S)
         if j == tp.arrival_stop and tr.trip is not None and \
                 self._term_of(tr.trip.destination) == T:
+            self.ats.on_arrival(tr.trip.trip_id, self._direction(tr.trip),
+                                self.loop.stops[j].station, t)
             self._end_trip(tr, j, t)
             if tr.k >= len(tr.blocks[tr.b].trips):  # end of the block: pull in
                 tr.withdraw_at = t + self.min_dwell
                 return
         spec = self.termini[T]
         nxt_route = self._choose(T, tr)
+        run = self._running(j)
         if j == tp.departure_stop:  # departure berth (also the arrival at a scissors)
             nxt = self._next_trip(tr)
             last = tr.last_arr[1] if tr.last_arr else t
-            earliest = max(nxt.departure_s, last + spec.min_turnback_s,
-                           t + (lay.reversal_s if j == tp.reversal_stop else 0.0))
+            # the turnback link; the ATS keeps the timetable as the other bound
+            earliest, run = self._first_departure(tr, nxt, max(
+                last + spec.min_turnback_s,
+                t + (lay.reversal_s if j == tp.reversal_stop else 0.0)))
         elif j == tp.reversal_stop:
             earliest = t + lay.reversal_s
         else:
             earliest = t
-        tr.req = _Req(T, nxt_route, earliest - REQUEST_LEAD_S, j, earliest, self._running(j))
+        tr.req = _Req(T, nxt_route, earliest - REQUEST_LEAD_S, j, earliest, run)
 
-    def _scale(self, tr: _Train) -> float:
-        if tr.trip is None:
-            return 1.0
-        ks = self._trip_stops(tr.trip)
+    def _scale(self, trip: Trip) -> float:
+        """Planned over scheduled trip time of ``trip`` [-] (:meth:`trip_plan`)."""
+        ks = self._trip_stops(trip)
         run = sum(float(self.sv.sched_running_s[k]) for k in range(ks[0], ks[-1]))
-        row = _dwell_row(self.sv, tr.trip.departure_s)
+        row = _dwell_row(self.sv, trip.departure_s)
         dw = sum(float(row[k]) for k in ks[1:-1])
-        return (tr.trip.arrival_s - tr.trip.departure_s) / (run + dw)
+        return (trip.arrival_s - trip.departure_s) / (run + dw)
+
+    def _first_departure(self, tr: _Train, trip: Trip, earliest_s: float
+                         ) -> Tuple[float, float]:
+        """(departure [s], running target [s]) of ``trip`` from its origin, from the ATS.
+
+        ``earliest_s``: the turnback link (or the timetable after a pull-out); a hold of
+        ``extra_dwell`` at the trip's origin station is added (a disturbance).
+        """
+        d = self.ats.first_departure(trip.trip_id, earliest_s)
+        return d.departure_s + self.extra.get((tr.name, trip.trip_id, d.station), 0.0), \
+            d.running_s
 
     def _next_trip(self, tr: _Train) -> Trip:
         return tr.blocks[tr.b].trips[tr.k]
@@ -838,6 +906,8 @@ class DayPlant:
             tr.trip_plan = self.trip_plan(trip)
             tr.trip_log = {j: [math.nan, t]}
             tr.energy0_j = float(self.sim.energy.e_substation[tr.i])
+            self.ats.on_departure(trip.trip_id, self._direction(trip),
+                                  self.loop.stops[j].station, t)
             if tr.last_arr is not None:
                 prev, t_arr = tr.last_arr
                 T = tp.index
@@ -847,6 +917,8 @@ class DayPlant:
             tr.last_arr = None
         elif tp is None and tr.trip is not None:
             tr.trip_log.setdefault(j, [math.nan, math.nan])[1] = t
+            self.ats.on_departure(tr.trip.trip_id, self._direction(tr.trip),
+                                  self.loop.stops[j].station, t)
         # the next stop: the arrival route of a terminus is requested when leaving the
         # platform before it
         nxt = self._norm(j + 1)
@@ -1139,29 +1211,51 @@ def service_day(scn: Scenario, plan: Any, planner: str = "ectp", tracker: str = 
                 seed: int = 0, stable_after_s: float = STABLE_AFTER_S,
                 trip_times: str = "plan",
                 holds: Optional[Mapping[Tuple[str, int], float]] = None,
-                breakdowns: Sequence[Breakdown] = (), records: bool = True) -> DayPlant:
+                breakdowns: Sequence[Breakdown] = (), records: bool = True,
+                regulator: str = "none",
+                weights: Optional[Mapping[str, str]] = None) -> DayPlant:
     """The plant of a day: ``scn``'s line and stock, ``plan`` a :class:`DayPlan`.
 
     The loop and the circulation of :func:`day_layout`.  ``holds[(trip id, station
-    index)]`` [s]: extra dwell of that trip's call (whichever train runs it);
-    ``breakdowns``, ``records``: see :class:`DayPlant`.  DayError / LoopError in one line.
+    index)]`` [s]: extra dwell of that trip's call (whichever train runs it; at the trip's
+    origin station: a delay of its first departure); ``breakdowns``, ``records``: see
+    :class:`DayPlant`.  ``regulator``: the ATS regulator of both directions
+    (:class:`metro_atc.core.service.dayats.DayAts`), each on its direction's traffic model
+    at the peak (:func:`metro_atc.core.service.regulation.peak_lines` of ``scn``'s ATR
+    line); ``weights[direction]``: a weights file for ``aoc`` / ``dhp`` (default: the
+    shipped ones of that direction).  DayError / LoopError / ValueError in one line.
     """
     loop, circ = day_layout(scn, plan, stable_after_s, trip_times)
     termini = [DayTerminus(t.station, t.min_turnback_s, t.depot is not None)
                for t in plan.termini]
     owner = {tr.trip_id: b.train for b in circ.blocks for tr in b.trips}
+    last = len(scn.line.stations) - 1
+    origin = {tr.trip_id: 0 if tr.origin == termini[0].code else last
+              for b in circ.blocks for tr in b.trips}
     extra = {}
     for (trip_id, station), d in (holds or {}).items():
         if trip_id not in owner:
             raise ValueError(f"day {plan.name}: hold of trip {trip_id!r}: no such trip")
-        if not (math.isfinite(d) and d >= 0.0) or not 0 < int(station) < len(
-                scn.line.stations) - 1:
+        if not (math.isfinite(d) and d >= 0.0) or not (
+                0 < int(station) < last or int(station) == origin[trip_id]):
             raise ValueError(f"day {plan.name}: hold of trip {trip_id} at station "
-                             f"{station}: needs an intermediate station and a finite hold "
-                             f">= 0 s, got {d!r} s")
+                             f"{station}: needs an intermediate station or the trip's "
+                             f"origin ({origin[trip_id]}) and a finite hold >= 0 s, got "
+                             f"{d!r} s")
         extra[(owner[trip_id], trip_id, int(station))] = float(d)
+    ats = None
+    if regulator != "none" or weights:
+        import functools
+
+        from metro_atc.core.atr.lines import atr_line_for
+
+        from .dayats import DayAts
+        from .regulation import peak_lines
+        ats = functools.partial(DayAts, regulator=regulator,
+                                lines=peak_lines(plan, atr_line_for(scn)), scenario=scn,
+                                weights=weights)
     return DayPlant(loop, circ, termini, planner, tracker, seed, extra, breakdowns,
-                    records=records)
+                    records=records, ats=ats)
 
 
 def rss_mb() -> float:
@@ -1185,7 +1279,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
     Prints one JSON line per simulated hour (progress) and the summary; exit 0 only when
     the whole day ran (every trip, every train back in the depot) without a violation or
-    route conflict.
+    route conflict.  ``--regulator``: the ATS regulator of both directions
+    (:class:`metro_atc.core.service.dayats.DayAts`); ``--delay-s``: Lin 2010a,
+    Experiment 2 on the day: the first departure of one trip from the first station is
+    delayed (``--delay-trip``, default the first up trip of the peak period), reported
+    with its terminal delay, the turnback and the train's next trip.
     """
     import argparse
     import json
@@ -1193,7 +1291,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
     from metro_atc.core.line.scenario import load_scenario
 
-    from .day import load_day
+    from metro_atc.core.atr.registry import REGULATORS
+
+    from .day import load_day, trips
+    from .dayats import first_trip_from, incident_report
+    from .regulation import peak_period
     ap = argparse.ArgumentParser(prog="python -m metro_atc day")
     ap.add_argument("--scenario", default="taipei_blue")
     ap.add_argument("--day", default=None, help="period table (default: the Taipei Blue day)")
@@ -1210,15 +1312,54 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--no-records", action="store_true",
                     help="count the stop / turnback / depot records, keep none (memory "
                          "figures; not with --out)")
+    ap.add_argument("--regulator", choices=REGULATORS.names, default="none",
+                    help="ATS regulator of both directions (" + REGULATORS.help() + ")")
+    ap.add_argument("--delay-s", type=float, default=0.0,
+                    help="delay the first departure of one trip from the first station by "
+                         "this much [s] (Lin 2010a, Experiment 2: 180)")
+    ap.add_argument("--delay-trip", default=None,
+                    help="trip id to delay (default: the first up trip leaving the first "
+                         "station in the peak period)")
     a = ap.parse_args(argv)
     if a.no_records and a.out is not None:
         print("error: --no-records leaves nothing to write to --out", file=sys.stderr)
         return 2
+    if not (math.isfinite(a.delay_s) and 0.0 <= a.delay_s <= 3600.0):
+        print(f"error: --delay-s must lie in [0, 3600] s, got {a.delay_s}", file=sys.stderr)
+        return 2
+    if a.delay_trip is not None and a.delay_s == 0.0:
+        print("error: --delay-trip needs --delay-s", file=sys.stderr)
+        return 2
+    if a.delay_s > 0.0 and a.no_records:
+        print("error: --delay-s reports from the records: not with --no-records",
+              file=sys.stderr)
+        return 2
     try:
         plan = load_day(a.day)
+        holds = {}
+        delayed = None
+        if a.delay_s > 0.0:
+            start = plan.termini[0].station
+            day_trips_ = trips(plan)
+            if a.delay_trip is None:
+                delayed = first_trip_from(day_trips_, start,
+                                          plan.periods[peak_period(plan)].start_s)
+            else:
+                delayed = next((t for t in day_trips_ if t.trip_id == a.delay_trip), None)
+                if delayed is None:
+                    raise ValueError(f"--delay-trip {a.delay_trip!r}: no such trip")
+            st = 0 if delayed.origin == start else len(plan.line.station_codes) - 1
+            holds[(delayed.trip_id, st)] = float(a.delay_s)
+            h, m = divmod(int(delayed.departure_s) // 60, 60)
+            print(json.dumps({"delay": {"trip_id": delayed.trip_id, "delay_s": a.delay_s,
+                                        "origin": delayed.origin,
+                                        "sched_departure_s": delayed.departure_s,
+                                        "sched_departure": f"{h:02d}:{m:02d}"}}),
+                  flush=True)
         dp = service_day(load_scenario(a.scenario), plan, seed=a.seed,
-                         trip_times=a.trip_times, records=not a.no_records)
-    except ValueError as exc:
+                         trip_times=a.trip_times, records=not a.no_records,
+                         holds=holds, regulator=a.regulator)
+    except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
 
@@ -1232,11 +1373,19 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                  sensors=a.sensors)
     late = [tb.terminal_delay_s for tb in res.turnbacks]
     sp = {k: round(v, 1) for k, v in res.speed().items()}
+    extra: Dict[str, Any] = {"regulator": a.regulator}
+    if not a.no_records:
+        from .daykpi import day_kpis
+        k = day_kpis(plan, res.stops, res.turnbacks, res.depot)
+        extra["punctuality"] = k["punctuality"]
+    if delayed is not None:
+        extra["incident"] = incident_report(res.stops, res.turnbacks, delayed.trip_id) \
+            if any(r.trip_id == delayed.trip_id for r in res.stops) else None
     print(json.dumps({**res.row(), "fleet_used": dp.circ.fleet,
                       "terminal_delay_max_s": max(late, default=math.nan),
                       "terminal_delay_mean_s": float(np.mean(late)) if late else math.nan,
                       **sp, "sensor_samples": res.sensor_samples,
-                      "peak_rss_mb": round(peak_rss_mb(), 1),
+                      "peak_rss_mb": round(peak_rss_mb(), 1), **extra,
                       "notes": res.notes[:5]}), flush=True)
     if a.out is not None:
         from pathlib import Path
