@@ -216,6 +216,8 @@ def graph_processes(scenario: str, train_ids: Sequence[str], regulator: str = "n
     sim = dict(base, seed=int(seed), lockstep=bool(lockstep), real_time_factor=float(rtf),
                out_dir=str(out_dir), plots=bool(plots), exit_on_finish=True,
                max_sim_time_s=float(duration_s))
+    if day:
+        sim["day_regulator"] = str(regulator)
     if waits:
         sim["wait_for_subscribers"] = waits
     if finished_file:
@@ -517,7 +519,7 @@ def _main(a: argparse.Namespace, zygote: Zygote | None) -> int:
             "be >= 0"
     t_train = time.monotonic()
     if problem is None:
-        problem = prepare_regulator(a, scn)
+        problem = prepare_regulator(a, scn) if day is None else day_regulator_problem(a, day)
     training_s = time.monotonic() - t_train if getattr(a, "weights_source", "") == "trained" \
         else 0.0
     # last: a refused run leaves no checkpoints folder behind
@@ -696,16 +698,35 @@ def day_horizon_s(day: Any, duration_s: float) -> float:
 def day_problem(a: argparse.Namespace) -> str | None:
     """Why a service day cannot run with these options (one line), or None.
 
-    The day's departures are decided by the simulator's day plant (timetable regulator),
-    it takes no dispatcher commands and is not checkpointed.
+    The day's departures are decided by the simulator's day plant (its ATS with the
+    ``--regulator``), it takes no dispatcher commands and is not checkpointed.
     """
     if a.single_process:
         return "--single-process: a service day runs in the multi-process graph"
-    if a.regulator != "none":
-        return (f"--regulator {a.regulator}: a service day through the graph runs the "
-                "timetable (none) only; regulators on the day: python -m metro_atc day")
     if a.resume or a.replay_commands:
         return "--resume and --replay-commands: a service day is not checkpointed"
+    if getattr(a, "weights", None):
+        return ("--weights: a service day's aoc / dhp use the shipped weights of each "
+                "direction")
+    return None
+
+
+def day_regulator_problem(a: argparse.Namespace, day: Any) -> str | None:
+    """Why the day's ATS cannot regulate with ``--regulator`` (one line), or None.
+
+    The day plant's ATS is built once here as the simulator builds it (aoc / dhp: the
+    shipped weights of each direction), so a regulator that cannot start stops the run
+    before the graph exists.
+    """
+    a.weights_file = ""
+    a.weights_source = ""
+    if a.regulator == "none":
+        return None
+    from metro_atc.core.service.dayrun import day_plant
+    try:
+        day_plant(day, regulator=a.regulator)
+    except ValueError as exc:
+        return f"--regulator {a.regulator}: {exc}"
     return None
 
 

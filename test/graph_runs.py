@@ -138,6 +138,8 @@ def mini_graph_runs(tmp: Path) -> dict[str, Any]:
 
 DAY = "taipei_blue_day"
 """The service day of the day run."""
+DAY_REGULATOR = "lqr"
+"""The day run's ATS regulator (the day plant's, both directions)."""
 DAY_DURATION_S = 4300.0
 """Simulated time of the day run from its first step [s]: the first pull-outs, the first
 trips of both directions to their termini (a trip takes ~44 min) and the first four
@@ -159,6 +161,7 @@ def day_graph_run(tmp: Path) -> dict[str, Any]:
         env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
         p = subprocess.Popen(
             [sys.executable, "-m", "metro_atc", "run", "--scenario", DAY, "--json",
+             "--regulator", DAY_REGULATOR,
              "--duration", str(DAY_DURATION_S), "--step-timeout", str(STEP_TIMEOUT_S),
              "--out", str(out)], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
             text=True, cwd=out)

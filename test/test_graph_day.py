@@ -1,5 +1,7 @@
 """The service day through the ROS graph: ``run --scenario taipei_blue_day``.
 
+The run regulates both directions with ``lqr`` (the day plant's ATS in the simulator).
+
 The graph's day is the ROS-free day: the simulator node steps the same
 :class:`DayPlant` (pull-outs, routes, authorities before the fleet state; the plant step,
 events, occupancy and grants after the ATOs' commands), the ATO nodes compute the efforts
@@ -19,7 +21,7 @@ from typing import Any
 
 import pytest
 
-from graph_runs import DAY, DAY_DURATION_S
+from graph_runs import DAY, DAY_DURATION_S, DAY_REGULATOR
 from harness import ROOT, DomainAllocator
 
 from metro_atc.core.service.dayrun import day_plant, load_day_run
@@ -30,7 +32,7 @@ from metro_atc.exit_codes import Exit
 @pytest.fixture(scope="module")
 def rosfree(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     """The ROS-free day run to the graph run's cut, its records written as the graph's."""
-    dp = day_plant(load_day_run(DAY))
+    dp = day_plant(load_day_run(DAY), regulator=DAY_REGULATOR)
     dp.start()
     res = dp.run(dp.t_start + DAY_DURATION_S)
     out = tmp_path_factory.mktemp("day_rosfree")
@@ -53,6 +55,7 @@ def test_a_cut_day_says_so(day_graph_run: dict[str, Any]) -> None:
     assert day["route_conflicts"] == 0 and day["separation_violations"] == 0
     assert k["atp_violations"] == 0 and k["lockstep_misses"] == 0
     assert day["not_in_graph"], "what the graph's day leaves to the day plant is said"
+    assert k["regulator"] == DAY_REGULATOR
     # the simulated time run counts from the day's first step, not from midnight
     assert k["sim_time_s"] - k["sim_start_s"] == pytest.approx(DAY_DURATION_S, abs=1.0)
     assert k["real_time_factor"] < 1e4
@@ -77,7 +80,7 @@ def test_the_day_pictures_are_written(day_graph_run: dict[str, Any]) -> None:
 
 
 @pytest.mark.parametrize("extra,why", [
-    (["--regulator", "lqr"], "timetable (none) only"),
+    (["--weights", "w.pt"], "shipped weights of each"),
     (["--single-process"], "multi-process graph"),
     (["--resume"], "not checkpointed"),
 ])

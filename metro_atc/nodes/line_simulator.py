@@ -114,7 +114,8 @@ class LineSimulator(Node):
             scn = load_scenario(self.params.scenario_name) if run is None else None
         except (ScenarioError, ValueError) as exc:
             raise NodeConfigError(str(exc)) from None
-        self.day = None if run is None else DayHost(run, int(self.params.seed))
+        self.day = None if run is None else DayHost(run, int(self.params.seed),
+                                                    self.params.day_regulator)
         """The service day the plant runs (:mod:`metro_atc.nodes.sim_day`), or None."""
         if self.day is not None:
             if self.params.checkpoint_dir:
@@ -695,6 +696,7 @@ class LineSimulator(Node):
         if self.day is not None:
             k["day"] = self.day.kpis()
             k["sim_start_s"] = self._t0
+            k["regulator"] = self.day.regulator
         return k
 
     def _cut_at_s(self) -> float | None:

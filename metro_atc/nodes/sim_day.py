@@ -11,9 +11,9 @@ step, then the step's events, track occupancy, the interlockings' route grants a
 safety checks).  The ATO nodes compute the efforts; the day plant's own ATOs are not used.
 
 What the graph's day leaves to the day plant, said in the KPIs (``day.not_in_graph``):
-the departure decisions (the timetable regulator and the turnback link of the day plant:
-the ``ats_regulator`` node is not started), dispatcher commands (refused), checkpoints
-and resume.
+the departure decisions (the day plant's ATS, :class:`metro_atc.core.service.dayats.DayAts`
+with the parameter ``day_regulator``, and its turnback link: the ``ats_regulator`` node is
+not started), dispatcher commands (refused), checkpoints and resume.
 """
 
 from __future__ import annotations
@@ -28,8 +28,8 @@ import numpy as np
 from metro_atc.core.service.dayplant import DayPlant
 from metro_atc.core.service.dayrun import DayRun, day_plant, describe, load_day_run
 
-NOT_IN_GRAPH = ("departure decisions: the day plant's timetable regulator and turnback link "
-                "(no ats_regulator node)", "dispatcher commands (refused)",
+NOT_IN_GRAPH = ("departure decisions: the day plant's ATS (regulator and turnback link) in "
+                "line_simulator (no ats_regulator node)", "dispatcher commands (refused)",
                 "checkpoints and resume")
 """What a day run of the graph does not do through its nodes (in the KPIs and the log)."""
 
@@ -66,10 +66,15 @@ class _Seen:
 class DayHost:
     """A service day in the simulator node (see the module docstring)."""
 
-    def __init__(self, run: DayRun, seed: int) -> None:
-        """Build the day's plant and set its clock to the first step; nothing runs yet."""
+    def __init__(self, run: DayRun, seed: int, regulator: str = "none") -> None:
+        """Build the day's plant and set its clock to the first step; nothing runs yet.
+
+        ``regulator``: the day's ATS regulator of both directions (:class:`DayAts`; aoc /
+        dhp with the shipped weights of each direction).  ValueError in one line.
+        """
         self.run = run
-        self.dp: DayPlant = day_plant(run, seed=seed)
+        self.regulator = str(regulator)
+        self.dp: DayPlant = day_plant(run, seed=seed, regulator=regulator)
         self.dp.start()
         self.sim = self.dp.sim
         self.summary = describe(run, self.dp)

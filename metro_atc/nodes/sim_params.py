@@ -34,6 +34,13 @@ class SimParams:
                                     "embedded scenario name or path to a scenario YAML")
         self.seed = static(node, "seed", 0, "random seed of disturbances and noise",
                            0, 2**31 - 1)
+        from metro_atc.core.atr.registry import REGULATORS
+        self.day_regulator = static(
+            node, "day_regulator", "none",
+            "a service day's ATS regulator of both directions (the day plant's DayAts; "
+            "unused for a one-way scenario, whose ATS is the ats_regulator node): "
+            + REGULATORS.help(),
+            choices=REGULATORS.names)
         self.lockstep = static(node, "lockstep", True,
                                "deterministic lockstep (true) or free-run at real_time_factor")
         self.rtf = static(node, "real_time_factor", 10.0,

@@ -90,10 +90,13 @@ def load_day_run(name_or_path: str, trip_times: str = "plant") -> DayRun:
 
 
 def day_plant(run: DayRun, seed: int = 0, planner: str = "ectp", tracker: str = "fuzzy",
-              records: bool = True) -> DayPlant:
-    """The day's plant (:func:`metro_atc.core.service.dayplant.service_day`)."""
+              records: bool = True, regulator: str = "none") -> DayPlant:
+    """The day's plant (:func:`metro_atc.core.service.dayplant.service_day`).
+
+    ``regulator``: the ATS regulator of both directions (``none``: the timetable).
+    """
     return service_day(run.scenario, run.plan, planner, tracker, seed,
-                       trip_times=run.trip_times, records=records)
+                       trip_times=run.trip_times, records=records, regulator=regulator)
 
 
 def fleet_scenario_of(run: DayRun) -> Scenario:
