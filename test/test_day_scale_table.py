@@ -46,3 +46,10 @@ def test_trains_beyond_a_table_fleet_refused() -> None:
     """A target whose fleet no period table can hold is refused in one line."""
     with pytest.raises(SystemExit):
         day_scale.main(["--trains", str(day_scale.MAX_TRAINS + 1), "--no-rss"])
+
+
+def test_graph_window_must_be_whole_progress_periods(capsys: pytest.CaptureFixture[str]) -> None:
+    """The graph's window is timed between progress lines: another window is refused."""
+    with pytest.raises(SystemExit):
+        day_scale.main(["--graph", "--window-s", "300", "--no-rss"])
+    assert "whole progress periods" in capsys.readouterr().err

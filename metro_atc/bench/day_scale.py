@@ -20,13 +20,13 @@ The trains in service are those the day reached (the terminus capacity bounds th
 short headways: the row says how many ran).
 
 **Through the ROS graph** (``--graph``, after ``make setup``).  The same table run by
-``python -m metro_atc run --scenario TABLE`` (every node its own process, lockstep) twice
-on ``--domain-id``, cut at the window's start and at its end (:func:`graph_row`): wall
-microseconds of the stepping loop and CPU microseconds of all node processes per step and
-per train-step of the window (the differences of the two runs' figures; the processes' CPU
-is polled once a second, so a short window carries about a second of CPU noise per
-process), and each node process's peak resident memory.  The machine's load averages go
-with each row: on a shared machine compare the CPU figures.
+``python -m metro_atc run --scenario TABLE`` (every node its own process, lockstep) on
+``--domain-id`` to the window's end (:func:`graph_row`): the simulator's progress lines at
+the window's start and end (``--window-s`` whole progress periods, ``PROGRESS_PERIOD_S``)
+give the wall time (their log stamps) and, read as each line appears, the CPU seconds of
+every node process; per step and per train-step of the window (the ROS-free row's steps and
+train-steps: the same day bit for bit), and each node process's peak resident memory.  The
+machine's load averages go with each row: on a shared machine compare the CPU figures.
 
 **Memory.**  The Taipei Blue day (``--trip-times plant``) to ``--rss-end-h`` hours in two
 processes, with and without its stop / turnback / depot records
@@ -59,6 +59,11 @@ MIN_HEADWAY_S = HEADWAY_RANGE_S[0]
 """Shortest headway of a synthetic day [s]: the shortest a period table may give."""
 START_S = 6.0 * 3600.0
 """First departure of a synthetic day [s after midnight] (a whole hour)."""
+PROGRESS_PERIOD_S = 600.0
+"""Simulated time between the simulator's progress lines [s] (its ``progress_period_s``
+default): the graph's window runs from one line to a later one."""
+
+
 MAX_TRAINS = 125
 """Most trains a synthetic day may target (its fleet, four times that, within a table's)."""
 
@@ -105,9 +110,13 @@ def synthetic_day(table: Path, seed: int = 0) -> DayPlant:
 
 
 def window_s_of(dp: DayPlant, window_s: float) -> tuple[float, float]:
-    """The timed window of a synthetic day [s after midnight]: one cycle after its first trip."""
+    """The timed window of a synthetic day [s after midnight].
+
+    It starts one cycle after the first trip, at the next whole progress period (the
+    simulator's progress lines time the graph's window).
+    """
     first = min(b.trips[0].departure_s for b in dp.circ.blocks)
-    t_on = first + cycle_s(dp)
+    t_on = PROGRESS_PERIOD_S * math.ceil((first + cycle_s(dp)) / PROGRESS_PERIOD_S)
     return t_on, t_on + window_s
 
 
@@ -129,7 +138,8 @@ def scale_row(n_trains: int, window_s: float, table: Path, seed: int = 0) -> Dic
         "headway_s": dp.circ.blocks and float(sorted(
             t.departure_s for b in dp.circ.blocks for t in b.trips
             if t.origin == dp.termini[0].code)[1] - first),
-        "mean_in_service": ts / max(steps, 1), "steps": steps,
+        "mean_in_service": ts / max(steps, 1), "steps": steps, "train_steps": ts,
+        "train_steps_to_end": r1.train_steps,
         "wall_us_per_step": 1e6 * wall / max(steps, 1),
         "us_per_step": 1e6 * cpu / max(steps, 1),
         "us_per_train_step": 1e6 * cpu / max(ts, 1),
@@ -141,53 +151,105 @@ def scale_row(n_trains: int, window_s: float, table: Path, seed: int = 0) -> Dic
     return row
 
 
-def graph_row(n_trains: int, window_s: float, table: Path, domain_id: int, seed: int = 0,
+def _ros_log_time_s(line: str) -> float:
+    """The wall time stamped on a ROS log line (``[INFO] [1795867539.012] [node]: ...``) [s]."""
+    return float(line.split("]", 2)[1].strip(" ["))
+
+
+def _follow(log_dir: Path, marks: List[float], done: Any,
+            seen: Dict[float, Dict[str, Any]]) -> None:
+    """Follow the simulator's log while the graph runs (until ``done`` is set).
+
+    At each progress line at a time of ``marks`` [s]: its wall stamp and, read at once,
+    the CPU seconds of every node process (``pids.json``).
+    """
+    from metro_atc.launcher import PROGRESS_RE, cpu_seconds
+    log, offset, part = log_dir / "line_simulator.log", 0, ""
+    while not done.is_set():
+        try:
+            with log.open("rb") as fh:
+                fh.seek(offset)
+                chunk = fh.read()
+            pids = json.loads((log_dir / "pids.json").read_text())
+        except (OSError, ValueError):
+            done.wait(0.05)
+            continue
+        offset += len(chunk)
+        lines = (part + chunk.decode("utf-8", errors="replace")).split("\n")
+        part = lines.pop()
+        for ln in lines:
+            m = PROGRESS_RE.search(ln)
+            if m is None or float(m[1]) not in marks:
+                continue
+            seen[float(m[1])] = {"wall_s": _ros_log_time_s(ln), "in_service": int(m[2]),
+                                 "cpu_s": {n: cpu_seconds(int(pid))
+                                           for n, pid in sorted(pids.items())}}
+        done.wait(0.05)
+
+
+def graph_row(n_trains: int, window_s: float, table: Path, domain_id: int,
+              ros_free: Dict[str, Any], seed: int = 0,
               timeout_s: float = 7200.0) -> Dict[str, Any]:
     """The timed window of the day of ``table`` through the ROS graph (multi-process).
 
-    Two runs of ``python -m metro_atc run --scenario TABLE`` on ``domain_id``
-    (:func:`metro_atc.bench.closed_loop.run_graph`), one cut (``--duration``) at the
-    window's start, one at its end; the window's figures are the differences of their
-    KPIs: the stepping loop's wall time (``loop_wall_s``), the steps, the day's
-    train-steps and the CPU seconds of each node process (``node_cpu_s``).  The peak
-    resident memory per node process is the longer run's.  The 1- and 5-minute load
-    averages of the machine before and after the runs go with the row.
+    One run of ``python -m metro_atc run --scenario TABLE`` on ``domain_id``
+    (:func:`metro_atc.bench.closed_loop.run_graph`) to the window's end; while it runs,
+    the simulator's progress lines at the window's start and end (:func:`window_s_of`,
+    whole progress periods) give the wall time (their log stamps) and, read at once, the
+    CPU seconds of every node process.  Steps and train-steps of the window are the
+    ROS-free row's (``ros_free``: the graph's day is the ROS-free day bit for bit; the
+    run's train-steps to its end are given next to the ROS-free ones).  The peak resident
+    memory per node process is the run's.  The 1- and 5-minute load averages of the
+    machine before and after the run go with the row.
     """
+    import threading
     from metro_atc.bench.closed_loop import run_graph
     dp = synthetic_day(table, seed)
     dp.start()
     t_on, t_off = window_s_of(dp, window_s)
     load0 = os.getloadavg()
-    runs = []
-    for end in (t_on, t_off):
-        k = run_graph(str(table.resolve()), "none", seed, end - dp.t_start, domain_id,
-                      timeout_s=timeout_s)
-        if k is None:
-            return {"target_trains": n_trains, "error": "a graph run failed (see stderr)"}
-        runs.append(k)
+    seen: Dict[float, Dict[str, Any]] = {}
+    done = threading.Event()
+    with tempfile.TemporaryDirectory(prefix="metro_atc_day_scale_graph_") as tmp:
+        out = Path(tmp)
+        follow = threading.Thread(target=_follow, args=(out / "logs", [t_on, t_off], done,
+                                                        seen), daemon=True)
+        follow.start()
+        try:
+            k = run_graph(str(table.resolve()), "none", seed, t_off + 1.0 - dp.t_start,
+                          domain_id, out_dir=out, timeout_s=timeout_s)
+        finally:
+            done.set()
+            follow.join()
     load1 = os.getloadavg()
-    k0, k1 = runs
-    steps = int(k1["steps"]) - int(k0["steps"])
-    ts = int(k1["day"]["train_steps"]) - int(k0["day"]["train_steps"])
-    wall = float(k1["loop_wall_s"]) - float(k0["loop_wall_s"])
-    cpu = {n: float(c1) - float(k0["node_cpu_s"].get(n) or math.nan)
-           for n, c1 in sorted(k1["node_cpu_s"].items()) if c1 is not None}
+    if k is None:
+        return {"target_trains": n_trains, "error": "the graph run failed (see stderr)"}
+    if t_on not in seen or t_off not in seen:
+        return {"target_trains": n_trains, "error": "no progress line at the window's "
+                f"start {t_on:.0f} s or end {t_off:.0f} s in the simulator's log"}
+    a, b = seen[t_on], seen[t_off]
+    steps, ts = int(ros_free["steps"]), int(ros_free["train_steps"])
+    wall = b["wall_s"] - a["wall_s"]
+    cpu = {n: float(c1) - float(a["cpu_s"][n]) for n, c1 in b["cpu_s"].items()
+           if c1 is not None and a["cpu_s"].get(n) is not None}
     cpu_all = sum(cpu.values())
     ato = sum(v for n, v in cpu.items() if n.startswith("ato"))
     return {
-        "target_trains": n_trains, "mean_in_service": ts / max(steps, 1), "steps": steps,
-        "train_steps": ts, "window_s": float(k1["sim_time_s"]) - float(k0["sim_time_s"]),
+        "target_trains": n_trains, "window": [t_on, t_off],
+        "mean_in_service": ts / max(steps, 1), "steps": steps, "train_steps": ts,
+        "train_steps_to_end": k["day"].get("train_steps"),
+        "ros_free_train_steps_to_end": ros_free["train_steps_to_end"],
         "wall_us_per_step": 1e6 * wall / max(steps, 1),
         "wall_us_per_train_step": 1e6 * wall / max(ts, 1),
         "cpu_us_per_step": 1e6 * cpu_all / max(steps, 1),
         "cpu_us_per_train_step": 1e6 * cpu_all / max(ts, 1),
         "ato_cpu_us_per_train_step": 1e6 * ato / max(ts, 1),
         "simulator_cpu_us_per_step": 1e6 * cpu.get("line_simulator", math.nan) / max(steps, 1),
-        "node_cpu_s": cpu, "node_peak_rss_mb": k1["node_peak_rss_mb"],
+        "node_cpu_s": cpu, "node_peak_rss_mb": k["node_peak_rss_mb"],
         "ato_processes": sum(1 for n in cpu if n.startswith("ato")),
-        "lockstep_misses": k1.get("lockstep_misses"),
-        "atp_violations": k1.get("atp_violations"),
-        "route_conflicts": k1["day"].get("route_conflicts"),
+        "lockstep_misses": k.get("lockstep_misses"),
+        "atp_violations": k.get("atp_violations"),
+        "route_conflicts": k["day"].get("route_conflicts"),
         "load_avg_1_5_min": [round(x, 2) for x in (load0[0], load0[1], load1[0], load1[1])]}
 
 
@@ -233,6 +295,9 @@ def main(argv: Optional[List[str]] = None) -> int:
         ap.error(f"--trains: each in [1, {MAX_TRAINS}]")
     if not 10.0 <= a.window_s <= 86400.0:
         ap.error("--window-s must lie in [10, 86400]")
+    if a.graph and a.window_s % PROGRESS_PERIOD_S:
+        ap.error(f"--graph: --window-s must be whole progress periods of the simulator "
+                 f"({PROGRESS_PERIOD_S:.0f} s)")
     if not 0 <= a.domain_id <= 232:
         ap.error("--domain-id must lie in [0, 232]")
     rows, graph = [], []
@@ -243,7 +308,7 @@ def main(argv: Optional[List[str]] = None) -> int:
             table = synthetic_table(n, a.window_s, where / f"day_scale_{n}_periods.yaml")
             rows.append(scale_row(n, a.window_s, table))
             if a.graph:
-                graph.append(graph_row(n, a.window_s, table, a.domain_id))
+                graph.append(graph_row(n, a.window_s, table, a.domain_id, rows[-1]))
             if not a.json:
                 print(f"day-scale: {n} trains done", file=sys.stderr, flush=True)
     rss = [] if a.no_rss else [rss_run(a.rss_end_h, True), rss_run(a.rss_end_h, False)]
