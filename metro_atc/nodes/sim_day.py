@@ -116,6 +116,7 @@ class DayHost:
                 "fleet": len(dp.trains),
                 "trains_in_depot": sum(1 for tr in dp.trains if not tr.in_service),
                 "trains_in_service": sum(1 for tr in dp.trains if tr.in_service),
+                "train_steps": dp.train_steps,
                 "route_conflicts": dp.route_conflicts,
                 "separation_violations": dp.sep_violations,
                 "stop_error_max_m": seen.err_max_m, "stops_outside_0p30_m": seen.err_out,

@@ -49,6 +49,10 @@ LIN2010A_TURNBACK_BUFFER_S = 210.0
 """Minimum turnback buffer at the peak headway [s] (Lin 2010a, Experiment 2)."""
 
 
+HEADWAY_RANGE_S = (60.0, 3600.0)
+"""Headways a period table may give [s] (shortest, longest)."""
+
+
 class DayError(ValueError):
     """A day that cannot be run (one line naming the period and what is needed)."""
 
@@ -418,7 +422,7 @@ def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
                                     f"basis"))
         periods.append(DayPeriod(
             str(m["name"]), start, end,
-            _num(m["headway_s"], f"{path}.headway_s", src, 60.0, 3600.0),
+            _num(m["headway_s"], f"{path}.headway_s", src, *HEADWAY_RANGE_S),
             _num(m["flow_up"], f"{path}.flow_up", src, 0.0, 3.0),
             _num(m["flow_down"], f"{path}.flow_down", src, 0.0, 3.0),
             m["estimate"], str(m.get("basis", ""))))
