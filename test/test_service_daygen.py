@@ -53,9 +53,37 @@ def test_generated_days_cover_layouts_and_depots() -> None:
     assert generate_day(0, incidents=True, **SMALL).table == days[0].table  # type: ignore
 
 
-@pytest.mark.parametrize("seed,incidents", [(0, True), (1, False), (2, True)])
-def test_generated_day_runs_every_trip_safely(seed: int, incidents: bool) -> None:
-    gd = _gen(seed, incidents)
+SHORT = (5.0, 10.0, 5.0)
+"""Period lengths [min] of the drawn lines' short days (the line and layouts as drawn)."""
+
+
+def _gen_drawn(seed: int, incidents: bool = False) -> GeneratedDay:
+    """A day on the line drawn for ``seed`` (stations, stock, spacing drawn), 20 minutes."""
+    key = ("drawn", seed, incidents)
+    if key not in _DAYS:
+        _DAYS[key] = generate_day(seed, incidents=incidents, period_min=SHORT)
+    return _DAYS[key]
+
+
+def test_scissors_the_loop_refuses_becomes_a_tail_track() -> None:
+    """Line 37: scissors drawn at both ends, B's crossover would lie on G06's platform.
+
+    Line 19: A's scissors would put its entry signal 9 m beyond G02's down stop point (the
+    ATO berths there only with 10 m of authority beyond it: the train rested short of the
+    platform, never called, never asked for A's route, and the day stood still).  Each
+    refused scissors becomes a tail track; the other terminus keeps its scissors.
+    """
+    b37 = _gen_drawn(37).table["termini"]
+    assert [t["layout"] for t in b37] == ["scissors", "tail_track"]
+    a19 = _gen_drawn(19).table["termini"]
+    assert [t["layout"] for t in a19] == ["tail_track", "scissors"]
+
+
+@pytest.mark.parametrize("seed,incidents", [(0, True), (1, False), (2, True),
+                                            ("drawn", 19), ("drawn", 37)])
+def test_generated_day_runs_every_trip_safely(seed: Any, incidents: Any) -> None:
+    """Small days; and short days on the drawn lines 19 and 37 (holds on 37)."""
+    gd = _gen(seed, incidents) if seed != "drawn" else _gen_drawn(incidents, incidents == 37)
     res = run_generated_day(gd, max_wall_s=300.0)
     assert day_failures(res) == [], res.notes
     assert res.finished and res.trips_run == res.trips_planned > 0
@@ -64,8 +92,11 @@ def test_generated_day_runs_every_trip_safely(seed: int, incidents: bool) -> Non
     assert res.route_conflicts == 0 and res.missed_stops == 0
     assert res.stop_errors_m and max(abs(e) for e in res.stop_errors_m) <= 0.30
     for (trip, station), hold in gd.holds.items():  # the holds happened
+        # a hold is added to the call's scheduled departure (DayPlant's extra dwell): a
+        # late train (line 37's first down trip, 34 s late) dwells less than the hold
         r = next(x for x in res.stops if x.trip_id == trip and x.station == station)
-        assert r.dep_s - r.arr_s >= hold
+        assert r.dep_s >= r.sched_dep_s + hold
+        assert r.dep_s - r.arr_s >= gd.scenario.passengers.min_dwell_s
 
 
 # ----------------------------------------------------------------------------- refusals
@@ -138,7 +169,8 @@ def test_crossover_on_a_platform_is_refused() -> None:
     """A scissors before terminus A lies on station 2's platform when the gap is short.
 
     The arrival crossover (3 x 60 m of diagonal) ends where A's 150 m platform begins, so the
-    interstation must be >= 180 + 150 = 330 m (the train is 141 m, shorter than the platform).
+    interstation must be >= 180 + 150 = 330 m (the train is 141 m, shorter than the platform);
+    the entry signal's room asks 10 m more (:func:`test_entry_signal_too_close_to_a_platform_is_refused`).
     """
     lays = (scissors_terminus(platform_m=150.0), tail_track_terminus(2, platform_m=150.0))
     with pytest.raises(LoopError) as ei:
@@ -146,7 +178,7 @@ def test_crossover_on_a_platform_is_refused() -> None:
     msg = str(ei.value)
     assert "\n" not in msg and "terminus MN01 (scissors)" in msg
     assert "overlaps the platform of" in msg and "must be >= 330 m, it is 320 m" in msg
-    build_loop(_mini_with_first_gap(331.0), lays)  # clear of the platform
+    build_loop(_mini_with_first_gap(341.0), lays)  # clear of the platform
     # a tail track turns beyond the platform: nothing of it lies before station 2
     build_loop(_mini_with_first_gap(320.0), lays[::-1])
 
@@ -177,3 +209,22 @@ def test_bad_holds_and_breakdowns_are_refused() -> None:
                       (Breakdown("train_01", 0.0, 60.0, 1, "nowhere"), "no section")):
         with pytest.raises(ValueError, match=words):
             service_day(gd.scenario, gd.plan, trip_times="plant", breakdowns=[bd])
+
+
+def test_entry_signal_too_close_to_a_platform_is_refused() -> None:
+    """A scissors's entry signal within the ATO's 10 m authority margin of a stop point.
+
+    A's entry signal stands 180 m (crossover) + 150 m (platform) before its stop point: with
+    a 335 m interstation it stands 5 m beyond station 2's down stop point (the crossover
+    itself is clear of the platform), a train standing there has its authority end 5 m
+    beyond the stop point and the ATO, which aims 10 m short of its authority, would rest
+    short of the stop point.  The interstation must be >= 340 m.
+    """
+    lays = (scissors_terminus(platform_m=150.0), tail_track_terminus(2, platform_m=150.0))
+    with pytest.raises(LoopError) as ei:
+        build_loop(_mini_with_first_gap(335.0), lays)
+    msg = str(ei.value)
+    assert "\n" not in msg and "terminus MN01 (scissors): its entry signal" in msg
+    assert "stands 5.0 m beyond the stop point of" in msg
+    assert "must be >= 340 m, it is 335 m" in msg
+    build_loop(_mini_with_first_gap(340.0), lays)

@@ -11,8 +11,10 @@ otherwise; every figure an estimate of metro practice):
 - **termini**: per terminus a scissors crossover before the platform (reversal at the
   platform, 60-150 s) or a tail track with one or two sidings beyond it (reversal in the
   siding, 30-90 s); a scissors whose crossover would lie on the neighbouring station's
-  platform (:func:`metro_atc.core.service.loop.check_crossovers`) becomes a tail track;
-  crossover limit 25-40 km/h; platforms and sidings 10-20 m longer than the train; the
+  platform, or whose entry signal would stand within the ATO's authority margin of that
+  platform's stop point (:func:`metro_atc.core.service.loop.check_crossovers`), becomes a
+  tail track; crossover limit 25-40 km/h; platforms and sidings 10-20 m longer than the
+  train; the
   minimum turnback is the layout's lower bound
   (:meth:`metro_atc.core.service.interlocking.Layout.min_turnback_s`) plus two minimum
   dwells (alighting, boarding), rounded up to 10 s; a turnback buffer of 0-60 s;
@@ -134,14 +136,16 @@ def generate_day(seed: int, incidents: bool = False, n_stations: Optional[int] =
     kinds = [str(rng.choice(["scissors", "tail_track"])) for _ in range(2)]
     termini = [_terminus(rng, codes[0], kinds[0], train_m, min_dwell, True),
                _terminus(rng, codes[-1], kinds[1], train_m, min_dwell, both_depots)]
-    for i in (0, 1):  # a scissors that lies on the neighbour's platform: a tail track
-        if termini[i]["layout"] != "scissors":
-            continue
+    for _ in range(3):  # a scissors the loop refuses (on a platform, too close): a tail track
         try:
             build_loop(scn, _layouts({"termini": termini}))
-        except LoopError as exc:
-            if "crossover" not in str(exc) or codes[-1 if i else 0] not in str(exc):
+            break
+        except LoopError as exc:  # A's refusal comes first (the loop checks A, then B)
+            bad = [i for i in (0, 1) if termini[i]["layout"] == "scissors"
+                   and f"terminus {codes[-1 if i else 0]} (scissors)" in str(exc)]
+            if not bad:
                 raise
+            i = bad[0]
             termini[i] = _terminus(rng, codes[-1 if i else 0], "tail_track", train_m,
                                    min_dwell, termini[i]["depot"] is not None)
     lays = _layouts({"termini": termini})
