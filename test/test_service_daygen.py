@@ -170,7 +170,7 @@ def test_crossover_on_a_platform_is_refused() -> None:
 
     The arrival crossover (3 x 60 m of diagonal) ends where A's 150 m platform begins, so the
     interstation must be >= 180 + 150 = 330 m (the train is 141 m, shorter than the platform);
-    the entry signal's room asks 10 m more (:func:`test_entry_signal_too_close_to_a_platform_is_refused`).
+    the entry signal's room asks 10 m more (the test after this one).
     """
     lays = (scissors_terminus(platform_m=150.0), tail_track_terminus(2, platform_m=150.0))
     with pytest.raises(LoopError) as ei:
@@ -186,8 +186,16 @@ def test_crossover_on_a_platform_is_refused() -> None:
 def test_bench_line_days_arguments(capsys: pytest.CaptureFixture[str]) -> None:
     """No days: totals and exit 0; bad arguments: exit 2 before anything runs."""
     from metro_atc.bench.line_days import main
+    from metro_atc.bench.lines import main as lines_main
     assert main(["--count", "0"]) == 0
     assert "totals: days 0" in capsys.readouterr().out
+    assert lines_main(["--days", "--count", "0"]) == 0  # bench lines --days: the same bench
+    out = capsys.readouterr().out
+    assert "totals: days 0" in out and "coverage: terminus_a {}" in out
+    with pytest.raises(SystemExit) as ei:
+        lines_main(["--count", "0", "--days", "--stations", "2"])  # its own checks
+    assert ei.value.code == 2
+    assert "bench lines --days" in capsys.readouterr().err
     for bad in (["--jobs", "0"], ["--count", "-1"], ["--stations", "2"],
                 ["--max-wall-s", "0"]):
         with pytest.raises(SystemExit) as ei:
