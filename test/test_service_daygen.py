@@ -236,3 +236,12 @@ def test_entry_signal_too_close_to_a_platform_is_refused() -> None:
     assert "stands 5.0 m beyond the stop point of" in msg
     assert "must be >= 340 m, it is 335 m" in msg
     build_loop(_mini_with_first_gap(340.0), lays)
+
+
+def test_generator_refuses_a_day_above_its_fleet_limit_naming_the_period() -> None:
+    """A small day held to 3 trains: its peak needs 4; one line, the period and the need."""
+    with pytest.raises(ValueError) as ei:
+        generate_day(1, max_fleet=3, **SMALL)  # type: ignore[arg-type]
+    msg = str(ei.value)
+    assert "\n" not in msg and msg.startswith("generated day 1: ")
+    assert "period peak: needs 4 trains" in msg and "(at most 3)" in msg

@@ -50,7 +50,7 @@ from metro_atc.core.line.rolling_stock import train_params_for
 from metro_atc.core.line.scenario import Scenario, parse_scenario
 from metro_atc.core.linegen import generate_line, scenario_yaml
 
-from .day import DayPlan, _layout, parse_day, trip_time_s, trips
+from .day import DayError, DayPlan, _layout, parse_day, trip_time_s, trips
 from .dayplant import Breakdown, DayPlant, DayResult, service_day
 from .interlocking import Layout
 from .loop import LoopError, build_loop
@@ -119,8 +119,9 @@ def generate_day(seed: int, incidents: bool = False, n_stations: Optional[int] =
     ``period_min``: the three periods' lengths [min] instead of the drawn ones (short days
     for tests).
 
-    ValueError (one line) when the drawn line cannot carry a day (e.g. a fleet above
-    ``max_fleet`` even at the longest headway drawn).
+    ValueError (one line, naming the period and the fleet or headway it needs) when the
+    drawn line cannot carry a day: a fleet above ``max_fleet`` (the circulation's
+    :class:`metro_atc.core.service.day.DayError`), a peak headway above 1200 s.
     """
     rng = np.random.default_rng([int(seed), 11, 7, 2026])
     n_st = int(n_stations) if n_stations is not None else int(rng.integers(4, 8))
@@ -161,8 +162,8 @@ def generate_day(seed: int, incidents: bool = False, n_stations: Optional[int] =
     cycle = 2.0 * trip_s + sum(layover)
     h = max(h, _ceil_to(1.15 * cycle / max_fleet, 10.0))
     if h > 1200.0:
-        raise ValueError(f"generated day {seed}: a {cycle:.0f} s cycle needs a headway of "
-                         f"{h:.0f} s for {max_fleet} trains (above 1200 s)")
+        raise ValueError(f"generated day {seed}: period peak: a {cycle:.0f} s cycle needs a "
+                         f"headway of {h:.0f} s for {max_fleet} trains (above 1200 s)")
     h_off = min(_ceil_to(h * float(rng.uniform(1.5, 2.5)), 10.0), 1800.0)
     mins = [float(rng.integers(6, 10) * 5), float(rng.integers(12, 16) * 5),
             float(rng.integers(6, 10) * 5)]
@@ -190,7 +191,12 @@ def generate_day(seed: int, incidents: bool = False, n_stations: Optional[int] =
     plan0 = parse_day(table, table["name"], line)
     # the fleet the plant-timed circulation needs, plus 0-1 spare
     need = service_day(scn, plan0, trip_times="plant").circ.fleet
-    if need > max_fleet:
+    if need > max_fleet:  # the circulation's refusal names the period and the need
+        table["fleet"] = max_fleet
+        try:
+            service_day(scn, parse_day(table, table["name"], line), trip_times="plant")
+        except DayError as exc:
+            raise ValueError(f"generated day {seed}: {exc} (at most {max_fleet})") from None
         raise ValueError(f"generated day {seed}: needs {need} trains, above {max_fleet}")
     table["fleet"] = need + int(rng.integers(0, 2))
     plan = parse_day(table, table["name"], line)
