@@ -245,3 +245,19 @@ def test_generator_refuses_a_day_above_its_fleet_limit_naming_the_period() -> No
     msg = str(ei.value)
     assert "\n" not in msg and msg.startswith("generated day 1: ")
     assert "period peak: needs 4 trains" in msg and "(at most 3)" in msg
+
+
+def test_generated_day_berths_in_the_door_window_and_fits_short_periods() -> None:
+    """The plant takes a standstill as the arrival only within the +-0.30 m door window.
+
+    With the plant's default 1.0 m, line 31 (heavy 8-car, 115 s peak) ended seven peak
+    calls 0.7 m short: the train held behind the one ahead restarted 32 m short, came to
+    rest 0.7 m short and the plant opened the doors there; within 0.30 m the ATO creeps on.
+    Its 5-minute periods: the drawn 300 s transition is cut to half the shortest period
+    (a transition as long as a period is refused by parse_day).
+    """
+    from metro_atc.core.closed_loop import STOP_WINDOW_M
+    gd = _gen_drawn(31)
+    assert gd.scenario.line.stop_tolerance_m == STOP_WINDOW_M == 0.30
+    assert gd.table["transition_s"] == 150.0
+    assert _gen(1).scenario.line.stop_tolerance_m == STOP_WINDOW_M

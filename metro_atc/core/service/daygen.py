@@ -25,6 +25,9 @@ otherwise; every figure an estimate of metro practice):
   within ``max_fleet`` (cycle time / headway) and the termini turn trains with a berth to
   spare (layover + headway within the berths' time); off-peak headways 1.5-2.5 times the
   peak's; flow factors 0.4-0.6 off peak, 0.6-1.0 down in the peak; a 0-300 s transition;
+- **stop tolerance**: the plant takes a standstill as the arrival within the
+  platform-screen-door window (+-0.30 m, the ATO's berthing window) instead of the
+  scenario default of 1.0 m: a train at rest further short creeps on;
 - **fleet**: what the circulation of the plant-timed trips needs
   (:func:`metro_atc.core.service.day.run_day`), plus 0-1 spare;
 - **incidents** (``incidents=True``): a hold of 60-240 s at an intermediate station of a
@@ -46,6 +49,7 @@ import numpy as np
 
 from metro_atc.core.atr.blue_line import LineData
 from metro_atc.core.atr.lines import atr_line_for
+from metro_atc.core.closed_loop import STOP_WINDOW_M
 from metro_atc.core.line.rolling_stock import train_params_for
 from metro_atc.core.line.scenario import Scenario, parse_scenario
 from metro_atc.core.linegen import generate_line, scenario_yaml
@@ -128,6 +132,9 @@ def generate_day(seed: int, incidents: bool = False, n_stations: Optional[int] =
     raw = generate_line(seed, extended=True, n_stations=n_st, stock=stock,
                         spacing_kind=spacing_kind)
     stock_name = raw["description"].split(", ")[2]
+    # the plant takes a standstill within the platform-screen-door window as the arrival
+    # (the ATO's berthing window): a train at rest further short creeps on to the stop point
+    raw["line"]["stop_tolerance_m"] = STOP_WINDOW_M
     scn = parse_scenario(scenario_yaml(raw), src=f"<generated line {raw['name']}>")
     line = atr_line_for(scn)
     codes = [s.code for s in scn.line.stations]
@@ -179,7 +186,8 @@ def generate_day(seed: int, incidents: bool = False, n_stations: Optional[int] =
     for p, a, b in zip(periods, bounds[:-1], bounds[1:]):
         p.update(start_h=round(float(a), 6), end_h=round(float(b), 6), estimate=True,
                  basis="generated (metro_atc.core.service.daygen)")
-    trans = min(float(rng.integers(0, 7) * 50), 60.0 * min(mins))
+    # within the shortest period (parse_day refuses a transition as long as a period)
+    trans = min(float(rng.integers(0, 7) * 50), 30.0 * min(mins))
     # one depot: the down direction starts once the first up train has turned at B
     down_off = 0.0 if both_depots else _ceil_to(trip_time_s(line, h_off, off[0]) * 1.1
                                                 + layover[1] + 60.0, 60.0)
