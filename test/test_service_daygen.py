@@ -53,9 +53,37 @@ def test_generated_days_cover_layouts_and_depots() -> None:
     assert generate_day(0, incidents=True, **SMALL).table == days[0].table  # type: ignore
 
 
-@pytest.mark.parametrize("seed,incidents", [(0, True), (1, False), (2, True)])
-def test_generated_day_runs_every_trip_safely(seed: int, incidents: bool) -> None:
-    gd = _gen(seed, incidents)
+SHORT = (5.0, 10.0, 5.0)
+"""Period lengths [min] of the drawn lines' short days (the line and layouts as drawn)."""
+
+
+def _gen_drawn(seed: int, incidents: bool = False) -> GeneratedDay:
+    """A day on the line drawn for ``seed`` (stations, stock, spacing drawn), 20 minutes."""
+    key = ("drawn", seed, incidents)
+    if key not in _DAYS:
+        _DAYS[key] = generate_day(seed, incidents=incidents, period_min=SHORT)
+    return _DAYS[key]
+
+
+def test_scissors_the_loop_refuses_becomes_a_tail_track() -> None:
+    """Line 37: scissors drawn at both ends, B's crossover would lie on G06's platform.
+
+    Line 19: A's scissors would put its entry signal 9 m beyond G02's down stop point (the
+    ATO berths there only with 10 m of authority beyond it: the train rested short of the
+    platform, never called, never asked for A's route, and the day stood still).  Each
+    refused scissors becomes a tail track; the other terminus keeps its scissors.
+    """
+    b37 = _gen_drawn(37).table["termini"]
+    assert [t["layout"] for t in b37] == ["scissors", "tail_track"]
+    a19 = _gen_drawn(19).table["termini"]
+    assert [t["layout"] for t in a19] == ["tail_track", "scissors"]
+
+
+@pytest.mark.parametrize("seed,incidents", [(0, True), (1, False), (2, True),
+                                            ("drawn", 19), ("drawn", 37)])
+def test_generated_day_runs_every_trip_safely(seed: Any, incidents: Any) -> None:
+    """Small days; and short days on the drawn lines 19 and 37 (holds on 37)."""
+    gd = _gen(seed, incidents) if seed != "drawn" else _gen_drawn(incidents, incidents == 37)
     res = run_generated_day(gd, max_wall_s=300.0)
     assert day_failures(res) == [], res.notes
     assert res.finished and res.trips_run == res.trips_planned > 0
@@ -64,8 +92,11 @@ def test_generated_day_runs_every_trip_safely(seed: int, incidents: bool) -> Non
     assert res.route_conflicts == 0 and res.missed_stops == 0
     assert res.stop_errors_m and max(abs(e) for e in res.stop_errors_m) <= 0.30
     for (trip, station), hold in gd.holds.items():  # the holds happened
+        # a hold is added to the call's scheduled departure (DayPlant's extra dwell): a
+        # late train (line 37's first down trip, 34 s late) dwells less than the hold
         r = next(x for x in res.stops if x.trip_id == trip and x.station == station)
-        assert r.dep_s - r.arr_s >= hold
+        assert r.dep_s >= r.sched_dep_s + hold
+        assert r.dep_s - r.arr_s >= gd.scenario.passengers.min_dwell_s
 
 
 # ----------------------------------------------------------------------------- refusals
@@ -138,7 +169,8 @@ def test_crossover_on_a_platform_is_refused() -> None:
     """A scissors before terminus A lies on station 2's platform when the gap is short.
 
     The arrival crossover (3 x 60 m of diagonal) ends where A's 150 m platform begins, so the
-    interstation must be >= 180 + 150 = 330 m (the train is 141 m, shorter than the platform).
+    interstation must be >= 180 + 150 = 330 m (the train is 141 m, shorter than the platform);
+    the entry signal's room asks 10 m more (the test after this one).
     """
     lays = (scissors_terminus(platform_m=150.0), tail_track_terminus(2, platform_m=150.0))
     with pytest.raises(LoopError) as ei:
@@ -146,7 +178,7 @@ def test_crossover_on_a_platform_is_refused() -> None:
     msg = str(ei.value)
     assert "\n" not in msg and "terminus MN01 (scissors)" in msg
     assert "overlaps the platform of" in msg and "must be >= 330 m, it is 320 m" in msg
-    build_loop(_mini_with_first_gap(331.0), lays)  # clear of the platform
+    build_loop(_mini_with_first_gap(341.0), lays)  # clear of the platform
     # a tail track turns beyond the platform: nothing of it lies before station 2
     build_loop(_mini_with_first_gap(320.0), lays[::-1])
 
@@ -154,8 +186,16 @@ def test_crossover_on_a_platform_is_refused() -> None:
 def test_bench_line_days_arguments(capsys: pytest.CaptureFixture[str]) -> None:
     """No days: totals and exit 0; bad arguments: exit 2 before anything runs."""
     from metro_atc.bench.line_days import main
+    from metro_atc.bench.lines import main as lines_main
     assert main(["--count", "0"]) == 0
     assert "totals: days 0" in capsys.readouterr().out
+    assert lines_main(["--days", "--count", "0"]) == 0  # bench lines --days: the same bench
+    out = capsys.readouterr().out
+    assert "totals: days 0" in out and "coverage: terminus_a {}" in out
+    with pytest.raises(SystemExit) as ei:
+        lines_main(["--count", "0", "--days", "--stations", "2"])  # its own checks
+    assert ei.value.code == 2
+    assert "bench lines --days" in capsys.readouterr().err
     for bad in (["--jobs", "0"], ["--count", "-1"], ["--stations", "2"],
                 ["--max-wall-s", "0"]):
         with pytest.raises(SystemExit) as ei:
@@ -181,3 +221,47 @@ def test_bad_holds_and_breakdowns_are_refused() -> None:
                       (Breakdown("train_01", 0.0, 60.0, 1, "nowhere"), "no section")):
         with pytest.raises(ValueError, match=words):
             service_day(gd.scenario, gd.plan, trip_times="plant", breakdowns=[bd])
+
+
+def test_entry_signal_too_close_to_a_platform_is_refused() -> None:
+    """A scissors's entry signal within the ATO's 10 m authority margin of a stop point.
+
+    A's entry signal stands 180 m (crossover) + 150 m (platform) before its stop point: with
+    a 335 m interstation it stands 5 m beyond station 2's down stop point (the crossover
+    itself is clear of the platform), a train standing there has its authority end 5 m
+    beyond the stop point and the ATO, which aims 10 m short of its authority, would rest
+    short of the stop point.  The interstation must be >= 340 m.
+    """
+    lays = (scissors_terminus(platform_m=150.0), tail_track_terminus(2, platform_m=150.0))
+    with pytest.raises(LoopError) as ei:
+        build_loop(_mini_with_first_gap(335.0), lays)
+    msg = str(ei.value)
+    assert "\n" not in msg and "terminus MN01 (scissors): its entry signal" in msg
+    assert "stands 5.0 m beyond the stop point of" in msg
+    assert "must be >= 340 m, it is 335 m" in msg
+    build_loop(_mini_with_first_gap(340.0), lays)
+
+
+def test_generator_refuses_a_day_above_its_fleet_limit_naming_the_period() -> None:
+    """A small day held to 3 trains: its peak needs 4; one line, the period and the need."""
+    with pytest.raises(ValueError) as ei:
+        generate_day(1, max_fleet=3, **SMALL)  # type: ignore[arg-type]
+    msg = str(ei.value)
+    assert "\n" not in msg and msg.startswith("generated day 1: ")
+    assert "period peak: needs 4 trains" in msg and "(at most 3)" in msg
+
+
+def test_generated_day_berths_in_the_door_window_and_fits_short_periods() -> None:
+    """The plant takes a standstill as the arrival only within the +-0.30 m door window.
+
+    With the plant's default 1.0 m, line 31 (heavy 8-car, 115 s peak) ended seven peak
+    calls 0.7 m short: the train held behind the one ahead restarted 32 m short, came to
+    rest 0.7 m short and the plant opened the doors there; within 0.30 m the ATO creeps on.
+    Its 5-minute periods: the drawn 300 s transition is cut to half the shortest period
+    (a transition as long as a period is refused by parse_day).
+    """
+    from metro_atc.core.closed_loop import STOP_WINDOW_M
+    gd = _gen_drawn(31)
+    assert gd.scenario.line.stop_tolerance_m == STOP_WINDOW_M == 0.30
+    assert gd.table["transition_s"] == 150.0
+    assert _gen(1).scenario.line.stop_tolerance_m == STOP_WINDOW_M

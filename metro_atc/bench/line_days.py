@@ -1,7 +1,7 @@
 """Benchmark: two-direction service days on generated lines, on the ROS-free day plant.
 
-``python -m metro_atc bench line-days --count N [--seed S] [--incidents] [--stations K]
-[--jobs J] [--max-wall-s W] [--json]``
+``python -m metro_atc bench lines --days --count N [--seed S] [--incidents] [--stations K]
+[--jobs J] [--max-wall-s W] [--json]`` (the same bench as ``bench line-days ...``)
 
 Generates N days (:func:`metro_atc.core.service.daygen.generate_day`, seeds S .. S+N-1:
 a generated line of the extended corpus with 4-7 stations, or K, both terminus layouts
@@ -11,7 +11,9 @@ direction in the peak) and runs each through
 :func:`metro_atc.core.service.dayplant.service_day` (the plant's trip times).  One row per
 day: trips planned / run, trains back in the depot / fleet, ATP violations, separation
 violations, route conflicts, missed stops, stop error p50/p95/max [m] of the ATO's
-berthings, wall time; then totals (stop-error percentiles over every berthing of every day).
+berthings, wall time; then totals (stop-error percentiles over every berthing of every day)
+and what the days covered (terminus layouts at A and B, depots, stocks: counts of days;
+stations, line length, peak headway and fleet: min and max).
 
 Exit code 1 when a day fails to generate, or any day has an ATP or separation violation, a
 route conflict, a missed stop, a trip not run, a train not back in the depot, or did not
@@ -24,7 +26,8 @@ import argparse
 import json
 import math
 import time
-from typing import Any, Dict, List, Optional, Tuple
+from collections import Counter
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -66,8 +69,26 @@ def totals(rows: List[Dict[str, Any]], errors: List[float]) -> Dict[str, Any]:
         "stop_error_max_m": float(err.max()) if err.size else math.nan,
         "unfinished": int(sum(not r["finished"] for r in rows)),
         "failed_days": int(sum(bool(r["failures"]) for r in rows)),
-        "wall_s": float(sum(r["wall_s"] for r in rows))})
+        "wall_s": float(sum(r["wall_s"] for r in rows)),
+        "coverage": coverage(rows)})
     return out
+
+
+def coverage(rows: List[Dict[str, Any]]) -> Dict[str, Any]:
+    """What the days drew: layouts per terminus, depots, stocks (counts of days), ranges.
+
+    Stations, line length [km], peak headway [s], fleet: (min, max) over the days.
+    """
+    def count(key: Callable[[Dict[str, Any]], Any]) -> Dict[str, int]:
+        return dict(sorted(Counter(str(key(r)) for r in rows).items()))
+
+    def span(k: str) -> List[float]:
+        return [min(r[k] for r in rows), max(r[k] for r in rows)] if rows else []
+
+    return {"terminus_a": count(lambda r: r["termini"].split("/")[0]),
+            "terminus_b": count(lambda r: r["termini"].split("/")[1]),
+            "depots": count(lambda r: r["depots"]), "stock": count(lambda r: r["stock"]),
+            **{k: span(k) for k in ("stations", "line_km", "peak_headway_s", "fleet")}}
 
 
 def day_line(row: Dict[str, Any]) -> str:
@@ -85,9 +106,10 @@ def day_line(row: Dict[str, Any]) -> str:
             + (f" FAILED: {', '.join(row['failures'])}" if row["failures"] else ""))
 
 
-def main(argv: Optional[List[str]] = None) -> int:
-    """Command-line entry point (see the module docstring)."""
-    ap = argparse.ArgumentParser(prog="python -m metro_atc bench line-days",
+def main(argv: Optional[List[str]] = None,
+         prog: str = "python -m metro_atc bench line-days") -> int:
+    """Command-line entry point (see the module docstring); ``prog``: the name in usage."""
+    ap = argparse.ArgumentParser(prog=prog,
                                  description=__doc__.splitlines()[0])
     ap.add_argument("--count", type=int, default=10, help="generated days")
     ap.add_argument("--seed", type=int, default=0, help="seed of the first generated day")
@@ -121,8 +143,9 @@ def main(argv: Optional[List[str]] = None) -> int:
         print(json.dumps(json_safe(result)))
     else:
         print("totals: " + ", ".join(f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}"
-                                     for k, v in tot.items())
+                                     for k, v in tot.items() if k != "coverage")
               + f", elapsed {result['seconds']:.1f} s ({a.jobs} jobs)")
+        print("coverage: " + ", ".join(f"{k} {v}" for k, v in tot["coverage"].items()))
         for f in failed:
             print(f"failed: {f}")
     return 1 if failed else 0

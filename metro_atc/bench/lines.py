@@ -3,6 +3,10 @@
 ``python -m metro_atc bench lines --count N [--seed S] [--corpus C] [--incidents] [--regulator R]
 [--planner P] [--tracker T] [--scenario FILE ...] [--jobs J] [--json]``
 
+``python -m metro_atc bench lines --days ...``: two-direction service days on generated
+lines instead (:mod:`metro_atc.bench.line_days`, the same bench as ``bench line-days``;
+its own options, ``--incidents`` there being station holds).
+
 Runs N lines of :func:`metro_atc.core.linegen.generate_line` (seeds S .. S+N-1, with a TSR
 and a breakdown each under ``--incidents``), the TTOBench metro line (Songjiazhuang -
 Yizhuang with the Beijing Subway train, :func:`metro_atc.bench.ttobench.metro_scenario`;
@@ -212,8 +216,16 @@ def line_of(row: dict[str, Any]) -> str:
 
 def main(argv: Optional[List[str]] = None) -> int:
     """Command-line entry point (see the module docstring)."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    if "--days" in args:  # the two-direction days: bench line-days (imported here: it uses us)
+        from metro_atc.bench.line_days import main as days_main
+        return days_main([x for x in args if x != "--days"],
+                         prog="python -m metro_atc bench lines --days")
     ap = argparse.ArgumentParser(prog="python -m metro_atc bench lines",
                                  description=__doc__.splitlines()[0])
+    ap.add_argument("--days", action="store_true",
+                    help="two-direction service days on generated lines instead "
+                    "(bench line-days; --days -h lists its options)")
     ap.add_argument("--count", type=int, default=10, help="generated lines")
     ap.add_argument("--seed", type=int, default=0, help="seed of the first generated line")
     ap.add_argument("--corpus", choices=("extended", "classic"), default="extended",
@@ -231,7 +243,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     ap.add_argument("--no-brake", action="store_true", help="skip the brake diagnosis")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (lines in parallel)")
-    a = ap.parse_args(argv)
+    a = ap.parse_args(args)
     if a.count < 0:
         ap.error("--count must be >= 0")
     if a.jobs < 1:

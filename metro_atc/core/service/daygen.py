@@ -11,8 +11,10 @@ otherwise; every figure an estimate of metro practice):
 - **termini**: per terminus a scissors crossover before the platform (reversal at the
   platform, 60-150 s) or a tail track with one or two sidings beyond it (reversal in the
   siding, 30-90 s); a scissors whose crossover would lie on the neighbouring station's
-  platform (:func:`metro_atc.core.service.loop.check_crossovers`) becomes a tail track;
-  crossover limit 25-40 km/h; platforms and sidings 10-20 m longer than the train; the
+  platform, or whose entry signal would stand within the ATO's authority margin of that
+  platform's stop point (:func:`metro_atc.core.service.loop.check_crossovers`), becomes a
+  tail track; crossover limit 25-40 km/h; platforms and sidings 10-20 m longer than the
+  train; the
   minimum turnback is the layout's lower bound
   (:meth:`metro_atc.core.service.interlocking.Layout.min_turnback_s`) plus two minimum
   dwells (alighting, boarding), rounded up to 10 s; a turnback buffer of 0-60 s;
@@ -23,6 +25,9 @@ otherwise; every figure an estimate of metro practice):
   within ``max_fleet`` (cycle time / headway) and the termini turn trains with a berth to
   spare (layover + headway within the berths' time); off-peak headways 1.5-2.5 times the
   peak's; flow factors 0.4-0.6 off peak, 0.6-1.0 down in the peak; a 0-300 s transition;
+- **stop tolerance**: the plant takes a standstill as the arrival within the
+  platform-screen-door window (+-0.30 m, the ATO's berthing window) instead of the
+  scenario default of 1.0 m: a train at rest further short creeps on;
 - **fleet**: what the circulation of the plant-timed trips needs
   (:func:`metro_atc.core.service.day.run_day`), plus 0-1 spare;
 - **incidents** (``incidents=True``): a hold of 60-240 s at an intermediate station of a
@@ -44,11 +49,12 @@ import numpy as np
 
 from metro_atc.core.atr.blue_line import LineData
 from metro_atc.core.atr.lines import atr_line_for
+from metro_atc.core.closed_loop import STOP_WINDOW_M
 from metro_atc.core.line.rolling_stock import train_params_for
 from metro_atc.core.line.scenario import Scenario, parse_scenario
 from metro_atc.core.linegen import generate_line, scenario_yaml
 
-from .day import DayPlan, _layout, parse_day, trip_time_s, trips
+from .day import DayError, DayPlan, _layout, parse_day, trip_time_s, trips
 from .dayplant import Breakdown, DayPlant, DayResult, service_day
 from .interlocking import Layout
 from .loop import LoopError, build_loop
@@ -117,14 +123,18 @@ def generate_day(seed: int, incidents: bool = False, n_stations: Optional[int] =
     ``period_min``: the three periods' lengths [min] instead of the drawn ones (short days
     for tests).
 
-    ValueError (one line) when the drawn line cannot carry a day (e.g. a fleet above
-    ``max_fleet`` even at the longest headway drawn).
+    ValueError (one line, naming the period and the fleet or headway it needs) when the
+    drawn line cannot carry a day: a fleet above ``max_fleet`` (the circulation's
+    :class:`metro_atc.core.service.day.DayError`), a peak headway above 1200 s.
     """
     rng = np.random.default_rng([int(seed), 11, 7, 2026])
     n_st = int(n_stations) if n_stations is not None else int(rng.integers(4, 8))
     raw = generate_line(seed, extended=True, n_stations=n_st, stock=stock,
                         spacing_kind=spacing_kind)
     stock_name = raw["description"].split(", ")[2]
+    # the plant takes a standstill within the platform-screen-door window as the arrival
+    # (the ATO's berthing window): a train at rest further short creeps on to the stop point
+    raw["line"]["stop_tolerance_m"] = STOP_WINDOW_M
     scn = parse_scenario(scenario_yaml(raw), src=f"<generated line {raw['name']}>")
     line = atr_line_for(scn)
     codes = [s.code for s in scn.line.stations]
@@ -134,14 +144,16 @@ def generate_day(seed: int, incidents: bool = False, n_stations: Optional[int] =
     kinds = [str(rng.choice(["scissors", "tail_track"])) for _ in range(2)]
     termini = [_terminus(rng, codes[0], kinds[0], train_m, min_dwell, True),
                _terminus(rng, codes[-1], kinds[1], train_m, min_dwell, both_depots)]
-    for i in (0, 1):  # a scissors that lies on the neighbour's platform: a tail track
-        if termini[i]["layout"] != "scissors":
-            continue
+    for _ in range(3):  # a scissors the loop refuses (on a platform, too close): a tail track
         try:
             build_loop(scn, _layouts({"termini": termini}))
-        except LoopError as exc:
-            if "crossover" not in str(exc) or codes[-1 if i else 0] not in str(exc):
+            break
+        except LoopError as exc:  # A's refusal comes first (the loop checks A, then B)
+            bad = [i for i in (0, 1) if termini[i]["layout"] == "scissors"
+                   and f"terminus {codes[-1 if i else 0]} (scissors)" in str(exc)]
+            if not bad:
                 raise
+            i = bad[0]
             termini[i] = _terminus(rng, codes[-1 if i else 0], "tail_track", train_m,
                                    min_dwell, termini[i]["depot"] is not None)
     lays = _layouts({"termini": termini})
@@ -157,8 +169,8 @@ def generate_day(seed: int, incidents: bool = False, n_stations: Optional[int] =
     cycle = 2.0 * trip_s + sum(layover)
     h = max(h, _ceil_to(1.15 * cycle / max_fleet, 10.0))
     if h > 1200.0:
-        raise ValueError(f"generated day {seed}: a {cycle:.0f} s cycle needs a headway of "
-                         f"{h:.0f} s for {max_fleet} trains (above 1200 s)")
+        raise ValueError(f"generated day {seed}: period peak: a {cycle:.0f} s cycle needs a "
+                         f"headway of {h:.0f} s for {max_fleet} trains (above 1200 s)")
     h_off = min(_ceil_to(h * float(rng.uniform(1.5, 2.5)), 10.0), 1800.0)
     mins = [float(rng.integers(6, 10) * 5), float(rng.integers(12, 16) * 5),
             float(rng.integers(6, 10) * 5)]
@@ -174,7 +186,8 @@ def generate_day(seed: int, incidents: bool = False, n_stations: Optional[int] =
     for p, a, b in zip(periods, bounds[:-1], bounds[1:]):
         p.update(start_h=round(float(a), 6), end_h=round(float(b), 6), estimate=True,
                  basis="generated (metro_atc.core.service.daygen)")
-    trans = min(float(rng.integers(0, 7) * 50), 60.0 * min(mins))
+    # within the shortest period (parse_day refuses a transition as long as a period)
+    trans = min(float(rng.integers(0, 7) * 50), 30.0 * min(mins))
     # one depot: the down direction starts once the first up train has turned at B
     down_off = 0.0 if both_depots else _ceil_to(trip_time_s(line, h_off, off[0]) * 1.1
                                                 + layover[1] + 60.0, 60.0)
@@ -186,7 +199,12 @@ def generate_day(seed: int, incidents: bool = False, n_stations: Optional[int] =
     plan0 = parse_day(table, table["name"], line)
     # the fleet the plant-timed circulation needs, plus 0-1 spare
     need = service_day(scn, plan0, trip_times="plant").circ.fleet
-    if need > max_fleet:
+    if need > max_fleet:  # the circulation's refusal names the period and the need
+        table["fleet"] = max_fleet
+        try:
+            service_day(scn, parse_day(table, table["name"], line), trip_times="plant")
+        except DayError as exc:
+            raise ValueError(f"generated day {seed}: {exc} (at most {max_fleet})") from None
         raise ValueError(f"generated day {seed}: needs {need} trains, above {max_fleet}")
     table["fleet"] = need + int(rng.integers(0, 2))
     plan = parse_day(table, table["name"], line)

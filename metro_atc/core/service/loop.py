@@ -32,6 +32,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
+from metro_atc.core.ato.control_kernel import AUTH_MARGIN as AUTHORITY_MARGIN_M
 from metro_atc.core.line.rolling_stock import KMH, train_params_for
 from metro_atc.core.line.scenario import (CurveSpec, GradientSpec, PeriodSpec, Scenario,
                                           ScenarioError, SpeedLimitSpec, StationSpec, TsrSpec,
@@ -235,6 +236,11 @@ def check_crossovers(scn: Scenario, stops: Sequence[LoopStop],
     length [m].  Every crossover section of a terminus (:func:`crossover_sections`) as the
     loop places it must lie clear of every platform of the other stations (a scissors in
     front of a terminus needs an interstation longer than the crossover plus the train).
+    The terminus's entry signal must stand at least the ATO's authority margin
+    (:data:`metro_atc.core.ato.control_kernel.AUTH_MARGIN`, 10 m) beyond the stop point of
+    the platform before it: a train standing there with the signal at danger has its
+    authority end at the signal, and the ATO aims that margin short of its authority (it
+    would rest short of the stop point and never call there, nor ask for the route).
     """
     length = float(train_params_for(scn).length_m)
     st = scn.line.stations
@@ -260,6 +266,23 @@ def check_crossovers(scn: Scenario, stops: Sequence[LoopStop],
                             f"{stop.name} ({lo:.0f}-{hi:.0f} m, a {length:.0f} m train); the "
                             f"interstation {st[stop.station].code or stop.name}-{code} must be "
                             f">= {need:.0f} m, it is {gap:.0f} m")
+        # the entry signal: a train stopping at the platform before it has its authority
+        # end there and berths only with the ATO's margin of room beyond its stop point
+        entry = min(sp.entry_m for sp in tp.spans.values() if sp.route.stage == 0)
+        for stop in stops:
+            if stop.station < 0 or stop.station == tp.station:
+                continue
+            for d in (0.0, period_m, -period_m):
+                room = entry - (stop.s_m + d)
+                if not 0.0 <= room < AUTHORITY_MARGIN_M:
+                    continue
+                gap = abs(st[stop.station].position_m - st[tp.station].position_m)
+                raise LoopError(
+                    f"terminus {code} ({tp.layout.name}): its entry signal ({entry:.0f} m on "
+                    f"the loop) stands {room:.1f} m beyond the stop point of {stop.name}, "
+                    f"the ATO berths there with >= {AUTHORITY_MARGIN_M:.0f} m of authority "
+                    f"beyond it; the interstation {st[stop.station].code or stop.name}-{code} "
+                    f"must be >= {gap + AUTHORITY_MARGIN_M - room:.0f} m, it is {gap:.0f} m")
 
 
 def _shift(sp: RouteSpan, d: float) -> RouteSpan:
