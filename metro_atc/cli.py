@@ -91,5 +91,9 @@ def _bench(rest: list[str]) -> int:
         print(f"metro_atc bench: unknown benchmark '{known.name}' "
               f"(known: {', '.join(sorted(available))})", file=sys.stderr)
         return 2
+    if known.name == "lines" and "--days" in tail:  # the two-direction days: line-days
+        from metro_atc.bench.line_days import main as days_main
+        return int(days_main([x for x in tail if x != "--days"],
+                             prog="python -m metro_atc bench lines --days"))
     mod = importlib.import_module(available[known.name])
     return int(mod.main(tail))

@@ -186,14 +186,15 @@ def test_crossover_on_a_platform_is_refused() -> None:
 def test_bench_line_days_arguments(capsys: pytest.CaptureFixture[str]) -> None:
     """No days: totals and exit 0; bad arguments: exit 2 before anything runs."""
     from metro_atc.bench.line_days import main
-    from metro_atc.bench.lines import main as lines_main
+    from metro_atc.cli import main as cli_main
     assert main(["--count", "0"]) == 0
     assert "totals: days 0" in capsys.readouterr().out
-    assert lines_main(["--days", "--count", "0"]) == 0  # bench lines --days: the same bench
+    # python -m metro_atc bench lines --days: the same bench
+    assert cli_main(["bench", "lines", "--days", "--count", "0"]) == 0
     out = capsys.readouterr().out
     assert "totals: days 0" in out and "coverage: terminus_a {}" in out
     with pytest.raises(SystemExit) as ei:
-        lines_main(["--count", "0", "--days", "--stations", "2"])  # its own checks
+        cli_main(["bench", "lines", "--count", "0", "--days", "--stations", "2"])
     assert ei.value.code == 2
     assert "bench lines --days" in capsys.readouterr().err
     for bad in (["--jobs", "0"], ["--count", "-1"], ["--stations", "2"],

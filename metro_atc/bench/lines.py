@@ -217,15 +217,14 @@ def line_of(row: dict[str, Any]) -> str:
 def main(argv: Optional[List[str]] = None) -> int:
     """Command-line entry point (see the module docstring)."""
     args = list(sys.argv[1:] if argv is None else argv)
-    if "--days" in args:  # the two-direction days: bench line-days (imported here: it uses us)
-        from metro_atc.bench.line_days import main as days_main
-        return days_main([x for x in args if x != "--days"],
-                         prog="python -m metro_atc bench lines --days")
+    # ``--days`` (the two-direction days, bench line-days) is dispatched by the command line
+    # (metro_atc.cli): line_days uses this module, so it is not imported here
     ap = argparse.ArgumentParser(prog="python -m metro_atc bench lines",
                                  description=__doc__.splitlines()[0])
     ap.add_argument("--days", action="store_true",
                     help="two-direction service days on generated lines instead "
-                    "(bench line-days; --days -h lists its options)")
+                    "(bench line-days; --days -h lists its options; dispatched by "
+                    "python -m metro_atc bench)")
     ap.add_argument("--count", type=int, default=10, help="generated lines")
     ap.add_argument("--seed", type=int, default=0, help="seed of the first generated line")
     ap.add_argument("--corpus", choices=("extended", "classic"), default="extended",
