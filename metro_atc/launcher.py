@@ -1016,8 +1016,8 @@ DAY_HIDDEN = ("trains", "completed_trains", "max_delay_s", "recovery_time_s",
               "late_departures", "incomplete_trains", "regulator")
 """One-way figures the printed table of a service day leaves out (kpis.json has them)."""
 DAY_SHOWN = ("trips_planned", "trips_run", "fleet", "trains_in_depot", "route_conflicts",
-             "separation_violations", "stop_error_max_m", "stops_outside_0p30_m",
-             "terminal_delay_max_s", "depot_moves")
+             "missed_stops", "separation_violations", "stop_error_max_m",
+             "stops_outside_0p30_m", "terminal_delay_max_s", "depot_moves")
 """The service day's figures in the printed table (``day`` in kpis.json)."""
 
 

@@ -53,6 +53,7 @@ def test_a_cut_day_says_so(day_graph_run: dict[str, Any]) -> None:
     assert f"{day['trips_planned'] - day['trips_run']} of {day['trips_planned']} trips " \
         "not run" in k["end"]
     assert day["route_conflicts"] == 0 and day["separation_violations"] == 0
+    assert day["missed_stops"] == 0 and day["stops_outside_0p30_m"] == 0
     assert k["atp_violations"] == 0 and k["lockstep_misses"] == 0
     assert day["not_in_graph"], "what the graph's day leaves to the day plant is said"
     assert k["regulator"] == DAY_REGULATOR

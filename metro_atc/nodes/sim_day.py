@@ -21,12 +21,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from metro_atc.core.service.dayplant import DayPlant
 from metro_atc.core.service.dayrun import DayRun, day_plant, describe, load_day_run
+
+if TYPE_CHECKING:  # the day plant (its regulators: scipy) is imported when a day is built
+    from metro_atc.core.service.dayplant import DayPlant
 
 NOT_IN_GRAPH = ("departure decisions: the day plant's ATS (regulator and turnback link) in "
                 "line_simulator (no ats_regulator node)", "dispatcher commands (refused)",
@@ -118,6 +120,7 @@ class DayHost:
                 "trains_in_service": sum(1 for tr in dp.trains if tr.in_service),
                 "train_steps": dp.train_steps,
                 "route_conflicts": dp.route_conflicts,
+                "missed_stops": int(dp.sim.stations.skipped_stops),
                 "separation_violations": dp.sep_violations,
                 "stop_error_max_m": seen.err_max_m, "stops_outside_0p30_m": seen.err_out,
                 "forced_stops": len(dp.forced_err),

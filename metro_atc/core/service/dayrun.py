@@ -14,13 +14,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any, Tuple
+from typing import TYPE_CHECKING, Any, Tuple
 
 from metro_atc.core.line.scenario import Scenario, ScenarioError, load_scenario
 from metro_atc.core.safe_yaml import load_yaml_file
 
 from .day import DayPlan, load_day
-from .dayplant import STABLE_AFTER_S, DayPlant, day_layout, fleet_scenario, service_day
+
+if TYPE_CHECKING:  # the day plant (its regulators: scipy) is imported when a day is built
+    from .dayplant import DayPlant
 
 SUFFIX = "_periods"
 """A shipped day ``<name>`` is the period table ``metro_atc/data/<name>_periods.yaml``."""
@@ -95,18 +97,21 @@ def day_plant(run: DayRun, seed: int = 0, planner: str = "ectp", tracker: str = 
 
     ``regulator``: the ATS regulator of both directions (``none``: the timetable).
     """
+    from .dayplant import service_day
     return service_day(run.scenario, run.plan, planner, tracker, seed,
                        trip_times=run.trip_times, records=records, regulator=regulator)
 
 
 def fleet_scenario_of(run: DayRun) -> Scenario:
     """The scenario of the day's fleet plant (its train ids and line: what an ATO runs)."""
+    from .dayplant import STABLE_AFTER_S, day_layout, fleet_scenario
     loop, circ = day_layout(run.scenario, run.plan, STABLE_AFTER_S, run.trip_times)
     return fleet_scenario(loop.scenario, len({b.train for b in circ.blocks}))
 
 
 def last_arrival_s(run: DayRun) -> float:
     """The day's last planned arrival [s] (the last trip of its circulation)."""
+    from .dayplant import STABLE_AFTER_S, day_layout
     _, circ = day_layout(run.scenario, run.plan, STABLE_AFTER_S, run.trip_times)
     return max(t.arrival_s for b in circ.blocks for t in b.trips)
 
