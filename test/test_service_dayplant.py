@@ -364,3 +364,26 @@ def test_a_track_limit_lowers_that_tracks_limit_only() -> None:
     assert at(loop, up0 + 1400.0) == 35.0 < at(ref, up0 + 1400.0)
     for s in (up0 + 1100.0, up0 + 1700.0, c_down + 1900.0 - 1400.0):
         assert at(loop, s) == at(ref, s)
+
+
+def test_a_tracks_own_curves_replace_the_lines_on_that_track_only() -> None:
+    """The down track with a curve of its own: the loop's down half has exactly it, the up
+    half keeps the line's curves (mirrored on the down half without an override)."""
+    from metro_atc.core.line.scenario import CurveSpec
+    from metro_atc.core.service.day import TrackCurve
+    scn = load_scenario("mini")
+    scn = dataclasses.replace(scn, line=dataclasses.replace(
+        scn.line, curves=[CurveSpec(start_m=300.0, end_m=500.0, radius_m=400.0)]))
+    lay = LAYOUTS["scissors_A_tail_B"]()
+    ref = build_loop(scn, lay)
+    own = build_loop(scn, lay, track_curves=[TrackCurve("down", 1000.0, 1300.0, 250.0)])
+    half = ref.period_m / 2.0
+
+    def curves(lp: Any, down: bool) -> list:  # type: ignore[type-arg]
+        return [(round(c.start_m, 6), round(c.end_m, 6), c.radius_m)
+                for c in lp.scenario.line.curves if (c.start_m > half) == down]
+
+    assert curves(own, False) == curves(ref, False) == [(300.0, 500.0, 400.0)]
+    assert len(curves(ref, True)) == 1 and curves(ref, True)[0][2] == 400.0
+    (a, b, r), = curves(own, True)
+    assert (round(b - a, 6), r) == (300.0, 250.0)

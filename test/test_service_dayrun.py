@@ -89,9 +89,13 @@ def test_a_period_tables_tsrs_reach_the_loop(tmp_path: Path) -> None:
     good = {"track": "down", "start_m": c[3], "end_m": c[3] + 500.0, "limit_kmh": 40,
             "from_h": 7, "to_h": 9}
     raw["tsrs"] = [good]
+    raw["track_curves"] = [{"track": "up", "start_m": c[2], "end_m": c[2] + 200.0,
+                            "radius_m": 300}]
     f = tmp_path / "day.yaml"
     f.write_text(yaml.safe_dump(raw))
     scn = load_run_scenario(str(f))
+    assert [(round(x.end_m - x.start_m, 6), x.radius_m) for x in scn.line.curves
+            if x.start_m < c[-1] - c[0]] == [(200.0, 300.0)]  # the up track's own curve
     (z,) = scn.line.temporary_speed_limits
     assert z.limit_kmh == 40.0 and (z.from_s, z.to_s) == (7 * 3600.0, 9 * 3600.0)
     assert z.end_m - z.start_m == pytest.approx(500.0)

@@ -135,11 +135,26 @@ class TrackLimit:
 
 
 @dataclass(frozen=True)
+class TrackCurve:
+    """A horizontal curve of one running track.
+
+    ``track`` up / down, ``start_m`` < ``end_m`` [m] in the line's chainage, ``radius_m``
+    [m].  A track with any curve of its own has those instead of the line scenario's.
+    """
+
+    track: str
+    start_m: float
+    end_m: float
+    radius_m: float
+
+
+@dataclass(frozen=True)
 class DayPlan:
     """A validated day: periods, termini (up origin first), fleet, transition window [s].
 
     ``tsrs``: temporary speed restrictions per running track (:class:`TrackTsr`);
-    ``track_limits``: permanent limits of one track (:class:`TrackLimit`).
+    ``track_limits``: permanent limits of one track (:class:`TrackLimit`);
+    ``track_curves``: the curves of a track replacing the line's (:class:`TrackCurve`).
     """
 
     name: str
@@ -151,6 +166,7 @@ class DayPlan:
     down_offset_s: float
     tsrs: Tuple[TrackTsr, ...] = ()
     track_limits: Tuple[TrackLimit, ...] = ()
+    track_curves: Tuple[TrackCurve, ...] = ()
 
 
 def _hms(t: float) -> str:
@@ -331,7 +347,7 @@ def _map(raw: Any, path: str, src: str, keys: Sequence[str]) -> Dict[str, Any]:
     missing = [k for k in keys if k not in raw
                and k not in ("depot", "basis", "n_sidings", "turnback_buffer_s",
                              "platform_m", "siding_m", "tsrs", "from_h", "to_h",
-                             "track_limits")]
+                             "track_limits", "track_curves")]
     if missing:
         raise DayError(one_line(f"day {src}: {path}: missing key {missing[0]!r}"))
     return raw
@@ -357,7 +373,7 @@ def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
     ln = taipei_blue() if line is None else line
     top = _map(raw, "<top>", src, ("name", "sources", "line", "fleet", "transition_s",
                                    "down_offset_s", "termini", "periods", "tsrs",
-                                   "track_limits"))
+                                   "track_limits", "track_curves"))
     if top["line"] != ln.name:
         raise DayError(one_line(f"day {src}: line: the table is for {short_repr(top['line'])}, "
                                 f"the line is {ln.name}"))
@@ -445,11 +461,12 @@ def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
     return DayPlan(_str(top["name"], "name", src), ln, tuple(periods),
                    (termini[0], termini[1]), fleet, trans, off,
                    _tsrs(top.get("tsrs", []), src),
-                   _track_limits(top.get("track_limits", []), src))
+                   _track_limits(top.get("track_limits", []), src),
+                   _track_curves(top.get("track_curves", []), src))
 
 
-def _zone(m: Dict[str, Any], path: str, src: str) -> Tuple[str, float, float, float]:
-    """(track, start_m, end_m, limit_kmh) of a per-track entry, validated."""
+def _zone(m: Dict[str, Any], path: str, src: str) -> Tuple[str, float, float]:
+    """(track, start_m, end_m) of a per-track entry, validated."""
     if m["track"] not in ("up", "down"):
         raise DayError(one_line(f"day {src}: {path}.track: expected up or down, got "
                                 f"{short_repr(m['track'])}"))
@@ -457,7 +474,27 @@ def _zone(m: Dict[str, Any], path: str, src: str) -> Tuple[str, float, float, fl
     b = _num(m["end_m"], f"{path}.end_m", src, -1e7, 1e7)
     if not a < b:
         raise DayError(one_line(f"day {src}: {path}: needs start_m < end_m"))
-    return str(m["track"]), a, b, _num(m["limit_kmh"], f"{path}.limit_kmh", src, 5.0, 400.0)
+    return str(m["track"]), a, b
+
+
+def _limit(m: Dict[str, Any], path: str, src: str) -> float:
+    """The ``limit_kmh`` of a per-track entry [km/h], validated."""
+    return _num(m["limit_kmh"], f"{path}.limit_kmh", src, 5.0, 400.0)
+
+
+def _track_curves(raw: Any, src: str) -> Tuple[TrackCurve, ...]:
+    """The ``track_curves`` list of a period table (:class:`TrackCurve`)."""
+    if not isinstance(raw, list):
+        raise DayError(one_line(f"day {src}: track_curves: expected a list, got "
+                                f"{short_repr(raw)}"))
+    out = []
+    for i, t in enumerate(raw):
+        path = f"track_curves[{i}]"
+        m = _map(t, path, src, ("track", "start_m", "end_m", "radius_m"))
+        track, a, b = _zone(m, path, src)
+        out.append(TrackCurve(track, a, b, _num(m["radius_m"], f"{path}.radius_m", src,
+                                                100.0, 1e5)))
+    return tuple(out)
 
 
 def _track_limits(raw: Any, src: str) -> Tuple[TrackLimit, ...]:
@@ -465,10 +502,12 @@ def _track_limits(raw: Any, src: str) -> Tuple[TrackLimit, ...]:
     if not isinstance(raw, list):
         raise DayError(one_line(f"day {src}: track_limits: expected a list, got "
                                 f"{short_repr(raw)}"))
-    return tuple(TrackLimit(*_zone(_map(t, f"track_limits[{i}]", src,
-                                        ("track", "start_m", "end_m", "limit_kmh")),
-                                   f"track_limits[{i}]", src))
-                 for i, t in enumerate(raw))
+    out = []
+    for i, t in enumerate(raw):
+        path = f"track_limits[{i}]"
+        m = _map(t, path, src, ("track", "start_m", "end_m", "limit_kmh"))
+        out.append(TrackLimit(*_zone(m, path, src), _limit(m, path, src)))
+    return tuple(out)
 
 
 def _tsrs(raw: Any, src: str) -> Tuple[TrackTsr, ...]:
@@ -479,7 +518,8 @@ def _tsrs(raw: Any, src: str) -> Tuple[TrackTsr, ...]:
     for i, t in enumerate(raw):
         path = f"tsrs[{i}]"
         m = _map(t, path, src, ("track", "start_m", "end_m", "limit_kmh", "from_h", "to_h"))
-        track, a, b, lim = _zone(m, path, src)
+        track, a, b = _zone(m, path, src)
+        lim = _limit(m, path, src)
         f = _num(m.get("from_h", 0.0), f"{path}.from_h", src, 0.0, 30.0) * 3600.0
         e = math.inf if m.get("to_h") is None else \
             _num(m["to_h"], f"{path}.to_h", src, 0.0, 30.0) * 3600.0

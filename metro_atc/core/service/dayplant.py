@@ -1189,7 +1189,8 @@ def day_layout(scn: Scenario, plan: Any, stable_after_s: float = STABLE_AFTER_S,
         raise ValueError(f"day {plan.name}: termini {[t.station for t in plan.termini]} are "
                          f"not the ends of scenario {scn.name}")
     loop = build_loop(scn, (plan.termini[0].layout, plan.termini[1].layout),
-                      tsrs=plan.tsrs, track_limits=plan.track_limits)
+                      tsrs=plan.tsrs, track_limits=plan.track_limits,
+                      track_curves=plan.track_curves)
     lscn = with_periods(scn, loop, [(p.start_s, p.headway_s, p.flow_up, p.flow_down, p.name)
                                     for p in plan.periods])
     end = plan.periods[-1].end_s + 7200.0

@@ -147,7 +147,8 @@ def _spans(lay: Layout, start_m: float) -> Tuple[Dict[str, RouteSpan], List[floa
 
 
 def build_loop(scn: Scenario, layouts: Tuple[Layout, Layout], name: str = "",
-               tsrs: Sequence[Any] = (), track_limits: Sequence[Any] = ()) -> LoopLine:
+               tsrs: Sequence[Any] = (), track_limits: Sequence[Any] = (),
+               track_curves: Sequence[Any] = ()) -> LoopLine:
     """The loop of ``scn``'s line with ``layouts`` (terminus A = first station, B = last).
 
     ``tsrs``: temporary speed restrictions per running track (objects with ``track`` up /
@@ -158,6 +159,9 @@ def build_loop(scn: Scenario, layouts: Tuple[Layout, Layout], name: str = "",
     and incidents are not carried over (they have no track).  ``track_limits``: permanent
     limits of one track lower than the line's there (``track``, ``start_m``, ``end_m``,
     ``limit_kmh``: :class:`metro_atc.core.service.day.TrackLimit`), placed the same way.
+    ``track_curves``: the curves of a track (``track``, ``start_m``, ``end_m``,
+    ``radius_m``: :class:`metro_atc.core.service.day.TrackCurve`); a track with any
+    replaces the line's curves on that track (the other keeps the line's).
 
     The loop scenario keeps the rolling stock, signalling, passengers' rates, disturbances
     and sensors of ``scn`` and has one train (the day's plant runs a loop per train);
@@ -214,7 +218,10 @@ def build_loop(scn: Scenario, layouts: Tuple[Layout, Layout], name: str = "",
     loop_scn = _scenario(scn, stops, c0, cn, d0, length, term, name or f"{scn.name}_loop",
                          [loop_tsr(z, c0, cn, d0) for z in tsrs],
                          [track_interval(z, c0, cn, d0) + (float(z.limit_kmh),)
-                          for z in track_limits])
+                          for z in track_limits],
+                         {tr: [track_interval(z, c0, cn, d0) + (float(z.radius_m),)
+                               for z in track_curves if z.track == tr]
+                          for tr in ("up", "down") if any(z.track == tr for z in track_curves)})
     return LoopLine(loop_scn, tuple(stops), period, term, tuple(up_stop), tuple(down_stop))
 
 
@@ -354,11 +361,16 @@ def loop_tsr(z: Any, c0: float, cn: float, d0: float) -> TsrSpec:
 def _scenario(scn: Scenario, stops: List[LoopStop], c0: float, cn: float, d0: float,
               length: float, term: Tuple[TerminusPath, TerminusPath], name: str,
               tsrs: Sequence[TsrSpec] = (),
-              track_caps: Sequence[Tuple[float, float, float]] = ()) -> Scenario:
+              track_caps: Sequence[Tuple[float, float, float]] = (),
+              track_curves: Optional[Dict[str, List[Tuple[float, float, float]]]] = None
+              ) -> Scenario:
     """The one-way scenario of the loop (see :func:`build_loop`).
 
-    ``track_caps``: (start, end [m on the loop], limit [km/h]) lowering the line's limits.
+    ``track_caps``: (start, end [m on the loop], limit [km/h]) lowering the line's limits;
+    ``track_curves[track]``: (start, end [m on the loop], radius [m]) replacing the line's
+    curves on that track.
     """
+    own = track_curves or {}
     ln = scn.line
     line_kmh = ln.line_speed_kmh
     lim_up = [(x.start_m, x.limit_kmh) for x in ln.speed_limits] or [(c0, line_kmh)]
@@ -398,9 +410,13 @@ def _scenario(scn: Scenario, stops: List[LoopStop], c0: float, cn: float, d0: fl
     for cv in ln.curves:
         a, b = max(cv.start_m, c0), min(cv.end_m, cn)
         if b > a:
-            curves.append(CurveSpec(start_m=a - c0, end_m=b - c0, radius_m=cv.radius_m))
-            curves.append(CurveSpec(start_m=d0 + cn - b, end_m=d0 + cn - a,
-                                    radius_m=cv.radius_m))
+            if "up" not in own:
+                curves.append(CurveSpec(start_m=a - c0, end_m=b - c0, radius_m=cv.radius_m))
+            if "down" not in own:
+                curves.append(CurveSpec(start_m=d0 + cn - b, end_m=d0 + cn - a,
+                                        radius_m=cv.radius_m))
+    for zones in own.values():
+        curves += [CurveSpec(start_m=a, end_m=b, radius_m=r) for a, b, r in zones]
     curves.sort(key=lambda x: x.start_m)
     stations = [StationSpec(name=x.name, position_m=x.s_m, code=_code(scn, x))
                 for x in stops]
