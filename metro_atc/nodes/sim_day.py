@@ -25,7 +25,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from metro_atc.core.service.dayrun import DayRun, day_plant, describe, load_day_run
+from metro_atc.core.service.dayrun import (DayRun, day_plant, day_table, describe,
+                                           load_day_run)
 
 if TYPE_CHECKING:  # the day plant (its regulators: scipy) is imported when a day is built
     from metro_atc.core.service.dayplant import DayPlant
@@ -38,7 +39,6 @@ NOT_IN_GRAPH = ("departure decisions: the day plant's ATS (regulator and turnbac
 
 def day_run_for(scenario: str, trip_times: str = "plant") -> DayRun | None:
     """The day a run's ``scenario`` parameter names, or None (a one-way scenario)."""
-    from metro_atc.core.service.dayrun import day_table
     if day_table(scenario) is None:
         return None
     return load_day_run(scenario, trip_times)

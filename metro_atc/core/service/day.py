@@ -30,7 +30,7 @@ import math
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any, Dict, List, Sequence, Tuple
+from typing import Any, Dict, Iterator, List, Sequence, Tuple
 
 import numpy as np
 
@@ -465,16 +465,27 @@ def parse_day(raw: Any, src: str, line: LineData | None = None) -> DayPlan:
                    _track_curves(top.get("track_curves", []), src))
 
 
-def _zone(m: Dict[str, Any], path: str, src: str) -> Tuple[str, float, float]:
-    """(track, start_m, end_m) of a per-track entry, validated."""
-    if m["track"] not in ("up", "down"):
-        raise DayError(one_line(f"day {src}: {path}.track: expected up or down, got "
-                                f"{short_repr(m['track'])}"))
-    a = _num(m["start_m"], f"{path}.start_m", src, -1e7, 1e7)
-    b = _num(m["end_m"], f"{path}.end_m", src, -1e7, 1e7)
-    if not a < b:
-        raise DayError(one_line(f"day {src}: {path}: needs start_m < end_m"))
-    return str(m["track"]), a, b
+def _track_entries(raw: Any, name: str, src: str, keys: Sequence[str]
+                   ) -> Iterator[Tuple[str, Dict[str, Any], Tuple[str, float, float]]]:
+    """The entries of a per-track list ``name`` of a period table, their zones validated.
+
+    Yields (path, the entry's mapping, (track, start_m, end_m)); DayError (one line) for a
+    list that is not one, an unknown or missing key, a track neither up nor down, or a
+    zone with start_m >= end_m.
+    """
+    if not isinstance(raw, list):
+        raise DayError(one_line(f"day {src}: {name}: expected a list, got {short_repr(raw)}"))
+    for i, t in enumerate(raw):
+        path = f"{name}[{i}]"
+        m = _map(t, path, src, keys)
+        if m["track"] not in ("up", "down"):
+            raise DayError(one_line(f"day {src}: {path}.track: expected up or down, got "
+                                    f"{short_repr(m['track'])}"))
+        a = _num(m["start_m"], f"{path}.start_m", src, -1e7, 1e7)
+        b = _num(m["end_m"], f"{path}.end_m", src, -1e7, 1e7)
+        if not a < b:
+            raise DayError(one_line(f"day {src}: {path}: needs start_m < end_m"))
+        yield path, m, (str(m["track"]), a, b)
 
 
 def _limit(m: Dict[str, Any], path: str, src: str) -> float:
@@ -484,48 +495,29 @@ def _limit(m: Dict[str, Any], path: str, src: str) -> float:
 
 def _track_curves(raw: Any, src: str) -> Tuple[TrackCurve, ...]:
     """The ``track_curves`` list of a period table (:class:`TrackCurve`)."""
-    if not isinstance(raw, list):
-        raise DayError(one_line(f"day {src}: track_curves: expected a list, got "
-                                f"{short_repr(raw)}"))
-    out = []
-    for i, t in enumerate(raw):
-        path = f"track_curves[{i}]"
-        m = _map(t, path, src, ("track", "start_m", "end_m", "radius_m"))
-        track, a, b = _zone(m, path, src)
-        out.append(TrackCurve(track, a, b, _num(m["radius_m"], f"{path}.radius_m", src,
-                                                100.0, 1e5)))
-    return tuple(out)
+    return tuple(TrackCurve(*zone, _num(m["radius_m"], f"{path}.radius_m", src, 100.0, 1e5))
+                 for path, m, zone in _track_entries(
+                     raw, "track_curves", src, ("track", "start_m", "end_m", "radius_m")))
 
 
 def _track_limits(raw: Any, src: str) -> Tuple[TrackLimit, ...]:
     """The ``track_limits`` list of a period table (:class:`TrackLimit`)."""
-    if not isinstance(raw, list):
-        raise DayError(one_line(f"day {src}: track_limits: expected a list, got "
-                                f"{short_repr(raw)}"))
-    out = []
-    for i, t in enumerate(raw):
-        path = f"track_limits[{i}]"
-        m = _map(t, path, src, ("track", "start_m", "end_m", "limit_kmh"))
-        out.append(TrackLimit(*_zone(m, path, src), _limit(m, path, src)))
-    return tuple(out)
+    return tuple(TrackLimit(*zone, _limit(m, path, src))
+                 for path, m, zone in _track_entries(
+                     raw, "track_limits", src, ("track", "start_m", "end_m", "limit_kmh")))
 
 
 def _tsrs(raw: Any, src: str) -> Tuple[TrackTsr, ...]:
     """The ``tsrs`` list of a period table (:class:`TrackTsr`; hours for the times)."""
-    if not isinstance(raw, list):
-        raise DayError(one_line(f"day {src}: tsrs: expected a list, got {short_repr(raw)}"))
     out = []
-    for i, t in enumerate(raw):
-        path = f"tsrs[{i}]"
-        m = _map(t, path, src, ("track", "start_m", "end_m", "limit_kmh", "from_h", "to_h"))
-        track, a, b = _zone(m, path, src)
-        lim = _limit(m, path, src)
+    keys = ("track", "start_m", "end_m", "limit_kmh", "from_h", "to_h")
+    for path, m, zone in _track_entries(raw, "tsrs", src, keys):
         f = _num(m.get("from_h", 0.0), f"{path}.from_h", src, 0.0, 30.0) * 3600.0
         e = math.inf if m.get("to_h") is None else \
             _num(m["to_h"], f"{path}.to_h", src, 0.0, 30.0) * 3600.0
         if not f < e:
             raise DayError(one_line(f"day {src}: {path}: needs from_h < to_h"))
-        out.append(TrackTsr(track, a, b, lim, f, e))
+        out.append(TrackTsr(*zone, _limit(m, path, src), f, e))
     return tuple(out)
 
 

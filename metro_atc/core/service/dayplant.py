@@ -89,8 +89,6 @@ platform, two sidings, departure platform): at the 105-120 s peak headways a tra
 longer than ~5 headways (e.g. the surplus of the morning fleet circulating in the evening
 peak, 840 s layovers) fills it and the trains behind queue on the line.
 """
-HOLD_S = HELD_S
-"""Departure command of a train held at a berth until its next route is set [s]."""
 _slot = operator.attrgetter("train_idx")
 
 
@@ -235,7 +233,6 @@ class _Train:
     withdraw_at: float = math.inf
     energy0_j: float = 0.0
     """Substation energy of the train when its current trip departed [J]."""
-    entered_now: bool = False
 
 
 class DayPlant:
@@ -568,8 +565,6 @@ class DayPlant:
         if sensors:
             self._read_samples(res)
         c1 = clock()
-        for tr in self.trains:
-            tr.entered_now = False
         # a train's events in the order the plant gave them, the trains in slot order
         for ev in sorted(res.events, key=_slot):
             self._event(self.trains[ev.train_idx], ev)
@@ -650,13 +645,12 @@ class DayPlant:
         tr.zone = T
         tr.itin = {T: [arr_route, dep_route]}
         tr.route = {}
-        tr.entered_now = True
         tr.last_arr = None
         sim = self.sim
         if not sim.sensors.any_sensed:  # no samples were due while no train ran
             sim.sensors.next_sample_t = t
         sim.enter(tr.i, tp.departure_stop)
-        sim.set_departure(tr.i, tp.departure_stop, HOLD_S)
+        sim.set_departure(tr.i, tp.departure_stop, HELD_S)  # until its route is set
         dep, run = self._first_departure(tr, trip, trip.departure_s)
         tr.req = _Req(T, dep_route, dep - REQUEST_LEAD_S, tp.departure_stop, dep, run)
         self.depot.append(DepotRecord(tr.name, "pull_out", trip.origin, t, sched))
@@ -801,8 +795,6 @@ class DayPlant:
         j = int(ev.station_idx)
         t = float(ev.t_s)
         if ev.kind == "arrival":
-            if tr.entered_now:
-                return  # placed at its departure berth by a pull-out
             err = float(ev.stop_error_m)
             if math.isfinite(err):
                 forced = bool(self.sim.fleet.broken[tr.i] or self.sim.atp.eb[tr.i])
@@ -837,7 +829,7 @@ class DayPlant:
         route = tr.route.pop(T, None)
         if route is not None:
             self.il[T].arrived(route)
-        sim.set_departure(tr.i, j, HOLD_S)
+        sim.set_departure(tr.i, j, HELD_S)
         if j == tp.arrival_stop and tr.trip is not None and \
                 self._term_of(tr.trip.destination) == T:
             self.ats.on_arrival(tr.trip.trip_id, self._direction(tr.trip),
@@ -1412,7 +1404,7 @@ if __name__ == "__main__":
     raise SystemExit(main())
 
 
-__all__ = ["Breakdown", "DayPlant", "DayResult", "DayTerminus", "HOLD_S", "PULL_OUT_LEAD_S",
+__all__ = ["Breakdown", "DayPlant", "DayResult", "DayTerminus", "PULL_OUT_LEAD_S",
            "REQUEST_LEAD_S", "STABLE_AFTER_S", "clear_of_stop", "day_layout", "day_trips",
            "fleet_scenario", "main",
            "peak_rss_mb", "plant_timed", "rss_mb", "service_day"]

@@ -11,6 +11,7 @@ a slot and a train id per train of the circulation).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -39,8 +40,9 @@ def _data_dir() -> Path:
     return Path(str(resources.files("metro_atc").joinpath("data")))
 
 
+@functools.lru_cache(maxsize=1)
 def day_names() -> Tuple[str, ...]:
-    """Names of the shipped days (``metro_atc/data/*_periods.yaml``)."""
+    """Names of the shipped days (``metro_atc/data/*_periods.yaml``; read once)."""
     d = _data_dir()
     return tuple(sorted(p.stem[:-len(SUFFIX)] for p in d.glob(f"*{SUFFIX}.yaml")))
 
